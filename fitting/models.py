@@ -1,0 +1,228 @@
+"""Thrust-map models: Th(%) = f(T [N], B [V]), all linear in their coefficients.
+
+Polynomial surfaces (the seed paper's forms) are stored in the raw monomial basis the paper
+writes them in, but fitted in a centred and scaled basis (T/Ts, (B-Bc)/Bs) and expanded back
+exactly, so the narrow voltage range does not make the solve ill-conditioned.
+
+``motor`` is physics-informed. A BLDC motor at duty d on a battery at B volts spins at
+ω = Kv·(d·B − R·I) with current I = I0 + Q/Kt and propeller torque Q = kq·ω², and the propeller
+pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·√T + k2·T, so
+
+    Th = c + (k0 + k1·√T + k2·T) / B,   with k1, k2 ≥ 0
+
+(c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
+with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from thrustmap.fitting.solve import Loss, solve
+
+from thrustmap.errors import ConfigError, FitError
+
+FloatArray = npt.NDArray[np.float64]
+Features = Callable[[FloatArray, FloatArray], FloatArray]
+
+
+@dataclass(frozen=True)
+class Model:
+    """A model linear in its coefficients: Th% = design(T, B) @ coefficients."""
+
+    name: str
+    formula: str
+    description: str
+    term_names: tuple[str, ...]
+    uses_voltage: bool
+    lower_bounds: tuple[float, ...] = field(default=())
+
+    @property
+    def n_coefficients(self) -> int:
+        return len(self.term_names)
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def evaluate(
+        self, coefficients: Sequence[float], thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike
+    ) -> FloatArray:
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        flat = self.design(t.ravel(), b.ravel()) @ np.asarray(coefficients, float)
+        return np.asarray(flat.reshape(t.shape), dtype=float)
+
+    def fit(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> FloatArray:
+        lower = np.array(self.lower_bounds, float) if self.lower_bounds else None
+        return solve(self.design(thrust_n, voltage_v), throttle_pct, loss=loss, lower=lower)
+
+    def fit_design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        """The design matrix the solver sees (for conditioning checks)."""
+        return self.design(thrust_n, voltage_v)
+
+
+def _term_name(i: int, j: int) -> str:
+    parts = []
+    if i:
+        parts.append("T" if i == 1 else f"T^{i}")
+    if j:
+        parts.append("B" if j == 1 else f"B^{j}")
+    return "*".join(parts) or "1"
+
+
+_LETTERS = "abcdefghijklmnopqrstuvwxyz"
+
+
+@dataclass(frozen=True)
+class PolyModel(Model):
+    """A polynomial surface in T and B given by its monomials T^i·B^j."""
+
+    powers: tuple[tuple[int, int], ...] = ()
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        return np.stack([thrust_n**i * voltage_v**j for i, j in self.powers], axis=1)
+
+    def _scaling(self, t: FloatArray, b: FloatArray) -> tuple[float, float, float]:
+        ts = float(np.max(np.abs(t))) or 1.0
+        bc = float(np.mean(b)) if self.uses_voltage else 0.0
+        bs = float(np.std(b)) if self.uses_voltage else 1.0
+        return ts, bc, bs or 1.0
+
+    def fit_design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        ts, bc, bs = self._scaling(thrust_n, voltage_v)
+        return self.design(thrust_n / ts, (voltage_v - bc) / bs)
+
+    def fit(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> FloatArray:
+        ts, bc, bs = self._scaling(thrust_n, voltage_v)
+        scaled = solve(self.fit_design(thrust_n, voltage_v), throttle_pct, loss=loss)
+        return self._unscale(scaled, ts, bc, bs)
+
+    def _unscale(self, c: FloatArray, ts: float, bc: float, bs: float) -> FloatArray:
+        """Expand Σ c_ij (T/ts)^i ((B-bc)/bs)^j into the raw monomials T^i B^k."""
+        index = {p: n for n, p in enumerate(self.powers)}
+        raw = np.zeros(len(self.powers))
+        for (i, j), cij in zip(self.powers, c, strict=True):
+            for k in range(j + 1):
+                weight = math.comb(j, k) * (-bc) ** (j - k) / (ts**i * bs**j)
+                raw[index[(i, k)]] += cij * weight
+        return raw
+
+
+@dataclass(frozen=True)
+class FeatureModel(Model):
+    """A model given by explicit feature functions (physics-informed forms)."""
+
+    features: Features | None = None
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        assert self.features is not None
+        return self.features(thrust_n, voltage_v)
+
+
+@dataclass(frozen=True)
+class LinearTmaxModel(Model):
+    """The seed paper's LA: Th = 100 % · T / Tmax, Tmax from a full-throttle point."""
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        return np.asarray(thrust_n, float)[:, None]
+
+    def fit(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> FloatArray:
+        full = throttle_pct >= 99.0
+        if full.any():
+            tmax = float(np.mean(thrust_n[full]))
+        else:
+            # No full-throttle plateau recorded: extrapolate the physics model to 100 %.
+            coef = MODELS["motor"].fit(thrust_n, voltage_v, throttle_pct, loss)
+            tmax = float(motor_forward(coef, np.array([100.0]), np.array([np.mean(voltage_v)]))[0])
+        if not tmax > 0:
+            raise FitError("linear Th = T/Tmax needs a positive full-throttle thrust")
+        return np.array([100.0 / tmax])
+
+
+def _poly_powers(degree: int) -> tuple[tuple[int, int], ...]:
+    return tuple((i, d - i) for d in range(degree + 1) for i in range(d, -1, -1))
+
+
+def _poly(name: str, powers: Sequence[tuple[int, int]], description: str) -> PolyModel:
+    names = tuple(_term_name(i, j) for i, j in powers)
+    formula = "Th = " + " + ".join(
+        _LETTERS[n] + ("" if t == "1" else "*" + t) for n, t in enumerate(names)
+    )
+    return PolyModel(
+        name=name,
+        formula=formula,
+        description=description,
+        term_names=names,
+        uses_voltage=any(j for _, j in powers),
+        powers=tuple(powers),
+    )
+
+
+def _motor_features(t: FloatArray, b: FloatArray) -> FloatArray:
+    tt = np.clip(t, 0.0, None)
+    return np.stack([np.ones_like(t), 1.0 / b, np.sqrt(tt) / b, tt / b], axis=1)
+
+
+def motor_forward(
+    coefficients: npt.ArrayLike, throttle_pct: FloatArray, voltage_v: FloatArray
+) -> FloatArray:
+    """Closed-form inverse of ``motor``: thrust from throttle (solve the quadratic in √T)."""
+    c, k0, k1, k2 = (float(x) for x in np.asarray(coefficients, float))
+    rhs = (np.asarray(throttle_pct, float) - c) * np.asarray(voltage_v, float) - k0
+    if k2 > 0:
+        s = (-k1 + np.sqrt(np.clip(k1 * k1 + 4 * k2 * rhs, 0.0, None))) / (2 * k2)
+    else:
+        s = rhs / k1 if k1 > 0 else np.zeros_like(rhs)
+    return np.asarray(np.clip(s, 0.0, None) ** 2, dtype=float)
+
+
+_PAPER_TRUNC2 = ((0, 0), (1, 0), (0, 1), (2, 0))
+_PAPER_TRUNC3 = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (0, 3))
+
+MODELS: dict[str, Model] = {
+    m.name: m
+    for m in (
+        LinearTmaxModel(
+            name="la",
+            formula="Th = 100 * T / Tmax",
+            description="seed paper LA: linear through zero, Tmax from a full-throttle point",
+            term_names=("T",),
+            uses_voltage=False,
+        ),
+        _poly("linear", ((0, 0), (1, 0)), "linear in thrust, no voltage (seed paper eq. 5)"),
+        _poly("poly1", _poly_powers(1), "full bivariate polynomial, degree 1"),
+        _poly("poly2", _poly_powers(2), "full bivariate polynomial, degree 2 (seed paper eq. 12)"),
+        _poly("poly3", _poly_powers(3), "full bivariate polynomial, degree 3"),
+        _poly("poly4", _poly_powers(4), "full bivariate polynomial, degree 4"),
+        _poly("poly2-trunc", _PAPER_TRUNC2, "seed paper's 2nd-degree truncated form"),
+        _poly("poly3-trunc", _PAPER_TRUNC3, "seed paper's 3rd-degree truncated form"),
+        FeatureModel(
+            name="motor",
+            formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k1, k2 >= 0",
+            description="physics-informed: duty x voltage drives rotor speed, thrust ~ speed^2; "
+            "monotone in T, scales as 1/B",
+            term_names=("1", "1/B", "sqrt(T)/B", "T/B"),
+            uses_voltage=True,
+            lower_bounds=(-np.inf, -np.inf, 0.0, 0.0),
+            features=_motor_features,
+        ),
+    )
+}
+
+DEFAULT_MODEL = "motor"
+
+
+def get_model(name: str) -> Model:
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ConfigError(f"unknown model '{name}'; expected one of: {', '.join(MODELS)}") from None

@@ -1,0 +1,42 @@
+"""Process-level safety: make SIGTERM unwind the stack like Ctrl-C so every ``finally`` and
+context-manager exit (which stops the motors) runs."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+log = logging.getLogger(__name__)
+
+
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread when SIGTERM arrives (a KeyboardInterrupt, so nothing that
+    catches ``Exception`` swallows it)."""
+
+
+@contextmanager
+def terminate_as_exception() -> Iterator[None]:
+    """Within this block SIGTERM (and SIGHUP where it exists) raises ``Terminated``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        log.warning("signal %d received: stopping motors", signum)
+        raise Terminated(f"signal {signum}")
+
+    names = ["SIGTERM", "SIGHUP"]
+    previous: dict[int, object] = {}
+    for name in names:
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            previous[sig] = signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)  # type: ignore[arg-type]

@@ -1,0 +1,3 @@
+from thrustmap.cli import main
+
+main()
