@@ -1,0 +1,27 @@
+"""Shared test fixtures.
+
+``shared_data``: the real recordings in ../shared/data (beside the project). Tests that need
+them skip with a clear reason when the folder is absent (a fresh clone elsewhere).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+FIXTURES = PROJECT_ROOT / "fixtures"
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"reference data not found at {SHARED_DATA} (../shared is absent)")
+    return SHARED_DATA
+
+
+@pytest.fixture
+def fixtures_dir() -> Path:
+    return FIXTURES
