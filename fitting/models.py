@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-from thrustmap.fitting.solve import Loss, solve
 
 from thrustmap.errors import ConfigError, FitError
+from thrustmap.fitting.solve import Loss, solve
 
 FloatArray = npt.NDArray[np.float64]
 Features = Callable[[FloatArray, FloatArray], FloatArray]
