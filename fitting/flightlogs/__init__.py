@@ -1,0 +1,1 @@
+"""Flight-log readers (one module per format) returning a common ``FlightLog``."""
