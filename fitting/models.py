@@ -49,7 +49,7 @@ class Model:
         raise NotImplementedError
 
     def evaluate(
-        self, coefficients: Sequence[float], thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike
+        self, coefficients: npt.ArrayLike, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike
     ) -> FloatArray:
         t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
         flat = self.design(t.ravel(), b.ravel()) @ np.asarray(coefficients, float)

@@ -1,0 +1,203 @@
+"""Which samples a fit sees: range filters and steady-state extraction.
+
+Range filters use the seed paper's strict inequalities, in the data's native units.
+
+Steady state (default): a step sweep holds each throttle level for seconds, but the rotor
+needs time to spin up and the stand averages over its own window, so the first samples of each
+plateau are transients. For every plateau (consecutive samples at one throttle) we estimate the
+thrust noise from the second half of the plateau, drop the leading samples until thrust has
+settled inside that noise band, and average the rest into one (T, B, Th) point. On ramps,
+samples are kept only where the throttle slews slowly enough that rotor lag costs less than
+``lag_budget_pct`` of throttle (quasi-static). ``all_samples`` reproduces the paper (no
+extraction).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap.errors import FitError
+from thrustmap.fitting.dataset import Dataset, FloatArray
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Selection:
+    throttle_range: tuple[float, float] | None = None  # native units, exclusive
+    voltage_range: tuple[float, float] | None = None  # V, exclusive
+    thrust_range: tuple[float, float] | None = None  # N (after sign normalisation), exclusive
+    all_samples: bool = False
+    plateau_tolerance_pct: float = 0.2  # throttle change still counted as the same level
+    min_plateau_samples: int = 4
+    settle_sigmas: float = 3.0
+    ramp_lag_s: float = 0.1  # assumed rotor + stand lag for the quasi-static test
+    lag_budget_pct: float = 0.25  # lag error allowed on ramps, % throttle
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "throttle_range": self.throttle_range,
+            "voltage_range": self.voltage_range,
+            "thrust_range": self.thrust_range,
+            "all_samples": self.all_samples,
+            "plateau_tolerance_pct": self.plateau_tolerance_pct,
+            "settle_sigmas": self.settle_sigmas,
+            "lag_budget_pct": self.lag_budget_pct,
+        }
+
+
+@dataclass(frozen=True)
+class Points:
+    """Fit points from one file: plateau means, quasi-static ramp samples, or raw samples."""
+
+    source: str
+    thrust_n: FloatArray
+    voltage_v: FloatArray
+    throttle_pct: FloatArray
+    kind: tuple[str, ...]  # "plateau", "ramp" or "sample" per point
+    report: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.thrust_n)
+
+
+def _in_range(x: FloatArray, rng: tuple[float, float] | None) -> npt.NDArray[np.bool_]:
+    if rng is None:
+        return np.ones(len(x), dtype=bool)
+    return np.asarray((x > rng[0]) & (x < rng[1]), dtype=bool)
+
+
+def select(ds: Dataset, sel: Selection) -> Points:
+    """Apply steady-state extraction (unless ``all_samples``) and the range filters."""
+    report: dict[str, Any] = {"file": ds.name, "samples": len(ds)}
+    if sel.all_samples:
+        t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
+        kind = np.array(["sample"] * len(ds))
+    else:
+        t, b, th, kind, info = _steady_state(ds, sel)
+        report.update(info)
+    keep = (
+        _in_range(th, sel.throttle_range)
+        & _in_range(b, sel.voltage_range)
+        & _in_range(t, sel.thrust_range)
+    )
+    report["kept_points"] = int(keep.sum())
+    report["dropped_by_range"] = int((~keep).sum())
+    return Points(
+        source=ds.name,
+        thrust_n=t[keep],
+        voltage_v=b[keep],
+        throttle_pct=ds.throttle_scale.to_pct(th[keep]),
+        kind=tuple(str(k) for k in kind[keep]),
+        report=report,
+    )
+
+
+def plateaus(throttle: FloatArray, tolerance: float) -> list[tuple[int, int]]:
+    """Runs [start, end) of consecutive samples within ``tolerance`` of the run's first value."""
+    runs: list[tuple[int, int]] = []
+    n = len(throttle)
+    if n == 0:
+        return runs
+    # Vectorised: a new run starts where the change from the previous sample exceeds the
+    # tolerance; then split runs that drift by more than the tolerance overall (slow ramps).
+    starts = np.flatnonzero(np.abs(np.diff(throttle)) > tolerance) + 1
+    bounds = np.concatenate([[0], starts, [n]])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        seg = throttle[a:b]
+        if np.ptp(seg) <= tolerance:
+            runs.append((int(a), int(b)))
+            continue
+        s = int(a)
+        for i in range(int(a) + 1, int(b)):
+            if abs(throttle[i] - throttle[s]) > tolerance:
+                runs.append((s, i))
+                s = i
+        runs.append((s, int(b)))
+    return runs
+
+
+def _settle_index(thrust: FloatArray, sigmas: float) -> int:
+    """First index from which the thrust stays within the plateau's noise band."""
+    n = len(thrust)
+    tail = thrust[n // 2 :]
+    centre = float(np.median(tail))
+    # Noise from successive differences of the tail (robust to a slow drift): MAD / 0.6745 / √2.
+    d = np.diff(tail)
+    noise = (
+        float(np.median(np.abs(d - np.median(d)))) / 0.6745 / np.sqrt(2.0) if len(d) >= 2 else 0.0
+    )
+    band = sigmas * max(noise, 1e-3 * max(abs(centre), 1e-3), 1e-4)
+    outside = np.abs(thrust - centre) > band
+    if not outside.any():
+        return 0
+    last_out = (
+        int(np.flatnonzero(outside[: n // 2 + 1]).max()) if outside[: n // 2 + 1].any() else -1
+    )
+    return last_out + 1
+
+
+def _steady_state(
+    ds: Dataset, sel: Selection
+) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray[Any, Any], dict[str, Any]]:
+    th = ds.throttle_native
+    tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
+    t_out: list[float] = []
+    b_out: list[float] = []
+    th_out: list[float] = []
+    kinds: list[str] = []
+    n_plateau_samples = n_settle_dropped = n_ramp_kept = 0
+    in_plateau = np.zeros(len(ds), dtype=bool)
+    for a, b in plateaus(th, tol):
+        if b - a < sel.min_plateau_samples:
+            continue
+        in_plateau[a:b] = True
+        k = _settle_index(ds.thrust_n[a:b], sel.settle_sigmas)
+        if b - a - k < 2:
+            continue
+        n_plateau_samples += b - a
+        n_settle_dropped += k
+        t_out.append(float(np.mean(ds.thrust_n[a + k : b])))
+        b_out.append(float(np.mean(ds.voltage_v[a + k : b])))
+        th_out.append(float(np.mean(th[a + k : b])))
+        kinds.append("plateau")
+    # Ramps: keep samples whose slew makes lag cheaper than the budget (quasi-static).
+    if ds.time_s is not None and len(ds) > 2:
+        dt = np.gradient(ds.time_s)
+        ok_dt = dt > 0
+        slew_pct_s = np.full(len(ds), np.inf)
+        slew_pct_s[ok_dt] = np.abs(np.gradient(ds.throttle_pct)[ok_dt] / dt[ok_dt])
+        quasi = (
+            (~in_plateau) & (slew_pct_s * sel.ramp_lag_s <= sel.lag_budget_pct) & (slew_pct_s > 0)
+        )
+        idx = np.flatnonzero(quasi)
+        n_ramp_kept = len(idx)
+        t_out.extend(ds.thrust_n[idx].tolist())
+        b_out.extend(ds.voltage_v[idx].tolist())
+        th_out.extend(th[idx].tolist())
+        kinds.extend(["ramp"] * len(idx))
+    if not t_out:
+        raise FitError(
+            "no steady-state points found (no throttle plateau of "
+            f"{sel.min_plateau_samples}+ samples, no slow ramp); use --all-samples to fit raw samples",
+            file=ds.path,
+        )
+    info = {
+        "plateaus": kinds.count("plateau"),
+        "plateau_samples": n_plateau_samples,
+        "settling_samples_dropped": n_settle_dropped,
+        "ramp_samples_kept": n_ramp_kept,
+        "transient_samples_dropped": len(ds) - n_plateau_samples - n_ramp_kept,
+    }
+    return (
+        np.asarray(t_out),
+        np.asarray(b_out),
+        np.asarray(th_out),
+        np.asarray(kinds),
+        info,
+    )

@@ -1,0 +1,335 @@
+"""CLI: models, fit, compare, evaluate, predict, inspect (thin over thrustmap.fitting)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import click
+import numpy as np
+
+from thrustmap.errors import ConfigError
+from thrustmap.fitting.fit import VALIDATIONS, Row, compare, evaluate, fit_map
+from thrustmap.fitting.loaders import ColumnMap, load_datasets
+from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.models import DEFAULT_MODEL, MODELS
+from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.solve import LOSSES
+from thrustmap.units import SCALES, parse_range, scale
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def selection_options(f: F) -> F:
+    """Options shared by fit, compare and evaluate."""
+    opts = [
+        click.option(
+            "--throttle-range",
+            metavar="LO:HI",
+            help="Keep LO < throttle < HI (native units, e.g. µs).",
+        ),
+        click.option("--voltage-range", metavar="LO:HI", help="Keep LO < voltage < HI (V)."),
+        click.option(
+            "--thrust-range", metavar="LO:HI", help="Keep LO < thrust < HI (N, pulling positive)."
+        ),
+        click.option(
+            "--all-samples",
+            is_flag=True,
+            help="Fit every sample (the paper's method) instead of steady-state points.",
+        ),
+        click.option(
+            "--col-throttle",
+            metavar="NAME",
+            help="Column map: throttle column (for CSVs no format matches).",
+        ),
+        click.option("--col-thrust", metavar="NAME", help="Column map: thrust column."),
+        click.option("--col-voltage", metavar="NAME", help="Column map: voltage column."),
+        click.option("--col-time", metavar="NAME", help="Column map: time column (s), optional."),
+        click.option(
+            "--thrust-unit",
+            default="N",
+            show_default=True,
+            help="Column map: unit of the thrust column (N, kgf, gf, lbf).",
+        ),
+        click.option(
+            "--throttle-scale",
+            default="pwm",
+            show_default=True,
+            help=f"Column map: throttle scale name ({', '.join(SCALES)}) or LO:HI.",
+        ),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
+def _selection(kw: dict[str, Any]) -> Selection:
+    def rng(key: str, what: str) -> tuple[float, float] | None:
+        v = kw.get(key)
+        return None if v is None else parse_range(v, what)
+
+    return Selection(
+        throttle_range=rng("throttle_range", "--throttle-range"),
+        voltage_range=rng("voltage_range", "--voltage-range"),
+        thrust_range=rng("thrust_range", "--thrust-range"),
+        all_samples=bool(kw.get("all_samples")),
+    )
+
+
+def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
+    cols = [kw.get("col_throttle"), kw.get("col_thrust"), kw.get("col_voltage")]
+    if not any(cols):
+        return None
+    if not all(cols):
+        raise ConfigError(
+            "a column map needs --col-throttle, --col-thrust and --col-voltage together"
+        )
+    text = kw.get("throttle_scale") or "pwm"
+    if ":" in text:
+        lo, hi = parse_range(text, "--throttle-scale")
+        tscale = SCALES["pwm"].with_range(lo, hi)
+        tscale = type(tscale)("custom", lo, hi, "native")
+    else:
+        tscale = scale(text)
+    return ColumnMap(
+        throttle=str(cols[0]),
+        thrust=str(cols[1]),
+        voltage=str(cols[2]),
+        time=kw.get("col_time"),
+        thrust_unit=kw.get("thrust_unit") or "N",
+        throttle_scale=tscale,
+    )
+
+
+def _rows_table(rows: list[Row]) -> str:
+    head = f"{'model':<12} {'validation':<22} {'n':>5} {'mean %':>8} {'std %':>7} {'p95 %':>7} {'max %':>8}  outside box"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        s, o = r.inside, r.outside
+        out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "-"
+        lines.append(
+            f"{r.model:<12} {r.validation:<22} {s.n:>5} {s.mean_pct:>8.3f} {s.std_pct:>7.3f} "
+            f"{s.p95_pct:>7.3f} {s.max_pct:>8.3f}  {out}"
+        )
+    return "\n".join(lines)
+
+
+@click.command("models")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def models_cmd(as_json: bool) -> None:
+    """List every thrust-map model with its formula."""
+    if as_json:
+        click.echo(
+            json.dumps(
+                [
+                    {
+                        "name": m.name,
+                        "formula": m.formula,
+                        "description": m.description,
+                        "uses_voltage": m.uses_voltage,
+                        "default": m.name == DEFAULT_MODEL,
+                    }
+                    for m in MODELS.values()
+                ],
+                indent=2,
+            )
+        )
+        return
+    for m in MODELS.values():
+        mark = " (default)" if m.name == DEFAULT_MODEL else ""
+        click.echo(f"{m.name}{mark}\n    {m.formula}\n    {m.description}")
+
+
+@click.command("fit")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Map file to write (JSON).",
+)
+@click.option("--model", default=DEFAULT_MODEL, show_default=True, type=click.Choice(list(MODELS)))
+@click.option(
+    "--loss",
+    default="l2",
+    show_default=True,
+    type=click.Choice(LOSSES),
+    help="l2 least squares, l1 least absolute deviations (paper eq. 8, exact LP).",
+)
+@click.option(
+    "--strategy",
+    type=click.Choice(["LA", "SR", "MR"]),
+    help="Override the strategy recorded in the map (default: from the data's rotors on the ESC).",
+)
+@selection_options
+def fit_cmd(
+    files: tuple[str, ...], output: str, model: str, loss: str, strategy: str | None, **kw: Any
+) -> None:
+    """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
+    datasets = load_datasets(files, _column_map(kw))
+    out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
+    out.map.save(output)
+    s = out.map.metrics["in_sample"]
+    v = out.map.validity
+    for p in out.pool.points:
+        r = p.report
+        click.echo(
+            f"{r['file']}: {r['samples']} samples -> {len(p)} points"
+            + (
+                f" ({r['plateaus']} plateaus, {r.get('ramp_samples_kept', 0)} quasi-static ramp samples, "
+                f"{r['settling_samples_dropped']} settling samples dropped)"
+                if "plateaus" in r
+                else ""
+            )
+        )
+    click.echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
+    click.echo(
+        f"in-sample e_Th: mean {s['mean_pct']:.3f} % ± {s['std_pct']:.3f}, p95 {s['p95_pct']:.3f} %, "
+        f"max {s['max_pct']:.3f} %, n={s['n']}"
+    )
+    click.echo(
+        f"valid for T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V"
+    )
+    for w in out.warnings:
+        click.echo(f"warning: {w}", err=True)
+    click.echo(f"wrote {output}")
+
+
+@click.command("compare")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "--models",
+    default=f"poly2,poly2-trunc,poly3,poly3-trunc,{DEFAULT_MODEL}",
+    show_default=True,
+    help="Comma-separated model names (see `thrustmap models`).",
+)
+@click.option(
+    "--validate",
+    "validation",
+    default="in-sample",
+    show_default=True,
+    type=click.Choice(VALIDATIONS),
+)
+@click.option("--folds", default=5, show_default=True, help="Folds for --validate kfold.")
+@click.option("--loss", default="l2", show_default=True, type=click.Choice(LOSSES))
+@click.option("--json", "as_json", is_flag=True, help='Print {"rows": [...]}.')
+@selection_options
+def compare_cmd(
+    files: tuple[str, ...],
+    models: str,
+    validation: str,
+    folds: int,
+    loss: str,
+    as_json: bool,
+    **kw: Any,
+) -> None:
+    """Compare models on stand logs under one validation mode."""
+    names = [m.strip() for m in models.split(",") if m.strip()]
+    datasets = load_datasets(files, _column_map(kw))
+    rows = compare(datasets, names, validation, loss=loss, selection=_selection(kw), folds=folds)  # type: ignore[arg-type]
+    if as_json:
+        click.echo(json.dumps({"rows": [r.to_dict() for r in rows]}, indent=2))
+    else:
+        click.echo(_rows_table(rows))
+
+
+@click.command("evaluate")
+@click.argument("map_file", type=click.Path(dir_okay=False))
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help='Print {"rows": [...]}.')
+@selection_options
+def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any) -> None:
+    """Score an existing map on stand logs (inside its validity box; outside reported apart)."""
+    tmap = ThrustMap.load(map_file)
+    rows = evaluate(tmap, load_datasets(files, _column_map(kw)), _selection(kw))
+    if as_json:
+        click.echo(json.dumps({"rows": [r.to_dict() for r in rows]}, indent=2))
+    else:
+        click.echo(_rows_table(rows))
+
+
+@click.command("predict")
+@click.argument("map_file", type=click.Path(dir_okay=False))
+@click.option("--thrust-n", type=float, help="Thrust per rotor, N (inverse map: gives throttle).")
+@click.option(
+    "--throttle",
+    "throttle_native",
+    type=float,
+    help="Throttle in the map's native units (forward: gives thrust).",
+)
+@click.option("--throttle-pct", type=float, help="Throttle in % (forward: gives thrust).")
+@click.option("--voltage-v", type=float, required=True, help="Battery voltage, V.")
+@click.option("--no-correction", is_flag=True, help="Ignore the map's γ(B) flight correction.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def predict_cmd(
+    map_file: str,
+    thrust_n: float | None,
+    throttle_native: float | None,
+    throttle_pct: float | None,
+    voltage_v: float,
+    no_correction: bool,
+    as_json: bool,
+) -> None:
+    """Throttle for a thrust (the map), or thrust for a throttle (forward)."""
+    tmap = ThrustMap.load(map_file)
+    given = [x is not None for x in (thrust_n, throttle_native, throttle_pct)]
+    if sum(given) != 1:
+        raise ConfigError("give exactly one of --thrust-n, --throttle, --throttle-pct")
+    sc = tmap.throttle_scale
+    corrected = not no_correction
+    if thrust_n is not None:
+        pct = float(tmap.throttle_pct(thrust_n, voltage_v, corrected=corrected))
+        t = thrust_n
+    else:
+        pct = float(throttle_pct if throttle_pct is not None else sc.to_pct(throttle_native))  # type: ignore[arg-type]
+        t = float(tmap.thrust_n(pct, voltage_v, corrected=corrected))
+    native = float(sc.from_pct(pct))
+    inside = bool(tmap.in_box(t, voltage_v))
+    result = {
+        "thrust_n": t,
+        "voltage_v": voltage_v,
+        "throttle_pct": pct,
+        "throttle_native": native,
+        "throttle_unit": sc.unit,
+        "inside_validity_box": inside,
+        "corrected": corrected and tmap.correction is not None,
+    }
+    if not inside:
+        v = tmap.validity
+        click.echo(
+            f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's validity box "
+            f"(T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V): "
+            "extrapolated",
+            err=True,
+        )
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+    else:
+        click.echo(
+            f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f} % = {native:.2f} {sc.unit}"
+        )
+
+
+@click.command("inspect")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@selection_options
+def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
+    """Show how stand logs load: format, scale, ranges, and what selection keeps."""
+    sel = _selection(kw)
+    for ds in load_datasets(files, _column_map(kw)):
+        p = select(ds, sel)
+        sc = ds.throttle_scale
+        click.echo(
+            f"{ds.path}\n  format {ds.format}, {len(ds)} samples, throttle scale {sc.name} "
+            f"{sc.lo:g}..{sc.hi:g} {sc.unit}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
+        )
+        click.echo(
+            f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g} {sc.unit}, "
+            f"thrust {np.min(ds.thrust_n):.3f}..{np.max(ds.thrust_n):.3f} N, "
+            f"voltage {np.min(ds.voltage_v):.2f}..{np.max(ds.voltage_v):.2f} V"
+        )
+        for k, v in ds.meta.items():
+            click.echo(f"  {k}: {v}")
+        click.echo(f"  selection: {p.report}")
