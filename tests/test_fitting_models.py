@@ -1,0 +1,87 @@
+"""Models and solvers: exact recovery, exact L1, monotone physics model, forward = inverse⁻¹."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
+from thrustmap.fitting.models import MODELS, PolyModel, motor_forward
+from thrustmap.fitting.solve import solve
+from thrustmap.units import SCALES
+
+
+def grid(n: int = 400, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0.2, 10.0, n), rng.uniform(20.4, 25.2, n)
+
+
+@pytest.mark.parametrize("name", [n for n, m in MODELS.items() if isinstance(m, PolyModel)])
+def test_polynomials_recover_raw_coefficients_exactly(name: str) -> None:
+    m = MODELS[name]
+    rng = np.random.default_rng(7)
+    true = rng.normal(size=m.n_coefficients) * np.array([10.0 ** -(i + j) for i, j in m.powers])  # type: ignore[attr-defined]
+    t, b = grid()
+    th = m.evaluate(true, t, b)
+    got = m.fit(t, b, th, "l2")
+    np.testing.assert_allclose(m.evaluate(got, t, b), th, atol=1e-8)
+    np.testing.assert_allclose(got, true, rtol=1e-5, atol=1e-9)
+
+
+def test_l1_is_the_exact_lad_optimum() -> None:
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 10, 60)
+    a = np.stack([np.ones_like(x), x], axis=1)
+    y = 2.0 + 0.5 * x + rng.standard_t(1.5, size=x.size)
+    c = solve(a, y, loss="l1")
+    best = np.abs(a @ c - y).sum()
+    # An L1 optimum passes through (at least) two data points: brute force over all pairs.
+    brute = min(
+        np.abs(a @ np.linalg.solve(a[[i, j]], y[[i, j]]) - y).sum()
+        for i in range(60)
+        for j in range(i + 1, 60)
+        if abs(x[i] - x[j]) > 1e-9
+    )
+    assert best == pytest.approx(brute, rel=1e-9, abs=1e-9)
+    # and it is robust: a gross outlier barely moves it while least squares follows it
+    y2 = y.copy()
+    y2[0] += 1000
+    assert np.abs(solve(a, y2, loss="l1") - c).max() < 0.05
+    assert np.abs(solve(a, y2, loss="l2") - solve(a, y, loss="l2")).max() > 1.0
+
+
+def test_motor_model_stays_monotone_even_on_noisy_data() -> None:
+    m = MODELS["motor"]
+    t, b = grid(300)
+    rng = np.random.default_rng(0)
+    th = 5 + (40 + 60 * np.sqrt(t) + 25 * t) / b + rng.normal(0, 3, t.size)
+    coef = m.fit(t, b, th, "l2")
+    assert coef[2] >= 0 and coef[3] >= 0
+    tt = np.linspace(0, 12, 500)
+    for volt in (18.0, 22.0, 26.0):  # including outside the fitted voltage range
+        assert np.all(np.diff(m.evaluate(coef, tt, np.full_like(tt, volt))) >= 0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(th=st.floats(10, 95), volt=st.floats(20, 25))
+def test_motor_forward_inverts_the_map(th: float, volt: float) -> None:
+    coef = np.array([3.0, 40.0, 150.0, 30.0])
+    t = motor_forward(coef, np.array([th]), np.array([volt]))
+    assert MODELS["motor"].evaluate(coef, t, np.array([volt]))[0] == pytest.approx(th, abs=1e-9)
+
+
+@pytest.mark.parametrize("name", ["poly2", "poly3-trunc", "linear"])
+def test_map_forward_bisection_inverts_polynomial(name: str) -> None:
+    m = MODELS[name]
+    t, b = grid()
+    th = 100 * np.sqrt(t / 12.0) * (22.0 / b) ** 0.5
+    coef = m.fit(t, b, th, "l2")
+    box = ValidityBox(Box(0.2, 10.0), Box(20.4, 25.2), Box(0, 100))
+    tmap = ThrustMap(
+        model=name, coefficients=tuple(coef), throttle_scale=SCALES["pwm"], validity=box
+    )
+    tq = np.array([1.0, 4.0, 8.0])
+    bq = np.array([21.0, 22.5, 24.0])
+    np.testing.assert_allclose(tmap.thrust_n(tmap.throttle_pct(tq, bq), bq), tq, rtol=1e-9)
