@@ -55,15 +55,27 @@ class Model:
         flat = self.design(t.ravel(), b.ravel()) @ np.asarray(coefficients, float)
         return np.asarray(flat.reshape(t.shape), dtype=float)
 
+    #: validation may reuse one conditioned design across folds (False for special fits)
+    linear_least_squares = True
+
+    def conditioned(
+        self, thrust_n: FloatArray, voltage_v: FloatArray
+    ) -> tuple[FloatArray, Callable[[FloatArray], FloatArray]]:
+        """A well-conditioned design for these points, and the map from its coefficients to
+        the raw ones. Lower bounds (0 or -inf only) hold in both bases."""
+        d = self.design(thrust_n, voltage_v)
+        norms = np.linalg.norm(d, axis=0)
+        norms[norms == 0] = 1.0
+        return d / norms, lambda c: np.asarray(c, float) / norms
+
+    def lower(self) -> FloatArray | None:
+        return np.array(self.lower_bounds, float) if self.lower_bounds else None
+
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
     ) -> FloatArray:
-        lower = np.array(self.lower_bounds, float) if self.lower_bounds else None
-        return solve(self.design(thrust_n, voltage_v), throttle_pct, loss=loss, lower=lower)
-
-    def fit_design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
-        """The design matrix the solver sees (for conditioning checks)."""
-        return self.design(thrust_n, voltage_v)
+        design, to_raw = self.conditioned(thrust_n, voltage_v)
+        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower()))
 
 
 def _term_name(i: int, j: int) -> str:
@@ -93,16 +105,12 @@ class PolyModel(Model):
         bs = float(np.std(b)) if self.uses_voltage else 1.0
         return ts, bc, bs or 1.0
 
-    def fit_design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+    def conditioned(
+        self, thrust_n: FloatArray, voltage_v: FloatArray
+    ) -> tuple[FloatArray, Callable[[FloatArray], FloatArray]]:
         ts, bc, bs = self._scaling(thrust_n, voltage_v)
-        return self.design(thrust_n / ts, (voltage_v - bc) / bs)
-
-    def fit(
-        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
-    ) -> FloatArray:
-        ts, bc, bs = self._scaling(thrust_n, voltage_v)
-        scaled = solve(self.fit_design(thrust_n, voltage_v), throttle_pct, loss=loss)
-        return self._unscale(scaled, ts, bc, bs)
+        design = self.design(thrust_n / ts, (voltage_v - bc) / bs)
+        return design, lambda c: self._unscale(np.asarray(c, float), ts, bc, bs)
 
     def _unscale(self, c: FloatArray, ts: float, bc: float, bs: float) -> FloatArray:
         """Expand Σ c_ij (T/ts)^i ((B-bc)/bs)^j into the raw monomials T^i B^k."""
@@ -129,6 +137,8 @@ class FeatureModel(Model):
 @dataclass(frozen=True)
 class LinearTmaxModel(Model):
     """The seed paper's LA: Th = 100 % · T / Tmax, Tmax from a full-throttle point."""
+
+    linear_least_squares = False
 
     def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
         return np.asarray(thrust_n, float)[:, None]

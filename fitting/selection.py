@@ -59,7 +59,7 @@ class Points:
     thrust_n: FloatArray
     voltage_v: FloatArray
     throttle_pct: FloatArray
-    kind: tuple[str, ...]  # "plateau", "ramp" or "sample" per point
+    kind: npt.NDArray[np.str_]  # "plateau", "ramp" or "sample" per point
     report: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -77,7 +77,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
     report: dict[str, Any] = {"file": ds.name, "samples": len(ds)}
     if sel.all_samples:
         t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
-        kind = np.array(["sample"] * len(ds))
+        kind = np.full(len(ds), "sample")
     else:
         t, b, th, kind, info = _steady_state(ds, sel)
         report.update(info)
@@ -93,7 +93,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
         thrust_n=t[keep],
         voltage_v=b[keep],
         throttle_pct=ds.throttle_scale.to_pct(th[keep]),
-        kind=tuple(str(k) for k in kind[keep]),
+        kind=kind[keep],
         report=report,
     )
 

@@ -45,8 +45,15 @@ def solve(
             coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
         else:
             assert lo is not None
-            res = opt.lsq_linear(scaled, target, bounds=(lo, np.full(k, np.inf)), method="bvls")
-            coef = res.x
+            coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
+            if np.any(coef < lo):
+                # Bounded least squares on the k x k triangular factor: same optimum, as
+                # ||A c - y||² = ||R c - Qᵀy||² + const, and independent of the sample count.
+                q, r = np.linalg.qr(scaled)
+                res = opt.lsq_linear(
+                    r, q.T @ target, bounds=(lo, np.full(k, np.inf)), method="bvls"
+                )
+                coef = res.x
     elif loss == "l1":
         coef = _lad(scaled, target, lo)
     else:
@@ -72,7 +79,32 @@ def _lad(a: FloatArray, y: FloatArray, lower: FloatArray | None) -> FloatArray:
 
 def condition_number(design: FloatArray) -> float:
     """Condition number of the column-normalised design (what the solver actually sees)."""
-    norms = np.linalg.norm(design, axis=0)
-    norms[norms == 0] = 1.0
-    s = np.linalg.svd(design / norms, compute_uv=False)
-    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    return gram_condition_number(design.T @ design)
+
+
+def gram_condition_number(gram: FloatArray) -> float:
+    d = np.sqrt(np.diag(gram))
+    d[d == 0] = 1.0
+    ev = np.linalg.eigvalsh(gram / np.outer(d, d))
+    return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+
+
+def solve_gram(gram: FloatArray, rhs: FloatArray, lower: FloatArray | None = None) -> FloatArray:
+    """Least squares from the normal equations G c = h (G = AᵀA, h = Aᵀy), with lower bounds.
+
+    Lets validation fit many folds from per-file sums without touching the samples again.
+    """
+    k = len(rhs)
+    d = np.sqrt(np.diag(gram))
+    d[d == 0] = 1.0
+    gs = gram / np.outer(d, d)
+    hs = rhs / d
+    coef, *_ = np.linalg.lstsq(gs, hs, rcond=None)
+    lo = None if lower is None else np.asarray(lower, float) * d
+    if lo is not None and np.any(coef < lo):
+        chol = np.linalg.cholesky(
+            gs + 1e-14 * np.eye(k)
+        )  # gs = L Lᵀ; ||Ac-y||² = ||Lᵀc - L⁻¹h||² + const
+        target = np.linalg.solve(chol, hs)
+        coef = opt.lsq_linear(chol.T, target, bounds=(lo, np.full(k, np.inf)), method="bvls").x
+    return np.asarray(coef / d, dtype=float)
