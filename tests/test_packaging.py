@@ -9,8 +9,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-MAPPED = {"thrustmap": "thrustmap", "fitting": "thrustmap.fitting", "rig": "thrustmap.rig",
-          "protocols": "thrustmap.protocols"}
+MAPPED = {
+    "thrustmap": "thrustmap",
+    "fitting": "thrustmap.fitting",
+    "rig": "thrustmap.rig",
+    "protocols": "thrustmap.protocols",
+}
 
 
 def _declared_packages() -> list[str]:
