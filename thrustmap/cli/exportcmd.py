@@ -1,0 +1,109 @@
+"""``thrustmap export``: a map in a throttle encoding, a C header, or firmware parameters."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from thrustmap.errors import ConfigError
+from thrustmap.fitting.export import TARGETS, ExportOptions, export_map
+from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.units import SCALES, parse_range
+
+log = logging.getLogger(__name__)
+
+
+@click.command("export")
+@click.argument("map_file", metavar="MAP", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--to",
+    "target",
+    required=True,
+    metavar="TARGET",
+    help="One of: " + ", ".join(TARGETS) + ".",
+)
+@click.option(
+    "--range",
+    "range_text",
+    metavar="LO:HI",
+    help="Endpoints of the output encoding in its own units (e.g. 1100:1940 for PWM µs).",
+)
+@click.option(
+    "--encoding",
+    metavar="NAME",
+    help="Output encoding for c-header (default percent), aerostack2 (pwm), px4/ardupilot "
+    "(pwm) and betaflight (dshot or pwm). One of: " + ", ".join(SCALES) + ".",
+)
+@click.option("--mass-kg", type=float, help="Vehicle mass, for hover parameters.")
+@click.option("--rotors", type=int, help="Rotor count (default 4).")
+@click.option(
+    "--voltage-v",
+    type=float,
+    help="Reference voltage: where voltage-free curves are fitted and the 'full battery' "
+    "voltage for PX4/ArduPilot scaling (default: top of the map's voltage box).",
+)
+@click.option(
+    "--firmware",
+    metavar="VERSION",
+    help="Firmware version the export is for (betaflight: thrust_linear changed in 2026.6).",
+)
+@click.option(
+    "--spin-max",
+    type=float,
+    default=0.95,
+    show_default=True,
+    help="ArduPilot MOT_SPIN_MAX (fixed; it sets the scale of MOT_THST_EXPO).",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Write here instead of standard output.",
+)
+def export_cmd(
+    map_file: Path,
+    target: str,
+    range_text: str | None,
+    encoding: str | None,
+    mass_kg: float | None,
+    rotors: int | None,
+    voltage_v: float | None,
+    firmware: str | None,
+    spin_max: float,
+    output: Path | None,
+) -> None:
+    """Export MAP for a throttle encoding or a firmware."""
+    if target not in TARGETS:
+        raise ConfigError(f"--to: unknown target '{target}'; expected one of: {', '.join(TARGETS)}")
+    if encoding is not None and encoding not in SCALES:
+        raise ConfigError(
+            f"--encoding: unknown encoding '{encoding}'; expected one of: {', '.join(SCALES)}"
+        )
+    if not 0.0 < spin_max <= 1.0:
+        raise ConfigError(f"--spin-max: expected a value in (0, 1], got {spin_max:g}")
+    range_ = parse_range(range_text, "--range") if range_text is not None else None
+    tmap = ThrustMap.load(map_file)
+    result = export_map(
+        tmap,
+        target,
+        ExportOptions(
+            range_=range_,
+            encoding=encoding,
+            mass_kg=mass_kg,
+            rotors=rotors,
+            voltage_v=voltage_v,
+            firmware=firmware,
+            spin_max=spin_max,
+        ),
+    )
+    if output is None:
+        click.echo(result.text, nl=False)
+        return
+    try:
+        output.write_text(result.text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot write {output}: {exc.strerror}") from None
+    summary = ", ".join(f"{k} {v:.3g}" for k, v in result.residual.items())
+    click.echo(f"wrote {output} ({target}; residual {summary or 'n/a'})", err=True)
