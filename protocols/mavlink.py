@@ -14,7 +14,7 @@ Encoders for telemetry (``*_message``) exist for the simulated vehicles and for 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Union
@@ -373,7 +373,7 @@ Decoded = Union[  # noqa: UP007 - a runtime alias must work on Python 3.10
 ]
 
 
-def _text(value: Any) -> str:
+def decode_text(value: Any) -> str:
     if isinstance(value, (bytes, bytearray)):
         return bytes(value).split(b"\x00", 1)[0].decode("utf-8", errors="replace")
     return str(value).split("\x00", 1)[0]
@@ -459,19 +459,19 @@ def decode_command_ack(msg: Any) -> CommandAck:
 
 
 def decode_statustext(msg: Any) -> StatusText:
-    return StatusText(severity=_enum_or_int(Severity, msg.severity), text=_text(msg.text))
+    return StatusText(severity=_enum_or_int(Severity, msg.severity), text=decode_text(msg.text))
 
 
 def decode_param_value(msg: Any) -> ParamValue:
     return ParamValue(
-        name=_text(msg.param_id),
+        name=decode_text(msg.param_id),
         value=float(msg.param_value),
         index=int(msg.param_index),
         count=int(msg.param_count),
     )
 
 
-_DECODERS = {
+_DECODERS: dict[str, Callable[[Any], Decoded]] = {
     "HEARTBEAT": decode_heartbeat,
     "SYS_STATUS": decode_sys_status,
     "BATTERY_STATUS": decode_battery_status,
@@ -489,7 +489,7 @@ _DECODERS = {
 def decode(msg: Any) -> Decoded | None:
     """The SI dataclass for a pymavlink message this module knows, else None."""
     decoder = _DECODERS.get(msg.get_type())
-    return decoder(msg) if decoder is not None else None  # type: ignore[operator]
+    return decoder(msg) if decoder is not None else None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ Extra keyword arguments of ``open_transport``/``serial_for_url`` reach the handl
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import serial
 
@@ -55,7 +55,7 @@ class SerialLike(Protocol):
     def close(self) -> None: ...
 
 
-def open_transport(url: str, **kwargs: Any) -> serial.SerialBase:
+def open_transport(url: str, **kwargs: Any) -> SerialLike:
     """``serial.serial_for_url`` with thrustmap's handlers registered (and opened)."""
     register_url_handlers()
-    return serial.serial_for_url(url, **kwargs)
+    return cast(SerialLike, serial.serial_for_url(url, **kwargs))

@@ -1,0 +1,398 @@
+"""PX4-like and ArduPilot-like vehicles that speak MAVLink 2 (via pymavlink) over bytes.
+
+Both are ``BytePeer``s (``sim://px4``, ``sim://ardupilot``, or ``SimSerial(PX4Vehicle(plant),
+clock)``) and forward motor commands to a ``Plant``. Behaviour follows the facts in
+reference/mavlink.md:
+
+PX4 (autopilot 12)
+- MAV_CMD_DO_MOTOR_TEST -> UNSUPPORTED (current PX4).
+- MAV_CMD_ACTUATOR_TEST: DENIED while armed, with the safety button on, or COM_MOT_TEST_EN != 1;
+  p5 = MOTOR1..16 (SERVO1..16 = 33..48 are accepted and drive no motor); timeout 0 or > 3 s -> 3 s;
+  NaN stops; the motor stops by itself at the timeout. The value passes through THR_MDL_FAC
+  (inverse of rel_thrust = f·u² + (1-f)·u) before reaching the plant; negative values idle.
+- Streams: SYS_STATUS, BATTERY_STATUS (per-cell), ESC_STATUS, SERVO_OUTPUT_RAW.
+- Sim choice: a motor number beyond the plant's motor count is DENIED.
+
+ArduPilot / ArduCopter (autopilot 3)
+- MAV_CMD_DO_MOTOR_TEST: preconditions board initialised, RC calibrated (unless p2 = PWM), landed,
+  safety switch not engaged; failure -> FAILED plus STATUSTEXT "Motor Test: ...". While a test
+  runs HEARTBEAT says ARMED. A new command during a test skips the checks, overwrites the
+  throttle and restarts the timer. Timeout 0, or a PWM outside 800..2200, stops the test (the
+  command itself is ACCEPTED). Timeout is capped at 600 s; at the timeout the test stops and
+  the vehicle disarms. p5 motor count > 1 runs motors p1.. p1+count-1 one after another, each
+  for the timeout. p1 is a test-order number mapped through ``test_order`` to a plant motor.
+- PERCENT maps linearly to MOT_PWM_MIN..MOT_PWM_MAX; PILOT uses ``rc_throttle_fraction``.
+- MAV_CMD_ACTUATOR_TEST -> UNSUPPORTED.
+- Streams: SYS_STATUS, BATTERY_STATUS (total in voltages[0]), ESC_TELEMETRY_1_TO_4, SERVO_OUTPUT_RAW.
+
+Registration: importing this module registers ``px4`` and ``ardupilot`` with
+``thrustmap.protocols.peer`` using a ``ConstantPlant``; call ``register_mavlink_peers(factory,
+replace=True)`` to put a physics plant behind them. URL options: ``motors`` (4), ``sysid`` (1),
+``rate_hz`` (10), PX4 ``armed``/``safety``/``com_mot_test_en``/``thr_mdl_fac``,
+ArduPilot ``landed``/``safety``/``rc_calibrated``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from thrustmap.protocols import mavlink as mav
+from thrustmap.protocols.peer import BytePeer, register_peer
+from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
+from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
+
+R = mav.MavResult
+MSG_SYS_STATUS = 1
+MSG_SERVO_OUTPUT_RAW = 36
+MSG_BATTERY_STATUS = 147
+MSG_ESC_STATUS = 291
+MSG_ESC_TELEMETRY_1_TO_4 = 11030
+
+
+def _servo_raw(vehicle: SimMavlinkVehicle, outputs_us: Sequence[int]) -> Any:
+    return mav.servo_output_raw_message(vehicle.time_since_boot_s, outputs_us)
+
+
+def _sys_status(state: PlantState) -> Any:
+    return mav.sys_status_message(state.voltage_v, state.current_a)
+
+
+# ---------------------------------------------------------------------------------------------
+# PX4
+# ---------------------------------------------------------------------------------------------
+class PX4Vehicle(SimMavlinkVehicle):
+    autopilot = mav.Autopilot.PX4
+
+    def __init__(
+        self,
+        plant: Plant,
+        *,
+        armed: bool = False,
+        safety_on: bool = False,
+        cells: int = 4,
+        **kwargs: Any,
+    ) -> None:
+        self.pilot_armed = armed
+        self.safety_on = safety_on
+        self.cells = cells
+        self._tests: dict[int, tuple[float, float]] = {}  # motor -> (fraction, deadline_s)
+        super().__init__(plant, **kwargs)
+
+    def default_params(self) -> Mapping[str, float]:
+        return {
+            "COM_MOT_TEST_EN": 1.0,
+            "THR_MDL_FAC": 0.0,
+            "PWM_MAIN_MIN": 1000.0,
+            "PWM_MAIN_MAX": 2000.0,
+            "PWM_MAIN_DIS": 900.0,
+            "MC_BAT_SCALE_EN": 0.0,
+        }
+
+    @property
+    def armed(self) -> bool:
+        return self.pilot_armed
+
+    def running_motors(self) -> dict[int, float]:
+        return {motor: fraction for motor, (fraction, _) in self._tests.items()}
+
+    def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
+        return {
+            MSG_SYS_STATUS: lambda s: [_sys_status(s)],
+            MSG_BATTERY_STATUS: lambda s: [
+                mav.battery_status_message([s.voltage_v / self.cells] * self.cells, s.current_a)
+            ],
+            MSG_ESC_STATUS: self._esc_status,
+            MSG_SERVO_OUTPUT_RAW: lambda s: [_servo_raw(self, self.outputs_us())],
+        }
+
+    def _esc_status(self, state: PlantState) -> list[Any]:
+        return [
+            mav.esc_status_message(
+                first_index=first,
+                time_s=self.time_since_boot_s,
+                rpm=state.rpm[first : first + 4],
+                voltage_v=[state.voltage_v] * len(state.rpm[first : first + 4]),
+                current_a=state.motor_current_a[first : first + 4],
+            )
+            for first in range(0, max(1, self.plant.motor_count), 4)
+        ]
+
+    def outputs_us(self) -> list[int]:
+        lo, hi, dis = (self.params[k] for k in ("PWM_MAIN_MIN", "PWM_MAIN_MAX", "PWM_MAIN_DIS"))
+        out = []
+        for motor in range(self.plant.motor_count):
+            if motor in self._tests:
+                out.append(round(lo + (hi - lo) * self._tests[motor][0]))
+            else:
+                out.append(round(dis))
+        return out
+
+    def update(self, now_s: float) -> None:
+        for motor, (_, deadline_s) in sorted(self._tests.items()):
+            if deadline_s <= now_s:
+                self._stop(motor, deadline_s)
+
+    def _stop(self, motor: int, time_s: float) -> None:
+        self._tests.pop(motor, None)
+        self.plant.set_throttle(motor, 0.0, time_s)
+
+    def _fraction(self, value: float) -> float:
+        """Inverse of PX4's thrust model rel_thrust = f·u² + (1-f)·u (THR_MDL_FAC = f)."""
+        thrust = min(max(value, 0.0), 1.0)
+        f = min(max(self.params["THR_MDL_FAC"], 0.0), 1.0)
+        if f < 1e-9:
+            return thrust
+        return (-(1.0 - f) + math.sqrt((1.0 - f) ** 2 + 4.0 * f * thrust)) / (2.0 * f)
+
+    def handle_command(self, command: mav.CommandLong, now_s: float) -> int:
+        if command.command == mav.MAV_CMD_DO_MOTOR_TEST:
+            return R.UNSUPPORTED
+        if command.command != mav.MAV_CMD_ACTUATOR_TEST:
+            return R.UNSUPPORTED
+        value, timeout_s, _, _, function_f = command.params[:5]
+        if self.pilot_armed or self.safety_on or self.params["COM_MOT_TEST_EN"] != 1.0:
+            return R.DENIED
+        function = int(function_f)
+        if 33 <= function <= 48:
+            return R.ACCEPTED  # a servo: nothing on the stand
+        motor = function - 1
+        if not 0 <= motor < min(16, self.plant.motor_count):
+            return R.DENIED
+        if math.isnan(value):
+            self._stop(motor, now_s)
+            return R.ACCEPTED
+        if not 0.0 < timeout_s <= mav.PX4_ACTUATOR_TEST_MAX_TIMEOUT_S or math.isnan(timeout_s):
+            timeout_s = mav.PX4_ACTUATOR_TEST_MAX_TIMEOUT_S
+        fraction = self._fraction(value)
+        self._tests[motor] = (fraction, now_s + timeout_s)
+        self.plant.set_throttle(motor, fraction, now_s)
+        return R.ACCEPTED
+
+
+# ---------------------------------------------------------------------------------------------
+# ArduPilot
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _MotorTest:
+    first_seq: int  # 1-based test-order number
+    count: int
+    throttle_type: int
+    value: float
+    timeout_s: float
+    start_s: float
+
+
+class ArduPilotVehicle(SimMavlinkVehicle):
+    autopilot = mav.Autopilot.ARDUPILOT
+
+    def __init__(
+        self,
+        plant: Plant,
+        *,
+        initialised: bool = True,
+        landed: bool = True,
+        safety_switch_engaged: bool = False,
+        rc_calibrated: bool = True,
+        rc_throttle_fraction: float = 0.0,
+        test_order: Sequence[int] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self.initialised = initialised
+        self.landed = landed
+        self.safety_switch_engaged = safety_switch_engaged
+        self.rc_calibrated = rc_calibrated
+        self.rc_throttle_fraction = rc_throttle_fraction
+        self.test_order = (
+            list(test_order) if test_order is not None else list(range(plant.motor_count))
+        )
+        self._test: _MotorTest | None = None
+        self._running: int | None = None  # plant motor spinning now
+        self._running_pwm = 0
+        super().__init__(plant, **kwargs)
+
+    def default_params(self) -> Mapping[str, float]:
+        return {
+            "MOT_PWM_MIN": 1000.0,
+            "MOT_PWM_MAX": 2000.0,
+            "MOT_THST_EXPO": 0.65,
+            "MOT_SPIN_MIN": 0.15,
+            "MOT_SPIN_MAX": 0.95,
+            "MOT_SPIN_ARM": 0.10,
+            "MOT_THST_HOVER": 0.35,
+            "MOT_BAT_VOLT_MAX": 0.0,
+            "MOT_BAT_VOLT_MIN": 0.0,
+        }
+
+    @property
+    def armed(self) -> bool:
+        return self._test is not None
+
+    @property
+    def motor_test_running(self) -> bool:
+        return self._test is not None
+
+    def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
+        return {
+            MSG_SYS_STATUS: lambda s: [_sys_status(s)],
+            MSG_BATTERY_STATUS: lambda s: [mav.battery_status_message([s.voltage_v], s.current_a)],
+            MSG_ESC_TELEMETRY_1_TO_4: lambda s: [
+                mav.esc_telemetry_message(
+                    rpm=s.rpm[:4],
+                    voltage_v=[s.voltage_v] * min(4, len(s.rpm)),
+                    current_a=s.motor_current_a[:4],
+                    temperature_c=s.temperature_c[:4],
+                )
+            ],
+            MSG_SERVO_OUTPUT_RAW: lambda s: [_servo_raw(self, self.outputs_us())],
+        }
+
+    def outputs_us(self) -> list[int]:
+        idle = round(self.params["MOT_PWM_MIN"])
+        out = [idle] * self.plant.motor_count
+        if self._running is not None:
+            out[self._running] = self._running_pwm
+        return out
+
+    def _pwm(self, test: _MotorTest) -> float:
+        lo, hi = self.params["MOT_PWM_MIN"], self.params["MOT_PWM_MAX"]
+        if test.throttle_type == mav.MotorTestThrottleType.PWM:
+            return test.value
+        if test.throttle_type == mav.MotorTestThrottleType.PILOT:
+            return lo + (hi - lo) * min(max(self.rc_throttle_fraction, 0.0), 1.0)
+        return lo + (hi - lo) * min(max(test.value, 0.0), 100.0) / 100.0  # PERCENT, COMPASS_CAL
+
+    def _output(self, motor: int | None, pwm: int, time_s: float) -> None:
+        if self._running is not None and self._running != motor:
+            self.plant.set_throttle(self._running, 0.0, time_s)
+        self._running, self._running_pwm = motor, pwm
+        if motor is not None:
+            lo, hi = self.params["MOT_PWM_MIN"], self.params["MOT_PWM_MAX"]
+            self.plant.set_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
+
+    def stop_test(self, time_s: float) -> None:
+        self._output(None, 0, time_s)
+        self._test = None
+
+    def update(self, now_s: float) -> None:
+        test = self._test
+        if test is None:
+            return
+        pwm = self._pwm(test)
+        lo_ok, hi_ok = mav.ARDUPILOT_MOTOR_TEST_PWM_RANGE_US
+        if test.timeout_s <= 0 or not lo_ok <= pwm <= hi_ok:
+            self.stop_test(test.start_s)
+            return
+        step = int((now_s - test.start_s) // test.timeout_s)
+        if step >= test.count:
+            self.stop_test(test.start_s + test.count * test.timeout_s)
+            return
+        seq = test.first_seq + step
+        motor = self.test_order[seq - 1] if 1 <= seq <= len(self.test_order) else None
+        if motor != self._running or round(pwm) != self._running_pwm:
+            self._output(motor, round(pwm), test.start_s + step * test.timeout_s)
+
+    def _precondition_failure(self, throttle_type: int) -> str | None:
+        if not self.initialised:
+            return "Board initialising"
+        if throttle_type != mav.MotorTestThrottleType.PWM and not self.rc_calibrated:
+            return "RC not calibrated"
+        if not self.landed:
+            return "vehicle not landed"
+        if self.safety_switch_engaged:
+            return "Safety switch"
+        return None
+
+    def handle_command(self, command: mav.CommandLong, now_s: float) -> int:
+        if command.command != mav.MAV_CMD_DO_MOTOR_TEST:
+            return R.UNSUPPORTED
+        seq_f, type_f, value, timeout_s, count_f = command.params[:5]
+        throttle_type = int(type_f)
+        if self._test is None:
+            why = self._precondition_failure(throttle_type)
+            if why is not None:
+                self.send(mav.statustext_message(f"Motor Test: {why}", mav.Severity.CRITICAL))
+                return R.FAILED
+        if math.isnan(timeout_s) or math.isnan(value):
+            timeout_s = 0.0
+        self._test = _MotorTest(
+            first_seq=int(seq_f),
+            count=max(1, int(count_f)),
+            throttle_type=throttle_type,
+            value=value,
+            timeout_s=min(max(timeout_s, 0.0), mav.ARDUPILOT_MOTOR_TEST_MAX_TIMEOUT_S),
+            start_s=now_s,
+        )
+        self._running_pwm = -1  # force the new throttle out even on the same motor
+        self.update(now_s)
+        return R.ACCEPTED
+
+
+# ---------------------------------------------------------------------------------------------
+# sim:// registration
+# ---------------------------------------------------------------------------------------------
+PlantFactory = Callable[[Mapping[str, str]], Plant]
+
+
+def constant_plant(options: Mapping[str, str]) -> Plant:
+    return ConstantPlant(motor_count=int(options.get("motors", "4")))
+
+
+def _flag(options: Mapping[str, str], key: str, default: bool) -> bool:
+    if key not in options:
+        return default
+    return options[key].strip().lower() not in ("0", "false", "no", "off")
+
+
+def _common(options: Mapping[str, str]) -> dict[str, Any]:
+    return {
+        "system_id": int(options.get("sysid", "1")),
+        "telemetry_rate_hz": float(options.get("rate_hz", "10")),
+    }
+
+
+def px4_from_options(
+    options: Mapping[str, str], plant_factory: PlantFactory = constant_plant
+) -> PX4Vehicle:
+    params = {}
+    if "com_mot_test_en" in options:
+        params["COM_MOT_TEST_EN"] = float(options["com_mot_test_en"])
+    if "thr_mdl_fac" in options:
+        params["THR_MDL_FAC"] = float(options["thr_mdl_fac"])
+    return PX4Vehicle(
+        plant_factory(options),
+        armed=_flag(options, "armed", False),
+        safety_on=_flag(options, "safety", False),
+        params=params,
+        **_common(options),
+    )
+
+
+def ardupilot_from_options(
+    options: Mapping[str, str], plant_factory: PlantFactory = constant_plant
+) -> ArduPilotVehicle:
+    return ArduPilotVehicle(
+        plant_factory(options),
+        landed=_flag(options, "landed", True),
+        safety_switch_engaged=_flag(options, "safety", False),
+        rc_calibrated=_flag(options, "rc_calibrated", True),
+        **_common(options),
+    )
+
+
+def register_mavlink_peers(
+    plant_factory: PlantFactory = constant_plant, *, replace: bool = True
+) -> None:
+    def px4(options: Mapping[str, str]) -> BytePeer:
+        return px4_from_options(options, plant_factory)
+
+    def ardupilot(options: Mapping[str, str]) -> BytePeer:
+        return ardupilot_from_options(options, plant_factory)
+
+    register_peer("px4", px4, replace=replace)
+    register_peer("ardupilot", ardupilot, replace=replace)
+
+
+register_mavlink_peers()

@@ -1,0 +1,191 @@
+"""The common part of the simulated MAVLink vehicles: a byte-level peer on pymavlink.
+
+A vehicle is a ``thrustmap.protocols.peer.BytePeer``: the host's bytes go in through
+``write(data, now_s)``, the vehicle's bytes come out of ``read(now_s)``. Every call first
+brings the vehicle up to ``now_s`` (motor-test timeouts, then periodic messages), so time comes
+only from the caller's clock. Framing and encoding are pymavlink's (``MavlinkCodec``).
+
+This base class handles what both firmwares share: HEARTBEAT at 1 Hz, telemetry streams at
+``telemetry_rate_hz`` (changed per message by MAV_CMD_SET_MESSAGE_INTERVAL), parameters
+(PARAM_REQUEST_READ/LIST, PARAM_SET) and COMMAND_ACK for every COMMAND_LONG. Subclasses say
+which autopilot they are, which streams they send and how they answer commands.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from thrustmap.protocols import mavlink as mav
+from thrustmap.rig.sim.plant import Plant, PlantState
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_ID = 0
+
+
+class SimMavlinkVehicle(ABC):
+    """A MAVLink vehicle at the byte level; see the module docstring."""
+
+    autopilot: int = 0
+
+    def __init__(
+        self,
+        plant: Plant,
+        *,
+        system_id: int = 1,
+        component_id: int = 1,
+        telemetry_rate_hz: float = 10.0,
+        params: Mapping[str, float] | None = None,
+    ) -> None:
+        self.plant = plant
+        self.system_id = system_id
+        self.component_id = component_id
+        self._codec = mav.MavlinkCodec(system_id, component_id)
+        self._frames: list[bytes] = []
+        self._boot_s: float | None = None
+        self._now_s = 0.0
+        self.params: dict[str, float] = dict(self.default_params())
+        self.params.update(params or {})
+        period_s = 1.0 / telemetry_rate_hz if telemetry_rate_hz > 0 else math.inf
+        self._streams: dict[int, tuple[Callable[[PlantState], list[Any]], float]] = {
+            HEARTBEAT_ID: (lambda state: [self._heartbeat()], 1.0),
+        }
+        for message_id, builder in self.telemetry_streams().items():
+            self._streams[message_id] = (builder, period_s)
+        self._default_periods = {k: v[1] for k, v in self._streams.items()}
+        self._next_due: dict[int, float] = {}
+        self.commands_received: list[mav.CommandLong] = []
+
+    # -- what subclasses provide ----------------------------------------------------------
+    def default_params(self) -> Mapping[str, float]:
+        return {}
+
+    @abstractmethod
+    def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
+        """message id -> function building that message (or messages) from the plant state."""
+
+    @property
+    @abstractmethod
+    def armed(self) -> bool:
+        """What HEARTBEAT reports (base_mode & 128)."""
+
+    @abstractmethod
+    def handle_command(self, command: mav.CommandLong, now_s: float) -> int:
+        """Act on a COMMAND_LONG; return the MAV_RESULT to acknowledge it with."""
+
+    def update(self, now_s: float) -> None:  # noqa: B027 - optional hook
+        """Advance internal timers (motor-test timeouts) to ``now_s``."""
+
+    # -- BytePeer ---------------------------------------------------------------------------
+    def write(self, data: bytes, now_s: float) -> None:
+        self._advance(now_s)
+        for msg in self._codec.feed(data):
+            self._dispatch(msg, now_s)
+
+    def read(self, now_s: float) -> bytes:
+        return b"".join(self.read_frames(now_s))
+
+    def read_frames(self, now_s: float) -> list[bytes]:
+        """Like ``read`` but one ``bytes`` per MAVLink frame (a datagram each over UDP)."""
+        self._advance(now_s)
+        frames, self._frames = self._frames, []
+        return frames
+
+    # -- helpers for subclasses ------------------------------------------------------------
+    @property
+    def time_since_boot_s(self) -> float:
+        return 0.0 if self._boot_s is None else self._now_s - self._boot_s
+
+    def send(self, msg: Any) -> None:
+        self._frames.append(self._codec.encode(msg))
+
+    def state(self) -> PlantState:
+        return self.plant.state(self._now_s)
+
+    def _heartbeat(self) -> Any:
+        return mav.heartbeat_message(self.autopilot, armed=self.armed)
+
+    # -- internals ---------------------------------------------------------------------------
+    def _advance(self, now_s: float) -> None:
+        if self._boot_s is None:
+            self._boot_s = now_s
+            self._next_due = {k: now_s for k in self._streams}
+        now_s = max(now_s, self._now_s)
+        self._now_s = now_s
+        self.update(now_s)
+        due = [k for k, t in self._next_due.items() if t <= now_s]
+        if not due:
+            return
+        state = self.plant.state(now_s)
+        for message_id in due:
+            builder, period_s = self._streams[message_id]
+            for msg in builder(state):
+                self.send(msg)
+            nxt = self._next_due[message_id] + period_s
+            # After a long gap, resume the schedule from now instead of sending a burst.
+            self._next_due[message_id] = nxt if nxt > now_s else now_s + period_s
+
+    def _dispatch(self, msg: Any, now_s: float) -> None:
+        kind = msg.get_type()
+        if kind == "COMMAND_LONG":
+            command = mav.CommandLong.from_message(msg)
+            if command.target_system not in (0, self.system_id):
+                return
+            self.commands_received.append(command)
+            if command.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+                result = self._set_message_interval(command)
+            else:
+                result = self.handle_command(command, now_s)
+            self.send(
+                mav.command_ack_message(
+                    command.command,
+                    result,
+                    target_system=msg.get_srcSystem(),
+                    target_component=msg.get_srcComponent(),
+                )
+            )
+        elif kind == "PARAM_REQUEST_READ":
+            self._send_param(mav.decode_text(msg.param_id), int(msg.param_index))
+        elif kind == "PARAM_REQUEST_LIST":
+            for index in range(len(self.params)):
+                self._send_param("", index)
+        elif kind == "PARAM_SET":
+            name = mav.decode_text(msg.param_id)
+            if name in self.params:
+                self.params[name] = float(msg.param_value)
+                self.on_param_set(name, float(msg.param_value))
+                self._send_param(name, -1)
+
+    def on_param_set(self, name: str, value: float) -> None:  # noqa: B027 - optional hook
+        """React to a PARAM_SET (after ``params`` is updated)."""
+
+    def _send_param(self, name: str, index: int) -> None:
+        names = sorted(self.params)
+        if name:
+            if name not in self.params:
+                return  # real autopilots stay silent about unknown names
+            index = names.index(name)
+        elif not 0 <= index < len(names):
+            return
+        key = names[index]
+        self.send(mav.param_value_message(key, self.params[key], index, len(names)))
+
+    def _set_message_interval(self, command: mav.CommandLong) -> int:
+        message_id = int(command.params[0])
+        interval_us = command.params[1]
+        if message_id not in self._streams:
+            return mav.MavResult.DENIED
+        builder, _ = self._streams[message_id]
+        if interval_us < 0:
+            period_s = math.inf
+        elif interval_us == 0:
+            period_s = self._default_periods[message_id]
+        else:
+            period_s = interval_us / 1e6
+        self._streams[message_id] = (builder, period_s)
+        self._next_due[message_id] = self._now_s + (0.0 if math.isfinite(period_s) else math.inf)
+        return mav.MavResult.ACCEPTED
