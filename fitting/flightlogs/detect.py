@@ -159,7 +159,7 @@ def detect(path: str | Path) -> Reader:
     for reader in READERS:
         if suffix in reader.suffixes:
             reason = reader.unavailable_reason()
-            if reason is not None:
+            if reason is not None and "not part of this installation" not in reason:
                 raise DataFormatError(
                     f"looks like a {reader.description} but {reason}", file=str(p)
                 )

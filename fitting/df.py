@@ -1,0 +1,458 @@
+"""Df: the flight samples the correction factor is fitted on (seed paper section 3.4).
+
+From each flight log keep the samples where the paper's assumptions hold: armed and airborne,
+away from takeoff/landing transients, near hover (upward specific force close to g, small tilt).
+All streams are resampled onto one timeline (bin means at ``rate_hz``; a stream with no sample
+within ``max_gap_s`` of a bin leaves it empty). Then:
+
+- F_m = m · a_up (collective, N; mass from the user).
+- T_c (collective, N) from the log's thrust command in newtons when it has one, otherwise from the
+  motor outputs pushed through the stand map's forward direction, per rotor, summed over rotors
+  (the stand map is per rotor). A normalised collective command is kept as ``thrust_cmd_norm``.
+
+``extract()`` returns the table and a report of how much flight time each filter dropped and
+why; ``write_df()`` writes the CSV plus a JSON sidecar naming the origin of every column.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.units import ThrottleScale
+
+log = logging.getLogger(__name__)
+
+G0 = 9.80665
+DF_FORMAT = "thrustmap.df"
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class DfOptions:
+    mass_kg: float | None = None  # None: use the log's own mass (seed-paper CSV) if it has one
+    rotors: int | None = None  # None: number of motor-output columns
+    rate_hz: float = 10.0
+    accel_tol_mps2: float = 1.0  # keep |a_up − g| ≤ this (bin-averaged)
+    tilt_max_deg: float = 15.0
+    settle_s: float = 2.0  # dropped after takeoff and before landing
+    max_gap_s: float = 1.0
+    steady_tol: float = 0.15  # keep |cmd − running median| ≤ this fraction of the median
+    steady_window_s: float = 3.0
+    accel_smooth_s: float = 0.5  # centred running mean of a_up (IMU vibration, aliasing)
+    thrust_source: str = "auto"  # auto | log (thrust_cmd_n) | motors | norm
+
+    def __post_init__(self) -> None:
+        if self.mass_kg is not None and not self.mass_kg > 0:
+            raise ConfigError(f"mass must be positive, got {self.mass_kg} kg")
+        if self.rotors is not None and self.rotors < 1:
+            raise ConfigError(f"rotor count must be at least 1, got {self.rotors}")
+        if not self.rate_hz > 0:
+            raise ConfigError(f"resampling rate must be positive, got {self.rate_hz} Hz")
+        if self.thrust_source not in ("auto", "log", "motors", "norm"):
+            raise ConfigError(
+                f"thrust source '{self.thrust_source}': expected auto, log, motors or norm"
+            )
+
+
+@dataclass
+class FilterStep:
+    name: str
+    reason: str
+    dropped_s: float
+    remaining_s: float
+
+
+@dataclass
+class FlightReport:
+    flight: str
+    path: str
+    format: str
+    duration_s: float
+    kept_s: float
+    samples: int
+    steps: list[FilterStep] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Df:
+    table: pd.DataFrame
+    sources: dict[str, Any]
+    reports: list[FlightReport]
+
+
+# -- resampling ----------------------------------------------------------------------------------
+
+
+def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: float) -> FloatArray:
+    """Mean of the samples in each bin; bins without samples interpolate when data is near."""
+    centres = t0 + (np.arange(nbins) + 0.5) / rate_hz
+    vals = sig.values if sig.values.ndim == 2 else sig.values[:, None]
+    out = np.full((nbins, vals.shape[1]), np.nan)
+    b = np.floor((sig.time_s - t0) * rate_hz).astype(np.int64)
+    inside = (b >= 0) & (b < nbins)
+    for k in range(vals.shape[1]):
+        v = vals[:, k]
+        ok = inside & np.isfinite(v)
+        cnt = np.bincount(b[ok], minlength=nbins)
+        tot = np.bincount(b[ok], weights=v[ok], minlength=nbins)
+        col = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+        fin = np.isfinite(v)
+        if fin.sum() >= 1:
+            ts, vs = sig.time_s[fin], v[fin]
+            idx = np.clip(np.searchsorted(ts, centres), 1, max(len(ts) - 1, 1))
+            near = np.minimum(np.abs(ts[idx] - centres), np.abs(ts[idx - 1] - centres))
+            interp = np.interp(centres, ts, vs)
+            col = np.where(np.isnan(col) & (near <= max_gap_s), interp, col)
+        out[:, k] = col
+    return out if sig.values.ndim == 2 else out[:, 0]
+
+
+def _steady(cmd: FloatArray, window: int, tol: float) -> BoolArray:
+    """True where the command is within ``tol`` (relative) of its centred running median."""
+    series = pd.Series(cmd)
+    med = series.rolling(max(window, 1), center=True, min_periods=1).median().to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.abs(cmd - med) <= tol * np.abs(med))
+
+
+def _smooth(x: FloatArray, window: int) -> FloatArray:
+    """Centred running mean (NaN-aware) over ``window`` bins."""
+    if window <= 1:
+        return x
+    series = pd.Series(x)
+    return series.rolling(window, center=True, min_periods=1).mean().to_numpy(float)
+
+
+def _runs(mask: BoolArray) -> list[tuple[int, int]]:
+    """[start, stop) index ranges where mask is True."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+def airborne_windows(flight: FlightLog) -> list[tuple[float, float]]:
+    """(start_s, end_s) of each period armed and not landed, from the state signals."""
+    ref = flight.accel_up_mps2 or flight.voltage_v
+    if ref is None or not len(ref):
+        return []
+    t = ref.time_s
+    air = np.ones(len(t), bool)
+    if flight.armed is not None:
+        air &= flight.armed.hold(t) > 0.5
+    if flight.landed is not None:
+        air &= flight.landed.hold(t) < 0.5
+    return [(float(t[a]), float(t[b - 1])) for a, b in _runs(air)]
+
+
+# -- thrust command from motor outputs -----------------------------------------------------------
+
+
+def motor_pct_in_map_scale(
+    native_pct: FloatArray, log_scale: ThrottleScale, map_scale: ThrottleScale
+) -> tuple[FloatArray, str]:
+    """Motor outputs (percent of the log's scale) as percent of the map's throttle scale."""
+    if log_scale.unit == map_scale.unit:
+        native = log_scale.from_pct(native_pct)
+        return map_scale.to_pct(native), f"native {log_scale.unit} values through the map's scale"
+    return native_pct, (
+        f"assumed {log_scale.name} {log_scale.lo:g}..{log_scale.hi:g} spans the map's "
+        f"{map_scale.name} {map_scale.lo:g}..{map_scale.hi:g} range"
+    )
+
+
+def thrust_from_motors(
+    map_pct: FloatArray, voltage_v: FloatArray, tmap: ThrustMap, rotors: int
+) -> FloatArray:
+    """Collective T_c (N): per-rotor map forward, summed over rotors. One column = all rotors."""
+    per_rotor = tmap.thrust_n(map_pct, voltage_v[:, None], corrected=False)
+    if map_pct.shape[1] == 1:
+        return np.asarray(per_rotor[:, 0] * rotors, float)
+    return np.asarray(per_rotor.sum(axis=1), float)
+
+
+# -- extraction ----------------------------------------------------------------------------------
+
+
+def _flight_id(flight: FlightLog) -> str:
+    return f"{Path(flight.path).name}#{flight.index}"
+
+
+def extract_flight(
+    flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
+) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
+    fid = _flight_id(flight)
+    missing = [
+        n for n, s in (("voltage", flight.voltage_v), ("upward acceleration", flight.accel_up_mps2))
+        if s is None or not len(s)
+    ]  # fmt: skip
+    if missing:
+        raise DataFormatError(f"flight log has no {' and no '.join(missing)}", file=flight.path)
+    assert flight.accel_up_mps2 is not None and flight.voltage_v is not None
+    mass = opts.mass_kg if opts.mass_kg is not None else flight.metadata.get("mass_kg")
+    if mass is None:
+        raise ConfigError("give the vehicle mass (--mass-kg): the log does not record it")
+    acc = flight.accel_up_mps2
+    t0 = float(acc.time_s[0])
+    nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
+    dt = 1.0 / opts.rate_hz
+    centres: FloatArray = np.asarray(t0 + (np.arange(nbins) + 0.5) * dt, dtype=np.float64)
+
+    def rs(sig: Signal | None) -> FloatArray | None:
+        return None if sig is None else _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+
+    a_up = rs(acc)
+    volt = rs(flight.voltage_v)
+    assert a_up is not None and volt is not None
+    has_data = np.isfinite(a_up)  # a sample in the bin, or one within max_gap_s
+    if opts.accel_smooth_s > 0:
+        a_up = _smooth(a_up, int(round(opts.accel_smooth_s * opts.rate_hz)))
+    tilt = rs(flight.extras.get("tilt_deg"))
+    steps: list[FilterStep] = []
+    duration = float(nbins * dt)
+    keep = np.ones(nbins, bool)
+
+    def apply(name: str, reason: str, ok: BoolArray) -> None:
+        nonlocal keep
+        before = keep.sum()
+        keep = keep & ok
+        steps.append(
+            FilterStep(name, reason, float((before - keep.sum()) * dt), float(keep.sum() * dt))
+        )
+
+    warnings = list(flight.warnings)
+    apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (log gap)", has_data)
+    if flight.armed is not None:
+        apply("armed", "disarmed", flight.armed.hold(centres) > 0.5)
+    else:
+        warnings.append("no armed state in the log: every sample taken as armed")
+    if flight.landed is not None:
+        airborne = flight.landed.hold(centres) < 0.5
+        apply("airborne", "landed (log's land detector)", airborne)
+    else:
+        airborne = np.ones(nbins, bool)
+        warnings.append("no landed state in the log: airborne time judged by the filters alone")
+    # takeoff / landing transients: trim settle_s from both ends of every airborne run
+    settled = np.zeros(nbins, bool)
+    trim = int(round(opts.settle_s * opts.rate_hz))
+    for a, b in _runs(keep):
+        if b - a > 2 * trim:
+            settled[a + trim : b - trim] = True
+    apply("settle", f"within {opts.settle_s:g} s of takeoff or landing", settled)
+    apply(
+        "hover",
+        f"|a_up − g| > {opts.accel_tol_mps2:g} m/s² (not near hover)",
+        np.abs(np.nan_to_num(a_up, nan=np.inf) - G0) <= opts.accel_tol_mps2,
+    )
+    cmd_for_steady = rs(flight.thrust_cmd_n) if flight.thrust_cmd_n is not None else None
+    if cmd_for_steady is None:
+        cmd_for_steady = rs(flight.thrust_cmd_norm)
+    if cmd_for_steady is None and flight.motor_outputs is not None:
+        m = rs(flight.motor_outputs)
+        cmd_for_steady = None if m is None else (m.mean(axis=1) if m.ndim == 2 else m)
+    if cmd_for_steady is not None and keep.any():
+        level = float(np.nanmedian(cmd_for_steady[keep]))
+        with np.errstate(invalid="ignore"):
+            near = np.abs(cmd_for_steady - level) <= 0.5 * abs(level)
+        apply(
+            "level", "command below half or above 1.5× the flight's median (idle on ground?)", near
+        )
+    if cmd_for_steady is not None and opts.steady_tol > 0:
+        window = int(round(opts.steady_window_s * opts.rate_hz))
+        apply(
+            "steady",
+            f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
+            _steady(cmd_for_steady, window, opts.steady_tol),
+        )
+    if tilt is not None:
+        apply(
+            "tilt",
+            f"tilt > {opts.tilt_max_deg:g}°",
+            np.nan_to_num(tilt, nan=0.0) <= opts.tilt_max_deg,
+        )
+
+    sources: dict[str, Any] = {
+        "time_s": f"bin centres at {opts.rate_hz:g} Hz, from the first accelerometer sample",
+        "voltage_v": flight.voltage_v.origin,
+        "accel_up_mps2": acc.origin
+        + f" (bin mean at {opts.rate_hz:g} Hz, centred {opts.accel_smooth_s:g} s running mean)",
+        "force_n": f"mass_kg × accel_up_mps2, collective (mass {mass:g} kg)",
+    }
+    cols: dict[str, FloatArray] = {"voltage_v": volt, "accel_up_mps2": a_up, "force_n": mass * a_up}
+    # thrust command
+    motors = rs(flight.motor_outputs)
+    rotors = opts.rotors
+    collective_motor = bool(flight.metadata.get("motor_outputs_collective"))
+    if motors is not None and motors.ndim == 2 and rotors is None and not collective_motor:
+        rotors = motors.shape[1]
+    if motors is not None and flight.motor_output_scale is not None:
+        pct = flight.motor_output_scale.to_pct(motors)
+        for i in range(pct.shape[1]):
+            cols[f"motor{i}_pct"] = pct[:, i]
+        sc = flight.motor_output_scale
+        sources["motor_pct"] = (
+            f"{flight.motor_outputs.origin if flight.motor_outputs else ''} as % of "
+            f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit}"
+        )
+        sources["motor_output_scale"] = sc.to_dict()
+    norm = rs(flight.thrust_cmd_norm)
+    if norm is not None:
+        cols["thrust_cmd_norm"] = norm
+        sources["thrust_cmd_norm"] = flight.thrust_cmd_norm.origin if flight.thrust_cmd_norm else ""
+    src = opts.thrust_source
+    t_cmd: FloatArray | None = None
+    if flight.thrust_cmd_n is not None and src in ("auto", "log"):
+        t_cmd = rs(flight.thrust_cmd_n)
+        sources["thrust_cmd_n"] = flight.thrust_cmd_n.origin + " (collective, from the log)"
+    elif src == "log":
+        raise DataFormatError("the log has no thrust command in newtons", file=flight.path)
+    if t_cmd is None and tmap is not None and src in ("auto", "motors") and motors is not None:
+        assert flight.motor_output_scale is not None
+        if rotors is None:
+            raise ConfigError("give the rotor count (--rotors): the log has one throttle column")
+        mp, how = motor_pct_in_map_scale(
+            flight.motor_output_scale.to_pct(motors),
+            flight.motor_output_scale,
+            tmap.throttle_scale,
+        )
+        t_cmd = thrust_from_motors(mp, volt, tmap, rotors)
+        cols["throttle_pct"] = mp.mean(axis=1)
+        sources["throttle_pct"] = f"mean motor output, % of the map's scale ({how})"
+        sources["thrust_cmd_n"] = (
+            f"motor outputs through the stand map's forward direction, per rotor, summed over "
+            f"{rotors} rotors ({how})"
+        )
+    if t_cmd is None and tmap is not None and src in ("auto", "norm") and norm is not None:
+        if rotors is None:
+            raise ConfigError("give the rotor count (--rotors) to turn the command into newtons")
+        t_cmd = rotors * tmap.thrust_n(norm * 100.0, volt, corrected=False)
+        cols["throttle_pct"] = norm * 100.0
+        sources["thrust_cmd_n"] = (
+            f"normalised collective command × 100 % of the map's scale through its forward "
+            f"direction, × {rotors} rotors (assumes every motor gets the collective command)"
+        )
+    if t_cmd is not None:
+        cols["thrust_cmd_n"] = t_cmd
+    elif norm is None and motors is None:
+        raise DataFormatError(
+            "flight log has no thrust command (newtons, normalised or motor outputs)",
+            file=flight.path,
+        )
+    else:
+        warnings.append("no map given: T_c in newtons not computed (thrust_cmd_norm only)")
+    if "throttle_pct" not in cols and motors is not None and flight.motor_output_scale is not None:
+        cols["throttle_pct"] = flight.motor_output_scale.to_pct(motors).mean(axis=1)
+        sources["throttle_pct"] = "mean motor output, % of the log's own scale"
+    hover = flight.hover_thrust_estimate or flight.extras.get("hover_throttle")
+    if hover is not None:
+        cols["hover_thrust_est"] = _bin_mean(hover, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        sources["hover_thrust_est"] = hover.origin
+    valid = np.isfinite(volt) & (volt > 0) & np.isfinite(a_up) & (a_up > 0)
+    cmd = cols.get("thrust_cmd_n", cols.get("thrust_cmd_norm", cols.get("throttle_pct")))
+    if cmd is not None:
+        valid &= np.isfinite(cmd) & (cmd > 0)
+    apply("values", "missing or non-positive voltage, acceleration or command", valid)
+    table = pd.DataFrame({"flight": fid, "time_s": centres})
+    for k, v in cols.items():
+        table[k] = v
+    table = table[keep].reset_index(drop=True)
+    report = FlightReport(
+        flight=fid,
+        path=flight.path,
+        format=flight.format,
+        duration_s=duration,
+        kept_s=float(keep.sum() * dt),
+        samples=int(keep.sum()),
+        steps=steps,
+        warnings=warnings,
+    )
+    meta = {"mass_kg": mass, "rotors": rotors, "sources": sources}
+    return table, meta, report
+
+
+def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = None) -> Df:
+    """Df from every flight; each keeps its own id in the ``flight`` column."""
+    tables, reports = [], []
+    sources: dict[str, Any] = {}
+    per_flight: dict[str, Any] = {}
+    for fl in flights:
+        table, meta, report = extract_flight(fl, opts, tmap)
+        tables.append(table)
+        reports.append(report)
+        per_flight[report.flight] = meta
+        for k, v in meta["sources"].items():
+            sources.setdefault(k, v)
+    table = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+    side = {
+        "format": DF_FORMAT,
+        "version": 1,
+        "thrust_meaning": "collective (all rotors), N; the stand map is per rotor",
+        "columns": sources,
+        "flights": per_flight,
+        "options": asdict(opts),
+        "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
+        "reports": [r.to_dict() for r in reports],
+    }
+    return Df(table, side, reports)
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    return Path(csv_path).with_suffix(".json")
+
+
+def write_df(df: Df, path: str | Path) -> Path:
+    p = Path(path)
+    df.table.to_csv(p, index=False, float_format="%.6g")
+    side = sidecar_path(p)
+    side.write_text(json.dumps(df.sources, indent=2, default=str) + "\n", encoding="utf-8")
+    return side
+
+
+def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
+    p = Path(path)
+    try:
+        table = pd.read_csv(p)
+    except FileNotFoundError:
+        raise DataFormatError("Df file not found", file=str(p)) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"not a Df CSV: {exc}", file=str(p)) from None
+    for need in ("voltage_v", "force_n"):
+        if need not in table.columns:
+            raise DataFormatError(
+                "not a Df CSV (expected columns time_s, voltage_v, accel_up_mps2, force_n, "
+                "thrust_cmd_n and/or thrust_cmd_norm)",
+                file=str(p),
+                column=need,
+            )
+    side: dict[str, Any] = {}
+    sp = sidecar_path(p)
+    if sp.exists():
+        try:
+            side = json.loads(sp.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise DataFormatError(f"sidecar is not JSON ({exc})", file=str(sp)) from None
+    if "flight" not in table.columns:
+        table.insert(0, "flight", p.name)
+    return table, side
+
+
+def hover_throttle(table: pd.DataFrame) -> float:
+    """The normalised collective command needed to hover: median of norm · g / a_up."""
+    if "thrust_cmd_norm" not in table.columns or not len(table):
+        raise DataFormatError("Df has no normalised thrust command to estimate hover throttle")
+    ratio = table["thrust_cmd_norm"].to_numpy(float) * G0 / table["accel_up_mps2"].to_numpy(float)
+    return float(np.nanmedian(ratio))

@@ -1,0 +1,157 @@
+"""MAVLink telemetry logs (.tlog: 8-byte big-endian µs timestamp + MAVLink frame), via pymavlink.
+
+Fields (flight-logs.md): SYS_STATUS.voltage_battery (mV), HEARTBEAT.base_mode & 128 (armed),
+EXTENDED_SYS_STATE.landed_state (2 = in air; takeoff/landing count as not airborne),
+SERVO_OUTPUT_RAW.servoN_raw (µs), HIGHRES_IMU.zacc (m/s², FRD) or SCALED_IMU.zacc (mG),
+ATTITUDE_TARGET.thrust (0..1), ATTITUDE roll/pitch (tilt). Telemetry rates are low (a few Hz).
+Only messages from the vehicle are used (the first system whose HEARTBEAT is not a GCS).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from thrustmap.errors import DataFormatError
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.units import ThrottleScale
+
+log = logging.getLogger(__name__)
+
+G0 = 9.80665
+TYPES = [
+    "HEARTBEAT",
+    "SYS_STATUS",
+    "EXTENDED_SYS_STATE",
+    "SERVO_OUTPUT_RAW",
+    "HIGHRES_IMU",
+    "SCALED_IMU",
+    "ATTITUDE_TARGET",
+    "ATTITUDE",
+]
+MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID = 6, 8
+MAV_LANDED_STATE_IN_AIR = 2
+ARMED_FLAG = 128
+#: plausible tlog timestamps: 2005-01-01 .. 2100-01-01 in µs
+_T_MIN_US, _T_MAX_US = 1_104_537_600_000_000, 4_102_444_800_000_000
+
+
+def sniff(path: Path, head: bytes) -> bool:
+    if len(head) < 10:
+        return False
+    (t_us,) = struct.unpack(">Q", head[:8])
+    return _T_MIN_US <= t_us <= _T_MAX_US and head[8] in (0xFE, 0xFD)
+
+
+def _signal(rows: list[tuple[float, Any]], unit: str, origin: str) -> Signal | None:
+    if not rows:
+        return None
+    t = np.array([r[0] for r in rows], float)
+    v = np.array([r[1] for r in rows], float)
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    return Signal(t[keep], v[keep], unit, origin)
+
+
+def read(path: Path, **_: Any) -> list[FlightLog]:
+    from pymavlink import mavutil
+
+    if path.stat().st_size == 0:
+        raise DataFormatError("telemetry log is empty (0 bytes)", file=str(path))
+    try:
+        mlog = mavutil.mavlink_connection(str(path), robust_parsing=True)
+    except Exception as exc:
+        raise DataFormatError(f"cannot open telemetry log: {exc}", file=str(path)) from None
+    rows: dict[str, list[tuple[float, Any]]] = {k: [] for k in TYPES}
+    vehicle: int | None = None
+    bad_bytes = 0
+    total = 0
+    try:
+        while True:
+            m = mlog.recv_match(blocking=False)
+            if m is None:
+                break
+            mtype = m.get_type()
+            if mtype == "BAD_DATA":
+                bad_bytes += len(getattr(m, "data", b""))
+                continue
+            total += 1
+            if mtype not in rows:
+                continue
+            src = m.get_srcSystem()
+            if (
+                mtype == "HEARTBEAT"
+                and vehicle is None
+                and m.type != MAV_TYPE_GCS
+                and m.autopilot != MAV_AUTOPILOT_INVALID
+            ):
+                vehicle = src
+            if vehicle is None or src != vehicle:
+                continue
+            t = float(m._timestamp)
+            if mtype == "HEARTBEAT":
+                rows[mtype].append((t, 1.0 if m.base_mode & ARMED_FLAG else 0.0))
+            elif mtype == "SYS_STATUS":
+                if m.voltage_battery not in (0, 0xFFFF):
+                    rows[mtype].append((t, m.voltage_battery / 1000.0))
+            elif mtype == "EXTENDED_SYS_STATE":
+                rows[mtype].append((t, 0.0 if m.landed_state == MAV_LANDED_STATE_IN_AIR else 1.0))
+            elif mtype == "SERVO_OUTPUT_RAW":
+                if getattr(m, "port", 0) == 0:
+                    rows[mtype].append((t, [getattr(m, f"servo{i}_raw") for i in range(1, 9)]))
+            elif mtype == "HIGHRES_IMU":
+                rows[mtype].append((t, -float(m.zacc)))
+            elif mtype == "SCALED_IMU":
+                rows[mtype].append((t, -float(m.zacc) * G0 / 1000.0))
+            elif mtype == "ATTITUDE_TARGET":
+                rows[mtype].append((t, float(m.thrust)))
+            elif mtype == "ATTITUDE":
+                c = np.cos(m.roll) * np.cos(m.pitch)
+                rows[mtype].append((t, float(np.degrees(np.arccos(np.clip(c, -1, 1))))))
+    finally:
+        mlog.close()
+    if total == 0:
+        raise DataFormatError(
+            f"no MAVLink messages decoded ({bad_bytes} bytes of bad data)", file=str(path)
+        )
+    if vehicle is None:
+        raise DataFormatError("no vehicle HEARTBEAT in the telemetry log", file=str(path))
+    t0 = min(r[0][0] for r in rows.values() if r)
+    for r in rows.values():
+        r[:] = [(t - t0, v) for t, v in r]
+    warnings: list[str] = []
+    if bad_bytes:
+        warnings.append(f"{bad_bytes} bytes of corrupt data skipped (bad MAVLink frames)")
+    flight = FlightLog(path=str(path), format="tlog", warnings=warnings)
+    flight.metadata.update({"system_id": vehicle, "messages": total, "t0_unix_s": t0})
+    flight.voltage_v = _signal(rows["SYS_STATUS"], "V", "SYS_STATUS.voltage_battery/1000")
+    flight.armed = _signal(rows["HEARTBEAT"], "bool", "HEARTBEAT.base_mode & 128")
+    flight.landed = _signal(
+        rows["EXTENDED_SYS_STATE"], "bool", "EXTENDED_SYS_STATE.landed_state != IN_AIR"
+    )
+    flight.accel_up_mps2 = _signal(rows["HIGHRES_IMU"], "m/s^2", "-HIGHRES_IMU.zacc") or _signal(
+        rows["SCALED_IMU"], "m/s^2", "-SCALED_IMU.zacc (mG -> m/s^2)"
+    )
+    flight.thrust_cmd_norm = _signal(rows["ATTITUDE_TARGET"], "1", "ATTITUDE_TARGET.thrust")
+    tilt = _signal(rows["ATTITUDE"], "deg", "ATTITUDE.roll/pitch")
+    if tilt is not None:
+        flight.extras["tilt_deg"] = tilt
+    servo = _signal(rows["SERVO_OUTPUT_RAW"], "us", "SERVO_OUTPUT_RAW")
+    if servo is not None:
+        outs: FloatArray = servo.values
+        n = 0
+        while (
+            n < outs.shape[1] and 800 <= np.median(outs[:, n]) <= 2200 and np.std(outs[:, n]) > 0.5
+        ):
+            n += 1
+        if n:
+            flight.motor_outputs = Signal(
+                servo.time_s, outs[:, :n], "us", f"SERVO_OUTPUT_RAW.servo1..{n}_raw"
+            )
+            flight.motor_output_scale = ThrottleScale("pwm", 1000.0, 2000.0, "us")
+    return [flight]

@@ -1,0 +1,244 @@
+"""PX4 ULog flight logs, via pyulog, across the topic renames.
+
+| need               | v1.14+                                | before v1.14                  |
+|--------------------|---------------------------------------|-------------------------------|
+| collective thrust  | vehicle_thrust_setpoint.xyz[2] (-1..0) | actuator_controls_0.control[3] |
+| motor outputs      | actuator_motors.control[i] (0..1)      | actuator_outputs.output[i]     |
+
+Battery: battery_status.voltage_v (voltage_filtered_v only in older firmware, used only when
+voltage_v is missing). Upward specific force: -sensor_combined.accelerometer_m_s2[2] (FRD).
+Armed: vehicle_status.arming_state == 2; landed: vehicle_land_detected.landed.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap.errors import DataFormatError
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.units import SCALES, ThrottleScale
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"ULog\x01\x12\x35"
+TOPICS = [
+    "battery_status",
+    "sensor_combined",
+    "vehicle_acceleration",
+    "vehicle_thrust_setpoint",
+    "actuator_controls_0",
+    "actuator_motors",
+    "actuator_outputs",
+    "vehicle_status",
+    "vehicle_land_detected",
+    "hover_thrust_estimate",
+    "vehicle_attitude",
+]
+ARMING_STATE_ARMED = 2
+#: PX4 UAVCAN ESC raw command range
+UAVCAN_RAW = ThrottleScale("uavcan-raw", 0.0, 8191.0, "raw")
+
+
+def sniff(path: Path, head: bytes) -> bool:
+    return head.startswith(MAGIC)
+
+
+Data = dict[str, npt.NDArray[Any]]
+
+
+def _topics(ulog: Any) -> dict[tuple[str, int], Data]:
+    return {(d.name, d.multi_id): d.data for d in ulog.data_list}
+
+
+def _time(data: Data, t0_us: int) -> FloatArray:
+    return (np.asarray(data["timestamp"], dtype=np.int64) - int(t0_us)).astype(float) * 1e-6
+
+
+def _signal(t: FloatArray, values: npt.ArrayLike, unit: str, origin: str) -> Signal:
+    v = np.asarray(values, dtype=float)
+    ok = t >= 0  # timestamp 0 marks "never published" samples
+    t, v = t[ok], v[ok]
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
+    return Signal(t[keep], v[keep], unit, origin)
+
+
+def _indexed(data: Data, prefix: str) -> list[str]:
+    pat = re.compile(re.escape(prefix) + r"\[(\d+)\]$")
+    keys = [(int(m.group(1)), k) for k in data if (m := pat.match(k))]
+    return [k for _, k in sorted(keys)]
+
+
+def _pwm_outputs(
+    topics: dict[tuple[str, int], Data], t0: int, armed: Signal | None
+) -> tuple[Signal, ThrottleScale] | None:
+    """The actuator_outputs instance that drives the motors (pre-v1.14 logs)."""
+    best: tuple[float, Signal, ThrottleScale] | None = None
+    for (name, inst), data in topics.items():
+        if name != "actuator_outputs" or not len(data["timestamp"]):
+            continue
+        keys = _indexed(data, "output")[:8]
+        if not keys:
+            continue
+        t = _time(data, t0)
+        outs = np.stack([np.asarray(data[k], float) for k in keys], axis=1)
+        mask = armed.hold(t) > 0.5 if armed is not None else np.ones(len(t), bool)
+        if not mask.any():
+            continue
+        active = outs[mask]
+        moving = np.flatnonzero(np.std(active, axis=0) > 1.0)
+        # motors are the leading block of moving channels
+        n = 0
+        while n < len(keys) and n in set(moving.tolist()):
+            n += 1
+        if n < 3:
+            continue
+        med = float(np.median(active[:, :n]))
+        if 800.0 <= med <= 2200.0:
+            scale = SCALES["pwm"]
+        elif 0.0 < med <= 8191.0 and float(np.max(active[:, :n])) <= 8191.0 and med > 2200.0:
+            scale = UAVCAN_RAW
+        else:
+            continue
+        score = float(np.mean(np.std(active[:, :n], axis=0))) / scale.span
+        sig = _signal(t, outs[:, :n], scale.unit, f"actuator_outputs[{inst}].output[0..{n - 1}]")
+        if best is None or score > best[0]:
+            best = (score, sig, scale)
+    return None if best is None else (best[1], best[2])
+
+
+def _release(code: Any) -> str | None:
+    """PX4's ver_sw_release word (0xMMmmpptt) as 'v1.15.0'."""
+    if not isinstance(code, int) or code <= 0:
+        return None
+    return f"v{(code >> 24) & 0xFF}.{(code >> 16) & 0xFF}.{(code >> 8) & 0xFF}"
+
+
+def read(path: Path, **_: Any) -> list[FlightLog]:
+    try:
+        from pyulog import ULog
+    except ImportError:  # pragma: no cover - exercised only without pyulog
+        raise DataFormatError(
+            "reading PX4 ULog needs pyulog (pip install pyulog)", file=str(path)
+        ) from None
+    warnings: list[str] = []
+    try:
+        ulog = ULog(str(path), message_name_filter_list=TOPICS, disable_str_exceptions=True)
+    except Exception as exc:  # pyulog raises bare exceptions on malformed headers
+        raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
+    if getattr(ulog, "file_corruption", False):
+        warnings.append("corrupt data in the log (pyulog resynchronised); the good part is used")
+    topics = _topics(ulog)
+    if not topics:
+        raise DataFormatError(
+            "ULog holds none of the needed topics (" + ", ".join(TOPICS[:4]) + ", ...)",
+            file=str(path),
+        )
+    t0 = int(ulog.start_timestamp)
+    params = dict(ulog.initial_parameters)
+    flight = FlightLog(path=str(path), format="ulog", warnings=warnings)
+    info = ulog.msg_info_dict
+    flight.metadata.update(
+        {
+            "ver_sw": info.get("ver_sw"),
+            "ver_sw_release": info.get("ver_sw_release"),
+            "px4_version": _release(info.get("ver_sw_release")),
+            "sys_name": info.get("sys_name"),
+            "ver_hw": info.get("ver_hw"),
+            "topics": sorted({f"{n}[{i}]" for n, i in topics}),
+            "duration_s": (int(ulog.last_timestamp) - t0) * 1e-6,
+            "params": {
+                k: v
+                for k, v in params.items()
+                if k.startswith(("MC_BAT_SCALE", "THR_MDL", "MPC_THR", "BAT_N_CELLS"))
+            },
+        }
+    )
+    if params.get("MC_BAT_SCALE_EN", 0):
+        warnings.append(
+            "MC_BAT_SCALE_EN=1: PX4 already scaled the thrust setpoint by battery_status.scale"
+        )
+
+    def topic(name: str) -> Data | None:
+        d = topics.get((name, 0))
+        return d if d is not None and len(d.get("timestamp", ())) else None
+
+    if (b := topic("battery_status")) is not None:
+        key = "voltage_v" if "voltage_v" in b else "voltage_filtered_v"
+        v = np.asarray(b[key], float)
+        ok = v > 0.5  # 0 V until the first ADC reading
+        flight.voltage_v = _signal(_time(b, t0)[ok], v[ok], "V", f"battery_status.{key}")
+    if (s := topic("sensor_combined")) is not None:
+        flight.accel_up_mps2 = _signal(
+            _time(s, t0),
+            -np.asarray(s["accelerometer_m_s2[2]"], float),
+            "m/s^2",
+            "-sensor_combined.accelerometer_m_s2[2]",
+        )
+    elif (a := topic("vehicle_acceleration")) is not None:
+        flight.accel_up_mps2 = _signal(
+            _time(a, t0), -np.asarray(a["xyz[2]"], float), "m/s^2", "-vehicle_acceleration.xyz[2]"
+        )
+    if (ts := topic("vehicle_thrust_setpoint")) is not None:
+        flight.thrust_cmd_norm = _signal(
+            _time(ts, t0), -np.asarray(ts["xyz[2]"], float), "1", "-vehicle_thrust_setpoint.xyz[2]"
+        )
+    elif (ac := topic("actuator_controls_0")) is not None:
+        flight.thrust_cmd_norm = _signal(
+            _time(ac, t0), ac["control[3]"], "1", "actuator_controls_0.control[3]"
+        )
+    if (vs := topic("vehicle_status")) is not None:
+        flight.armed = _signal(
+            _time(vs, t0),
+            np.asarray(vs["arming_state"]) == ARMING_STATE_ARMED,
+            "bool",
+            "vehicle_status.arming_state == 2",
+        )
+    if (ld := topic("vehicle_land_detected")) is not None:
+        flight.landed = _signal(_time(ld, t0), ld["landed"], "bool", "vehicle_land_detected.landed")
+    if (h := topic("hover_thrust_estimate")) is not None:
+        valid = np.asarray(h.get("valid", np.ones(len(h["timestamp"]))), bool)
+        ht = np.where(valid, np.asarray(h["hover_thrust"], float), np.nan)
+        flight.hover_thrust_estimate = _signal(
+            _time(h, t0), ht, "1", "hover_thrust_estimate.hover_thrust (valid only)"
+        )
+    if (att := topic("vehicle_attitude")) is not None:
+        q0, q1, q2, q3 = (np.asarray(att[f"q[{i}]"], float) for i in range(4))
+        # body z axis vs earth z: R[2,2] = 1 - 2(q1² + q2²)
+        cos_tilt = np.clip(1.0 - 2.0 * (q1 * q1 + q2 * q2), -1.0, 1.0)
+        flight.extras["tilt_deg"] = _signal(
+            _time(att, t0), np.degrees(np.arccos(cos_tilt)), "deg", "vehicle_attitude.q"
+        )
+    if (am := topic("actuator_motors")) is not None:
+        keys = _indexed(am, "control")
+        ctl = np.stack([np.asarray(am[k], float) for k in keys], axis=1)
+        used = [
+            k
+            for k in range(ctl.shape[1])
+            if np.isfinite(ctl[:, k]).any() and np.nanmax(np.abs(ctl[:, k])) > 0
+        ]
+        if used:
+            n = max(used) + 1
+            flight.motor_outputs = _signal(
+                _time(am, t0),
+                np.nan_to_num(ctl[:, :n], nan=0.0),
+                "1",
+                f"actuator_motors.control[0..{n - 1}] (NaN disarmed -> 0)",
+            )
+            flight.motor_output_scale = SCALES["norm"]
+    else:
+        found = _pwm_outputs(topics, t0, flight.armed)
+        if found is not None:
+            flight.motor_outputs, flight.motor_output_scale = found
+    if flight.accel_up_mps2 is None:
+        warnings.append("no sensor_combined / vehicle_acceleration: no upward specific force")
+    if flight.voltage_v is None:
+        warnings.append("no battery_status: no battery voltage")
+    return [flight]
