@@ -1,0 +1,378 @@
+"""Execute a sweep plan on a stand and a throttle output, with interlocks, and record Ds.
+
+Every run ends with a verified stop, whatever happens: the plan finishing, a tripped limit,
+an exception inside the plan or a driver, Ctrl-C, SIGTERM, the stand going quiet (watchdog), or
+the throttle output's link failing. The Ds log is flushed sample by sample and its sidecar
+records the outcome, so an aborted run still loads in ``thrustmap fit``.
+
+One monotonic clock (injected) timestamps everything; with a ``SimClock`` a test runs a
+minute-long sweep in milliseconds and never sleeps for real.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from thrustmap.clock import Clock
+from thrustmap.errors import SafetyError
+from thrustmap.fitting.dsformat import DsWriter
+from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
+from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
+from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
+from thrustmap.rig.safety import Terminated, terminate_as_exception
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    motor: int = 0  # 0-based motor on the load cell
+    rotors_on_esc: int = 1  # 4: all four motors get the same command (MR strategy)
+    tick_s: float = 0.02  # control loop period
+    telemetry_period_s: float = 0.2
+    keepalive_s: float = 0.5  # re-send the command at least this often
+    settle_window_s: float = 0.6  # settle detection: thrust range over this window ...
+    settle_band_n: float = 0.03  # ... within max(this, settle_rel × thrust)
+    settle_rel: float = 0.006
+    tare: bool = True
+
+
+@dataclass
+class Status:
+    """What the live readout shows (passed to the monitor callback every tick)."""
+
+    time_s: float
+    elapsed_s: float
+    plan_duration_s: float
+    segment: int
+    segments: int
+    label: str
+    throttle_pct: float
+    throttle_native: float
+    reading: Reading
+    margins: dict[str, float]
+
+
+@dataclass
+class RunResult:
+    status: str  # "completed" | "aborted"
+    reason: str
+    samples: int
+    duration_s: float
+    stop_verified: bool
+    stop_latency_s: float | None  # from the abort decision to the stop command (sim-timed)
+    trip: Trip | None = None
+    log_path: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class Aborted(Exception):
+    def __init__(self, reason: str, trip: Trip | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.trip = trip
+
+
+class Runner:
+    def __init__(
+        self,
+        plan: Plan,
+        output: ThrottleOutput,
+        stand: Stand,
+        writer: DsWriter,
+        clock: Clock,
+        *,
+        limits: Limits | None = None,
+        config: RunConfig | None = None,
+        monitor: Callable[[Status], None] | None = None,
+    ) -> None:
+        self.plan = plan
+        self.output = output
+        self.stand = stand
+        self.writer = writer
+        self.clock = clock
+        self.limits = limits or Limits()
+        self.cfg = config or RunConfig()
+        self.monitor = monitor
+        self.scale = output.throttle_scale
+        self._cmd_pct = 0.0
+        self._sent_pct: float | None = None
+        self._sent_at = -1e9
+        self._last_sample_at = 0.0
+        self._last_link_ok = 0.0
+        self._telemetry: Telemetry | None = None
+        self._telemetry_at = -1e9
+        self._reading = Reading()
+        self._abort_at: float | None = None
+        self._t0 = 0.0
+        self._segment_index = 0
+        self._label = ""
+        self._target_pct_now = 0.0
+
+    # -- public ---------------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        check_plan(self.plan, self.limits)  # refuse before anything spins
+        status, reason, trip = "aborted", "", None
+        self._t0 = self.clock.now_s()
+        with terminate_as_exception():
+            try:
+                try:
+                    self._preflight()
+                    for i, seg in enumerate(self.plan.segments):
+                        self._segment_index = i
+                        self._run_segment(seg)
+                    status, reason = "completed", ""
+                except Aborted as exc:
+                    reason, trip = exc.reason, exc.trip
+                except Terminated as exc:
+                    reason = f"terminated ({exc})"
+                except KeyboardInterrupt:
+                    reason = "interrupted (Ctrl-C)"
+                except Exception as exc:  # a driver or plan failure: stop first, then report
+                    reason = f"{type(exc).__name__}: {exc}"
+                    raise
+            finally:
+                if self._abort_at is None:
+                    self._abort_at = self.clock.now_s()
+                stop_at = self.clock.now_s()
+                verified = self.output.stop_and_verify()
+                latency = stop_at - self._abort_at
+                if status != "completed":
+                    log.warning(
+                        "run aborted: %s; motors %s",
+                        reason,
+                        "stopped (verified)" if verified else "STOP NOT VERIFIED",
+                    )
+                self._drain_after_stop()
+                self.writer.finish(
+                    status,
+                    reason,
+                    extra={
+                        "stop_verified": verified,
+                        "stop_latency_s": latency,
+                        "trip": None if trip is None else trip.__dict__,
+                    },
+                )
+        return RunResult(
+            status,
+            reason,
+            self.writer.rows,
+            self.clock.now_s() - self._t0,
+            verified,
+            latency,
+            trip,
+            str(self.writer.path),
+        )
+
+    # -- internals -------------------------------------------------------------------------------
+    def _motors(self) -> list[int]:
+        if self.cfg.rotors_on_esc > 1:
+            return list(range(self.cfg.rotors_on_esc))
+        return [self.cfg.motor]
+
+    def _abort(self, reason: str, trip: Trip | None = None) -> None:
+        self._abort_at = self.clock.now_s()
+        raise Aborted(reason, trip)
+
+    def _preflight(self) -> None:
+        ident = self.output.identify()
+        log.info(
+            "throttle output: %s %s (%s)", ident.kind, ident.firmware_version, ident.motor_protocol
+        )
+        self.output.stop()
+        if not self.output.verify_stopped():
+            raise SafetyError("motors are not at rest before the run; refusing to start")
+        if self.cfg.tare:
+            self.stand.tare()
+        now = self.clock.now_s()
+        self._last_sample_at = now
+        self._last_link_ok = now
+
+    def _target_pct(self, seg: Segment, t_in: float) -> float:
+        if isinstance(seg, Ramp):
+            f = min(max(t_in / seg.duration_s, 0.0), 1.0)
+            return seg.start_pct + f * (seg.end_pct - seg.start_pct)
+        return seg.throttle_pct
+
+    def _run_segment(self, seg: Segment) -> None:
+        start = self.clock.now_s()
+        self._label = seg.label
+        length = seg.duration_s if isinstance(seg, Ramp) else seg.dwell_s
+        settle = isinstance(seg, Hold) and seg.settle
+        window: deque[tuple[float, float]] = deque()
+        settled_at: float | None = None
+        while True:
+            now = self.clock.now_s()
+            t_in = now - start
+            if t_in >= length:
+                if settle:
+                    log.info("hold %.1f %% did not settle within %.1f s", self._cmd_pct, length)
+                return
+            if settle and settled_at is not None and now - settled_at >= seg.record_s:  # type: ignore[union-attr]
+                return
+            self._command(self._target_pct(seg, t_in), now)
+            samples = self._poll(now)
+            if settle and settled_at is None:
+                for s in samples:
+                    window.append((s.time_s, s.thrust_n))
+                while window and window[0][0] < now - self.cfg.settle_window_s:
+                    window.popleft()
+                if self._settled(window, start):
+                    settled_at = now
+                    self._label = f"{seg.label}-settled"
+            self._report(now)
+            self.clock.sleep_s(self.cfg.tick_s)
+
+    def _settled(self, window: deque[tuple[float, float]], start: float) -> bool:
+        if len(window) < 5 or window[-1][0] - window[0][0] < 0.8 * self.cfg.settle_window_s:
+            return False
+        if abs(self._cmd_pct - self._target_pct_now) > 1e-9:
+            return False  # still slewing toward the level
+        values = np.array([v for _, v in window])
+        band = max(self.cfg.settle_band_n, self.cfg.settle_rel * abs(float(values.mean())))
+        return float(values.max() - values.min()) <= band
+
+    def _command(self, target_pct: float, now: float) -> None:
+        self._target_pct_now = target_pct
+        # Slew-rate limit (steps become short ramps at the configured rate).
+        max_step = self.limits.max_slew_pct_s * self.cfg.tick_s
+        delta = float(np.clip(target_pct - self._cmd_pct, -max_step, max_step))
+        self._cmd_pct = min(self._cmd_pct + delta, self.limits.max_throttle_pct)
+        changed = self._sent_pct is None or abs(self._cmd_pct - self._sent_pct) > 1e-9
+        if changed or now - self._sent_at >= self.cfg.keepalive_s:
+            native = float(self.scale.from_pct(self._cmd_pct))
+            try:
+                if changed:
+                    self.output.set_throttle({m: native for m in self._motors()})
+                else:
+                    self.output.keepalive()
+                self._last_link_ok = self.clock.now_s()
+            except SafetyError:
+                raise
+            except Exception as exc:
+                self._link_failure(f"throttle output failed: {exc}")
+            self._sent_pct = self._cmd_pct
+            self._sent_at = now
+
+    def _link_failure(self, reason: str) -> None:
+        if self.clock.now_s() - self._last_link_ok >= self.limits.link_timeout_s:
+            self._abort(f"lost link to the throttle output: {reason}")
+        log.warning("%s (retrying)", reason)
+
+    def _poll(self, now: float) -> list[StandSample]:
+        try:
+            samples = self.stand.read_samples()
+        except SafetyError:
+            raise
+        except Exception as exc:
+            self._abort(f"lost link to the stand: {exc}")
+            raise  # unreachable: _abort raises
+        if samples:
+            self._last_sample_at = self.clock.now_s()
+        elif now - self._last_sample_at > self.limits.stale_data_s:
+            self._abort(
+                f"stale stand data: no sample for {now - self._last_sample_at:.2f} s "
+                f"(limit {self.limits.stale_data_s:.2f} s)"
+            )
+        if now - self._telemetry_at >= self.cfg.telemetry_period_s:
+            self._telemetry_at = now
+            try:
+                self._telemetry = self.output.read_telemetry()
+                self._last_link_ok = self.clock.now_s()
+            except SafetyError:
+                raise
+            except Exception as exc:
+                self._link_failure(f"telemetry failed: {exc}")
+        if self.clock.now_s() - self._last_link_ok > self.limits.link_timeout_s:
+            self._abort(
+                f"lost link to the throttle output: no answer for "
+                f"{self.clock.now_s() - self._last_link_ok:.2f} s"
+            )
+        for s in samples:
+            self._record(s)
+        return samples
+
+    def _record(self, s: StandSample) -> None:
+        tel = self._telemetry
+        rpm = s.rpm
+        if rpm is None and tel is not None and tel.rpm:
+            rpm = tel.rpm[self.cfg.motor] if self.cfg.motor < len(tel.rpm) else None
+        temp = s.temperature_c
+        if temp is None and tel is not None and tel.temperature_c:
+            temp = max(tel.temperature_c)
+        reading = Reading(
+            thrust_n=s.thrust_n,
+            current_a=s.current_a if s.current_a is not None else (tel.current_a if tel else None),
+            voltage_v=s.voltage_v if s.voltage_v is not None else (tel.voltage_v if tel else None),
+            rpm=rpm,
+            temperature_c=temp,
+            vibration_g=s.vibration_g,
+        )
+        self._reading = reading
+        throttle = (
+            s.throttle_native
+            if s.throttle_native is not None
+            else float(self.scale.from_pct(self._cmd_pct))
+        )
+        self.writer.write(
+            s.time_s,
+            throttle,
+            {
+                "thrust_n": s.thrust_n,
+                "voltage_v": reading.voltage_v,
+                "current_a": reading.current_a,
+                "rpm": reading.rpm,
+                "torque_nm": s.torque_nm,
+                "temperature_c": reading.temperature_c,
+                "vibration_g": reading.vibration_g,
+                "step": self._segment_index,
+                "phase": self._label,
+            },
+        )
+        trip = check(self.limits, reading)
+        if trip is not None:
+            self._abort(f"limit tripped: {trip.message}", trip)
+
+    def _drain_after_stop(self) -> None:
+        """Keep recording briefly after the stop (spin-down), never raising."""
+        try:
+            for s in self.stand.read_samples():
+                self.writer.write(
+                    s.time_s,
+                    float(self.scale.lo),
+                    {
+                        "thrust_n": s.thrust_n,
+                        "voltage_v": s.voltage_v,
+                        "current_a": s.current_a,
+                        "rpm": s.rpm,
+                        "torque_nm": s.torque_nm,
+                        "step": self._segment_index,
+                        "phase": "stop",
+                    },
+                )
+        except Exception as exc:
+            log.debug("no samples after stop: %s", exc)
+
+    def _report(self, now: float) -> None:
+        if self.monitor is None:
+            return
+        self.monitor(
+            Status(
+                time_s=now,
+                elapsed_s=now - self._t0,
+                plan_duration_s=self.plan.duration_s,
+                segment=self._segment_index,
+                segments=len(self.plan.segments),
+                label=self._label,
+                throttle_pct=self._cmd_pct,
+                throttle_native=float(self.scale.from_pct(self._cmd_pct)),
+                reading=self._reading,
+                margins=margins(self.limits, self._reading),
+            )
+        )
