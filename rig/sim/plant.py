@@ -25,6 +25,7 @@ class PlantState:
     motor_current_a: list[float] = field(default_factory=list)  # per motor
     temperature_c: list[float] = field(default_factory=list)  # per motor/ESC
     vibration_g: float = 0.0
+    motor_thrust_n: list[float] = field(default_factory=list)  # per motor, true (noise-free)
 
 
 class Plant(Protocol):
