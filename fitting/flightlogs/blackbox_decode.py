@@ -1,0 +1,704 @@
+"""Decoder for Betaflight/Cleanflight/INAV blackbox binary logs (.bbl/.bfl), written from the
+format's public description (MIT, like the rest of thrustmap).
+
+A file holds one or more logs; each starts with ASCII header lines ``H key:value`` that define
+the frame layouts (``Field I name/signed/predictor/encoding``, ``Field P ...``, ``Field S ...``,
+``Field G ...``, ``Field H ...``) followed by binary frames, each introduced by one marker byte:
+
+- ``I`` intra frame (all main fields, predicted only from constants),
+- ``P`` inter frame (main fields predicted from the previous one or two main frames),
+- ``S`` slow frame (flight mode flags etc.), ``G`` GPS, ``H`` GPS home, ``E`` event
+  (``E 0xFF "End of log\\0"`` closes a log).
+
+A frame is accepted when its length is sane and it is followed by another marker (or the end of
+the data); otherwise it is counted as corrupt and decoding resynchronises at the next marker.
+Inter frames after a corrupt frame are dropped until the next intra frame re-establishes the
+history. A truncated tail is reported and everything before it is kept.
+
+For speed each frame layout is compiled once into a small specialised Python function.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+log = logging.getLogger(__name__)
+
+LOG_START_MARKER = b"H Product:Blackbox flight data recorder by Nicholas Sherlock"
+FRAME_MARKERS = b"IPEGHS"
+MAX_FRAME_BYTES = 256
+MAX_ITERATION_JUMP = 5000
+MAX_TIME_JUMP_US = 10_000_000
+
+# Encodings
+ENC_SIGNED_VB = 0
+ENC_UNSIGNED_VB = 1
+ENC_NEG_14BIT = 3
+ENC_TAG8_8SVB = 6
+ENC_TAG2_3S32 = 7
+ENC_TAG8_4S16 = 8
+ENC_NULL = 9
+# Predictors
+PRED_ZERO = 0
+PRED_PREVIOUS = 1
+PRED_STRAIGHT_LINE = 2
+PRED_AVERAGE_2 = 3
+PRED_MINTHROTTLE = 4
+PRED_MOTOR_0 = 5
+PRED_INC = 6
+PRED_HOME_COORD = 7
+PRED_1500 = 8
+PRED_VBATREF = 9
+PRED_LAST_MAIN_FRAME_TIME = 10
+PRED_MINMOTOR = 11
+PRED_HOME_COORD_1 = 256  # internal: second of a home-coordinate pair
+
+# Events
+EVENT_SYNC_BEEP = 0
+EVENT_INFLIGHT_ADJUSTMENT = 13
+EVENT_LOGGING_RESUME = 14
+EVENT_DISARM = 15
+EVENT_FLIGHT_MODE = 30
+EVENT_LOG_END = 255
+END_OF_LOG_TEXT = b"End of log\x00"
+
+FrameParser = Callable[..., tuple[list[int], int]]
+
+
+class CorruptFrame(Exception):
+    """A frame that cannot be decoded (bad varint, unknown event, ...)."""
+
+
+@dataclass
+class FrameDef:
+    names: list[str] = field(default_factory=list)
+    signed: list[int] = field(default_factory=list)
+    predictor: list[int] = field(default_factory=list)
+    encoding: list[int] = field(default_factory=list)
+
+
+@dataclass
+class BlackboxEvent:
+    frame_index: int  # number of main frames decoded before the event
+    kind: int
+    data: tuple[float, ...]
+
+
+@dataclass
+class DecodedLog:
+    """One log of a blackbox file, decoded to integers in firmware units."""
+
+    index: int
+    headers: dict[str, str]
+    main_fields: list[str]
+    main: npt.NDArray[np.int64]  # (frames, fields)
+    slow_fields: list[str]
+    slow: npt.NDArray[np.int64]  # (slow frames, fields)
+    slow_frame_index: npt.NDArray[np.int64]  # main-frame index each slow frame precedes
+    gps_fields: list[str]
+    gps: npt.NDArray[np.int64]
+    events: list[BlackboxEvent]
+    stats: dict[str, int]
+    warnings: list[str]
+    ended_cleanly: bool
+    byte_range: tuple[int, int]
+
+
+# --- header --------------------------------------------------------------------------------
+
+
+def split_logs(data: bytes) -> list[tuple[int, int]]:
+    """Byte ranges of the logs in a file (each begins with the product header line)."""
+    starts: list[int] = []
+    pos = data.find(LOG_START_MARKER)
+    while pos >= 0:
+        starts.append(pos)
+        pos = data.find(LOG_START_MARKER, pos + len(LOG_START_MARKER))
+    return [(s, starts[i + 1] if i + 1 < len(starts) else len(data)) for i, s in enumerate(starts)]
+
+
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",") if x.strip() != ""]
+
+
+def parse_headers(data: bytes) -> tuple[dict[str, str], dict[str, FrameDef], int]:
+    """Header lines at the start of ``data``: (key->value, frame defs by marker, data offset)."""
+    headers: dict[str, str] = {}
+    defs: dict[str, FrameDef] = {}
+    pos = 0
+    n = len(data)
+    while pos + 1 < n and data[pos] == 0x48 and data[pos + 1] == 0x20:  # "H "
+        end = data.find(b"\n", pos)
+        if end < 0:
+            end = n
+        line = data[pos + 2 : end].decode("latin-1")
+        pos = end + 1
+        key, sep, value = line.partition(":")
+        if not sep:
+            continue
+        headers[key] = value
+        if key.startswith("Field ") and len(key) > 7:
+            marker = key[6]
+            what = key[8:]
+            fd = defs.setdefault(marker, FrameDef())
+            try:
+                if what == "name":
+                    fd.names = value.split(",")
+                elif what == "signed":
+                    fd.signed = _ints(value)
+                elif what == "predictor":
+                    fd.predictor = _ints(value)
+                elif what == "encoding":
+                    fd.encoding = _ints(value)
+            except ValueError:
+                raise CorruptFrame(f"header line '{key}' has non-integer values") from None
+    return headers, defs, pos
+
+
+def header_int(headers: dict[str, str], key: str, default: int, position: int = 0) -> int:
+    value = headers.get(key)
+    if value is None:
+        return default
+    try:
+        parts = value.split(",")
+        text = parts[position].strip()
+        return int(text, 16) if text.lower().startswith("0x") else int(text)
+    except (ValueError, IndexError):
+        return default
+
+
+# --- frame parser generation -----------------------------------------------------------------
+
+
+def _read_uvb_tail(d: bytes, p: int, first: int) -> tuple[int, int]:
+    value = first & 0x7F
+    shift = 7
+    for _ in range(4):
+        b = d[p]
+        p += 1
+        value |= (b & 0x7F) << shift
+        if b < 0x80:
+            return value, p
+        shift += 7
+    raise CorruptFrame("variable-byte integer longer than 5 bytes")
+
+
+def _sext(value: int, bits: int) -> int:
+    sign = 1 << (bits - 1)
+    return (value & (sign - 1)) - (value & sign)
+
+
+def _read_svb(d: bytes, p: int) -> tuple[int, int]:
+    b = d[p]
+    p += 1
+    u, p = _read_uvb_tail(d, p, b) if b & 0x80 else (b, p)
+    return (u >> 1) ^ -(u & 1), p
+
+
+def _read_tag8_8svb(d: bytes, p: int, count: int) -> tuple[list[int], int]:
+    if count == 1:
+        v, p = _read_svb(d, p)
+        return [v], p
+    header = d[p]
+    p += 1
+    out = [0] * count
+    for i in range(count):
+        if header & (1 << i):
+            out[i], p = _read_svb(d, p)
+    return out, p
+
+
+def _read_tag2_3s32(d: bytes, p: int) -> tuple[list[int], int]:
+    lead = d[p]
+    p += 1
+    sel = lead >> 6
+    if sel == 0:
+        return [_sext(lead >> 4, 2), _sext(lead >> 2, 2), _sext(lead, 2)], p
+    if sel == 1:
+        b = d[p]
+        return [_sext(lead, 4), _sext(b >> 4, 4), _sext(b, 4)], p + 1
+    if sel == 2:
+        return [_sext(lead, 6), _sext(d[p], 6), _sext(d[p + 1], 6)], p + 2
+    out = [0, 0, 0]
+    for i in range(3):
+        nbytes = ((lead >> (2 * i)) & 3) + 1
+        out[i] = _sext(int.from_bytes(d[p : p + nbytes], "little"), 8 * nbytes)
+        if p + nbytes > len(d):
+            raise IndexError("tag2_3s32 past end of data")
+        p += nbytes
+    return out, p
+
+
+def _read_tag8_4s16_v2(d: bytes, p: int) -> tuple[list[int], int]:
+    selector = d[p]
+    p += 1
+    out = [0, 0, 0, 0]
+    nibble = False  # True: the low nibble of ``buf`` is still unread
+    buf = 0
+    for i in range(4):
+        kind = (selector >> (2 * i)) & 3
+        if kind == 1:  # 4 bits
+            if not nibble:
+                buf = d[p]
+                p += 1
+                out[i] = _sext(buf >> 4, 4)
+                nibble = True
+            else:
+                out[i] = _sext(buf, 4)
+                nibble = False
+        elif kind == 2:  # 8 bits
+            if not nibble:
+                out[i] = _sext(d[p], 8)
+                p += 1
+            else:
+                hi = buf & 0x0F
+                buf = d[p]
+                p += 1
+                out[i] = _sext((hi << 4) | (buf >> 4), 8)
+        elif kind == 3:  # 16 bits, big-endian in the nibble stream
+            if not nibble:
+                out[i] = _sext((d[p] << 8) | d[p + 1], 16)
+                p += 2
+            else:
+                c1, c2 = d[p], d[p + 1]
+                p += 2
+                out[i] = _sext(((buf & 0x0F) << 12) | (c1 << 4) | (c2 >> 4), 16)
+                buf = c2
+    return out, p
+
+
+def _read_tag8_4s16_v1(d: bytes, p: int) -> tuple[list[int], int]:
+    selector = d[p]
+    p += 1
+    out = [0, 0, 0, 0]
+    i = 0
+    while i < 4:
+        kind = (selector >> (2 * i)) & 3
+        if kind == 1:  # two 4-bit fields in one byte, low nibble first
+            b = d[p]
+            p += 1
+            out[i] = _sext(b, 4)
+            if i + 1 < 4:
+                out[i + 1] = _sext(b >> 4, 4)
+            i += 1
+        elif kind == 2:
+            out[i] = _sext(d[p], 8)
+            p += 1
+        elif kind == 3:
+            out[i] = _sext(d[p] | (d[p + 1] << 8), 16)
+            p += 2
+        i += 1
+    return out, p
+
+
+_UVB = (
+    "    b = d[p]; p += 1\n"
+    "    if b & 0x80:\n"
+    "        u, p = _uvb_tail(d, p, b)\n"
+    "    else:\n"
+    "        u = b\n"
+)
+
+
+def _prediction(i: int, predictor: int, constants: dict[str, int], motor0: int) -> str:
+    """Python expression for the value predicted for field ``i`` (added to the residual)."""
+    if predictor == PRED_ZERO:
+        return "0"
+    if predictor == PRED_PREVIOUS:
+        return f"prev[{i}]"
+    if predictor == PRED_STRAIGHT_LINE:
+        return f"2 * prev[{i}] - prev2[{i}]"
+    if predictor == PRED_AVERAGE_2:  # C integer division truncates toward zero
+        return f"((prev[{i}] + prev2[{i}] + (prev[{i}] + prev2[{i}] < 0)) >> 1)"
+    if predictor == PRED_MINTHROTTLE:
+        return str(constants["minthrottle"])
+    if predictor == PRED_MOTOR_0:
+        if motor0 < 0 or motor0 >= i:
+            raise CorruptFrame("a field is predicted from motor[0] but motor[0] precedes it not")
+        return f"f[{motor0}]"
+    if predictor == PRED_HOME_COORD:
+        return "home[0]"
+    if predictor == PRED_HOME_COORD_1:
+        return "home[1]"
+    if predictor == PRED_1500:
+        return "1500"
+    if predictor == PRED_VBATREF:
+        return str(constants["vbatref"])
+    if predictor == PRED_LAST_MAIN_FRAME_TIME:
+        return "last_time"
+    if predictor == PRED_MINMOTOR:
+        return str(constants["motor_low"])
+    raise CorruptFrame(f"unsupported field predictor {predictor}")
+
+
+def _wrap(i: int, signed: bool) -> str:
+    if signed:
+        return f"    f[{i}] = ((f[{i}] + 0x80000000) & 0xFFFFFFFF) - 0x80000000\n"
+    return f"    f[{i}] &= 0xFFFFFFFF\n"
+
+
+def compile_frame(
+    fd: FrameDef,
+    *,
+    constants: dict[str, int],
+    data_version: int,
+    motor0: int = -1,
+) -> FrameParser:
+    """A function ``(d, p, prev, prev2, skipped, last_time, home) -> (values, new_p)``."""
+    n = len(fd.names)
+    enc = list(fd.encoding) + [ENC_NULL] * (n - len(fd.encoding))
+    pred = list(fd.predictor) + [PRED_ZERO] * (n - len(fd.predictor))
+    signed = list(fd.signed) + [0] * (n - len(fd.signed))
+    for i in range(1, n):  # home coordinates come in (lat, lon) pairs sharing one predictor id
+        if pred[i - 1] == PRED_HOME_COORD and pred[i] == PRED_HOME_COORD:
+            pred[i] = PRED_HOME_COORD_1
+    lines = [
+        "def parse(d, p, prev, prev2, skipped, last_time, home):\n",
+        f"    f = [0] * {n}\n",
+    ]
+    i = 0
+    while i < n:
+        if pred[i] == PRED_INC:
+            lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
+            lines.append(_wrap(i, bool(signed[i])))
+            i += 1
+            continue
+        e = enc[i]
+        group: list[int]
+        if e in (ENC_TAG8_8SVB, ENC_TAG2_3S32, ENC_TAG8_4S16):
+            if e == ENC_TAG8_8SVB:
+                j = i + 1
+                while j < min(i + 8, n) and enc[j] == ENC_TAG8_8SVB:
+                    j += 1
+                if j - i == 1:
+                    lines.append("    g, p = _tag8_8svb(d, p, 1)\n")
+                else:  # most groups are all zero: one header byte of 0
+                    lines.append(
+                        "    if d[p] == 0:\n        g = _zeros; p += 1\n"
+                        f"    else:\n        g, p = _tag8_8svb(d, p, {j - i})\n"
+                    )
+                group = list(range(i, j))
+            elif e == ENC_TAG2_3S32:
+                lines.append("    g, p = _tag2_3s32(d, p)\n")
+                group = list(range(i, min(i + 3, n)))
+            else:
+                fn = "_tag8_4s16_v2" if data_version >= 2 else "_tag8_4s16_v1"
+                lines.append(
+                    f"    if d[p] == 0:\n        g = _zeros; p += 1\n    else:\n        g, p = {fn}(d, p)\n"
+                )
+                group = list(range(i, min(i + 4, n)))
+            for k, fi in enumerate(group):
+                pe = _prediction(fi, pred[fi], constants, motor0)
+                lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
+                if pe != "0":
+                    lines.append(_wrap(fi, bool(signed[fi])))
+            i = group[-1] + 1
+            continue
+        if e == ENC_SIGNED_VB:
+            lines.append(_UVB + "    v = (u >> 1) ^ -(u & 1)\n")
+        elif e == ENC_UNSIGNED_VB:
+            lines.append(_UVB + "    v = u\n")
+        elif e == ENC_NEG_14BIT:
+            lines.append(_UVB + "    v = -(u | -0x4000) if u & 0x2000 else -u\n")
+        elif e == ENC_NULL:
+            lines.append("    v = 0\n")
+        else:
+            raise CorruptFrame(f"unsupported field encoding {e} for field '{fd.names[i]}'")
+        pe = _prediction(i, pred[i], constants, motor0)
+        if pe == "0":
+            lines.append(f"    f[{i}] = v\n")
+            if e == ENC_UNSIGNED_VB:
+                lines.append(_wrap(i, bool(signed[i])))
+        else:
+            lines.append(f"    f[{i}] = v + {pe}\n")
+            lines.append(_wrap(i, bool(signed[i])))
+        i += 1
+    lines.append("    return f, p\n")
+    namespace: dict[str, Any] = {
+        "_uvb_tail": _read_uvb_tail,
+        "_tag8_8svb": _read_tag8_8svb,
+        "_tag2_3s32": _read_tag2_3s32,
+        "_tag8_4s16_v1": _read_tag8_4s16_v1,
+        "_tag8_4s16_v2": _read_tag8_4s16_v2,
+        "_zeros": (0, 0, 0, 0, 0, 0, 0, 0),
+    }
+    exec(compile("".join(lines), f"<blackbox frame {fd.names[:1]}>", "exec"), namespace)
+    parser: FrameParser = namespace["parse"]
+    return parser
+
+
+# --- log decoding ----------------------------------------------------------------------------
+
+
+def _uvb(d: bytes, p: int) -> tuple[int, int]:
+    b = d[p]
+    return _read_uvb_tail(d, p + 1, b) if b & 0x80 else (b, p + 1)
+
+
+def _parse_event(d: bytes, p: int) -> tuple[int, tuple[float, ...], int]:
+    kind = d[p]
+    p += 1
+    if kind == EVENT_SYNC_BEEP:
+        t, p = _uvb(d, p)
+        return kind, (float(t),), p
+    if kind == EVENT_INFLIGHT_ADJUSTMENT:
+        func = d[p]
+        p += 1
+        if func > 127:
+            if p + 4 > len(d):
+                raise IndexError("event past end of data")
+            value = float(np.frombuffer(d[p : p + 4], dtype="<f4")[0])
+            return kind, (float(func), value), p + 4
+        v, p = _read_svb(d, p)
+        return kind, (float(func), float(v)), p
+    if kind == EVENT_LOGGING_RESUME:
+        it, p = _uvb(d, p)
+        t, p = _uvb(d, p)
+        return kind, (float(it), float(t)), p
+    if kind == EVENT_DISARM:
+        reason, p = _uvb(d, p)
+        return kind, (float(reason),), p
+    if kind == EVENT_FLIGHT_MODE:
+        flags, p = _uvb(d, p)
+        last, p = _uvb(d, p)
+        return kind, (float(flags), float(last)), p
+    if kind == EVENT_LOG_END:
+        text = d[p : p + len(END_OF_LOG_TEXT)]
+        if len(text) < len(END_OF_LOG_TEXT):
+            raise IndexError("log-end event past end of data")
+        if text != END_OF_LOG_TEXT:
+            raise CorruptFrame("log-end event without its 'End of log' text")
+        return kind, (), p + len(END_OF_LOG_TEXT)
+    raise CorruptFrame(f"unknown event type {kind}")
+
+
+def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
+    """(num, denom): log ``num`` of every ``denom`` loop iterations ("1/16" or, newer, "16")."""
+    text = headers.get("P interval", "1/1").strip()
+    try:
+        if "/" in text:
+            num, den = text.split("/", 1)
+            return max(int(num), 1), max(int(den), 1)
+        return 1, max(int(text), 1)
+    except ValueError:
+        return 1, 1
+
+
+def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
+    """For each iteration (mod I interval): iterations skipped before the next logged one."""
+
+    def logged(idx: int) -> bool:
+        return (idx % i_interval + p_num - 1) % p_den < p_num
+
+    table = []
+    for r in range(i_interval):
+        k = 1
+        while not logged(r + k) and k <= i_interval + p_den:
+            k += 1
+        table.append(k - 1)
+    return table
+
+
+def decode_log(section: bytes, index: int = 0, offset: int = 0) -> DecodedLog:
+    """Decode one log (``section`` starts at its ``H Product`` line)."""
+    headers, defs, pos = parse_headers(section)
+    warnings: list[str] = []
+    idef = defs.get("I")
+    if idef is None or not idef.names:
+        raise CorruptFrame("the header defines no main-frame fields ('H Field I name')")
+    pdef = defs.get("P", FrameDef())
+    pdef = FrameDef(idef.names, idef.signed, pdef.predictor, pdef.encoding)
+    names = idef.names
+    nfields = len(names)
+    motor0 = names.index("motor[0]") if "motor[0]" in names else -1
+    minthrottle = header_int(headers, "minthrottle", 1150)
+    constants = {
+        "minthrottle": minthrottle,
+        "vbatref": header_int(headers, "vbatref", 4095),
+        "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
+    }
+    version = header_int(headers, "Data version", 2)
+    parsers: dict[int, FrameParser] = {}
+    for marker, fd in (("I", idef), ("P", pdef)):
+        if fd.encoding:
+            parsers[ord(marker)] = compile_frame(
+                fd, constants=constants, data_version=version, motor0=motor0
+            )
+    for marker in "SGH":
+        if marker in defs and defs[marker].names and defs[marker].encoding:
+            parsers[ord(marker)] = compile_frame(
+                defs[marker], constants=constants, data_version=version
+            )
+    i_interval = max(header_int(headers, "I interval", 32), 1)
+    p_num, p_den = _p_interval(headers)
+    skip_table = _skip_table(i_interval, p_num, p_den)
+    home_idx = [
+        defs["H"].names.index(k) if "H" in defs and k in defs["H"].names else -1
+        for k in ("GPS_home[0]", "GPS_home[1]")
+    ]
+
+    d = section
+    n = len(d)
+    markers = frozenset(FRAME_MARKERS)
+    zeros = [0] * nfields
+    main_rows: list[list[int]] = []
+    slow_rows: list[list[int]] = []
+    slow_index: list[int] = []
+    gps_rows: list[list[int]] = []
+    events: list[BlackboxEvent] = []
+    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
+    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+    prev: list[int] | None = None
+    prev2: list[int] = zeros
+    last_iter = -1
+    last_time = -1
+    rollover = 0
+    home = [0, 0]
+    ended = False
+    tail_start = -1
+    garbage_run = False
+    mark_i, mark_p, mark_e = ord("I"), ord("P"), ord("E")
+    mark_s, mark_g, mark_h = ord("S"), ord("G"), ord("H")
+
+    while pos < n:
+        m = d[pos]
+        if m not in markers or m not in parsers and m != mark_e:
+            stats["skipped_bytes"] += 1
+            if not garbage_run and main_rows:
+                prev = None
+            garbage_run = True
+            pos += 1
+            continue
+        start = pos
+        event: tuple[int, tuple[float, ...]] | None = None
+        try:
+            if m == mark_p:
+                if prev is None:
+                    vals, p = parsers[m](d, pos + 1, zeros, zeros, 0, 0, home)
+                else:
+                    skipped = skip_table[last_iter % i_interval]
+                    vals, p = parsers[m](d, pos + 1, prev, prev2, skipped, last_time, home)
+            elif m == mark_i:
+                vals, p = parsers[m](d, pos + 1, prev or zeros, zeros, 0, last_time, home)
+            elif m == mark_e:
+                kind, payload, p = _parse_event(d, pos + 1)
+                vals = []
+                event = (kind, payload)
+            else:
+                fd = defs[chr(m)]
+                vals, p = parsers[m](d, pos + 1, [0] * len(fd.names), [], 0, last_time, home)
+        except IndexError:
+            tail_start = start
+            break
+        except CorruptFrame:
+            p = -1
+        bad = p < 0 or p - start - 1 > MAX_FRAME_BYTES or (p < n and d[p] not in markers)
+        if bad and (event is None or event[0] != EVENT_LOG_END):
+            stats["corrupt"] += 1
+            prev = None
+            pos = start + 1
+            garbage_run = True
+            continue
+        garbage_run = False
+        pos = p
+        if m in (mark_i, mark_p):
+            t = (vals[1] & 0xFFFFFFFF) + rollover
+            if (
+                last_time >= 0
+                and t < last_time
+                and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US
+            ):
+                rollover += 1 << 32
+                t += 1 << 32
+            vals[1] = t
+            it = vals[0]
+            if m == mark_p:
+                if prev is None:
+                    stats["dropped_p"] += 1
+                    continue
+                ok = last_iter <= it < last_iter + MAX_ITERATION_JUMP and (
+                    last_time <= t < last_time + MAX_TIME_JUMP_US
+                )
+            else:
+                ok = last_iter < 0 or (it >= last_iter and t >= last_time)
+                if ok and last_iter >= 0 and t - last_time >= MAX_TIME_JUMP_US:
+                    warnings.append(
+                        f"log {index + 1}: {1e-6 * (t - last_time):.1f} s gap in the data "
+                        f"after t = {1e-6 * last_time:.3f} s"
+                    )
+            if not ok:
+                stats["invalid_main"] += 1
+                prev = None
+                continue
+            stats[chr(m)] += 1
+            main_rows.append(vals)
+            prev2 = vals if m == mark_i else (prev or vals)
+            prev = vals
+            last_iter, last_time = it, t
+        elif event is not None:
+            stats["E"] += 1
+            kind, payload = event
+            events.append(BlackboxEvent(len(main_rows), kind, payload))
+            if kind == EVENT_LOGGING_RESUME:
+                last_iter, last_time = int(payload[0]), int(payload[1]) + rollover
+            elif kind == EVENT_LOG_END:
+                ended = True
+                break
+        elif m == mark_s:
+            stats["S"] += 1
+            slow_rows.append(vals)
+            slow_index.append(len(main_rows))
+        elif m == mark_g:
+            stats["G"] += 1
+            gps_rows.append(vals)
+        elif m == mark_h:
+            stats["H"] += 1
+            home = [vals[k] if k >= 0 else 0 for k in home_idx]
+
+    if tail_start >= 0:
+        warnings.append(
+            f"log {index + 1}: truncated or corrupt tail at byte {offset + tail_start} "
+            f"({n - tail_start} bytes ignored); the data before it is used"
+        )
+    if stats["corrupt"] or stats["invalid_main"]:
+        warnings.append(
+            f"log {index + 1}: {stats['corrupt']} corrupt frame(s) and {stats['invalid_main']} "
+            f"implausible main frame(s) skipped, resynchronised at the next frame marker "
+            f"({stats['dropped_p']} inter frames dropped until the next intra frame, "
+            f"{stats['skipped_bytes']} unparseable bytes)"
+        )
+
+    def table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
+        if not rows:
+            return np.zeros((0, width), dtype=np.int64)
+        return np.array(rows, dtype=np.int64)
+
+    sdef = defs.get("S", FrameDef())
+    gdef = defs.get("G", FrameDef())
+    return DecodedLog(
+        index=index,
+        headers=headers,
+        main_fields=list(names),
+        main=table(main_rows, nfields),
+        slow_fields=list(sdef.names),
+        slow=table(slow_rows, len(sdef.names)),
+        slow_frame_index=np.array(slow_index, dtype=np.int64),
+        gps_fields=list(gdef.names),
+        gps=table(gps_rows, len(gdef.names)),
+        events=events,
+        stats=stats,
+        warnings=warnings,
+        ended_cleanly=ended,
+        byte_range=(offset, offset + n),
+    )
+
+
+def decode_file(data: bytes) -> list[DecodedLog]:
+    """Every log in a blackbox file, in order (a log that cannot be decoded raises)."""
+    return [decode_log(data[a:b], index=i, offset=a) for i, (a, b) in enumerate(split_logs(data))]
