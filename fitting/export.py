@@ -292,8 +292,8 @@ def export_encoding(
         "validity:\n"
         f"  thrust_n: [{_num(box.thrust_n.lo)}, {_num(box.thrust_n.hi)}]\n"
         f"  voltage_v: [{_num(box.voltage_v.lo)}, {_num(box.voltage_v.hi)}]\n"
-        f"  throttle: [{_num(scale.from_pct(box.throttle_pct.lo))}, "
-        f"{_num(scale.from_pct(box.throttle_pct.hi))}]\n"
+        f"  throttle: [{_num(float(scale.from_pct(box.throttle_pct.lo)))}, "
+        f"{_num(float(scale.from_pct(box.throttle_pct.hi)))}]\n"
     )
     if tmap.correction is not None:
         g = tmap.correction

@@ -70,7 +70,7 @@ def px4_throttle(rel_thrust: npt.ArrayLike, f: float) -> FloatArray:
     """PX4's inverse: the normalised throttle s for a relative thrust (clamped to 0..1)."""
     r = np.clip(np.asarray(rel_thrust, float), 0.0, 1.0)
     if f < 1e-9:
-        return r
+        return np.asarray(r, dtype=float)
     s = (-(1.0 - f) + np.sqrt((1.0 - f) ** 2 + 4.0 * f * r)) / (2.0 * f)
     return np.asarray(s, dtype=float)
 
@@ -243,7 +243,7 @@ def fit_ardupilot(
         )
 
     def resid(x: FloatArray) -> FloatArray:
-        return ardupilot_actuator(t, b, params(x)) - a
+        return np.asarray(ardupilot_actuator(t, b, params(x)) - a, dtype=float)
 
     best: tuple[float, FloatArray] | None = None
     for e0 in (-0.5, 0.0, 0.3, 0.65, 0.9):
@@ -381,6 +381,15 @@ def betaflight_m(out: npt.ArrayLike, e: float, generation: str) -> FloatArray:
     return np.asarray(0.5 * (lo + hi), dtype=float)
 
 
+def betaflight_max_expo(generation: str) -> float:
+    """Largest e the fit may use: Betaflight's 150 limit, or where the 2026.6 curve stops rising.
+
+    d(out)/dm for 2026.6 is 1 + e·x + e²·(1.5x² − 0.5) with x = 1 − 2m, whose minimum
+    5/6 − e²/2 is negative above e = √(5/3) ≈ 1.29: such a curve would not be invertible.
+    """
+    return 1.5 if generation == "legacy" else math.floor(100 * math.sqrt(5 / 3)) / 100
+
+
 @dataclass(frozen=True)
 class BetaflightFit:
     thrust_linear: int
@@ -396,10 +405,12 @@ def fit_betaflight(thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str)
         raise FitError("thrust_linear fit needs at least three points")
 
     def resid(x: FloatArray) -> FloatArray:
-        return betaflight_out(np.clip(t / x[1], 0.0, 1.0), float(x[0]), generation) - y
+        pred = betaflight_out(np.clip(t / x[1], 0.0, 1.0), float(x[0]), generation)
+        return np.asarray(pred - y, dtype=float)
 
+    e_max = betaflight_max_expo(generation)
     best: tuple[float, FloatArray] | None = None
-    for e0 in np.arange(0.0, 1.51, 0.1):
+    for e0 in np.arange(0.0, e_max + 1e-9, 0.1):
         m = betaflight_m(y, float(e0), generation)
         tmax = float(np.dot(t, m) / max(np.dot(m, m), 1e-300))
         if tmax > 0:
@@ -410,7 +421,11 @@ def fit_betaflight(thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str)
     if best is None:
         raise FitError("thrust_linear fit: thrust does not increase with throttle")
     sol = opt.least_squares(
-        resid, best[1], bounds=([0.0, 1e-9], [1.5, np.inf]), xtol=1e-12, ftol=1e-12
+        resid,
+        np.array([min(best[1][0], e_max), best[1][1]]),
+        bounds=([0.0, 1e-9], [e_max, np.inf]),
+        xtol=1e-12,
+        ftol=1e-12,
     )
     e = float(sol.x[0])
     return BetaflightFit(int(round(100 * e)), e, float(sol.x[1]))
@@ -463,8 +478,11 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         f"e = {fit.expo:.4f}, T_max {fit.thrust_max_n:.4g} N per rotor at {b_ref:g} V",
         f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below",
     ]
-    if fit.expo > 1.495:
-        notes.append("WARNING: fit hit Betaflight's limit 150; the map is more curved than this")
+    if fit.expo > betaflight_max_expo(generation) - 0.005:
+        notes.append(
+            f"WARNING: fit hit the limit {round(100 * betaflight_max_expo(generation))}; "
+            "the map is more curved than this firmware's curve can follow"
+        )
     lines = header_lines(tmap, f"Betaflight CLI ({generation} thrust_linear)", residual) + notes
     text = comment(lines, "#")
     text += f"set thrust_linear = {fit.thrust_linear}\n"
@@ -621,18 +639,18 @@ def export_aerostack2(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )
     box = tmap.validity.thrust_n
     lines = header_lines(tmap, "Aerostack2 platform parameters (ROS 2 YAML)", residual) + notes
-    y = comment(lines, "#") + "/**:\n  ros__parameters:\n    use_thrust_map: true\n"
-    y += f"    thrust:\n      max: {rotors * box.hi!r}  # N, collective\n"
-    y += f"      min: {rotors * box.lo!r}  # N, collective\n"
-    y += "    polynomial_thrust_map:\n"
-    y += f"      max_throttle: {scale.hi!r}\n      min_throttle: {scale.lo!r}\n"
-    y += "      # throttle = a + b*T + c*V + d*T^2 + e*T*V + f*V^2 (T per motor, N; V volts)\n"
+    doc = comment(lines, "#") + "/**:\n  ros__parameters:\n    use_thrust_map: true\n"
+    doc += f"    thrust:\n      max: {rotors * box.hi!r}  # N, collective\n"
+    doc += f"      min: {rotors * box.lo!r}  # N, collective\n"
+    doc += "    polynomial_thrust_map:\n"
+    doc += f"      max_throttle: {scale.hi!r}\n      min_throttle: {scale.lo!r}\n"
+    doc += "      # throttle = a + b*T + c*V + d*T^2 + e*T*V + f*V^2 (T per motor, N; V volts)\n"
     for name, v in zip("abcdef", ab, strict=True):
-        y += f"      {name}: {v!r}\n"
-    y += f"      use_correction_factor: {'true' if tmap.correction is not None else 'false'}\n"
-    y += "      # gamma(V) = gamma2*V^2 + gamma1*V + gamma0\n"
+        doc += f"      {name}: {v!r}\n"
+    doc += f"      use_correction_factor: {'true' if tmap.correction is not None else 'false'}\n"
+    doc += "      # gamma(V) = gamma2*V^2 + gamma1*V + gamma0\n"
     for name, v in zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True):
-        y += f"      {name}: {v!r}\n"
+        doc += f"      {name}: {v!r}\n"
     values: dict[str, float] = dict(zip("abcdef", ab, strict=True))
     values.update(dict(zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True)))
-    return ExportResult("aerostack2", y, values, {"rms_pct": r[0], "max_pct": r[1]}, ".yaml")
+    return ExportResult("aerostack2", doc, values, {"rms_pct": r[0], "max_pct": r[1]}, ".yaml")
