@@ -627,7 +627,10 @@ class MavlinkCodec:
         return self._mav
 
     def encode(self, msg: Any) -> bytes:
-        return bytes(msg.pack(self._mav))
+        """Pack ``msg`` with this endpoint's ids and next sequence number (as ``MAVLink.send``)."""
+        data = bytes(msg.pack(self._mav))
+        self._mav.seq = (self._mav.seq + 1) % 256
+        return data
 
     def feed(self, data: bytes) -> list[Any]:
         """Parse any chunk of bytes; returns the complete, CRC-valid messages in order."""
