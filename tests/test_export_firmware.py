@@ -10,6 +10,7 @@ import pytest
 from test_export_encodings import synthetic_map
 
 from thrustmap.fitting import export_firmware as fw
+from thrustmap.fitting import export_platforms as plat
 from thrustmap.fitting.export import ExportOptions, export_map
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
@@ -158,7 +159,7 @@ SEED2 = (6.40308e-9, 0.000742171, -0.9899922188)  # seed 2's published a, b, c (
 def test_crazyflie_quadratic_recovered_from_seed2_coefficients() -> None:
     u = np.linspace(1000, 60000, 60)
     a, b, c = SEED2
-    fa, fb, fc = fw.fit_quadratic(u, a * u * u + b * u + c)
+    fa, fb, fc = plat.fit_quadratic(u, a * u * u + b * u + c)
     assert (fa, fb, fc) == pytest.approx(SEED2, rel=1e-6)
 
 
@@ -176,7 +177,7 @@ def test_crazyflie_export_through_a_map() -> None:
     assert (cf.a, cf.b, cf.c) == pytest.approx(SEED2, rel=0.01)
     assert cf.f_max_g == pytest.approx(a * 65535**2 + b * 65535 + c, rel=0.01)
     # seed 2's linearisation: u' = û / f_max · 65536, û the thrust the polynomial predicts at u
-    up = fw.crazyflie_linearise(np.array([30000.0]), cf)
+    up = plat.crazyflie_linearise(np.array([30000.0]), cf)
     assert up[0] == pytest.approx((a * 3e4**2 + b * 3e4 + c) / cf.f_max_g * 65536, rel=0.01)
 
 
@@ -222,3 +223,49 @@ def test_aerostack2_motor_map_is_refitted_with_small_residual() -> None:
     res = export_map(synthetic_map("motor"), "aerostack2")
     assert "refitted to the motor map" in res.text
     assert res.residual["rms_pct"] < 1.0
+
+
+# -- every export: comment header with hash, box and residual; CLI --------------------------------
+ALL = [
+    ("pwm", []),
+    ("crazyflie", []),
+    ("c-header", ["--encoding", "pwm"]),
+    ("aerostack2", []),
+    ("px4", ["--mass-kg", "1.4"]),
+    ("ardupilot", ["--mass-kg", "1.4"]),
+    ("betaflight", ["--firmware", "4.5"]),
+]
+
+
+@pytest.mark.parametrize(("target", "extra"), ALL)
+def test_every_export_names_map_hash_box_and_residual(
+    tmp_path: pytest.TempPathFactory, target: str, extra: list[str]
+) -> None:
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from thrustmap.cli import cli
+
+    base = Path(str(tmp_path))
+    path = base / "map.json"
+    synthetic_map("motor", gamma=True).save(path)
+    digest = ThrustMap.load(path).file_sha256
+    out = base / "out.txt"
+    res = CliRunner().invoke(cli, ["export", str(path), "--to", target, *extra, "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    head = [ln for ln in out.read_text().splitlines() if ln.lstrip().startswith(("#", "*"))]
+    text = "\n".join(head)
+    assert f"map file sha256: {digest}" in text
+    assert "validity box: thrust 0.3..10 N per rotor, voltage 21..25.2 V" in text
+    assert "residual: " in text
+    assert "gamma correction: gamma(B) =" in text
+
+
+def test_px4_clamped_factor_refits_thrust_scale_and_warns() -> None:
+    # a dead band: thrust starts at s = 0.2, which PX4's form (no offset) cannot follow
+    s = np.linspace(0.25, 0.95, 30)
+    t = 20.0 * ((s - 0.2) / 0.8) ** 2
+    fit = fw.fit_px4(t, s)
+    assert fit.thr_mdl_fac == 1.0
+    assert fit.thrust_max_n == pytest.approx(float(np.dot(s * s, t) / np.dot(s * s, s * s)))
