@@ -153,6 +153,9 @@ def test_battery_ocv_curve() -> None:
     assert float(cell_ocv_v(0.0)) == pytest.approx(3.3)
     assert np.all(np.diff(cell_ocv_v(np.linspace(0, 1, 101))) > 0)
     assert make_plant(XNOVA, rotors_on_esc=1, seed=0, initial_soc=1.0).ocv_v == pytest.approx(25.2)
+    for soc in (0.0, 0.03, 0.5, 0.77, 1.0):
+        plant = make_plant(CF, rotors_on_esc=1, seed=0, initial_soc=soc)
+        assert plant.ocv_v == pytest.approx(float(cell_ocv_v(soc)), abs=1e-12)
 
 
 @pytest.mark.parametrize("name", [XNOVA, CF])

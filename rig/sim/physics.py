@@ -11,7 +11,9 @@ Model (averaged, per motor i, all rotors on one ESC and one battery):
   are N times larger: at the same *measured* voltage the MR map needs more throttle than SR.
 - Motor: d_i * V_bus = w_i / Kv + I_i * R; rotor J dw/dt = (I_i - I0) / Kv - kq w^2. With the
   bus voltage frozen over a substep this is a Riccati equation, integrated exactly, so the
-  rotor lag (J / (1/(Kv^2 R) + 2 kq w), ~40 ms for the xNova preset) costs one exp per step.
+  rotor lag costs one exp per step. Its time constant is J / (1/(Kv^2 R_eff) + 2 kq w) with
+  R_eff = R + d^2 N (R_batt + R_bus): 40-55 ms for the xNova preset. On the ESC current limit
+  the rotors are power-limited and settle more slowly (~0.4 s).
 - Propeller: T = kt w^2, Q = kq w^2. Battery: soc drains with I_batt, the polarization
   voltage and motor temperatures follow exact first-order updates.
 - Load cell (motor 0): thrust + slow deterministic drift + Gaussian noise; pulling = positive.
@@ -28,6 +30,7 @@ Ground truth (``true_thrust_n`` / ``true_throttle_fraction``) is the steady stat
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 from dataclasses import dataclass, fields, replace
@@ -183,7 +186,11 @@ def true_throttle_fraction(
 
 
 class PhysicsPlant:
-    """A ``Plant``: ``rotors_on_esc`` motors on one ESC and battery, motor 0 on the load cell."""
+    """A ``Plant``: ``rotors_on_esc`` motors on one ESC and battery, motor 0 on the load cell.
+
+    The per-substep arithmetic runs on Python floats per motor: with one to eight motors that
+    is several times faster than numpy's per-call overhead (see benchmarks/bench_sim.py).
+    """
 
     def __init__(
         self,
@@ -201,9 +208,10 @@ class PhysicsPlant:
         self._rng = rng
         n = rotors_on_esc
         self._t = float(start_time_s)
-        self._throttle = np.zeros(n)
-        self._omega = np.zeros(n)
-        self._temp = np.full(n, params.ambient_c)
+        self._throttle = [0.0] * n
+        self._duty_cmd = [0.0] * n  # ESC duty for the throttle, before current limiting
+        self._omega = [0.0] * n
+        self._temp = [params.ambient_c] * n
         self.soc = params.initial_soc
         self._v_pol = 0.0
         self._charge_c = 0.0  # drawn so far, coulombs
@@ -224,34 +232,30 @@ class PhysicsPlant:
         value = min(max(float(fraction), 0.0), 1.0) if math.isfinite(fraction) else 0.0
         if value != self._throttle[motor]:
             self._throttle[motor] = value
+            self._duty_cmd[motor] = float(duty_from_throttle(self.params, value))
             self._settled = False
 
     def state(self, time_s: float) -> PlantState:
         self._advance(time_s)
-        p, rng = self.params, self._rng
-        duty, v_bus, i_batt, v_term = self._electrics(
-            self._duty_cmd(), self._emf_v(), self._r_batt()
-        )
-        i_motor = np.where(
-            duty > 0, (duty * v_bus - self._omega / self._kv) / p.winding_resistance_ohm, 0.0
-        )
-        thrust = p.thrust_coeff_n_s2 * self._omega**2
-        rpm = self._omega * 60.0 / (2.0 * math.pi)
-        vib = p.vibration_floor_g + p.vibration_g_per_krpm2 * (float(rpm[0]) / 1000.0) ** 2
+        p, rng, kv, r = self.params, self._rng, self._kv, self.params.winding_resistance_ohm
+        duty, v_bus, i_batt, v_term = self._electrics(self._emf_v(), self._r_batt())
+        batt_a = [d * (d * v_bus - w / kv) / r for d, w in zip(duty, self._omega, strict=True)]
+        thrust = [p.thrust_coeff_n_s2 * w * w for w in self._omega]
+        rpm = [w * 60.0 / (2.0 * math.pi) for w in self._omega]
+        vib = p.vibration_floor_g + p.vibration_g_per_krpm2 * (rpm[0] / 1000.0) ** 2
+        noise = rng.standard_normal(3)
         return PlantState(
             time_s=self._t,
             voltage_v=v_term,
             current_a=i_batt,
-            thrust_n=float(thrust[0])
-            + self.drift_n(self._t)
-            + p.thrust_noise_n * float(rng.standard_normal()),
-            torque_nm=p.torque_coeff_nm_s2 * float(self._omega[0]) ** 2
-            + p.torque_noise_nm * float(rng.standard_normal()),
-            rpm=[float(x) for x in rpm],
-            motor_current_a=[float(x) for x in duty * i_motor],
-            temperature_c=[float(x) for x in self._temp],
-            vibration_g=vib + p.vibration_noise_g * abs(float(rng.standard_normal())),
-            motor_thrust_n=[float(x) for x in thrust],
+            thrust_n=thrust[0] + self.drift_n(self._t) + p.thrust_noise_n * float(noise[0]),
+            torque_nm=p.torque_coeff_nm_s2 * self._omega[0] ** 2
+            + p.torque_noise_nm * float(noise[1]),
+            rpm=rpm,
+            motor_current_a=batt_a,
+            temperature_c=list(self._temp),
+            vibration_g=vib + p.vibration_noise_g * abs(float(noise[2])),
+            motor_thrust_n=thrust,
         )
 
     # -- extras -------------------------------------------------------------------------------
@@ -261,7 +265,7 @@ class PhysicsPlant:
 
     @property
     def ocv_v(self) -> float:
-        return float(cell_ocv_v(self.soc)) * self.params.cells
+        return _cell_ocv_scalar(self.soc) * self.params.cells
 
     @property
     def consumed_mah(self) -> float:
@@ -275,9 +279,11 @@ class PhysicsPlant:
         return p.drift_n * (math.sin(w * time_s + a) + 0.5 * math.sin(2.7 * w * time_s + b)) / 1.5
 
     def true_thrust_n(self, throttle_fraction: ArrayLike, voltage_v: ArrayLike) -> FloatArray:
+        """Ground truth for this plant's ``rotors_on_esc`` (see module ``true_thrust_n``)."""
         return true_thrust_n(self.params, self.rotors_on_esc, throttle_fraction, voltage_v)
 
     def true_throttle_fraction(self, thrust_n: ArrayLike, voltage_v: ArrayLike) -> FloatArray:
+        """Ground truth for this plant's ``rotors_on_esc`` (see module ``true_throttle_fraction``)."""
         return true_throttle_fraction(self.params, self.rotors_on_esc, thrust_n, voltage_v)
 
     def steady_state(
@@ -291,7 +297,7 @@ class PhysicsPlant:
         if soc is None:
             assert ocv_v is not None
             soc = float(soc_from_cell_ocv(ocv_v / p.cells))
-        ocv = float(cell_ocv_v(soc)) * p.cells
+        ocv = _cell_ocv_scalar(soc) * p.cells
         r_series = internal_resistance_ohm(p, soc) + p.polarization_resistance_ohm
         lo, hi = 0.0, ocv  # V_term = OCV - I(V_term) * R is monotonic: bisect
         for _ in range(_BISECT_STEPS):
@@ -332,18 +338,13 @@ class PhysicsPlant:
             if time_s - self._t < 1e-12:
                 self._t = max(self._t, time_s)
 
-    def _duty_cmd(self) -> FloatArray:
-        return duty_from_throttle(self.params, self._throttle)
-
     def _emf_v(self) -> float:
         return self.ocv_v - self._v_pol
 
     def _r_batt(self) -> float:
         return internal_resistance_ohm(self.params, self.soc)
 
-    def _electrics(
-        self, duty: FloatArray, e_v: float, r_batt: float
-    ) -> tuple[FloatArray, float, float, float]:
+    def _electrics(self, e_v: float, r_batt: float) -> tuple[list[float], float, float, float]:
         """Duty after current limiting, V_bus, I_batt and V_term for the present rotor speeds."""
         p = self.params
         r, kv, iq, r_s = (
@@ -352,8 +353,9 @@ class PhysicsPlant:
             p.esc_quiescent_a,
             r_batt + p.bus_resistance_ohm,
         )
-        a = float(np.dot(duty, duty)) / r
-        b = float(np.dot(duty, self._omega)) / (kv * r)
+        duty = self._duty_cmd
+        a = sum(d * d for d in duty) / r
+        b = sum(d * w for d, w in zip(duty, self._omega, strict=True)) / (kv * r)
         v_bus = (e_v + r_s * (b - iq)) / (1.0 + r_s * a)
         i_b = a * v_bus - b + iq
         if i_b > p.esc_current_limit_a:
@@ -365,53 +367,57 @@ class PhysicsPlant:
                 if v_bus > 0
                 else 0.0
             )
-            duty = duty * min(s, 1.0)
+            duty = [d * min(s, 1.0) for d in duty]
             i_b = p.esc_current_limit_a
         return duty, v_bus, i_b, v_bus + i_b * p.bus_resistance_ohm
 
     def _step(self, h: float) -> None:
         p = self.params
-        kv, r, j, kq = (
-            self._kv,
-            p.winding_resistance_ohm,
-            p.rotor_inertia_kg_m2,
-            p.torque_coeff_nm_s2,
-        )
-        duty, v_bus, i_b, _ = self._electrics(self._duty_cmd(), self._emf_v(), self._r_batt())
-        w0 = self._omega
-        # Rotor: dw/dt = P - Q w - Rr w^2, exact for a frozen bus voltage over the substep. With
-        # the ESC off (no electrical path) P = -friction, Q = 0 and the rotor coasts to a stop.
-        on = duty > 0
+        kv, r, j = self._kv, p.winding_resistance_ohm, p.rotor_inertia_kg_m2
+        duty, v_bus, i_b, _ = self._electrics(self._emf_v(), self._r_batt())
+        # Rotor: dw/dt = P - Q w - Rr w^2, exact for the bus voltage frozen over the substep.
+        # With the ESC off (no electrical path) P = -friction, Q = 0: the rotor coasts to a stop.
+        rr = p.torque_coeff_nm_s2 / j
         friction = p.no_load_current_a / (kv * j)
-        pp = np.where(on, duty * v_bus / (kv * r * j), 0.0) - friction
-        qq = np.where(on, 1.0 / (kv * kv * r * j), 0.0)
-        rr = kq / j
-        disc = qq * qq + 4.0 * pp * rr
-        riccati = disc > 1e-9 * qq * qq
-        lam = np.sqrt(np.where(riccati, disc, 1.0))
-        w_hi = (lam - qq) / (2.0 * rr)  # target speed (<= 0: the rotor stops)
-        w_lo = (-lam - qq) / (2.0 * rr)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = (w0 - w_hi) / (w0 - w_lo) * np.exp(-lam * h)
-            w_ric = (w_hi - z * w_lo) / (1.0 - z)
-            # dw/dt = -c - Rr w^2 (c >= 0): w = sqrt(c/Rr) tan(atan(w0 sqrt(Rr/c)) - sqrt(c Rr) h).
-            c = np.maximum(-pp, 1e-12)
-            k = np.sqrt(rr / c)
-            w_coast = np.tan(np.maximum(np.arctan(w0 * k) - c * k * h, 0.0)) / k
-        w1 = np.maximum(np.where(riccati, w_ric, w_coast), 0.0)
-        self._omega = w1
-        # Coasting is exact whatever the bus does; a powered rotor near its target is settled.
-        scale = _SETTLED_REL * kv * self.ocv_v
-        self._settled = bool(np.all(~riccati | (np.abs(w1 - np.maximum(w_hi, 0.0)) < scale)))
-        i_m = np.where(on, (duty * v_bus - 0.5 * (w0 + w1) / kv) / r, 0.0)
-        # Battery: charge, polarization (exact RC), temperatures (exact first order).
+        q_on = 1.0 / (kv * kv * r * j)
+        tolerance = _SETTLED_REL * kv * self.ocv_v
+        settled = True
+        cool = math.exp(-h / p.thermal_time_s)
+        for m, (d, w0) in enumerate(zip(duty, self._omega, strict=True)):
+            pp, qq = (d * v_bus / (kv * r * j) - friction, q_on) if d > 0 else (-friction, 0.0)
+            disc = qq * qq + 4.0 * pp * rr
+            if qq > 0.0 and disc > 1e-9 * qq * qq:
+                lam = math.sqrt(disc)
+                w_hi, w_lo = (lam - qq) / (2.0 * rr), (-lam - qq) / (2.0 * rr)
+                z = (w0 - w_hi) / (w0 - w_lo) * math.exp(-lam * h)
+                w1 = max((w_hi - z * w_lo) / (1.0 - z), 0.0)
+                settled = settled and abs(w1 - max(w_hi, 0.0)) < tolerance
+            else:  # dw/dt = -c - Rr w^2: w = tan(atan(w0 k) - c k h) / k, k = sqrt(Rr / c)
+                c = max(-pp, 1e-12)
+                k = math.sqrt(rr / c)
+                w1 = math.tan(max(math.atan(w0 * k) - c * k * h, 0.0)) / k
+            self._omega[m] = w1
+            # Heating: copper loss and iron/friction loss (I0 x back-EMF), exact first order.
+            w_mid = 0.5 * (w0 + w1)
+            i_m = (d * v_bus - w_mid / kv) / r if d > 0 else 0.0
+            loss = i_m * i_m * r + (p.no_load_current_a * w_mid / kv if d > 0 else 0.0)
+            t_eq = p.ambient_c + loss * p.thermal_resistance_k_per_w
+            self._temp[m] = t_eq + (self._temp[m] - t_eq) * cool
+        self._settled = settled
+        # Battery: charge drawn, state of charge, polarization (exact RC).
         self._charge_c += i_b * h
         self.soc = max(0.0, self.soc - i_b * h / (3.6 * p.capacity_mah))
         v_pol_eq = i_b * p.polarization_resistance_ohm
         self._v_pol = v_pol_eq + (self._v_pol - v_pol_eq) * math.exp(-h / p.polarization_time_s)
-        loss = i_m * i_m * r + np.where(on, p.no_load_current_a * 0.5 * (w0 + w1) / kv, 0.0)
-        t_eq = p.ambient_c + loss * p.thermal_resistance_k_per_w
-        self._temp = t_eq + (self._temp - t_eq) * math.exp(-h / p.thermal_time_s)
+
+
+def _cell_ocv_scalar(soc: float) -> float:
+    """``cell_ocv_v`` for one float, without numpy's per-call overhead."""
+    x = min(max(soc, 0.0), 1.0)
+    i = min(bisect.bisect_right(LIPO_OCV_SOC, x), len(LIPO_OCV_SOC) - 1)
+    x0, x1 = LIPO_OCV_SOC[i - 1], LIPO_OCV_SOC[i]
+    y0, y1 = LIPO_OCV_CELL_V[i - 1], LIPO_OCV_CELL_V[i]
+    return y0 + (y1 - y0) * (x - x0) / (x1 - x0)
 
 
 def make_plant(
