@@ -2,8 +2,8 @@
 
 Model (averaged, per motor i, all rotors on one ESC and one battery):
 
-- ESC: duty d_i = u_i ** exponent for u_i >= start fraction, else the output is off and the rotor
-  coasts. If the battery-side current would exceed the ESC limit, every duty is scaled down
+- ESC: duty d_i = curve(u_i) ** exponent for u_i >= start fraction (curve: the preset's
+  piecewise-linear ``esc_curve``), else the output is off and the rotor coasts (friction + drag). If the battery-side current would exceed the ESC limit, every duty is scaled down
   so that it does not (the seed paper's 65 A ESC with four rotors at high throttle).
 - Bus: V_term = OCV(soc) - V_pol - I_batt * R_int(soc) is what the stand's voltage sensor reads;
   the motors see V_bus = V_term - I_batt * R_bus (shared wires/ESC bus, unseen by the sensor).
@@ -31,7 +31,6 @@ Ground truth (``true_thrust_n`` / ``true_throttle_fraction``) is the steady stat
 from __future__ import annotations
 
 import bisect
-import logging
 import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -43,8 +42,6 @@ from thrustmap.errors import ConfigError
 from thrustmap.rig.sim.plant import PlantState
 from thrustmap.rig.sim.presets import LIPO_OCV_CELL_V, LIPO_OCV_SOC, PRESETS, PlantParams
 from thrustmap.rig.sim.presets import preset as get_preset
-
-log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 _SETTLED_REL = 2e-4  # a rotor is settled when |w - w_target| < this * no-load speed

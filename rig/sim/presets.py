@@ -6,7 +6,10 @@ Every number is in SI units except where the name says otherwise (``kv_rpm_per_v
 
 ``xnova-2207-6s`` is tuned against the seed paper's single-rotor stand data
 (/work/shared/data/xnova-thrust-stand, xNova 2207-2100Kv, 5" prop, Foxeer Reaper 65 A ESC,
-TATTU R-Line 6S); see tests/test_sim_physics.py for the measured gap.
+TATTU R-Line 6S): kt, kq, I0 and the ESC curve by least squares on the SR plateaus (thrust and
+current at the measured voltage), Kv and R nominal. At the measured voltage the steady SR thrust
+is within 3.4 % of every real SR plateau (1150-1800 us) and the MR data, not used for the fit,
+within 4.7 %; see tests/test_sim_physics.py.
 ``crazyflie-2.1`` follows the Crazyflie seed paper and Bitcraze's published figures (7x16 mm
 brushed coreless motors on a 1S 250 mAh LiPo, about 60 g of thrust from four motors).
 """
