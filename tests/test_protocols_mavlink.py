@@ -12,6 +12,7 @@ from pymavlink.generator import mavparse
 
 from thrustmap.errors import ConfigError
 from thrustmap.protocols import mavlink as mav
+from thrustmap.protocols import mavlink_encode as enc
 from thrustmap.protocols.mavlink_ext import ESC_STATUS_XML, MAVLink_esc_status_message
 
 
@@ -30,7 +31,7 @@ optional_current = st.none() | st.floats(0.0, 300.0)
 def test_sys_status_round_trip_and_sentinels(
     voltage_v: float | None, current_a: float | None, pct: int | None
 ) -> None:
-    decoded = round_trip(mav.sys_status_message(voltage_v, current_a, pct))
+    decoded = round_trip(enc.sys_status_message(voltage_v, current_a, pct))
     assert isinstance(decoded, mav.SysStatus)
     if voltage_v is None:
         assert decoded.voltage_v is None
@@ -56,7 +57,7 @@ def test_sys_status_raw_sentinels_decode_to_none() -> None:
 def test_battery_status_cells_round_trip(
     cells: list[float], current_a: float | None, temperature_c: float | None
 ) -> None:
-    decoded = round_trip(mav.battery_status_message(cells, current_a, temperature_c=temperature_c))
+    decoded = round_trip(enc.battery_status_message(cells, current_a, temperature_c=temperature_c))
     assert isinstance(decoded, mav.BatteryStatus)
     assert decoded.voltages_v == pytest.approx(cells, abs=0.0005)
     assert decoded.total_voltage_v == pytest.approx(sum(cells), abs=0.0005 * len(cells))
@@ -67,7 +68,7 @@ def test_battery_status_cells_round_trip(
 
 
 def test_battery_status_total_in_first_entry_and_absent_cells() -> None:
-    decoded = round_trip(mav.battery_status_message([16.2], 12.5, consumed_mah=321))
+    decoded = round_trip(enc.battery_status_message([16.2], 12.5, consumed_mah=321))
     assert isinstance(decoded, mav.BatteryStatus)
     assert decoded.voltages_v == (16.2,) and decoded.total_voltage_v == pytest.approx(16.2)
     assert decoded.cell_voltages_v == ()
@@ -83,7 +84,7 @@ def test_battery_status_total_in_first_entry_and_absent_cells() -> None:
 def test_esc_telemetry_round_trip(
     rpm: list[int], volts: list[float], amps: list[float], temps: list[int]
 ) -> None:
-    msg = mav.esc_telemetry_message(rpm=rpm, voltage_v=volts, current_a=amps, temperature_c=temps)
+    msg = enc.esc_telemetry_message(rpm=rpm, voltage_v=volts, current_a=amps, temperature_c=temps)
     decoded = round_trip(msg)
     assert isinstance(decoded, mav.EscTelemetry)
     assert decoded.first_index == 0
@@ -102,7 +103,7 @@ def test_esc_telemetry_round_trip(
 def test_esc_status_round_trip(
     rpm: list[int], volts: list[float], time_s: float, first: int
 ) -> None:
-    msg = mav.esc_status_message(
+    msg = enc.esc_status_message(
         time_s=time_s, rpm=rpm, voltage_v=volts, current_a=[1.5] * 4, first_index=first
     )
     decoded = round_trip(msg)
@@ -130,7 +131,7 @@ def test_esc_status_definition_matches_pymavlinks_generator(tmp_path: Path) -> N
 
 @given(outputs=st.lists(st.integers(0, 2500), min_size=0, max_size=16), time_s=st.floats(0, 4000))
 def test_servo_output_raw_round_trip(outputs: list[int], time_s: float) -> None:
-    decoded = round_trip(mav.servo_output_raw_message(time_s, outputs))
+    decoded = round_trip(enc.servo_output_raw_message(time_s, outputs))
     assert isinstance(decoded, mav.ServoOutputRaw)
     assert decoded.outputs_us == tuple(outputs) + (0,) * (16 - len(outputs))
 
@@ -138,7 +139,7 @@ def test_servo_output_raw_round_trip(outputs: list[int], time_s: float) -> None:
 @pytest.mark.parametrize(("autopilot", "firmware"), [(12, "px4"), (3, "ardupilot"), (0, "other")])
 @pytest.mark.parametrize("armed", [True, False])
 def test_heartbeat(autopilot: int, firmware: str, armed: bool) -> None:
-    decoded = round_trip(mav.heartbeat_message(autopilot, armed=armed))
+    decoded = round_trip(enc.heartbeat_message(autopilot, armed=armed))
     assert isinstance(decoded, mav.Heartbeat)
     assert decoded.armed is armed and decoded.firmware == firmware
     assert decoded.system_id == 1 and decoded.is_vehicle
@@ -146,7 +147,7 @@ def test_heartbeat(autopilot: int, firmware: str, armed: bool) -> None:
 
 @pytest.mark.parametrize("result", list(range(10)))
 def test_command_ack_results(result: int) -> None:
-    decoded = round_trip(mav.command_ack_message(310, result))
+    decoded = round_trip(enc.command_ack_message(310, result))
     assert isinstance(decoded, mav.CommandAck)
     assert decoded.command == 310 and int(decoded.result) == result
     assert decoded.accepted is (result == 0)
@@ -154,9 +155,9 @@ def test_command_ack_results(result: int) -> None:
 
 
 def test_statustext_and_param_value() -> None:
-    text = round_trip(mav.statustext_message("Motor Test: Safety switch", mav.Severity.CRITICAL))
+    text = round_trip(enc.statustext_message("Motor Test: Safety switch", mav.Severity.CRITICAL))
     assert text == mav.StatusText(mav.Severity.CRITICAL, "Motor Test: Safety switch")
-    param = round_trip(mav.param_value_message("THR_MDL_FAC", 0.25, 3, 7))
+    param = round_trip(enc.param_value_message("THR_MDL_FAC", 0.25, 3, 7))
     assert param == mav.ParamValue("THR_MDL_FAC", 0.25, 3, 7)
 
 
@@ -240,10 +241,10 @@ def test_set_message_interval() -> None:
 def test_codec_parses_any_chunking(cuts: list[int]) -> None:
     sender = mav.MavlinkCodec(1, 1)
     msgs = [
-        mav.heartbeat_message(12, armed=False),
-        mav.sys_status_message(15.2, 3.5),
-        mav.command_ack_message(209, 3),
-        mav.esc_status_message(
+        enc.heartbeat_message(12, armed=False),
+        enc.sys_status_message(15.2, 3.5),
+        enc.command_ack_message(209, 3),
+        enc.esc_status_message(
             time_s=1.0, rpm=[1, 2, 3, 4], voltage_v=[15.0] * 4, current_a=[0.5] * 4
         ),
     ]
@@ -264,9 +265,9 @@ def test_codec_parses_any_chunking(cuts: list[int]) -> None:
 
 def test_codec_drops_a_corrupted_frame_and_resynchronises() -> None:
     sender = mav.MavlinkCodec(1, 1)
-    first = bytearray(sender.encode(mav.sys_status_message(15.2, 3.5)))
+    first = bytearray(sender.encode(enc.sys_status_message(15.2, 3.5)))
     first[12] ^= 0xFF  # payload byte: CRC fails
-    second = sender.encode(mav.command_ack_message(310, 2))
+    second = sender.encode(enc.command_ack_message(310, 2))
     receiver = mav.MavlinkCodec()
     parsed = receiver.feed(bytes(first) + b"\x00garbage" + second)
     assert [mav.decode(p) for p in parsed] == [mav.CommandAck(310, mav.MavResult.DENIED)]

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from thrustmap.protocols import mavlink as mav
+from thrustmap.protocols import mavlink_encode as enc
 from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
@@ -53,11 +54,11 @@ MSG_ESC_TELEMETRY_1_TO_4 = 11030
 
 
 def _servo_raw(vehicle: SimMavlinkVehicle, outputs_us: Sequence[int]) -> Any:
-    return mav.servo_output_raw_message(vehicle.time_since_boot_s, outputs_us)
+    return enc.servo_output_raw_message(vehicle.time_since_boot_s, outputs_us)
 
 
 def _sys_status(state: PlantState) -> Any:
-    return mav.sys_status_message(state.voltage_v, state.current_a)
+    return enc.sys_status_message(state.voltage_v, state.current_a)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -102,7 +103,7 @@ class PX4Vehicle(SimMavlinkVehicle):
         return {
             MSG_SYS_STATUS: lambda s: [_sys_status(s)],
             MSG_BATTERY_STATUS: lambda s: [
-                mav.battery_status_message([s.voltage_v / self.cells] * self.cells, s.current_a)
+                enc.battery_status_message([s.voltage_v / self.cells] * self.cells, s.current_a)
             ],
             MSG_ESC_STATUS: self._esc_status,
             MSG_SERVO_OUTPUT_RAW: lambda s: [_servo_raw(self, self.outputs_us())],
@@ -110,7 +111,7 @@ class PX4Vehicle(SimMavlinkVehicle):
 
     def _esc_status(self, state: PlantState) -> list[Any]:
         return [
-            mav.esc_status_message(
+            enc.esc_status_message(
                 first_index=first,
                 time_s=self.time_since_boot_s,
                 rpm=state.rpm[first : first + 4],
@@ -237,9 +238,9 @@ class ArduPilotVehicle(SimMavlinkVehicle):
     def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
         return {
             MSG_SYS_STATUS: lambda s: [_sys_status(s)],
-            MSG_BATTERY_STATUS: lambda s: [mav.battery_status_message([s.voltage_v], s.current_a)],
+            MSG_BATTERY_STATUS: lambda s: [enc.battery_status_message([s.voltage_v], s.current_a)],
             MSG_ESC_TELEMETRY_1_TO_4: lambda s: [
-                mav.esc_telemetry_message(
+                enc.esc_telemetry_message(
                     rpm=s.rpm[:4],
                     voltage_v=[s.voltage_v] * min(4, len(s.rpm)),
                     current_a=s.motor_current_a[:4],
@@ -313,7 +314,7 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         if self._test is None:
             why = self._precondition_failure(throttle_type)
             if why is not None:
-                self.send(mav.statustext_message(f"Motor Test: {why}", mav.Severity.CRITICAL))
+                self.send(enc.statustext_message(f"Motor Test: {why}", mav.Severity.CRITICAL))
                 return R.FAILED
         if math.isnan(timeout_s) or math.isnan(value):
             timeout_s = 0.0
@@ -353,16 +354,14 @@ def _common(options: Mapping[str, str]) -> dict[str, Any]:
     }
 
 
-def px4_from_options(
-    options: Mapping[str, str], plant_factory: PlantFactory = constant_plant
-) -> PX4Vehicle:
+def px4_from_options(options: Mapping[str, str], plant: Plant | None = None) -> PX4Vehicle:
     params = {}
     if "com_mot_test_en" in options:
         params["COM_MOT_TEST_EN"] = float(options["com_mot_test_en"])
     if "thr_mdl_fac" in options:
         params["THR_MDL_FAC"] = float(options["thr_mdl_fac"])
     return PX4Vehicle(
-        plant_factory(options),
+        plant if plant is not None else constant_plant(options),
         armed=_flag(options, "armed", False),
         safety_on=_flag(options, "safety", False),
         params=params,
@@ -371,10 +370,10 @@ def px4_from_options(
 
 
 def ardupilot_from_options(
-    options: Mapping[str, str], plant_factory: PlantFactory = constant_plant
+    options: Mapping[str, str], plant: Plant | None = None
 ) -> ArduPilotVehicle:
     return ArduPilotVehicle(
-        plant_factory(options),
+        plant if plant is not None else constant_plant(options),
         landed=_flag(options, "landed", True),
         safety_switch_engaged=_flag(options, "safety", False),
         rc_calibrated=_flag(options, "rc_calibrated", True),
@@ -386,10 +385,10 @@ def register_mavlink_peers(
     plant_factory: PlantFactory = constant_plant, *, replace: bool = True
 ) -> None:
     def px4(options: Mapping[str, str]) -> BytePeer:
-        return px4_from_options(options, plant_factory)
+        return px4_from_options(options, plant_factory(options))
 
     def ardupilot(options: Mapping[str, str]) -> BytePeer:
-        return ardupilot_from_options(options, plant_factory)
+        return ardupilot_from_options(options, plant_factory(options))
 
     register_peer("px4", px4, replace=replace)
     register_peer("ardupilot", ardupilot, replace=replace)

@@ -20,6 +20,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from thrustmap.protocols import mavlink as mav
+from thrustmap.protocols import mavlink_encode as enc
 from thrustmap.rig.sim.plant import Plant, PlantState
 
 log = logging.getLogger(__name__)
@@ -107,7 +108,7 @@ class SimMavlinkVehicle(ABC):
         return self.plant.state(self._now_s)
 
     def _heartbeat(self) -> Any:
-        return mav.heartbeat_message(self.autopilot, armed=self.armed)
+        return enc.heartbeat_message(self.autopilot, armed=self.armed)
 
     # -- internals ---------------------------------------------------------------------------
     def _advance(self, now_s: float) -> None:
@@ -141,7 +142,7 @@ class SimMavlinkVehicle(ABC):
             else:
                 result = self.handle_command(command, now_s)
             self.send(
-                mav.command_ack_message(
+                enc.command_ack_message(
                     command.command,
                     result,
                     target_system=msg.get_srcSystem(),
@@ -172,7 +173,7 @@ class SimMavlinkVehicle(ABC):
         elif not 0 <= index < len(names):
             return
         key = names[index]
-        self.send(mav.param_value_message(key, self.params[key], index, len(names)))
+        self.send(enc.param_value_message(key, self.params[key], index, len(names)))
 
     def _set_message_interval(self, command: mav.CommandLong) -> int:
         message_id = int(command.params[0])
