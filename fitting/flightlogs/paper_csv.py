@@ -99,23 +99,50 @@ def _load_table(path: Path) -> tuple[pd.DataFrame, list[str]]:
     body = [ln for ln in lines[1:] if ln.strip()]
     if not body:
         raise DataFormatError("flight CSV has a header but no data rows", file=str(path), line=2)
-    # A log cut mid-write leaves a short last line: drop it, say so.
-    if len(body[-1].split(sep)) != len(header):
-        warnings.append(
-            f"corrupt tail: last row (line {len(lines)}) has {len(body[-1].split(sep))} fields, "
-            f"expected {len(header)}; ignored"
+
+    # A log cut mid-write leaves a short or garbled tail: drop it, say so.
+    def bad(line: str) -> bool:
+        fields = line.split(sep)
+        if len(fields) != len(header):
+            return True
+        try:
+            [float(f) for f in fields if f.strip()]
+        except ValueError:
+            return True
+        return False
+
+    tail = 0
+    while tail < len(body) and bad(body[len(body) - 1 - tail]):
+        tail += 1
+    if tail == len(body):
+        raise DataFormatError(
+            f"no data row has the {len(header)} numeric fields the header names",
+            file=str(path),
+            line=2,
         )
-        body = body[:-1]
+    if tail:
+        warnings.append(
+            f"corrupt tail: last {tail} row(s) are short or not numeric (from line "
+            f"{len(lines) - tail + 1}); ignored"
+        )
+        body = body[: len(body) - tail]
+    for i, line in enumerate(body):
+        if len(line.split(sep)) != len(header):
+            raise DataFormatError(
+                f"row has {len(line.split(sep))} fields, the header names {len(header)}",
+                file=str(path),
+                line=i + 2,
+            )
     try:
         df = pd.read_csv(io.StringIO("\n".join(body)), sep=sep, header=None, names=header)
     except (pd.errors.ParserError, ValueError) as exc:
         raise DataFormatError(f"malformed CSV: {exc}", file=str(path)) from None
     for col in df.columns:
-        if df[col].dtype == object:
+        if not pd.api.types.is_numeric_dtype(df[col]):
             num = pd.to_numeric(df[col], errors="coerce")
-            bad = np.flatnonzero(num.isna().to_numpy() & df[col].notna().to_numpy())
-            if len(bad):
-                row = int(bad[0])
+            bad_rows = np.flatnonzero(num.isna().to_numpy() & df[col].notna().to_numpy())
+            if len(bad_rows):
+                row = int(bad_rows[0])
                 raise DataFormatError(
                     f"expected a number, got {df[col].iloc[row]!r}",
                     file=str(path),

@@ -225,9 +225,9 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
         for k in range(len(flight.time_s)):
             tk = flight.time_s[k] + 1.0
             while ev_k < len(events) and events[ev_k][0] <= flight.time_s[k]:
-                w.write("EV", int((events[ev_k][0] + 1.0) * tmul), events[ev_k][1])
+                w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
                 ev_k += 1
-            ts = int(tk * tmul)
+            ts = int(round(tk * tmul))
             w.write("IMU", ts, 0.0, 0.0, 0.0, 0.0, 0.0, -float(flight.accel_up_mps2[k]))
             if k % 5 == 0:
                 v = float(flight.voltage_v[k])
@@ -253,7 +253,7 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             tilt = int(round(flight.tilt_deg[k] * 100))
             w.write("ATT", ts, 0, tilt, 0, 0)
         while ev_k < len(events):
-            w.write("EV", int((events[ev_k][0] + 1.0) * tmul), events[ev_k][1])
+            w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
             ev_k += 1
 
 
@@ -348,3 +348,42 @@ def write_tlog(flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9)
             )
             r = float(np.radians(flight.tilt_deg[k]))
             w.write(t, mav.attitude_encode(0, r, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+
+# -- fixtures ------------------------------------------------------------------------------------
+
+#: the small simulated flight the project ships as fixtures/flightlogs/* (30 s at 20 Hz)
+FIXTURE_SIM = HoverSim(duration_s=30.0, rate_hz=20.0, seed=7)
+FIXTURE_FILES = (
+    "sim_hover.bin",
+    "sim_hover_copter3.bin",
+    "sim_hover.ulg",
+    "sim_hover_v1.9.ulg",
+    "sim_hover.tlog",
+    "sim_hover_paper.csv",
+    "sim_hover_generic.csv",
+    "sim_map.json",
+)
+
+
+def write_fixtures(out_dir: str | Path) -> list[Path]:
+    """(Re)generate the shipped flight-log fixtures from ``FIXTURE_SIM``."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    flight = simulate_hover(FIXTURE_SIM)
+    write_dataflash(flight, d / "sim_hover.bin")
+    write_dataflash(flight, d / "sim_hover_copter3.bin", old_firmware=True)
+    write_ulog(flight, d / "sim_hover.ulg")
+    write_ulog(flight, d / "sim_hover_v1.9.ulg", legacy=True)
+    write_tlog(flight, d / "sim_hover.tlog")
+    write_paper_csv(flight, d / "sim_hover_paper.csv")
+    write_generic_csv(flight, d / "sim_hover_generic.csv")
+    flight.stand_map.save(d / "sim_map.json")
+    return [d / name for name in FIXTURE_FILES]
+
+
+if __name__ == "__main__":  # python -m thrustmap.fitting.flightlogs.simulate fixtures/flightlogs
+    import sys
+
+    for p in write_fixtures(sys.argv[1] if len(sys.argv) > 1 else "fixtures/flightlogs"):
+        sys.stdout.write(f"{p} {p.stat().st_size} bytes\n")

@@ -66,14 +66,25 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
     try:
         mlog = mavutil.mavlink_connection(str(path), robust_parsing=True)
     except Exception as exc:
-        raise DataFormatError(f"cannot open telemetry log: {exc}", file=str(path)) from None
+        raise DataFormatError(
+            f"cannot open telemetry log ({type(exc).__name__}: {exc})", file=str(path)
+        ) from None
     rows: dict[str, list[tuple[float, Any]]] = {k: [] for k in TYPES}
     vehicle: int | None = None
     bad_bytes = 0
     total = 0
     try:
         while True:
-            m = mlog.recv_match(blocking=False)
+            try:
+                m = mlog.recv_match(blocking=False)
+            except Exception as exc:  # pymavlink raises assorted errors on garbage
+                if total == 0:
+                    raise DataFormatError(
+                        f"not a readable telemetry log ({type(exc).__name__}: {exc})",
+                        file=str(path),
+                    ) from None
+                bad_bytes += 1
+                break
             if m is None:
                 break
             mtype = m.get_type()

@@ -114,6 +114,31 @@ def _pwm_outputs(
     return None if best is None else (best[1], best[2])
 
 
+_ULOG_TYPES = frozenset(b"BFIMPQARDLCSO")
+
+
+def check_integrity(path: Path) -> str | None:
+    """Walk the ULog message headers; describe a truncated or corrupt tail (None when intact)."""
+    import struct
+
+    raw = path.read_bytes()
+    n, pos = len(raw), 16
+    unpack = struct.Struct("<HB").unpack_from
+    while pos + 3 <= n:
+        size, kind = unpack(raw, pos)
+        if kind not in _ULOG_TYPES:
+            return (
+                f"corrupt data at byte {pos} (message type {kind:#04x}); "
+                f"the {n - pos} bytes after it are not used"
+            )
+        pos += 3 + size
+    if pos > n:
+        return f"corrupt tail: last message truncated at byte {n}; ignored"
+    if pos < n:
+        return f"corrupt tail: {n - pos} stray bytes at the end; ignored"
+    return None
+
+
 def _release(code: Any) -> str | None:
     """PX4's ver_sw_release word (0xMMmmpptt) as 'v1.15.0'."""
     if not isinstance(code, int) or code <= 0:
@@ -133,7 +158,10 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         ulog = ULog(str(path), message_name_filter_list=TOPICS, disable_str_exceptions=True)
     except Exception as exc:  # pyulog raises bare exceptions on malformed headers
         raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
-    if getattr(ulog, "file_corruption", False):
+    problem = check_integrity(path)
+    if problem is not None:
+        warnings.append(problem)
+    elif getattr(ulog, "file_corruption", False):
         warnings.append("corrupt data in the log (pyulog resynchronised); the good part is used")
     topics = _topics(ulog)
     if not topics:

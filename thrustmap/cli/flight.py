@@ -1,0 +1,280 @@
+"""CLI: ``flightlog inspect|extract`` and ``gamma fit`` (thin over thrustmap.fitting)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from thrustmap.errors import ConfigError
+from thrustmap.fitting.df import DfOptions, airborne_windows, extract, read_df, write_df
+from thrustmap.fitting.flightlogs.detect import available, detect, read_log
+from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+
+_FIELDS = (
+    "voltage_v",
+    "accel_up_mps2",
+    "thrust_cmd_n",
+    "thrust_cmd_norm",
+    "motor_outputs",
+    "armed",
+    "landed",
+    "hover_thrust_estimate",
+)
+
+
+def _signal_info(sig: Signal) -> dict[str, Any]:
+    v = sig.values[np.isfinite(sig.values).all(axis=1)] if sig.values.ndim == 2 else sig.values
+    v = v[np.isfinite(v)] if v.ndim == 1 else v
+    dur = float(sig.time_s[-1] - sig.time_s[0]) if len(sig) > 1 else 0.0
+    info: dict[str, Any] = {
+        "origin": sig.origin,
+        "unit": sig.unit,
+        "samples": len(sig),
+        "rate_hz": round((len(sig) - 1) / dur, 2) if dur > 0 else None,
+    }
+    if len(v):
+        info["min"] = float(np.min(v))
+        info["max"] = float(np.max(v))
+        if sig.values.ndim == 2:
+            info["columns"] = int(sig.values.shape[1])
+    return info
+
+
+def inspect_flight(flight: FlightLog) -> dict[str, Any]:
+    """What a flight log holds: duration, fields found (origin, rate, range), airborne windows."""
+    fields = {
+        name: _signal_info(sig)
+        for name in _FIELDS
+        if (sig := getattr(flight, name)) is not None and len(sig)
+    }
+    extras = {k: _signal_info(s) for k, s in flight.extras.items() if len(s)}
+    times = [s.time_s for s in [getattr(flight, n) for n in _FIELDS] if s is not None and len(s)]
+    start = min((float(t[0]) for t in times), default=0.0)
+    end = max((float(t[-1]) for t in times), default=0.0)
+    meta = {k: v for k, v in flight.metadata.items() if k not in ("params", "topics")}
+    return {
+        "path": flight.path,
+        "format": flight.format,
+        "index": flight.index,
+        "duration_s": end - start,
+        "fields": fields,
+        "extras": extras,
+        "missing": [n for n in _FIELDS if n not in fields],
+        "motor_output_scale": None
+        if flight.motor_output_scale is None
+        else flight.motor_output_scale.to_dict(),
+        "airborne_windows_s": [[round(a, 3), round(b, 3)] for a, b in airborne_windows(flight)],
+        "metadata": meta,
+        "topics": flight.metadata.get("topics"),
+        "warnings": flight.warnings,
+    }
+
+
+@click.group("flightlog")
+def flightlog_group() -> None:
+    """Read flight logs (ULog, DataFlash, tlog, blackbox, rosbag, CSV) and extract Df."""
+
+
+@flightlog_group.command("inspect")
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--format", "fmt", help="Reader name instead of content detection.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
+    """What is inside LOG: duration, fields found, airborne windows."""
+    out = []
+    for path in logs:
+        reader = detect(path) if fmt is None else None
+        for flight in read_log(path, format=fmt):
+            info = inspect_flight(flight)
+            info["reader"] = reader.name if reader else fmt
+            out.append(info)
+    if as_json:
+        click.echo(json.dumps(out, indent=2, default=str))
+        return
+    for info in out:
+        click.echo(f"{info['path']} [{info['reader']}, flight {info['index']}]")
+        click.echo(f"  duration {info['duration_s']:.1f} s")
+        for name, f in {**info["fields"], **info["extras"]}.items():
+            rng = f" {f['min']:.4g}..{f['max']:.4g}" if "min" in f else ""
+            rate = f" {f['rate_hz']} Hz" if f["rate_hz"] else ""
+            click.echo(f"  {name:22s} {f['origin']} [{f['unit']}]{rate}{rng}")
+        if info["missing"]:
+            click.echo(f"  missing: {', '.join(info['missing'])}")
+        wins = info["airborne_windows_s"]
+        click.echo(
+            f"  airborne windows: {len(wins)}"
+            + "".join(f"\n    {a:.1f} .. {b:.1f} s ({b - a:.1f} s)" for a, b in wins)
+        )
+        for w in info["warnings"]:
+            click.echo(f"  warning: {w}")
+
+
+@flightlog_group.command("readers")
+def readers_cmd() -> None:
+    """List the flight-log readers and whether they are usable here."""
+    for reader, why in available():
+        state = "ok" if why is None else f"unavailable: {why}"
+        click.echo(f"{reader.name:14s} {reader.description} ({state})")
+
+
+@flightlog_group.command("extract")
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--mass-kg", type=float, help="Vehicle take-off mass (kg); F_m = m·a_up.")
+@click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Df CSV.")
+@click.option("--rotors", type=int, help="Rotor count (default: motor-output columns).")
+@click.option(
+    "--thrust-source",
+    type=click.Choice(["auto", "log", "motors", "norm"]),
+    default="auto",
+    show_default=True,
+    help="T_c from the log's newtons, the motor outputs through the map, or the normalised "
+    "command through the map.",
+)
+@click.option("--rate-hz", type=float, default=10.0, show_default=True, help="Resampling rate.")
+@click.option("--accel-tol", type=float, default=1.0, show_default=True, help="|a_up−g| max.")
+@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
+@click.option("--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing.")
+@click.option("--format", "fmt", help="Reader name instead of content detection.")
+@click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
+def extract_cmd(
+    logs: tuple[Path, ...],
+    mass_kg: float | None,
+    map_path: Path | None,
+    output: Path,
+    rotors: int | None,
+    thrust_source: str,
+    rate_hz: float,
+    accel_tol: float,
+    tilt_max_deg: float,
+    settle_s: float,
+    fmt: str | None,
+    as_json: bool,
+) -> None:
+    """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
+    opts = DfOptions(
+        mass_kg=mass_kg,
+        rotors=rotors,
+        rate_hz=rate_hz,
+        accel_tol_mps2=accel_tol,
+        tilt_max_deg=tilt_max_deg,
+        settle_s=settle_s,
+        thrust_source=thrust_source,
+    )
+    tmap = ThrustMap.load(map_path) if map_path else None
+    flights: list[FlightLog] = []
+    for path in logs:
+        flights.extend(read_log(path, format=fmt))
+    df = extract(flights, opts, tmap)
+    df.sources["logs"] = [{"path": str(p), "sha256": file_sha256(p)} for p in logs if p.is_file()]
+    if not len(df.table):
+        raise ConfigError(
+            "no sample survived the filters: " + "; ".join(_summary(r) for r in df.reports)
+        )
+    side = write_df(df, output)
+    if as_json:
+        click.echo(json.dumps([r.to_dict() for r in df.reports], indent=2))
+        return
+    for r in df.reports:
+        click.echo(_summary(r))
+        for w in r.warnings:
+            click.echo(f"  warning: {w}")
+    click.echo(f"wrote {len(df.table)} samples to {output} (sources in {side})")
+
+
+def _summary(r: Any) -> str:
+    parts = [f"{s.name} −{s.dropped_s:.1f} s ({s.reason})" for s in r.steps if s.dropped_s > 0]
+    return f"{r.flight}: kept {r.kept_s:.1f} of {r.duration_s:.1f} s" + (
+        ": " + ", ".join(parts) if parts else ""
+    )
+
+
+@click.group("gamma")
+def gamma_group() -> None:
+    """The correction factor γ(B) from Df (seed paper eq. 9-11)."""
+
+
+@gamma_group.command("fit")
+@click.argument("dfs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--map", "map_path", required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path))
+@click.option("--loss", type=click.Choice(["l1", "l2"]), default="l1", show_default=True)
+@click.option(
+    "--degree",
+    type=click.Choice(["auto", "0", "1", "2", "3"]),
+    default="auto",
+    show_default=True,
+    help="Polynomial degree in B; auto = by held-out error across flights.",
+)
+@click.option("--rotors", type=int, help="Rotor count, when the Df sidecar lacks it.")
+@click.option("--json", "as_json", is_flag=True, help="Print the fit and metrics as JSON.")
+def gamma_fit_cmd(
+    dfs: tuple[Path, ...],
+    map_path: Path,
+    output: Path,
+    loss: str,
+    degree: str,
+    rotors: int | None,
+    as_json: bool,
+) -> None:
+    """Fit γ(B) on DF... and write the map with its correction block."""
+    import pandas as pd
+
+    from thrustmap.fitting.gamma import corrected_map, fit_gamma
+
+    tmap = ThrustMap.load(map_path)
+    tables: list[pd.DataFrame] = []
+    side: dict[str, Any] = {}
+    for p in dfs:
+        table, s = read_df(p)
+        tables.append(table)
+        for k in ("columns", "flights"):
+            side.setdefault(k, {}).update(s.get(k, {}))
+    fit = fit_gamma(
+        pd.concat(tables, ignore_index=True),
+        side,
+        tmap,
+        loss="l1" if loss == "l1" else "l2",
+        degree=None if degree == "auto" else int(degree),
+        rotors=rotors,
+    )
+    sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
+    out_map = corrected_map(tmap, fit, sources)
+    out_map.save(output)
+    if as_json:
+        click.echo(json.dumps(fit.to_dict(), indent=2, default=float))
+        return
+    c = fit.correction
+    terms = " + ".join(f"{v:.6g}·B^{k}" if k else f"{v:.6g}" for k, v in enumerate(c.coefficients))
+    click.echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
+    click.echo(f"flown voltage {c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V; {fit.validation}")
+    click.echo(
+        "held-out error by degree: "
+        + ", ".join(f"{d}: {e:.4g}" for d, e in sorted(fit.heldout.items()))
+    )
+    m = fit.metrics
+    for key in ("e_Th", "e_T"):
+        b, a = m.get(f"{key}_before_pct"), m.get(f"{key}_after_pct")
+        if b and a:
+            click.echo(
+                f"{key} %: before {b['mean']:.3f} ± {b['std']:.3f}, after "
+                f"{a['mean']:.3f} ± {a['std']:.3f}"
+            )
+    click.echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
+    for row in m["by_voltage"]:
+        lo, hi = row["voltage_v"]
+        eth = (
+            f"{row['e_Th_before_pct']['mean']:7.3f} / {row['e_Th_after_pct']['mean']:6.3f}"
+            if "e_Th_before_pct" in row
+            else " " * 16
+        )
+        click.echo(
+            f"  {lo:6.2f}..{hi:6.2f} {row['samples']:6d} {row['gamma']['mean']:6.4f}  {eth}"
+            f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
+        )
+    click.echo(f"wrote {output}")
