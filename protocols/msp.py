@@ -82,6 +82,32 @@ class MspLengthError(MspProtocolError):
     """A declared size over the limit, or a v2-over-v1 frame whose inner size does not fit."""
 
 
+class MspPayloadError(MspProtocolError):
+    """A frame's payload is too short or malformed for its command (raised by record decoders)."""
+
+
+class MspCommand(enum.IntEnum):
+    """The command ids thrustmap uses (Betaflight/INAV msp_protocol.h)."""
+
+    API_VERSION = 1
+    FC_VARIANT = 2
+    FC_VERSION = 3
+    BOARD_INFO = 4
+    BATTERY_CONFIG = 32
+    REBOOT = 68  # never send during a test
+    ADVANCED_CONFIG = 90
+    SET_ARMING_DISABLED = 99
+    STATUS = 101
+    MOTOR = 104
+    ANALOG = 110
+    BATTERY_STATE = 130
+    MOTOR_CONFIG = 131
+    MOTOR_TELEMETRY = 139
+    STATUS_EX = 150
+    SET_MOTOR = 214
+    INAV_ANALOG = 0x2002  # MSP2_INAV_ANALOG (v2 only)
+
+
 @dataclass(frozen=True)
 class MspFrame:
     """One MSP frame. ``flag`` is the v2 flag byte (0 for v1)."""
