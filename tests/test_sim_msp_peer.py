@@ -240,3 +240,19 @@ def test_random_input_never_crashes_and_output_is_valid(chunks: list[bytes]) -> 
     frames = decoder.feed(out)
     assert decoder.error_count == 0 and decoder.skipped_bytes == 0
     assert all(f.direction is not MspDirection.REQUEST for f in frames)
+
+
+def test_sim_url_builds_the_registered_peer() -> None:
+    import serial
+
+    import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
+    import thrustmap.rig.sim.msp_peer  # noqa: F401 - registers betaflight/inav
+
+    clock = SimClock()
+    port = serial.serial_for_url("sim://inav?motors=2&rate_hz=0", timeout=0.1, clock=clock)
+    port.write(encode_request(2))
+    (frame,) = MspDecoder().feed(port.read(16))
+    assert FcVariant.decode(frame.payload).identifier == "INAV"
+    port.close()
+    with pytest.raises(ConfigError):
+        serial.serial_for_url("sim://betaflight?firmware=kiss", clock=clock)

@@ -212,3 +212,18 @@ def test_line_peer_survives_random_input(chunks: list[tuple[bytes, float]]) -> N
         peer.write(data, t)
         decoder.feed(peer.read(t))
     assert decoder.error_count == 0
+
+
+def test_sim_urls_build_the_registered_stands() -> None:
+    import serial
+
+    import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
+    import thrustmap.rig.sim.stand_peers  # noqa: F401 - registers tyto-1585 and line-stand
+
+    clock = SimClock()
+    port = serial.serial_for_url("sim://tyto-1585?boot_s=0.2", timeout=1.0, clock=clock)
+    assert port.read(7) == b"Ready\r\n"
+    line = serial.serial_for_url("sim://line-stand?rate_hz=10", timeout=0.5, clock=clock)
+    decoder = LineStandDecoder(REFERENCE)
+    events = decoder.feed_events(line.read(10_000))
+    assert any(isinstance(e, LineSample) for e in events) and decoder.error_count == 0

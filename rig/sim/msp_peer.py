@@ -27,7 +27,7 @@ from __future__ import annotations
 import heapq
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
 
 from thrustmap.errors import ConfigError
@@ -63,6 +63,7 @@ from thrustmap.protocols.msp_messages import (
     StatusEx,
     external_to_fraction,
 )
+from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
 
 log = logging.getLogger(__name__)
@@ -429,23 +430,34 @@ def _opt_int(options: Mapping[str, str], key: str, default: int) -> int:
         raise ConfigError(f"sim option {key}={options[key]!r}: expected an integer") from None
 
 
-def msp_peer_from_options(options: Mapping[str, str], plant: Plant | None = None) -> MspPeer:
+PlantFactory = Callable[[Mapping[str, str]], Plant]
+
+
+def constant_plant(options: Mapping[str, str]) -> Plant:
+    return ConstantPlant(_opt_int(options, "motors", 4))
+
+
+MSP_OPTIONS = frozenset({"firmware", "motors", "protocol", "rate_hz"})
+
+
+def msp_peer_from_options(
+    options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
+) -> MspPeer:
     """Build a peer from ``sim://`` URL options: ``firmware`` (betaflight-4, betaflight-2025,
-    inav), ``motors`` (default 4), ``protocol`` (DSHOT600, PWM, ...), ``rate_hz`` (100)."""
-    known = {"firmware", "motors", "protocol", "rate_hz"}
-    unknown = set(options) - known
+    inav), ``motors`` (default 4), ``protocol`` (DSHOT600, PWM, ...), ``rate_hz`` (100).
+    Keys in ``allow`` (a plant factory's options) are accepted and ignored here."""
+    unknown = set(options) - MSP_OPTIONS - set(allow)
     if unknown:
         raise ConfigError(
-            f"unknown MSP sim options {sorted(unknown)}; expected some of {sorted(known)}"
+            f"unknown MSP sim options {sorted(unknown)}; expected some of {sorted(MSP_OPTIONS)}"
         )
     motors = _opt_int(options, "motors", 4)
     name = options.get("protocol", "DSHOT600").upper()
     try:
         protocol = MotorProtocol[name]
     except KeyError:
-        raise ConfigError(
-            f"unknown motor protocol '{name}'; expected one of: {', '.join(MotorProtocol.__members__)}"
-        ) from None
+        known = ", ".join(MotorProtocol.__members__)
+        raise ConfigError(f"unknown motor protocol '{name}'; expected one of: {known}") from None
     rate = _opt_int(options, "rate_hz", 100)
     return MspPeer(
         plant if plant is not None else ConstantPlant(motors),
@@ -454,3 +466,26 @@ def msp_peer_from_options(options: Mapping[str, str], plant: Plant | None = None
         motor_count=motors,
         serial_rate_hz=float(rate) if rate > 0 else None,
     )
+
+
+def register_msp_peers(
+    plant_factory: PlantFactory = constant_plant,
+    *,
+    plant_options: Collection[str] = (),
+    replace: bool = True,
+) -> None:
+    """Register ``sim://betaflight`` (firmware betaflight-4 unless ``firmware=`` says otherwise)
+    and ``sim://inav``; each builds its plant with ``plant_factory(options)``."""
+
+    def betaflight(options: Mapping[str, str]) -> BytePeer:
+        return msp_peer_from_options(options, plant_factory(options), allow=plant_options)
+
+    def inav(options: Mapping[str, str]) -> BytePeer:
+        opts = {"firmware": "inav", **options}
+        return msp_peer_from_options(opts, plant_factory(opts), allow=plant_options)
+
+    register_peer("betaflight", betaflight, replace=replace)
+    register_peer("inav", inav, replace=replace)
+
+
+register_msp_peers()

@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import logging
 import random
-from collections.abc import Mapping
+from collections.abc import Callable, Collection, Mapping
 
 from thrustmap.errors import ConfigError
 from thrustmap.protocols.linestand import REFERENCE, LineStandSpec, preset
+from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.protocols.tyto import (
     TYTO_POLL_CODE,
     TYTO_READY_LINE,
@@ -269,15 +270,17 @@ def _float_opt(options: Mapping[str, str], key: str, default: float) -> float:
         raise ConfigError(f"sim option {key}={options[key]!r}: expected a number") from None
 
 
-def _check(options: Mapping[str, str], known: set[str], what: str) -> None:
-    unknown = set(options) - known
+def _check(options: Mapping[str, str], known: set[str], what: str, allow: Collection[str]) -> None:
+    unknown = set(options) - known - set(allow)
     if unknown:
         raise ConfigError(f"unknown {what} sim options {sorted(unknown)}; expected {sorted(known)}")
 
 
-def tyto_peer_from_options(options: Mapping[str, str], plant: Plant | None = None) -> TytoStandPeer:
+def tyto_peer_from_options(
+    options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
+) -> TytoStandPeer:
     """``sim://tyto-1585?calibration=cal.json&boot_s=1.5&noise_counts=2``."""
-    _check(options, {"calibration", "boot_s", "noise_counts"}, "Tyto")
+    _check(options, {"calibration", "boot_s", "noise_counts"}, "Tyto", allow)
     cal = SIM_TYTO_CALIBRATION
     if "calibration" in options:
         cal = TytoCalibration.load(options["calibration"])
@@ -289,11 +292,34 @@ def tyto_peer_from_options(options: Mapping[str, str], plant: Plant | None = Non
     )
 
 
-def line_peer_from_options(options: Mapping[str, str], plant: Plant | None = None) -> LineStandPeer:
+def line_peer_from_options(
+    options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
+) -> LineStandPeer:
     """``sim://line-stand?preset=thrustmap-line&rate_hz=100``."""
-    _check(options, {"preset", "rate_hz"}, "line stand")
+    _check(options, {"preset", "rate_hz"}, "line stand", allow)
     return LineStandPeer(
         plant if plant is not None else ConstantPlant(1),
         preset(options.get("preset", REFERENCE.name)),
         rate_hz=_float_opt(options, "rate_hz", 100.0),
     )
+
+
+def register_stand_peers(
+    plant_factory: Callable[[Mapping[str, str]], Plant] = lambda options: ConstantPlant(1),
+    *,
+    plant_options: Collection[str] = (),
+    replace: bool = True,
+) -> None:
+    """Register ``sim://tyto-1585`` and ``sim://line-stand``."""
+
+    def tyto(options: Mapping[str, str]) -> BytePeer:
+        return tyto_peer_from_options(options, plant_factory(options), allow=plant_options)
+
+    def line(options: Mapping[str, str]) -> BytePeer:
+        return line_peer_from_options(options, plant_factory(options), allow=plant_options)
+
+    register_peer("tyto-1585", tyto, replace=replace)
+    register_peer("line-stand", line, replace=replace)
+
+
+register_stand_peers()
