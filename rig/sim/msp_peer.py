@@ -149,10 +149,7 @@ class MspPeer:
         self.motor_count = plant.motor_count if motor_count is None else motor_count
         if not 1 <= self.motor_count <= MSP_MOTOR_SLOTS:
             raise ConfigError(f"motor count must be 1..{MSP_MOTOR_SLOTS}, got {self.motor_count}")
-        if self.motor_count > plant.motor_count:
-            raise ConfigError(
-                f"motor count {self.motor_count} exceeds the plant's {plant.motor_count} motors"
-            )
+        # Outputs beyond the plant's motors are simply not connected (SR: one rotor on a 4-in-1).
         self.bidir_dshot = bidir_dshot
         self.service_interval_s = 0.0 if not serial_rate_hz else 1.0 / serial_rate_hz
         self.capacity_mah = capacity_mah
@@ -261,7 +258,7 @@ class MspPeer:
     def _apply_motors(self) -> None:
         if self.armed:
             return
-        for i, value in enumerate(self.motor_values):
+        for i, value in enumerate(self.motor_values[: self.plant.motor_count]):
             fraction = 0.0
             if self.motor_protocol not in (MotorProtocol.DISABLED, MotorProtocol.DRONECAN):
                 fraction = external_to_fraction(value, self.motor_protocol)

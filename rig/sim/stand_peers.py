@@ -60,8 +60,11 @@ class TytoStandPeer:
         boot_s: float = 1.5,
         noise_counts: float = 0.0,
         rng: random.Random | None = None,
+        drive_esc: bool = True,
     ) -> None:
         self.plant = plant
+        #: False when a flight controller drives the ESC and the stand only measures
+        self.drive_esc = drive_esc
         self.calibration = calibration
         self.motor = motor
         self.boot_s = boot_s
@@ -99,8 +102,9 @@ class TytoStandPeer:
                 continue
             self.polls += 1
             self.esc_us = poll.esc_us
-            fraction = min(max((poll.esc_us - 1000) / 1000.0, 0.0), 1.0)
-            self.plant.set_throttle(self.motor, fraction, t)
+            if self.drive_esc:
+                fraction = min(max((poll.esc_us - 1000) / 1000.0, 0.0), 1.0)
+                self.plant.set_throttle(self.motor, fraction, t)
             self._outbox += self._reading(t).frame()
 
     def read(self, now_s: float) -> bytes:
@@ -280,7 +284,7 @@ def tyto_peer_from_options(
     options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
 ) -> TytoStandPeer:
     """``sim://tyto-1585?calibration=cal.json&boot_s=1.5&noise_counts=2``."""
-    _check(options, {"calibration", "boot_s", "noise_counts"}, "Tyto", allow)
+    _check(options, {"calibration", "boot_s", "noise_counts", "drive_esc"}, "Tyto", allow)
     cal = SIM_TYTO_CALIBRATION
     if "calibration" in options:
         cal = TytoCalibration.load(options["calibration"])
@@ -289,6 +293,7 @@ def tyto_peer_from_options(
         cal,
         boot_s=_float_opt(options, "boot_s", 1.5),
         noise_counts=_float_opt(options, "noise_counts", 0.0),
+        drive_esc=options.get("drive_esc", "1") not in ("0", "false", "no"),
     )
 
 
