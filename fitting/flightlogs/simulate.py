@@ -84,7 +84,12 @@ class SimFlight:
 
     @property
     def thrust_norm(self) -> FloatArray:
-        return np.asarray(self.throttle_pct.mean(axis=1) / 100.0, float)
+        """Normalised collective command: the mean motor throttle, 0..1."""
+        cached = self.__dict__.get("_thrust_norm")
+        if cached is None:
+            cached = np.asarray(self.throttle_pct.mean(axis=1) / 100.0, float)
+            self.__dict__["_thrust_norm"] = cached
+        return np.asarray(cached)
 
 
 def _height_profile(t: FloatArray, duration: float) -> tuple[FloatArray, FloatArray, FloatArray]:
