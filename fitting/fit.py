@@ -141,7 +141,7 @@ def fit_map(
     )
     warnings = check_map(tmap, data)
     for w in warnings:
-        log.warning("%s", w)
+        log.info("%s", w)  # returned to the caller, who shows them
     return FitOutcome(tmap, data, warnings)
 
 

@@ -33,7 +33,7 @@ class Selection:
     voltage_range: tuple[float, float] | None = None  # V, exclusive
     thrust_range: tuple[float, float] | None = None  # N (after sign normalisation), exclusive
     all_samples: bool = False
-    plateau_tolerance_pct: float = 0.2  # throttle change still counted as the same level
+    plateau_tolerance_pct: float = 0.05  # throttle spread still counted as one level (a command)
     min_plateau_samples: int = 4
     settle_sigmas: float = 3.0
     ramp_lag_s: float = 0.1  # assumed rotor + stand lag for the quasi-static test

@@ -41,6 +41,8 @@ class RunConfig:
     settle_band_n: float = 0.03  # ... within max(this, settle_rel × thrust)
     settle_rel: float = 0.006
     tare: bool = True
+    spin_down_s: float = 1.0  # before taring: the load cell must be still this long ...
+    spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
 
 
 @dataclass
@@ -189,10 +191,42 @@ class Runner:
         if not self.output.verify_stopped():
             raise SafetyError("motors are not at rest before the run; refusing to start")
         if self.cfg.tare:
+            self._wait_at_rest()
             self.stand.tare()
         now = self.clock.now_s()
         self._last_sample_at = now
         self._last_link_ok = now
+
+    def _wait_at_rest(self) -> None:
+        """Tare only once the rotor has stopped: thrust steady (and rpm ~0 where measured) for
+        ``spin_down_s``. A previous run's coasting rotor would otherwise become the zero."""
+        start = self.clock.now_s()
+        window: deque[tuple[float, float]] = deque()
+        while self.clock.now_s() - start < self.cfg.spin_down_max_s:
+            now = self.clock.now_s()
+            for s in self.stand.read_samples():
+                if s.rpm is not None and s.rpm > 100.0:
+                    window.clear()
+                    continue
+                window.append((s.time_s, s.thrust_n))
+            while window and window[0][0] < now - self.cfg.spin_down_s:
+                window.popleft()
+            if (
+                len(window) >= 6
+                and now - start >= self.cfg.spin_down_s
+                and window[-1][0] - window[0][0] >= 0.8 * self.cfg.spin_down_s
+            ):
+                # At rest when the thrust no longer trends: the means of the two halves of the
+                # window agree within their noise (the load cell's own noise, not a fixed band).
+                values = np.array([v for _, v in window])
+                half = len(values) // 2
+                noise = float(np.std(values)) / np.sqrt(half)
+                if abs(values[:half].mean() - values[half:].mean()) <= max(0.005, 4.0 * noise):
+                    return
+            self.clock.sleep_s(self.cfg.tick_s)
+        raise SafetyError(
+            f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before taring"
+        )
 
     def _target_pct(self, seg: Segment, t_in: float) -> float:
         if isinstance(seg, Ramp):
@@ -376,3 +410,41 @@ class Runner:
                 margins=margins(self.limits, self._reading),
             )
         )
+
+
+def record_sweep(
+    plan: Plan,
+    output: ThrottleOutput,
+    stand: Stand,
+    log_path: str,
+    clock: Clock,
+    *,
+    limits: Limits | None = None,
+    config: RunConfig | None = None,
+    monitor: Callable[[Status], None] | None = None,
+    meta: dict[str, Any] | None = None,
+) -> RunResult:
+    """Run ``plan`` and record it as a Ds log (``log_path`` + its ``.meta.json`` sidecar)."""
+    limits = limits or Limits()
+    config = config or RunConfig()
+    check_plan(plan, limits)
+    ident = output.identify()
+    if limits.cells is None and ident.battery_cells:
+        limits = Limits(**{**limits.to_dict(), "cells": ident.battery_cells})
+    writer = DsWriter(
+        log_path,
+        output.throttle_scale,
+        {
+            "rotors_on_esc": config.rotors_on_esc,
+            "strategy": "MR" if config.rotors_on_esc > 1 else "SR",
+            "motor": config.motor,
+            "devices": {"throttle_output": ident.to_dict(), "stand": stand.identify().to_dict()},
+            "plan": plan.to_dict(),
+            "limits": limits.to_dict(),
+            "run_config": config.__dict__,
+            **(meta or {}),
+        },
+    )
+    return Runner(
+        plan, output, stand, writer, clock, limits=limits, config=config, monitor=monitor
+    ).run()
