@@ -25,3 +25,14 @@ def shared_data() -> Path:
 @pytest.fixture
 def fixtures_dir() -> Path:
     return FIXTURES
+
+
+@pytest.fixture(autouse=True)
+def fresh_simulated_benches() -> None:
+    """sim:// peers of one process share named benches (one plant each); every test starts
+    with none, so plants never see two tests' clocks."""
+    import sys
+
+    peers = sys.modules.get("thrustmap.rig.sim.peers")
+    if peers is not None:
+        peers.reset_benches()
