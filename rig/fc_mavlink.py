@@ -21,7 +21,10 @@ Common behaviour (facts in reference/mavlink.md):
   0.5 s); ``maintain()`` re-sends only when ``keepalive_interval_s`` has passed, for scripts
   that poll. If the host dies the motor stops by itself within ``test_timeout_s``.
 - ``stop()`` puts the stop for every motor on the wire before waiting for any ACK, so a dead
-  link cannot keep one motor's stop from being sent. ``verify_stopped()`` waits (up to
+  link cannot keep one motor's stop from being sent; no ACK -> ``MavlinkLinkLost``. A refused
+  stop (PX4 with the safety on, ArduPilot not landed: nothing of ours can be running) is
+  logged, and left to the evidence: without any output telemetry it counts as not verified.
+  ``verify_stopped()`` waits (up to
   ``verify_timeout_s``) for evidence received after the stop: SERVO_OUTPUT_RAW motor outputs at
   the stopped level, HEARTBEAT not armed, and ESC rpm at rest (``rest_rpm``) or coasting down
   (below ``coast_fraction`` of the rpm at the stop command: unpowered). Evidence a vehicle
@@ -104,7 +107,8 @@ class UnsupportedAutopilot(ConfigError):
 @dataclass(frozen=True)
 class _Stamped:
     value: Any
-    time_s: float
+    time_s: float  # clock reading when processed (for telemetry age)
+    seq: int = 0  # position in the received stream (for "after the stop": order, not time)
 
 
 def _command_name(command: int) -> str:
@@ -234,7 +238,10 @@ class MavlinkThrottleOutput(ThrottleOutput):
         self._commanded: set[int] = set()
         self._last_sent_s: float | None = None
         self._stop_acked_s: float | None = None
+        self._stop_acked_seq = 0  # received-message count when the last stop was acknowledged
+        self._rx_seq = 0
         self._stop_rpm: dict[int, float] = {}
+        self._stop_refused = False
         self.last_stop_verified: bool | None = None
 
     # -- receiving ----------------------------------------------------------------------------
@@ -248,6 +255,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
         if kind == "BAD_DATA" or not self._from_target(msg):
             return
         now_s = self.clock.now_s()
+        self._rx_seq += 1
         if kind == "AUTOPILOT_VERSION":
             self._autopilot_version = msg
             self._seen.add(kind)
@@ -260,7 +268,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
                 self.target_component and decoded.component_id != self.target_component
             ):
                 return
-            self._heartbeat = _Stamped(decoded, now_s)
+            self._heartbeat = _Stamped(decoded, now_s, self._rx_seq)
         elif isinstance(decoded, mav.CommandAck):
             target = int(getattr(msg, "target_system", 0) or 0)
             if target not in (0, int(self.link.mav.srcSystem)):
@@ -268,29 +276,34 @@ class MavlinkThrottleOutput(ThrottleOutput):
             self._acks.append(decoded)
         elif isinstance(decoded, mav.StatusText):
             log.info("vehicle: %s", decoded.text)
-            self._statustext.append(_Stamped(decoded.text, now_s))
+            self._statustext.append(_Stamped(decoded.text, now_s, self._rx_seq))
         elif isinstance(decoded, mav.ParamValue):
             self._params[decoded.name] = decoded.value
         elif isinstance(decoded, mav.SysStatus):
-            self._sys_status = _Stamped(decoded, now_s)
+            self._sys_status = _Stamped(decoded, now_s, self._rx_seq)
         elif isinstance(decoded, mav.BatteryStatus):
             if decoded.battery_id == 0:
-                self._battery = _Stamped(decoded, now_s)
+                self._battery = _Stamped(decoded, now_s, self._rx_seq)
         elif isinstance(decoded, mav.ServoOutputRaw):
             if decoded.port == 0:
-                self._servo = _Stamped(decoded, now_s)
+                self._servo = _Stamped(decoded, now_s, self._rx_seq)
         elif isinstance(decoded, mav.EscStatus):
             for i, rpm in enumerate(decoded.rpm):
-                self._esc_rpm[decoded.first_index + i] = _Stamped(rpm, now_s)
+                self._esc_rpm[decoded.first_index + i] = _Stamped(rpm, now_s, self._rx_seq)
         elif isinstance(decoded, mav.EscTelemetry):
             for i, rpm in enumerate(decoded.rpm):
-                self._esc_rpm[decoded.first_index + i] = _Stamped(rpm, now_s)
-                self._esc_temp[decoded.first_index + i] = _Stamped(decoded.temperature_c[i], now_s)
+                self._esc_rpm[decoded.first_index + i] = _Stamped(rpm, now_s, self._rx_seq)
+                self._esc_temp[decoded.first_index + i] = _Stamped(
+                    decoded.temperature_c[i], now_s, self._rx_seq
+                )
         self._seen.add(kind)
 
     def _recv_one(self, timeout_s: float) -> Any:
         try:
-            msg = self.link.recv_match(blocking=timeout_s > 0, timeout=max(0.0, timeout_s))
+            if timeout_s > 0:
+                msg = self.link.recv_match(blocking=True, timeout=timeout_s)
+            else:  # a timeout of 0 would return before reading anything
+                msg = self.link.recv_match(blocking=False)
         except (OSError, SerialException) as exc:
             raise MavlinkLinkLost(f"MAVLink transport failed: {exc}") from exc
         if msg is not None:
@@ -588,18 +601,23 @@ class MavlinkThrottleOutput(ThrottleOutput):
                 f"{self.ack_timeout_s:g} s"
             )
         refused = [a for a in results if not a.accepted]
+        self._stop_refused = bool(refused)
         if refused:
+            # Nothing of ours may be running (safety on, not landed, ...): verify_stopped
+            # decides from what the vehicle reports, and fails without output evidence.
             texts = self._texts_since(self.clock.now_s() - self.ack_timeout_s)
-            raise MotorTestRefused(
-                self._refusal_message("the stop command", int(refused[0].result), texts),
-                result=int(refused[0].result),
-                statustext=texts,
+            log.warning(
+                "%s", self._refusal_message("the stop command", int(refused[0].result), texts)
             )
         self._stop_acked_s = self.clock.now_s()
+        self._stop_acked_seq = self._rx_seq
 
     # -- verification ------------------------------------------------------------------------------
     def _motor_indices(self) -> list[int]:
         return sorted(set(range(self.motor_count)) | self._commanded)
+
+    def _has_output_evidence(self) -> bool:
+        return "SERVO_OUTPUT_RAW" in self._seen or bool(self._esc_rpm)
 
     @abstractmethod
     def _outputs_stopped(self, outputs_us: Sequence[int], motors: Sequence[int]) -> bool: ...
@@ -607,18 +625,18 @@ class MavlinkThrottleOutput(ThrottleOutput):
     def _heartbeat_required(self) -> bool:
         return False
 
-    def _stop_evidence(self, since_s: float) -> tuple[bool, list[str]]:
+    def _stop_evidence(self, since: int) -> tuple[bool, list[str]]:
         """(all available evidence says stopped, what is still missing or wrong)."""
         motors = self._motor_indices()
         missing: list[str] = []
         hb = self._heartbeat
-        if self._heartbeat_required() and (hb is None or hb.time_s < since_s):
+        if self._heartbeat_required() and (hb is None or hb.seq <= since):
             missing.append("a HEARTBEAT after the stop")
-        elif hb is not None and hb.time_s >= since_s and hb.value.armed:
+        elif hb is not None and hb.seq > since and hb.value.armed:
             missing.append("HEARTBEAT still says ARMED")
         if "SERVO_OUTPUT_RAW" in self._seen:
             servo = self._servo
-            if servo is None or servo.time_s < since_s:
+            if servo is None or servo.seq <= since:
                 missing.append("a SERVO_OUTPUT_RAW after the stop")
             elif not self._outputs_stopped(servo.value.outputs_us, motors):
                 missing.append(f"outputs not at stop: {servo.value.outputs_us[: len(motors) or 4]}")
@@ -627,7 +645,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
                 stamped = self._esc_rpm.get(m)
                 if stamped is None:
                     continue
-                if stamped.time_s < since_s:
+                if stamped.seq <= since:
                     missing.append(f"ESC rpm of motor {m} after the stop")
                     continue
                 rpm, at_stop = stamped.value, self._stop_rpm.get(m, 0.0)
@@ -637,14 +655,16 @@ class MavlinkThrottleOutput(ThrottleOutput):
         return not missing, missing
 
     def verify_stopped(self) -> bool:
-        since_s = self._stop_acked_s
-        if since_s is None:
+        if self._stop_acked_s is None:
             log.warning("verify_stopped: the last stop was not acknowledged")
+            return False
+        if self._stop_refused and not self._has_output_evidence():
+            log.warning("verify_stopped: the stop was refused and the vehicle reports no outputs")
             return False
         outcome: list[str] = []
 
         def stopped() -> bool:
-            ok, missing = self._stop_evidence(since_s)
+            ok, missing = self._stop_evidence(self._stop_acked_seq)
             outcome[:] = missing
             return ok
 
@@ -880,11 +900,11 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         if self._current:
             return  # our own test is running: ARMED is expected
         self.poll()
-        since_s = self._stop_acked_s
-        if since_s is not None:
+        if self._stop_acked_s is not None:
             # HEARTBEATs from before our last stop's ACK still say ARMED: wait for a newer one.
+            since = self._stop_acked_seq
             hb_ok = self._wait_until(
-                lambda: self._heartbeat is not None and self._heartbeat.time_s >= since_s,
+                lambda: self._heartbeat is not None and self._heartbeat.seq > since,
                 self.heartbeat_timeout_s,
             )
             if not hb_ok:
