@@ -24,11 +24,12 @@ Common behaviour (facts in reference/mavlink.md):
   link cannot keep one motor's stop from being sent; no ACK -> ``MavlinkLinkLost``. A refused
   stop (PX4 with the safety on, ArduPilot not landed: nothing of ours can be running) is
   logged, and left to the evidence: without any output telemetry it counts as not verified.
-  ``verify_stopped()`` waits (up to
-  ``verify_timeout_s``) for evidence received after the stop: SERVO_OUTPUT_RAW motor outputs at
-  the stopped level, HEARTBEAT not armed, and ESC rpm at rest (``rest_rpm``) or coasting down
-  (below ``coast_fraction`` of the rpm at the stop command: unpowered). Evidence a vehicle
-  never sends is not waited for.
+  ``verify_stopped()`` waits (up to ``verify_timeout_s``) for evidence that arrived after the
+  stop's ACK (in stream order, not by clock time: a HEARTBEAT sent before the stop may be read
+  in the same instant as the ACK): SERVO_OUTPUT_RAW motor outputs at the stopped level,
+  HEARTBEAT not armed, and ESC rpm at rest (``rest_rpm``) or coasting down (below
+  ``coast_fraction`` of the rpm at the stop command: unpowered). Evidence a vehicle never
+  sends is not waited for.
 - ``read_telemetry()`` processes what has arrived (never blocks) and reports battery voltage
   and current (BATTERY_STATUS, else SYS_STATUS), ESC rpm and temperature (ESC_STATUS on PX4,
   ESC_TELEMETRY_1_TO_4.. on ArduPilot); values older than ``telemetry_max_age_s`` are None.
