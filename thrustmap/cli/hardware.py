@@ -1,0 +1,352 @@
+"""``thrustmap ports``, ``thrustmap probe URL`` and ``thrustmap spin URL``: talk to the hardware.
+
+Thin layers over ``thrustmap.rig.connect`` and ``thrustmap.rig.spin``. URLs are device paths
+(``/dev/ttyACM0``, ``COM3``), ``sim://<peer>`` simulated devices, ``record://<url>?file=x.jsonl``
+and ``replay://x.jsonl``, or ``socket://host:port``.
+
+Clock: with ``--clock auto`` (the default) a URL with nothing real behind it (``sim://``,
+``replay://``) runs on a simulated clock — instantly, and nothing waits for real — and any real
+device on the monotonic clock. ``--clock real`` watches a simulation in real time.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+
+import click
+
+from thrustmap.clock import Clock, MonotonicClock, SimClock
+from thrustmap.errors import ConfigError
+from thrustmap.rig import connect
+from thrustmap.rig.spin import (
+    DEFAULT_MAX_THROTTLE_PCT,
+    MAX_SECONDS,
+    SpinReport,
+    SpinRequest,
+    check_spin,
+    run_spin,
+)
+
+log = logging.getLogger(__name__)
+
+KIND_CHOICE = click.Choice(sorted(connect.KIND_ALIASES), case_sensitive=False)
+CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)
+
+
+def make_clock(choice: str, urls: list[str]) -> Clock:
+    """The clock for a command on ``urls`` (see the module docstring)."""
+    simulated = all(connect.is_simulated(u) for u in urls)
+    choice = choice.lower()
+    if choice == "sim" and not simulated:
+        real = [u for u in urls if not connect.is_simulated(u)]
+        raise ConfigError(
+            f"--clock sim needs simulated devices only; {', '.join(real)} is real "
+            "(its timeouts and the spin duration would be meaningless)"
+        )
+    if choice == "sim" or (choice == "auto" and simulated):
+        return SimClock()
+    return MonotonicClock()
+
+
+def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
+    options = [
+        click.option(
+            "--kind",
+            type=KIND_CHOICE,
+            default=None,
+            help="What is connected (default: detected by a safe probe).",
+        ),
+        click.option("--baud", type=int, default=None, help="Serial baud rate (default by kind)."),
+        click.option(
+            "--calibration",
+            type=click.Path(dir_okay=False),
+            default=None,
+            help="Tyto 1585 load-cell calibration (JSON).",
+        ),
+        click.option(
+            "--line-preset",
+            default=None,
+            help="Line stand preset (thrustmap-line, rp2040-whoop, stm32-hx711).",
+        ),
+        click.option(
+            "--line-spec",
+            type=click.Path(dir_okay=False),
+            default=None,
+            help="Line stand description (JSON) for your own stand.",
+        ),
+        click.option(
+            "--clock",
+            "clock_choice",
+            type=CLOCK_CHOICE,
+            default="auto",
+            show_default=True,
+            help="auto: simulated time for sim:// and replay:// URLs, real time otherwise.",
+        ),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
+
+
+# --------------------------------------------------------------------------- ports
+
+
+@click.command("ports")
+@click.option("--probe", is_flag=True, help="Open each port and probe it safely (see probe).")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@click.option("--listen", type=float, default=2.0, show_default=True, help="Seconds per probe.")
+def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
+    """List serial ports with a guess at what each is (from USB IDs; nothing is opened
+    unless --probe)."""
+    ports = connect.list_ports()
+    rows: list[dict[str, object]] = []
+    for port in ports:
+        row = port.to_dict()
+        if probe:
+            row["probe"] = _probe_port(port, listen)
+        rows.append(row)
+    if as_json:
+        click.echo(json.dumps(rows, indent=2))
+        return
+    if not rows:
+        click.echo("no serial ports found")
+        return
+    width = max(len(p.device) for p in ports)
+    for port, row in zip(ports, rows, strict=True):
+        usb = port.usb_id or "-        "
+        label = port.product or port.description
+        click.echo(f"{port.device:<{width}}  {usb}  {port.guess}")
+        if label and label not in port.guess:
+            click.echo(f"{'':<{width}}             {label}")
+        if "probe" in row:
+            click.echo(f"{'':<{width}}             probe: {row['probe']}")
+
+
+def _probe_port(port: connect.PortDescription, listen_s: float) -> str:
+    if not port.probe_safe:
+        return "skipped (bootloader)"
+    try:
+        found = connect.detect_kind(port.device, MonotonicClock(), listen_s=listen_s)
+    except ConfigError as exc:
+        return f"unknown ({exc.message})"
+    what = found.kind + (f" ({found.firmware})" if found.firmware else "")
+    if found.line_preset:
+        what += f", preset {found.line_preset}"
+    return f"{what} — {found.evidence}"
+
+
+# --------------------------------------------------------------------------- probe
+
+
+@click.command("probe")
+@click.argument("url")
+@_device_options
+@click.option("--seconds", type=float, default=1.0, show_default=True, help="Stand reading window.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def probe_cmd(
+    url: str,
+    kind: str | None,
+    baud: int | None,
+    calibration: str | None,
+    line_preset: str | None,
+    line_spec: str | None,
+    clock_choice: str,
+    seconds: float,
+    as_json: bool,
+) -> None:
+    """Identify the FC or stand at URL and take a short live reading (no motor is spun)."""
+    if not 0 < seconds <= 60:
+        raise ConfigError(f"--seconds must be in (0, 60], got {seconds:g}")
+    clock = make_clock(clock_choice, [url])
+    report = connect.probe_device(
+        url,
+        clock,
+        kind=kind,
+        baudrate=baud,
+        calibration=calibration,
+        line_preset=line_preset,
+        line_spec_file=line_spec,
+        seconds=seconds,
+    )
+    if as_json:
+        click.echo(json.dumps(report.to_dict(), indent=2))
+        return
+    det = report.detection
+    click.echo(f"{url}: {det.kind}" + (f" ({det.firmware})" if det.firmware else ""))
+    click.echo(f"  found by: {det.evidence}")
+    ident = report.identity
+    if ident is not None:
+        for label, value in (
+            ("device", ident.kind),
+            ("firmware", ident.firmware_version),
+            ("board", ident.board),
+            ("motor protocol", ident.motor_protocol),
+            ("motors", ident.motor_count or ""),
+            ("battery cells", ident.battery_cells or ""),
+        ):
+            if value:
+                click.echo(f"  {label}: {value}")
+        for key, value in sorted(ident.details.items()):
+            click.echo(f"  {key}: {value}")
+    if report.throttle_scale:
+        click.echo(f"  throttle scale: {report.throttle_scale}")
+    tel = report.telemetry
+    if tel is not None:
+        click.echo(f"  battery: {_fmt(tel.voltage_v, 'V', 2)}  {_fmt(tel.current_a, 'A', 2)}")
+        if tel.rpm is not None:
+            click.echo("  rpm: " + " ".join(f"{r:.0f}" for r in tel.rpm))
+    if report.motor_values is not None:
+        click.echo("  motor values: " + " ".join(str(v) for v in report.motor_values))
+    stand = report.stand
+    if stand is not None:
+        rate = f" at {stand.rate_hz:.0f} Hz" if stand.rate_hz else ""
+        click.echo(f"  {stand.samples} samples in {stand.duration_s:.2f} s{rate}")
+        units = {
+            "thrust_n": "N",
+            "torque_nm": "N·m",
+            "voltage_v": "V",
+            "current_a": "A",
+            "rpm": "rpm",
+            "temperature_c": "°C",
+        }
+        for key, mean in stand.means.items():
+            click.echo(f"  mean {key.rsplit('_', 1)[0]}: {mean:.4g} {units.get(key, '')}")
+        if stand.bad_lines:
+            click.echo(f"  bad lines: {stand.bad_lines}")
+    for warning in report.warnings:
+        click.echo(f"  warning: {warning}")
+
+
+def _fmt(value: float | None, unit: str, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f} {unit}"
+
+
+# --------------------------------------------------------------------------- spin
+
+
+@click.command("spin")
+@click.argument("url")
+@click.option(
+    "--motor", type=int, required=True, help="Motor number, 1-based (as in the motor tab)."
+)
+@click.option(
+    "--throttle",
+    type=float,
+    required=True,
+    help="Throttle in percent of the output's scale (e.g. 10).",
+)
+@click.option(
+    "--seconds",
+    type=float,
+    default=2.0,
+    show_default=True,
+    help=f"How long to hold it (at most {MAX_SECONDS:g} s).",
+)
+@click.option(
+    "--max-throttle",
+    type=float,
+    default=DEFAULT_MAX_THROTTLE_PCT,
+    show_default=True,
+    help="Refuse throttle above this percent; raise it explicitly for more.",
+)
+@click.option("--ramp", type=float, default=0.5, show_default=True, help="Ramp-up time, s.")
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+@click.option("--stand", "stand_url", default=None, help="Also show thrust from this stand.")
+@_device_options
+def spin_cmd(
+    url: str,
+    motor: int,
+    throttle: float,
+    seconds: float,
+    max_throttle: float,
+    ramp: float,
+    yes: bool,
+    stand_url: str | None,
+    kind: str | None,
+    baud: int | None,
+    calibration: str | None,
+    line_preset: str | None,
+    line_spec: str | None,
+    clock_choice: str,
+) -> None:
+    """Spin ONE motor briefly at a low throttle: a capped, confirmed motor test.
+
+    The motor is stopped and the stop verified on every way out (the end, an error, Ctrl-C,
+    SIGTERM). Exit codes: 0 done, 2 refused or error, 3 stop not verified, 130 interrupted."""
+    if motor < 1:
+        raise ConfigError(f"--motor is 1-based, got {motor}")
+    request = SpinRequest(motor - 1, throttle, seconds, ramp_s=ramp)
+    check_spin(request, max_throttle)  # refuse before anything is opened
+    clock = make_clock(clock_choice, [url] + ([stand_url] if stand_url else []))
+    if not yes:
+        click.confirm(
+            f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
+            "Propellers on? The stand must be secured and the area clear. Spin now?",
+            abort=True,
+            err=True,
+        )
+    output = connect.open_throttle_output(
+        url,
+        clock,
+        kind=kind,
+        baudrate=baud,
+        calibration=calibration,
+        line_preset=line_preset,
+        line_spec_file=line_spec,
+    )
+    stand = None
+    handed_over = False  # run_spin enters (and so closes) the output
+    try:
+        if stand_url is not None:
+            stand = connect.open_stand(stand_url, clock)
+        elif isinstance(output, connect.StandEscOutput):
+            stand = output.stand
+        handed_over = True
+        result = run_spin(
+            output,
+            clock,
+            request,
+            max_throttle_pct=max_throttle,
+            stand=stand,
+            on_report=lambda r: click.echo(_report_line(r, motor, output.throttle_scale.unit)),
+        )
+    finally:
+        if stand is not None and stand_url is not None:
+            stand.close()
+        if not handed_over:
+            with output:  # stop, verify and close: nothing was commanded, but be sure
+                pass
+    if result.stop_verified:
+        click.echo(f"motor {motor} stopped (verified) after {result.duration_s:.1f} s")
+    else:
+        click.echo(f"STOP NOT VERIFIED on motor {motor} - disconnect the battery now", err=True)
+    if result.status == "interrupted":
+        click.echo(f"spin {result.reason}", err=True)
+        sys.exit(130)
+    if not result.stop_verified:
+        if result.error is not None:
+            click.echo(f"error: {result.reason}", err=True)
+        sys.exit(3)
+    result.raise_error()
+
+
+def _report_line(report: SpinReport, motor: int, unit: str) -> str:
+    parts = [
+        f"t={report.elapsed_s:4.1f}s",
+        f"motor {motor}",
+        f"{report.throttle_pct:5.1f} % ({report.throttle_native:.4g} {unit})",
+    ]
+    tel = report.telemetry
+    if tel is not None:
+        if tel.voltage_v is not None:
+            parts.append(f"{tel.voltage_v:.2f} V")
+        if tel.current_a is not None:
+            parts.append(f"{tel.current_a:.2f} A")
+        if tel.rpm is not None and len(tel.rpm) > 0:
+            rpm = tel.rpm[motor - 1] if motor - 1 < len(tel.rpm) else tel.rpm[0]
+            parts.append(f"{rpm:.0f} rpm")
+    if report.stand is not None:
+        parts.append(f"thrust {report.stand.thrust_n:.3f} N")
+    return "  ".join(parts)
