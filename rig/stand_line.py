@@ -119,6 +119,7 @@ class LineStand(Stand):
         self._last_time_s = -math.inf
         self._last_tx_s = -math.inf
         self._closed = False
+        self._errors_seen = 0
 
     # -- counters ---------------------------------------------------------------------------
     @property
@@ -209,7 +210,8 @@ class LineStand(Stand):
         return out
 
     def _log_error(self, error: LineError) -> None:
-        n = self.decoder.error_count
+        self._errors_seen += 1
+        n = self._errors_seen
         if n <= self.max_logged_errors:
             log.warning("%s (line %r)", error, error.text[:80])
             if n == self.max_logged_errors:
