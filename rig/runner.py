@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError
@@ -38,9 +39,10 @@ class RunConfig:
     telemetry_period_s: float = 0.2
     keepalive_s: float = 0.5  # re-send the command at least this often
     settle_window_s: float = 0.6  # settle detection: thrust range over this window ...
-    settle_band_n: float = 0.03  # ... within max(this, settle_rel × thrust)
-    settle_rel: float = 0.006
+    settle_band_n: float = 0.01  # ... trend below max(this, settle_rel × thrust) or its noise
+    settle_rel: float = 0.003
     tare: bool = True
+    stop_retry_s: float = 10.0  # keep re-sending the stop this long until it is verified
     spin_down_s: float = 1.0  # before taring: the load cell must be still this long ...
     spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
 
@@ -72,6 +74,16 @@ class RunResult:
     trip: Trip | None = None
     log_path: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def steady(values: npt.NDArray[np.float64], floor: float) -> bool:
+    """No trend left: the means of the window's two halves agree within the window's own noise
+    (4 standard errors) or within ``floor``. A settling rotor trends; a settled one only wobbles."""
+    half = len(values) // 2
+    if half < 3:
+        return False
+    noise = float(np.std(values)) / np.sqrt(half)
+    return abs(float(values[:half].mean() - values[half:].mean())) <= max(floor, 4.0 * noise)
 
 
 class Aborted(Exception):
@@ -143,7 +155,7 @@ class Runner:
                 if self._abort_at is None:
                     self._abort_at = self.clock.now_s()
                 stop_at = self.clock.now_s()
-                verified = self.output.stop_and_verify()
+                verified = self._stop_until_verified()
                 latency = stop_at - self._abort_at
                 if status != "completed":
                     log.warning(
@@ -173,6 +185,21 @@ class Runner:
         )
 
     # -- internals -------------------------------------------------------------------------------
+    def _stop_until_verified(self) -> bool:
+        """Stop and verify; on a lost link keep re-sending for ``stop_retry_s`` (Betaflight keeps
+        the last motor value forever, so giving up after one try is not an option)."""
+        deadline = self.clock.now_s() + self.cfg.stop_retry_s
+        while True:
+            if self.output.stop_and_verify(attempts=1):
+                return True
+            if self.clock.now_s() >= deadline:
+                log.critical(
+                    "motor stop NOT verified after %.0f s: disconnect the battery",
+                    self.cfg.stop_retry_s,
+                )
+                return False
+            self.clock.sleep_s(0.1)
+
     def _motors(self) -> list[int]:
         if self.cfg.rotors_on_esc > 1:
             return list(range(self.cfg.rotors_on_esc))
@@ -211,18 +238,13 @@ class Runner:
                 window.append((s.time_s, s.thrust_n))
             while window and window[0][0] < now - self.cfg.spin_down_s:
                 window.popleft()
+            long_enough = now - start >= self.cfg.spin_down_s and len(window) >= 6
             if (
-                len(window) >= 6
-                and now - start >= self.cfg.spin_down_s
+                long_enough
                 and window[-1][0] - window[0][0] >= 0.8 * self.cfg.spin_down_s
+                and steady(np.array([v for _, v in window]), 0.005)
             ):
-                # At rest when the thrust no longer trends: the means of the two halves of the
-                # window agree within their noise (the load cell's own noise, not a fixed band).
-                values = np.array([v for _, v in window])
-                half = len(values) // 2
-                noise = float(np.std(values)) / np.sqrt(half)
-                if abs(values[:half].mean() - values[half:].mean()) <= max(0.005, 4.0 * noise):
-                    return
+                return
             self.clock.sleep_s(self.cfg.tick_s)
         raise SafetyError(
             f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before taring"
@@ -269,8 +291,9 @@ class Runner:
         if abs(self._cmd_pct - self._target_pct_now) > 1e-9:
             return False  # still slewing toward the level
         values = np.array([v for _, v in window])
-        band = max(self.cfg.settle_band_n, self.cfg.settle_rel * abs(float(values.mean())))
-        return float(values.max() - values.min()) <= band
+        return steady(
+            values, max(self.cfg.settle_band_n, self.cfg.settle_rel * abs(float(values.mean())))
+        )
 
     def _command(self, target_pct: float, now: float) -> None:
         self._target_pct_now = target_pct
@@ -284,9 +307,9 @@ class Runner:
             try:
                 if changed:
                     self.output.set_throttle({m: native for m in self._motors()})
+                    self._last_link_ok = self.clock.now_s()
                 else:
-                    self.output.keepalive()
-                self._last_link_ok = self.clock.now_s()
+                    self.output.keepalive()  # a no-op for MSP: proves nothing about the link
             except SafetyError:
                 raise
             except Exception as exc:

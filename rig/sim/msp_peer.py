@@ -209,7 +209,7 @@ class MspPeer:
         """Arm as a pilot would (no checks); motors leave SET_MOTOR control."""
         self._advance(now_s)
         self.armed = True
-        for i in range(self.motor_count):
+        for i in range(min(self.motor_count, self.plant.motor_count)):
             self.plant.set_throttle(i, 0.0, self._time_s)
         self._state = self.plant.state(self._time_s)
 
