@@ -83,7 +83,7 @@ def steady(values: npt.NDArray[np.float64], floor: float) -> bool:
     if half < 3:
         return False
     noise = float(np.std(values)) / np.sqrt(half)
-    return abs(float(values[:half].mean() - values[half:].mean())) <= max(floor, 4.0 * noise)
+    return bool(abs(float(values[:half].mean() - values[half:].mean())) <= max(floor, 4.0 * noise))
 
 
 class Aborted(Exception):

@@ -62,6 +62,9 @@ def reset_benches() -> None:
 
 
 def _mavlink_plant(options: Mapping[str, str]) -> PhysicsPlant:
+    # A vehicle declared with N motors has N rotors spinning unless the bench says otherwise.
+    if "motors" in options and "rotors" not in options:
+        options = {**options, "rotors": options["motors"]}
     return bench_plant(options)
 
 
