@@ -13,9 +13,11 @@ Semantics:
   writes is preserved. When the driver asks for more than that, it gets fewer bytes, as a serial
   port does at its timeout. Unread bytes stay readable after a write (like an input buffer);
   ``reset_input_buffer`` discards nothing, because a transcript holds only bytes the driver read.
-- With ``clock=`` (a ``SimClock`` in tests): serving a read moves the clock on to the recorded
-  time of that read, and a short read with a timeout advances it by the timeout, so drivers that
-  poll against a clock see time pass. Without a clock, replay runs as fast as the driver goes.
+- With ``clock=`` (a ``SimClock`` in tests) the recording's timeline is kept: a recorded read's
+  bytes become readable when the clock reaches the time they arrived (relative to opening), so a
+  driver polling on the clock sees exactly what it saw when recording, and a short read with a
+  timeout advances the clock by the timeout. Without a clock, replay runs as fast as the driver
+  goes and every byte up to the next recorded write is readable at once.
 - ``close()`` logs whether the transcript was fully consumed; ``report()`` returns the numbers
   and ``assert_consumed()`` raises ``ReplayIncompleteError`` if writes or reads were left over.
 """
@@ -76,6 +78,10 @@ class ReplayReport:
     @property
     def fully_consumed(self) -> bool:
         return self.write_bytes_remaining == 0 and self.read_bytes_remaining == 0
+
+
+#: transcripts store times to the nanosecond; compare with that slack
+_TIME_EPS_S = 2e-9
 
 
 def _truthy(text: str) -> bool:
@@ -262,24 +268,50 @@ class ReplaySerial(SerialBase):
     def in_waiting(self) -> int:
         if not self.is_open:
             raise PortNotOpenError()
-        return len(self._rx)
+        return self._available()
+
+    def _available(self) -> int:
+        """Bytes readable now. With a clock, a recorded read's bytes arrive at its recorded time
+        (as they did from the device), so the driver sees the same timeline it saw then."""
+        if self._clock is None:
+            return len(self._rx)
+        now_rel = self._clock.now_s() - self._origin_s + _TIME_EPS_S
+        ready = self._served
+        for end, time_s in self._rx_ends:
+            if time_s > now_rel:
+                break
+            ready = end
+        return ready - self._served
+
+    def _next_arrival_rel(self) -> float | None:
+        """Recorded time of the first byte not yet readable (None: nothing before the next write)."""
+        if self._clock is None:
+            return None
+        pending = self._served + self._available()
+        return next((t for end, t in self._rx_ends if end > pending), None)
 
     def read(self, size: int = 1, /) -> bytes:
         if not self.is_open:
             raise PortNotOpenError()
+        available = self._available()
         if size < 0:
-            size = len(self._rx)
-        data = bytes(self._rx[:size])
-        del self._rx[:size]
+            size = available
+        if available < size and self.timeout and self._clock is not None:
+            # Block like a serial port: until the bytes arrive (at their recorded time) or the
+            # timeout passes, whichever comes first.
+            deadline_rel = self._clock.now_s() - self._origin_s + float(self.timeout)
+            arrival = self._next_arrival_rel()
+            while arrival is not None and arrival <= deadline_rel and available < size:
+                self._advance_clock_to(arrival)
+                available = self._available()
+                arrival = self._next_arrival_rel()
+            if available < size:
+                self._advance_clock_to(deadline_rel)
+        data = bytes(self._rx[: min(size, available)])
+        del self._rx[: len(data)]
         self._served += len(data)
-        if data:
-            # Recorded time of the read event the last served byte came from.
-            while self._rx_ends and self._rx_ends[0][0] < self._served:
-                self._rx_ends.popleft()
-            if self._rx_ends:
-                self._advance_clock_to(self._rx_ends[0][1])
-        if len(data) < size and self.timeout and self._clock is not None:
-            self._clock.sleep_s(float(self.timeout))
+        while self._rx_ends and self._rx_ends[0][0] <= self._served:
+            self._rx_ends.popleft()
         return data
 
     def write(self, b: Any, /) -> int:
