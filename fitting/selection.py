@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 class Selection:
     throttle_range: tuple[float, float] | None = None  # native units, exclusive
     voltage_range: tuple[float, float] | None = None  # V, exclusive
-    thrust_range: tuple[float, float] | None = None  # N (after sign normalisation), exclusive
+    thrust_range: tuple[float, float] | None = None  # N (after sign normalisation), exclusive;
+    # None keeps 0 < T (points without thrust carry no information about producing it)
     all_samples: bool = False
     plateau_tolerance_pct: float = 0.05  # throttle spread still counted as one level (a command)
     min_plateau_samples: int = 4
@@ -81,10 +82,13 @@ def select(ds: Dataset, sel: Selection) -> Points:
     else:
         t, b, th, kind, info = _steady_state(ds, sel)
         report.update(info)
+    # Without an explicit thrust range, points at or below zero thrust (rotor stopped, ESC dead
+    # band, load-cell offset) say nothing about producing thrust: drop them, as the paper's 0 < T.
+    thrust_rng = sel.thrust_range if sel.thrust_range is not None else (0.0, np.inf)
     keep = (
         _in_range(th, sel.throttle_range)
         & _in_range(b, sel.voltage_range)
-        & _in_range(t, sel.thrust_range)
+        & _in_range(t, thrust_rng)
     )
     report["kept_points"] = int(keep.sum())
     report["dropped_by_range"] = int((~keep).sum())
