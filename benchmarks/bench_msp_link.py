@@ -113,8 +113,8 @@ def _stats(
 
 
 def paced(requested_hz: float, seconds: float) -> Paced:
-    """SET_MOTOR every 1/``requested_hz`` s to absolute deadlines, each waiting for its ack.
-    A late command is sent at once (no catch-up burst beyond that, no skipped deadlines)."""
+    """SET_MOTOR every 1/``requested_hz`` s to absolute deadlines, each waiting for its ack,
+    for ``seconds``. A late command is sent at once (no deadline is skipped)."""
     clock = MonotonicClock()
     period = 1.0 / requested_hz
     n = int(seconds * requested_hz)
@@ -123,11 +123,15 @@ def paced(requested_hz: float, seconds: float) -> Paced:
     with fc:
         t0 = clock.now_s() + period
         deadlines = t0 + period * np.arange(n, dtype=np.float64)
+        sent = 0
         for k in range(n):
+            if clock.now_s() - t0 >= seconds:  # fell behind: stop at the time budget
+                break
             clock.sleep_s(deadlines[k] - clock.now_s())
             sends[k] = clock.now_s()
             fc.set_throttle({0: TEST_US + k % 50})  # native µs (PWM), every one a change
-    return _stats(requested_hz, sends, deadlines)
+            sent += 1
+    return _stats(requested_hz, sends[:sent], deadlines[:sent])
 
 
 def paced_no_ack(requested_hz: float, seconds: float) -> Paced:
