@@ -26,7 +26,7 @@ from thrustmap.fitting.dsformat import DsWriter
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
-from thrustmap.rig.safety import Terminated, terminate_as_exception
+from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
 
@@ -155,15 +155,16 @@ class Runner:
                 if self._abort_at is None:
                     self._abort_at = self.clock.now_s()
                 stop_at = self.clock.now_s()
-                verified = self._stop_until_verified()
-                latency = stop_at - self._abort_at
-                if status != "completed":
-                    log.warning(
-                        "run aborted: %s; motors %s",
-                        reason,
-                        "stopped (verified)" if verified else "STOP NOT VERIFIED",
-                    )
-                self._drain_after_stop()
+                with interrupts_deferred():
+                    verified = self._stop_until_verified()
+                    latency = stop_at - self._abort_at
+                    if status != "completed":
+                        log.warning(
+                            "run aborted: %s; motors %s",
+                            reason,
+                            "stopped (verified)" if verified else "STOP NOT VERIFIED",
+                        )
+                    self._drain_after_stop()
                 self.writer.finish(
                     status,
                     reason,

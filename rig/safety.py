@@ -40,3 +40,30 @@ def terminate_as_exception() -> Iterator[None]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)  # type: ignore[arg-type]
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[list[int]]:
+    """While the motors are being stopped, a second Ctrl-C or SIGTERM must not cut the stop
+    short: signals are noted (the yielded list) and logged instead of raising."""
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    seen: list[int] = []
+
+    def note(signum: int, frame: FrameType | None) -> None:
+        seen.append(signum)
+        log.warning(
+            "signal %d received while stopping the motors: finishing the stop first", signum
+        )
+
+    previous: dict[int, object] = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            previous[sig] = signal.signal(sig, note)
+    try:
+        yield seen
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)  # type: ignore[arg-type]

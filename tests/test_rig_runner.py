@@ -306,3 +306,26 @@ def test_settle_detection_is_shorter_than_fixed_dwell(tmp_path: Path) -> None:
         )
     assert settle.status == fixed.status == "completed"
     assert settle.duration_s < 0.75 * fixed.duration_s
+
+
+def test_second_ctrl_c_does_not_cut_the_stop_short(tmp_path: Path) -> None:
+    rig = make_rig()
+    fired: list[float] = []
+    real_stop = rig.fc.stop
+
+    def stop_with_impatient_user() -> None:
+        rig.fc.stop = real_stop  # type: ignore[method-assign]  # once
+        os.kill(os.getpid(), signal.SIGINT)  # the user hits Ctrl-C again while we stop
+        real_stop()
+
+    def monitor(st: Status) -> None:
+        if st.elapsed_s > 5.0 and not fired:
+            fired.append(st.time_s)
+            rig.fc.stop = stop_with_impatient_user  # type: ignore[method-assign]
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with rig.fc, rig.stand:
+        result = sweep(rig, tmp_path / "x.csv", PLAN, monitor=monitor)
+    assert result.status == "aborted" and result.stop_verified
+    assert motors_at_rest(rig)
+    assert_partial_log(tmp_path / "x.csv", "interrupted")
