@@ -128,8 +128,11 @@ class ThrottleOutput(ABC):
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        from thrustmap.rig.safety import interrupts_deferred
+
         try:
-            self.stop_and_verify()
+            with interrupts_deferred():  # a second Ctrl-C must not cut the stop short
+                self.stop_and_verify()
         finally:
             self.close()
 
