@@ -149,7 +149,7 @@ def _spin(
     while True:
         now = clock.now_s()
         elapsed = now - t0
-        if elapsed >= request.seconds:
+        if elapsed >= request.seconds - 1e-9:  # (float ticks)
             break
         pct = request.throttle_pct
         if request.ramp_s > 0:
