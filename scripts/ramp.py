@@ -1,0 +1,47 @@
+"""Ramp: a slow ramp up, a short hold at the top, the same ramp down (the paper's *-ramp.csv).
+
+Edit the constants below, then run:
+    python scripts/ramp.py --stand URL --throttle URL -o run.csv
+With no URLs it runs on the built-in simulator in about a second. ``--throttle stand`` lets the
+stand drive the ESC itself. Every way out (completion, a tripped limit, an error, Ctrl-C)
+stops the motor and verifies the stop; the log is kept and marked with the outcome.
+Up and down ramps in pairs cancel most of the rotor's lag; slower ramps leave less of it.
+"""
+
+from __future__ import annotations
+
+from _common import exit_code, run_script, sim_urls
+
+from thrustmap.rig import plans
+from thrustmap.rig.interlocks import Limits
+from thrustmap.rig.runner import RunResult
+
+# The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 70 % = 1700 µs).
+FROM_PCT, TO_PCT = 0.0, 70.0  # bottom and top of the ramp
+DURATION_S = 30.0  # seconds for each ramp (up, and again down)
+HOLD_S = 1.0  # seconds at the bottom before and at the top between the ramps
+REPEATS = 1  # up/down pairs
+MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
+LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
+STAND, THROTTLE = sim_urls(rotors_on_esc=ROTORS_ON_ESC)  # or "/dev/ttyUSB0", "/dev/ttyACM0"
+
+
+def plan() -> plans.Plan:
+    return plans.ramp(FROM_PCT, TO_PCT, duration_s=DURATION_S, repeats=REPEATS, hold_s=HOLD_S)
+
+
+def main(argv: list[str] | None = None) -> RunResult | None:
+    return run_script(
+        plan(),
+        argv,
+        limits=LIMITS,
+        stand_url=STAND,
+        throttle_url=THROTTLE,
+        motor=MOTOR,
+        rotors_on_esc=ROTORS_ON_ESC,
+        description=__doc__.splitlines()[0],
+    )
+
+
+if __name__ == "__main__":
+    raise SystemExit(exit_code(main()))
