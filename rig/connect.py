@@ -68,6 +68,8 @@ DEFAULT_BAUD = {"msp": 115200, "mavlink": 115200, "tyto-1585": 250000, "line-sta
 #: first pass finds FCs and most USB stands; 250000 is the Tyto, 921600 the STM32 stand)
 PROBE_BAUDS = (115200, 250000, 921600)
 CLOCK_AWARE_SCHEMES = ("sim", "record", "replay")
+#: pymavlink connection strings (SITL, companion computers, telemetry over IP)
+MAVLINK_CONNECTION = re.compile(r"^(udpin|udpout|udp|udpbcast|tcp|tcpin):[^/]", re.IGNORECASE)
 
 
 def normalize_kind(kind: str) -> tuple[str, str | None]:
@@ -161,7 +163,10 @@ def _sim_line_preset(options: Mapping[str, str]) -> str:
 
 
 def detect_from_url(url: str) -> Detection | None:
-    """The kind a URL names without any I/O on a device (sim peers, replay transcripts)."""
+    """The kind a URL names without any I/O on a device (sim peers, replay transcripts,
+    pymavlink connection strings such as ``udpin:0.0.0.0:14550``)."""
+    if MAVLINK_CONNECTION.match(url):
+        return Detection("mavlink", evidence="pymavlink connection string")
     peer = sim_peer(url)
     if peer is not None:
         name, options = peer
@@ -484,12 +489,24 @@ def _open_mavlink(
     factory = getattr(module, "open_mavlink_output", None)
     if factory is None:
         raise ConfigError("thrustmap.rig.fc_mavlink has no open_mavlink_output()")
-    from thrustmap.protocols.mavlink_link import open_mavlink
+    from thrustmap.protocols.mavlink_link import (
+        GCS_COMPONENT_ID,
+        GCS_SYSTEM_ID,
+        mavutil,
+        open_mavlink,
+    )
 
-    serial_kwargs: dict[str, Any] = {}
-    if url_scheme(url) not in CLOCK_AWARE_SCHEMES:
-        serial_kwargs["baudrate"] = baudrate or DEFAULT_BAUD["mavlink"]
-    link = open_mavlink(url, clock=clock, **serial_kwargs)
+    link: Any
+    if MAVLINK_CONNECTION.match(url):
+        # pymavlink's own UDP/TCP links run on real time (no record/replay on this path).
+        link = mavutil.mavlink_connection(
+            url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID
+        )
+    else:
+        serial_kwargs: dict[str, Any] = {}
+        if url_scheme(url) not in CLOCK_AWARE_SCHEMES:
+            serial_kwargs["baudrate"] = baudrate or DEFAULT_BAUD["mavlink"]
+        link = open_mavlink(url, clock=clock, **serial_kwargs)
     try:
         output = factory(link, clock, autopilot=autopilot, **opts)
     except BaseException:

@@ -39,6 +39,9 @@ class SpinRequest:
     ramp_s: float = 0.5
     tick_s: float = 0.05
     report_period_s: float = 1.0
+    #: re-send the command at least this often: an FC that stopped answering (MSP acks every
+    #: SET_MOTOR, MAVLink every command) ends the spin instead of going unnoticed
+    resend_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -87,8 +90,13 @@ def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROT
         )
     if request.motor < 0:
         raise ConfigError(f"motor index must be >= 0, got {request.motor}")
-    if request.ramp_s < 0 or request.tick_s <= 0 or request.report_period_s <= 0:
-        raise ConfigError("ramp must be >= 0 s; tick and report period must be > 0 s")
+    if (
+        request.ramp_s < 0
+        or request.tick_s <= 0
+        or request.report_period_s <= 0
+        or request.resend_s <= 0
+    ):
+        raise ConfigError("ramp must be >= 0 s; tick, report and resend periods must be > 0 s")
 
 
 def run_spin(
@@ -145,6 +153,7 @@ def _spin(
     t0 = clock.now_s()
     next_report_s = t0
     sent_pct: float | None = None
+    sent_at_s = t0
     last_stand: StandSample | None = None
     while True:
         now = clock.now_s()
@@ -155,9 +164,13 @@ def _spin(
         if request.ramp_s > 0:
             pct = min(pct, pct * (elapsed + request.tick_s) / request.ramp_s)
         native = float(scale.from_pct(pct))
-        if sent_pct is None or abs(pct - sent_pct) > 1e-9:
+        if (
+            sent_pct is None
+            or abs(pct - sent_pct) > 1e-9
+            or now - sent_at_s >= request.resend_s - 1e-9
+        ):
             output.set_throttle({request.motor: native})
-            sent_pct = pct
+            sent_pct, sent_at_s = pct, now
             result.max_commanded_pct = max(result.max_commanded_pct, pct)
         else:
             output.keepalive()

@@ -92,7 +92,7 @@ def peers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[Spy]]:
 class Trigger:
     """Installs a SimClock for the CLI that does ``action`` once, when it passes ``at_s``."""
 
-    def __init__(self, monkeypatch: pytest.MonkeyPatch, at_s: float, action: str) -> None:
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, at_s: float, action: Any) -> None:
         self.at_s = at_s
         self.action = action
         self.fired_at: float | None = None
@@ -113,6 +113,9 @@ class Trigger:
         monkeypatch.setattr(hardware, "SimClock", TriggerClock)
 
     def fire(self) -> None:
+        if callable(self.action):
+            self.action()
+            return
         if self.action == "exception":
             raise RuntimeError("driver blew up")
         if self.action == "ctrl-c":
@@ -203,6 +206,22 @@ def test_spin_stop_not_verified_exits_3(peers: list[Spy], monkeypatch: pytest.Mo
     assert result.exit_code == 3
     assert "STOP NOT VERIFIED" in result.output
     assert peers[0].inner.motor_values == [1000] * 4  # the stop itself was still sent
+
+
+def test_spin_fc_gone_silent_is_reported_as_unverified(
+    peers: list[Spy], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def unplug() -> None:
+        peers[0].inner.in_cli = True  # the FC stops answering MSP (as after a stray '#')
+
+    Trigger(monkeypatch, 1.0, unplug)
+    result = run(
+        "spin", "sim://betaflight", "--motor", "1", "--throttle", "8", "--seconds", "3", "--yes"
+    )
+    assert result.exit_code == 3, result.output
+    assert "STOP NOT VERIFIED on motor 1 - disconnect the battery now" in result.output
+    assert "no MSP reply" in result.output
+    assert peers[0].inner.motor_values[0] > 1000  # honest: the FC really is still spinning
 
 
 def test_spin_refuses_a_motor_the_fc_does_not_have(peers: list[Spy]) -> None:

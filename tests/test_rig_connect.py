@@ -464,3 +464,32 @@ def test_describe_port(port: FakePort, guess: str, kinds: tuple[str, ...], safe:
     if port.vid is not None:
         assert desc.usb_id == f"{port.vid:04X}:{port.pid:04X}"
     assert desc.to_dict()["device"] == port.device
+
+
+def test_pymavlink_connection_strings_reach_the_mavlink_driver(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``udpin:``/``tcp:`` go to stock ``mavutil.mavlink_connection``; here it hands back a link
+    to a simulated vehicle on the SimClock (the real UDP loopback is fc_mavlink's test)."""
+    from thrustmap.protocols.mavlink_link import MavlinkSerialLink, mavutil
+
+    found = connect.detect_from_url("udpin:0.0.0.0:14550")
+    assert found is not None and found.kind == "mavlink"
+    assert not connect.is_simulated("tcp:127.0.0.1:5760")
+
+    clock = SimClock()
+    vehicle = PX4Vehicle(ConstantPlant(4))
+    asked: list[tuple[str, dict[str, Any]]] = []
+
+    def connection(url: str, **kwargs: Any) -> Any:
+        asked.append((url, kwargs))
+        return MavlinkSerialLink(SimSerial(vehicle, clock), clock)
+
+    monkeypatch.setattr(mavutil, "mavlink_connection", connection)
+    out = connect.open_throttle_output("udpin:127.0.0.1:14550", clock)
+    with out:
+        assert out.identify().kind == "px4"
+        out.set_throttle({0: 0.3})
+        assert vehicle.running_motors() == {0: pytest.approx(0.3)}
+    assert vehicle.running_motors() == {}
+    assert asked == [("udpin:127.0.0.1:14550", {"source_system": 255, "source_component": 190})]

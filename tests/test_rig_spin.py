@@ -78,8 +78,10 @@ def test_ramp_hold_reports_and_stop() -> None:
     sent = [values[1] for _, values in out.commands]
     assert sent[0] == pytest.approx(1000 + 100 * 0.1)  # first tick of the 0.5 s ramp
     assert sent == sorted(sent) and sent[-1] == pytest.approx(1100.0)
-    assert len(sent) == 10  # ramp ticks, then only keep-alives
-    assert out.keepalives == 60 - 10
+    assert len(sent) == 10 + 5  # ramp ticks, then a re-send every 0.5 s ...
+    times = [t for t, _ in out.commands[9:]]
+    assert [b - a for a, b in zip(times, times[1:], strict=False)] == pytest.approx([0.5] * 5)
+    assert out.keepalives == 60 - 15  # ... and keep-alives on the other ticks
     assert all(set(values) == {1} for _, values in out.commands)
     assert [round(r.elapsed_s, 6) for r in reports] == [0.0, 1.0, 2.0]
     assert reports[-1].telemetry is not None and reports[-1].telemetry.voltage_v == 16.0
