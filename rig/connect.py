@@ -668,7 +668,10 @@ USB_IDS: dict[tuple[int, int | None], tuple[str, tuple[str, ...]]] = {
         ("msp", "mavlink"),
     ),
     (0x0483, 0xDF11): ("STM32 in DFU bootloader mode (flashing, not a serial link)", ()),
-    (0x2E3C, 0x5740): ("AT32 virtual COM port: a Betaflight/INAV flight controller", ("msp",)),
+    (0x2E3C, 0x5740): (
+        "Artery AT32 virtual COM port: likely a Betaflight/INAV flight controller",
+        ("msp",),
+    ),
     (0x1209, 0x5740): ("ArduPilot ChibiOS board (e.g. Matek, CubeOrange)", ("mavlink",)),
     (0x1209, 0x5741): ("ArduPilot ChibiOS board, bootloader", ()),
     (0x26AC, None): ("PX4 FMU / 3DR Pixhawk (PX4 or ArduPilot)", ("mavlink",)),
