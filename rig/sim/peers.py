@@ -3,11 +3,11 @@
 Peers of one process share a simulated *bench* (one motor/ESC/battery plant) by name, so a
 simulated flight controller and a simulated stand act on the same rotor:
 
-    sim://betaflight?preset=xnova-2207-6s&rotors=4     (the FC that drives the ESC)
+    sim://betaflight?plant=xnova-2207-6s&rotors=4     (the FC that drives the ESC)
     sim://tyto-1585?drive_esc=0                        (the stand on the same bench)
 
 Plant options (on any peer of the bench; the first peer that names them builds the plant):
-``bench`` (name, default ``default``), ``preset`` (``xnova-2207-6s``, ``crazyflie-2.1``),
+``bench`` (name, default ``default``), ``plant`` (preset: ``xnova-2207-6s``, ``crazyflie-2.1``),
 ``rotors`` (rotors on the ESC, 1 = SR, 4 = MR), ``seed`` (noise), ``noise`` (0 turns it off).
 """
 
@@ -21,8 +21,8 @@ from thrustmap.rig.sim.msp_peer import register_msp_peers
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
 from thrustmap.rig.sim.stand_peers import register_stand_peers
 
-PLANT_OPTIONS = ("bench", "preset", "rotors", "seed", "noise")
-DEFAULTS = {"preset": "xnova-2207-6s", "rotors": "1", "seed": "1", "noise": "1"}
+PLANT_OPTIONS = ("bench", "plant", "rotors", "seed", "noise")
+DEFAULTS = {"plant": "xnova-2207-6s", "rotors": "1", "seed": "1", "noise": "1"}
 
 _benches: dict[str, tuple[dict[str, str], PhysicsPlant]] = {}
 
@@ -50,7 +50,7 @@ def bench_plant(options: Mapping[str, str]) -> PhysicsPlant:
             f"sim option rotors={rotors}: expected the rotors on the ESC (1 for SR, 4 for MR)"
         )
     plant = make_plant(
-        spec["preset"], rotors_on_esc=rotors, seed=seed, noise=spec["noise"] not in ("0", "false")
+        spec["plant"], rotors_on_esc=rotors, seed=seed, noise=spec["noise"] not in ("0", "false")
     )
     _benches[name] = (spec, plant)
     return plant
@@ -68,6 +68,8 @@ def _mavlink_plant(options: Mapping[str, str]) -> PhysicsPlant:
     return bench_plant(options)
 
 
+# The peer modules register nothing themselves: this module is the one place sim:// names are
+# bound, so a peer is never silently built on a stand-in plant because of import order.
 register_msp_peers(bench_plant, plant_options=PLANT_OPTIONS)
 register_stand_peers(bench_plant, plant_options=PLANT_OPTIONS)
 register_mavlink_peers(_mavlink_plant)
