@@ -392,4 +392,3 @@ def register_mavlink_peers(
 
     register_peer("px4", px4, replace=replace)
     register_peer("ardupilot", ardupilot, replace=replace)
-

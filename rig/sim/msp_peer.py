@@ -483,4 +483,3 @@ def register_msp_peers(
 
     register_peer("betaflight", betaflight, replace=replace)
     register_peer("inav", inav, replace=replace)
-

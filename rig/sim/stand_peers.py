@@ -325,4 +325,3 @@ def register_stand_peers(
 
     register_peer("tyto-1585", tyto, replace=replace)
     register_peer("line-stand", line, replace=replace)
-
