@@ -170,5 +170,11 @@ def report(results: list[StrategyResult], out_dir: Path) -> str:
         lines.append(
             f"  {r.name}: {', '.join(str(p.relative_to(out_dir)) for p in r.logs)}; map {r.map_path.name}"
         )
-    lines.append(f"Try: thrustmap predict {out_dir / 'sr-map.json'} --thrust-n 3 --voltage-v 22")
+    if results:
+        v = results[0].tmap.validity
+        b = round(0.5 * (v.voltage_v.lo + v.voltage_v.hi), 1)
+        t = round(0.5 * v.thrust_n.hi, 1)
+        lines.append(
+            f"Try: thrustmap predict {results[0].map_path} --thrust-n {t:g} --voltage-v {b:g}"
+        )
     return "\n".join(lines)
