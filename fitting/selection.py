@@ -39,6 +39,7 @@ class Selection:
     settle_sigmas: float = 3.0
     ramp_lag_s: float = 0.1  # assumed rotor + stand lag for the quasi-static test
     lag_budget_pct: float = 0.25  # lag error allowed on ramps, % throttle
+    min_ramp_s: float = 2.0  # a run this long (not a step transition) counts as a ramp to pair
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -60,7 +61,7 @@ class Points:
     thrust_n: FloatArray
     voltage_v: FloatArray
     throttle_pct: FloatArray
-    kind: npt.NDArray[np.str_]  # "plateau", "ramp" or "sample" per point
+    kind: npt.NDArray[np.str_]  # "plateau", "ramp-pair", "ramp" or "sample" per point
     report: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -126,6 +127,33 @@ def plateaus(throttle: FloatArray, tolerance: float) -> list[tuple[int, int]]:
     return runs
 
 
+def _ramp_pairs(
+    on_ramp: npt.NDArray[np.bool_],
+    dth: FloatArray,
+    time_s: FloatArray,
+    min_samples: int,
+    min_ramp_s: float,
+) -> list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]]:
+    """Index arrays of (up-ramp, adjacent down-ramp) runs: contiguous ramp samples moving one way
+    for at least ``min_ramp_s`` (the quick transitions between steps are not ramps)."""
+    runs: list[tuple[int, npt.NDArray[np.int64]]] = []
+    idx = np.flatnonzero(on_ramp)
+    if idx.size == 0:
+        return []
+    direction = np.sign(dth[idx])
+    breaks = np.flatnonzero((np.diff(idx) > 1) | (np.diff(direction) != 0)) + 1
+    for run in np.split(idx, breaks):
+        if len(run) >= min_samples and time_s[run[-1]] - time_s[run[0]] >= min_ramp_s:
+            runs.append((int(np.sign(dth[run[0]])), run))
+    pairs = []
+    for (d1, r1), (d2, r2) in zip(runs, runs[1:], strict=False):
+        if d1 > 0 > d2:
+            pairs.append((r1, r2))
+        elif d1 < 0 < d2:
+            pairs.append((r2, r1))
+    return pairs
+
+
 def _settle_index(thrust: FloatArray, sigmas: float) -> int:
     """First index from which the thrust stays within the plateau's noise band."""
     n = len(thrust)
@@ -170,17 +198,37 @@ def _steady_state(
         b_out.append(float(np.mean(ds.voltage_v[a + k : b])))
         th_out.append(float(np.mean(th[a + k : b])))
         kinds.append("plateau")
-    # Ramps: keep samples whose slew makes lag cheaper than the budget (quasi-static).
+    # Ramps: pair each up-ramp with the down-ramp next to it (at the same throttle the rotor
+    # lags below on the way up and above on the way down, so the mean cancels the lag to first
+    # order); keep unpaired ramp samples only where the slew makes lag cheaper than the budget.
+    n_paired = 0
     if ds.time_s is not None and len(ds) > 2:
         dt = np.gradient(ds.time_s)
         ok_dt = dt > 0
+        dth = np.gradient(ds.throttle_pct)
         slew_pct_s = np.full(len(ds), np.inf)
-        slew_pct_s[ok_dt] = np.abs(np.gradient(ds.throttle_pct)[ok_dt] / dt[ok_dt])
-        quasi = (
-            (~in_plateau) & (slew_pct_s * sel.ramp_lag_s <= sel.lag_budget_pct) & (slew_pct_s > 0)
-        )
+        slew_pct_s[ok_dt] = np.abs(dth[ok_dt] / dt[ok_dt])
+        on_ramp = (~in_plateau) & ok_dt & (slew_pct_s > 0) & np.isfinite(slew_pct_s)
+        paired = np.zeros(len(ds), dtype=bool)
+        for up, down in _ramp_pairs(
+            on_ramp, dth, ds.time_s, sel.min_plateau_samples, sel.min_ramp_s
+        ):
+            x_up, x_dn = th[up], th[down]
+            order = np.argsort(x_dn)
+            inside = (x_up >= x_dn.min()) & (x_up <= x_dn.max())
+            if inside.sum() < 2:
+                continue
+            for arr, out in ((ds.thrust_n, t_out), (ds.voltage_v, b_out)):
+                other = np.interp(x_up[inside], x_dn[order], arr[down][order])
+                out.extend(((arr[up][inside] + other) / 2.0).tolist())
+            th_out.extend(x_up[inside].tolist())
+            kinds.extend(["ramp-pair"] * int(inside.sum()))
+            n_paired += int(inside.sum())
+            paired[up[inside]] = True
+            paired[down] = True
+        quasi = on_ramp & ~paired & (slew_pct_s * sel.ramp_lag_s <= sel.lag_budget_pct)
         idx = np.flatnonzero(quasi)
-        n_ramp_kept = len(idx)
+        n_ramp_kept = len(idx) + int(paired.sum())
         t_out.extend(ds.thrust_n[idx].tolist())
         b_out.extend(ds.voltage_v[idx].tolist())
         th_out.extend(th[idx].tolist())
@@ -196,6 +244,7 @@ def _steady_state(
         "plateau_samples": n_plateau_samples,
         "settling_samples_dropped": n_settle_dropped,
         "ramp_samples_kept": n_ramp_kept,
+        "ramp_pair_points": n_paired,
         "transient_samples_dropped": len(ds) - n_plateau_samples - n_ramp_kept,
     }
     return (
