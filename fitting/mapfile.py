@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -170,8 +170,6 @@ class ThrustMap:
         return self.validity.contains(thrust_n, voltage_v)
 
     def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
-        from dataclasses import replace
-
         return replace(self, correction=correction)
 
     # -- file ---------------------------------------------------------------------------------
@@ -222,8 +220,6 @@ class ThrustMap:
             line = getattr(exc, "lineno", None)
             raise DataFormatError(f"not a JSON map file ({exc})", file=str(p), line=line) from None
         tmap = cls.from_dict(data, source=str(p))
-        from dataclasses import replace
-
         return replace(tmap, file_sha256=hashlib.sha256(raw).hexdigest())
 
     @classmethod

@@ -14,8 +14,8 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NoReturn
 
 import numpy as np
 import numpy.typing as npt
@@ -73,7 +73,6 @@ class RunResult:
     stop_latency_s: float | None  # from the abort decision to the stop command (sim-timed)
     trip: Trip | None = None
     log_path: str = ""
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def steady(values: npt.NDArray[np.float64], floor: float) -> bool:
@@ -206,7 +205,7 @@ class Runner:
             return list(range(self.cfg.rotors_on_esc))
         return [self.cfg.motor]
 
-    def _abort(self, reason: str, trip: Trip | None = None) -> None:
+    def _abort(self, reason: str, trip: Trip | None = None) -> NoReturn:
         self._abort_at = self.clock.now_s()
         raise Aborted(reason, trip)
 
@@ -280,13 +279,13 @@ class Runner:
                     window.append((s.time_s, s.thrust_n))
                 while window and window[0][0] < now - self.cfg.settle_window_s:
                     window.popleft()
-                if self._settled(window, start):
+                if self._settled(window):
                     settled_at = now
                     self._label = f"{seg.label}-settled"
             self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
 
-    def _settled(self, window: deque[tuple[float, float]], start: float) -> bool:
+    def _settled(self, window: deque[tuple[float, float]]) -> bool:
         if len(window) < 5 or window[-1][0] - window[0][0] < 0.8 * self.cfg.settle_window_s:
             return False
         if abs(self._cmd_pct - self._target_pct_now) > 1e-9:
@@ -330,7 +329,6 @@ class Runner:
             raise
         except Exception as exc:
             self._abort(f"lost link to the stand: {exc}")
-            raise  # unreachable: _abort raises
         if samples:
             self._last_sample_at = self.clock.now_s()
         elif now - self._last_sample_at > self.limits.stale_data_s:

@@ -80,7 +80,7 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
 class _Readout:
     """The live line while the motor spins: throttle, thrust, V, A, rpm, tightest margin, ETA."""
 
-    def __init__(self, quiet: bool, clock: Clock) -> None:
+    def __init__(self, quiet: bool) -> None:
         self.quiet = quiet
         self.last = 0.0
         self.tty = sys.stderr.isatty()
@@ -298,7 +298,7 @@ def sweep_cmd(
                 clock,
                 limits=limits,
                 config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
-                monitor=_Readout(kw["quiet"], clock),
+                monitor=_Readout(kw["quiet"]),
             )
     if not kw["quiet"]:
         click.echo("", err=True)

@@ -16,7 +16,7 @@ from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.models import DEFAULT_MODEL, MODELS
 from thrustmap.fitting.selection import Selection, select
 from thrustmap.fitting.solve import LOSSES
-from thrustmap.units import SCALES, parse_range, scale
+from thrustmap.units import SCALES, ThrottleScale, parse_range, scale
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -88,8 +88,7 @@ def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
     text = kw.get("throttle_scale") or "pwm"
     if ":" in text:
         lo, hi = parse_range(text, "--throttle-scale")
-        tscale = SCALES["pwm"].with_range(lo, hi)
-        tscale = type(tscale)("custom", lo, hi, "native")
+        tscale = ThrottleScale("custom", lo, hi, "native")
     else:
         tscale = scale(text)
     return ColumnMap(
