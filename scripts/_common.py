@@ -13,6 +13,7 @@ from thrustmap.rig import connect
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.plans import Hold, Plan
 from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
+from thrustmap.rig.safety import terminate_as_exception
 
 PROMPT = "Propellers on, stand secured, area clear? [y/N] "
 
@@ -89,7 +90,11 @@ def run_script(
         print("nothing spun")
         return None
     progress = Progress(plan)
-    with connect.open_stand(args.stand, clock, calibration=args.calibration) as stand:
+    # SIGTERM unwinds like Ctrl-C, so the device exits below stop the motor on every way out.
+    with (
+        terminate_as_exception(),
+        connect.open_stand(args.stand, clock, calibration=args.calibration) as stand,
+    ):
         if args.throttle == "stand":
             output = connect.stand_esc_output(stand, motor - 1)
         else:

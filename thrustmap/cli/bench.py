@@ -14,6 +14,7 @@ from thrustmap.errors import ConfigError
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits, check_plan
 from thrustmap.rig.runner import RunConfig, Status, record_sweep
+from thrustmap.rig.safety import terminate_as_exception
 
 
 @click.command("demo")
@@ -268,8 +269,8 @@ def sweep_cmd(
         return
     from thrustmap.rig import connect
 
-    simulated = stand_url.startswith("sim://") and (
-        throttle_url is None or throttle_url.startswith("sim://")
+    simulated = connect.is_simulated(stand_url) and (
+        throttle_url is None or connect.is_simulated(throttle_url)
     )
     realtime = kw["realtime"] if kw["realtime"] is not None else not simulated
     clock: Clock = MonotonicClock() if realtime else SimClock()
@@ -279,27 +280,29 @@ def sweep_cmd(
             abort=True,
             err=True,
         )
-    stand = connect.open_stand(
-        stand_url, clock, calibration=kw["tyto_calibration"], line_preset=kw["line_preset"]
-    )
-    with stand:
-        if throttle_url is None:
-            output_dev = connect.stand_esc_output(stand)
-        else:
-            output_dev = connect.open_throttle_output(
-                throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
-            )
-        with output_dev:
-            result = record_sweep(
-                plan,
-                output_dev,
-                stand,
-                output,
-                clock,
-                limits=limits,
-                config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
-                monitor=_Readout(kw["quiet"]),
-            )
+    # SIGTERM unwinds like Ctrl-C from the moment a device is open, so every exit stops motors.
+    with terminate_as_exception():
+        stand = connect.open_stand(
+            stand_url, clock, calibration=kw["tyto_calibration"], line_preset=kw["line_preset"]
+        )
+        with stand:
+            if throttle_url is None:
+                output_dev = connect.stand_esc_output(stand)
+            else:
+                output_dev = connect.open_throttle_output(
+                    throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
+                )
+            with output_dev:
+                result = record_sweep(
+                    plan,
+                    output_dev,
+                    stand,
+                    output,
+                    clock,
+                    limits=limits,
+                    config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
+                    monitor=_Readout(kw["quiet"]),
+                )
     if not kw["quiet"]:
         click.echo("", err=True)
     verdict = (
