@@ -17,9 +17,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from support import simulate_flight as simulate
 
 from thrustmap.fitting.df import DfOptions, extract
-from thrustmap.fitting.flightlogs import dataflash, simulate
+from thrustmap.fitting.flightlogs import dataflash
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared/data/flightlogs/ardupilot"
 NEEDED = ["IMU", "BAT", "CURR", "RCOU", "CTUN", "ATT", "EV"]

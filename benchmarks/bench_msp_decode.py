@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 
-from thrustmap.protocols.msp import (
+from thrustmap.protocols.msp.framing import (
     MspDecoder,
     MspDirection,
     MspFrame,
@@ -25,7 +25,7 @@ from thrustmap.protocols.msp import (
     crc8_dvb_s2,
     encode_reply,
 )
-from thrustmap.protocols.msp_messages import Analog, Motor, decode_reply
+from thrustmap.protocols.msp.messages import Analog, Motor, decode_reply
 
 FRAMES = 20_000
 CHUNK = 64

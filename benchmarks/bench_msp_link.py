@@ -26,10 +26,10 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.clock import MonotonicClock
-from thrustmap.protocols.msp import MspDecoder, encode_request
-from thrustmap.protocols.msp_messages import MSP_MOTOR_STOP, MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspDecoder, encode_request
+from thrustmap.protocols.msp.messages import MSP_MOTOR_STOP, MspCommand, SetMotor
 from thrustmap.protocols.transport import open_transport
-from thrustmap.rig.fc_msp import MspThrottleOutput
+from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim import peers
 
 FIRMWARE_DEFAULT_HZ = 100.0

@@ -14,8 +14,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from support import simulate_flight as simulate
+
 from thrustmap.fitting.df import DfOptions, extract
-from thrustmap.fitting.flightlogs import simulate, ulog
+from thrustmap.fitting.flightlogs import ulog
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared/data/flightlogs/px4"
 

@@ -31,12 +31,12 @@ from urllib.parse import unquote, urlsplit
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
-from thrustmap.protocols.linestand import PRESETS, LineStandSpec, preset
-from thrustmap.protocols.mavlink import MavlinkCodec, decode_heartbeat
-from thrustmap.protocols.msp import MspDecoder, MspDirection, encode_request
-from thrustmap.protocols.msp_messages import ApiVersion, FcVariant, MspCommand
+from thrustmap.protocols.mavlink.codec import MavlinkCodec, decode_heartbeat
+from thrustmap.protocols.msp.framing import MspDecoder, MspDirection, encode_request
+from thrustmap.protocols.msp.messages import ApiVersion, FcVariant, MspCommand
+from thrustmap.protocols.stands.line import PRESETS, LineStandSpec, preset
+from thrustmap.protocols.stands.tyto import TYTO_READY_LINE, TytoCalibration
 from thrustmap.protocols.transport import SerialLike, open_transport
-from thrustmap.protocols.tyto import TYTO_READY_LINE, TytoCalibration
 from thrustmap.rig.interfaces import (
     DeviceIdentity,
     Stand,
@@ -44,7 +44,7 @@ from thrustmap.rig.interfaces import (
     Telemetry,
     ThrottleOutput,
 )
-from thrustmap.rig.stand_line import LineStand, LineStandEscOutput, load_line_spec
+from thrustmap.rig.stand.line import LineStand, LineStandEscOutput, load_line_spec
 
 log = logging.getLogger(__name__)
 
@@ -414,7 +414,7 @@ class StandEscOutput(ThrottleOutput):
 def stand_esc_output(stand: Stand, motor: int = 0) -> ThrottleOutput:
     """The ESC output of a stand that drives its ESC (Tyto 1585, a line stand with a throttle
     command). The stand keeps its port: close the stand, not this output."""
-    from thrustmap.rig.stand_tyto import TytoEscOutput, TytoStand
+    from thrustmap.rig.stand.tyto import TytoEscOutput, TytoStand
 
     if isinstance(stand, TytoStand):
         return TytoEscOutput(stand, motor)
@@ -444,7 +444,7 @@ def open_throttle_output(
     """
     found = _resolve(url, clock, kind, baudrate)
     if found.kind == "msp":
-        from thrustmap.rig.fc_msp import MspThrottleOutput
+        from thrustmap.rig.fc.msp import MspThrottleOutput
 
         port = open_port(url, clock, baudrate=baudrate or DEFAULT_BAUD["msp"])
         try:
@@ -478,18 +478,18 @@ def _open_mavlink(
     opts: Mapping[str, Any],
 ) -> ThrottleOutput:
     try:
-        module = importlib.import_module("thrustmap.rig.fc_mavlink")
+        module = importlib.import_module("thrustmap.rig.fc.mavlink")
     except ModuleNotFoundError as exc:
         if exc.name is not None and exc.name.startswith("thrustmap.rig"):
             raise ConfigError(
-                "MAVLink flight controllers (PX4/ArduPilot) need thrustmap.rig.fc_mavlink, "
+                "MAVLink flight controllers (PX4/ArduPilot) need thrustmap.rig.fc.mavlink, "
                 "which this build does not have"
             ) from None
         raise
     factory = getattr(module, "open_mavlink_output", None)
     if factory is None:
-        raise ConfigError("thrustmap.rig.fc_mavlink has no open_mavlink_output()")
-    from thrustmap.protocols.mavlink_link import (
+        raise ConfigError("thrustmap.rig.fc.mavlink has no open_mavlink_output()")
+    from thrustmap.protocols.mavlink.link import (
         GCS_COMPONENT_ID,
         GCS_SYSTEM_ID,
         mavutil,
@@ -568,7 +568,7 @@ def open_stand(
         what = found.firmware or found.kind
         raise ConfigError(f"{url} is a flight controller ({what}), not a thrust stand")
     if found.kind == "tyto-1585":
-        from thrustmap.rig.stand_tyto import TytoStand
+        from thrustmap.rig.stand.tyto import TytoStand
 
         cal = _tyto_calibration(url, calibration)
         port = open_port(url, clock, baudrate=baudrate or DEFAULT_BAUD["tyto-1585"])

@@ -11,8 +11,8 @@ import pytest
 
 from thrustmap.cli import main
 from thrustmap.fitting.loaders import load_dataset
-from thrustmap.protocols.msp import MspDecoder
-from thrustmap.protocols.msp_messages import MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspDecoder
+from thrustmap.protocols.msp.messages import MspCommand, SetMotor
 from thrustmap.protocols.transcript import read_transcript
 
 STAND = "sim://tyto-1585?bench=cli&drive_esc=0"

@@ -19,10 +19,10 @@ from click.testing import CliRunner, Result
 from thrustmap.cli import cli, hardware
 from thrustmap.clock import MonotonicClock, SimClock
 from thrustmap.errors import ConfigError, SafetyError
-from thrustmap.protocols.msp_messages import ArmingDisable, MotorProtocol, native_to_external
+from thrustmap.protocols.msp.messages import ArmingDisable, MotorProtocol, native_to_external
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.urlhandlers import protocol_sim
-from thrustmap.rig.fc_msp import MspThrottleOutput
+from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.safety import Terminated
 
 # --------------------------------------------------------------------------- harness

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from test_export_encodings import synthetic_map
 
-from thrustmap.fitting.export import ExportOptions, export_map, target_scale
-from thrustmap.fitting.export_c import reference_throttle
+from thrustmap.fitting.export.c_header import reference_throttle
+from thrustmap.fitting.export.encodings import ExportOptions, export_map, target_scale
 
 CC = shutil.which("gcc") or shutil.which("cc")
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (gcc/cc) on PATH")

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from thrustmap.cli import cli
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.export import (
+from thrustmap.fitting.export.encodings import (
     ENCODINGS,
     ExportOptions,
     export_map,

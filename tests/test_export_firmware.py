@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from test_export_encodings import synthetic_map
 
-from thrustmap.fitting import export_firmware as fw
-from thrustmap.fitting import export_platforms as plat
-from thrustmap.fitting.export import ExportOptions, export_map
+from thrustmap.fitting.export import firmware as fw
+from thrustmap.fitting.export import platforms as plat
+from thrustmap.fitting.export.encodings import ExportOptions, export_map
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
 from thrustmap.units import SCALES

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from support import blackbox_encode as be
 
 from thrustmap.errors import DataFormatError
 from thrustmap.fitting.flightlogs import blackbox, blackbox_csv
 from thrustmap.fitting.flightlogs import blackbox_decode as bd
-from thrustmap.fitting.flightlogs import blackbox_encode as be
 from thrustmap.fitting.flightlogs.series import FlightLog
 
 G0 = 9.80665

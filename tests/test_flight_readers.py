@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import simulate_flight as sim
 
-from thrustmap.fitting.flightlogs import simulate as sim
 from thrustmap.fitting.flightlogs.detect import detect, read_log
 from thrustmap.fitting.flightlogs.series import FlightLog
 
@@ -164,7 +164,7 @@ def test_paper_csv_keeps_mass_and_collective_throttle() -> None:
 
 
 def test_fixtures_regenerate_to_the_same_values(tmp_path: Path) -> None:
-    """fixtures/flightlogs is what `python -m thrustmap.fitting.flightlogs.simulate` writes."""
+    """fixtures/flightlogs is what `python -m support.simulate_flight` writes."""
     sim.write_fixtures(tmp_path)
     for name in sim.FIXTURE_FILES:
         shipped, fresh = FL / name, tmp_path / name

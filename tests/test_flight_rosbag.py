@@ -14,7 +14,7 @@ from thrustmap.fitting.flightlogs.detect import detect, read_head
 
 pytest.importorskip("rosbags")
 
-from thrustmap.fitting.flightlogs import rosbag_sim as sim  # noqa: E402
+from support import rosbag_sim as sim  # noqa: E402
 
 BAGS = ["as2_hover_sim_sqlite3", "as2_hover_sim_mcap"]
 

@@ -1,47 +1,74 @@
-"""The user's top-level folders install as subpackages of `thrustmap`, all of them."""
+"""The user's top-level folders are the package's subpackages, under one name, for every tool."""
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
+import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-MAPPED = {
-    "thrustmap": "thrustmap",
-    "fitting": "thrustmap.fitting",
-    "rig": "thrustmap.rig",
-    "protocols": "thrustmap.protocols",
-}
+TOP_FOLDERS = ("fitting", "rig", "protocols")
 
 
-def _declared_packages() -> list[str]:
-    if sys.version_info < (3, 11):
-        pytest.skip("tomllib needs Python 3.11")
-    import tomllib
-
-    data = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    return list(data["tool"]["setuptools"]["packages"])
-
-
-def test_every_source_package_is_declared_and_importable() -> None:
-    declared = set(_declared_packages())
+def _source_packages() -> set[str]:
     found = set()
-    for top, name in MAPPED.items():
+    for init in (ROOT / "thrustmap").rglob("__init__.py"):
+        rel = init.parent.relative_to(ROOT)
+        found.add(".".join(rel.parts))
+    # rglob does not descend into the linked folders on every Python: walk them explicitly
+    for top in TOP_FOLDERS:
         for init in (ROOT / top).rglob("__init__.py"):
             rel = init.parent.relative_to(ROOT / top)
-            found.add(".".join([name, *rel.parts]) if rel.parts else name)
-    assert found - declared == set(), "add these to [tool.setuptools] packages in pyproject.toml"
-    for name in sorted(found):
-        importlib.import_module(name)
+            found.add(".".join(["thrustmap", top, *rel.parts]))
+    return found
 
 
-def test_no_generic_top_level_modules_installed() -> None:
-    import thrustmap.fitting
+def test_thrustmap_links_to_the_user_folders() -> None:
+    for top in TOP_FOLDERS:
+        link = ROOT / "thrustmap" / top
+        if not link.is_symlink():
+            pytest.skip("checkout without symlinks (an installed copy)")
+        assert os.readlink(link) == f"../{top}"
 
-    assert thrustmap.fitting.__name__ == "thrustmap.fitting"
-    for generic in ("fitting", "rig", "protocols"):
-        spec = importlib.util.find_spec(generic)
-        assert spec is None or Path(spec.origin or "").parent.parent == ROOT, generic
+
+def test_every_source_package_imports_under_thrustmap() -> None:
+    for name in sorted(_source_packages()):
+        module = importlib.import_module(name)
+        assert module.__name__ == name
+
+
+@pytest.mark.parametrize("top", TOP_FOLDERS)
+def test_bare_top_level_name_is_refused(top: str) -> None:
+    """From the checkout `import fitting` would load the same files a second time."""
+    result = subprocess.run(
+        [sys.executable, "-c", f"import {top}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode != 0
+    assert f"import thrustmap.{top}, not {top}" in result.stderr
+
+
+def test_wheel_holds_every_module(tmp_path: Path) -> None:
+    if not (ROOT / "pyproject.toml").exists():
+        pytest.skip("no source tree")
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q",
+         "-w", str(tmp_path), str(ROOT)],
+        check=True, capture_output=True, timeout=300,
+    )  # fmt: skip
+    (wheel,) = tmp_path.glob("thrustmap-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for top in TOP_FOLDERS:
+        for source in (ROOT / top).rglob("*.py"):
+            rel = source.relative_to(ROOT / top)
+            assert f"thrustmap/{top}/{rel.as_posix()}" in names
+    assert not any(n.startswith(("tests/", "support/", "fitting/", "rig/")) for n in names)

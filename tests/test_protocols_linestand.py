@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from thrustmap.errors import ConfigError, DataFormatError
-from thrustmap.protocols.linestand import (
+from thrustmap.protocols.stands.line import (
     PRESETS,
     REFERENCE,
     RP2040_WHOOP,

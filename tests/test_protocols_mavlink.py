@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from pymavlink.generator import mavparse
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols import mavlink_encode as enc
-from thrustmap.protocols.mavlink_ext import ESC_STATUS_XML, MAVLink_esc_status_message
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink import encode as enc
+from thrustmap.protocols.mavlink.ext import ESC_STATUS_XML, MAVLink_esc_status_message
 
 
 def round_trip(msg: object) -> mav.Decoded | None:

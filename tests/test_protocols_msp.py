@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from thrustmap.errors import ConfigError, ThrustmapError
-from thrustmap.protocols.msp import (
+from thrustmap.protocols.msp.framing import (
     MSP_MAX_REQUEST_PAYLOAD,
     MspChecksumError,
     MspDecoder,
@@ -24,7 +24,7 @@ from thrustmap.protocols.msp import (
     encode_reply,
     encode_request,
 )
-from thrustmap.protocols.msp_messages import (
+from thrustmap.protocols.msp.messages import (
     REPLY_TYPES,
     REQUEST_TYPES,
     AdvancedConfig,

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.tyto import (
+from thrustmap.protocols.stands.tyto import (
     TYTO_POLL_CODE,
     LoadCell,
     TytoCalibration,

@@ -12,8 +12,8 @@ import serial
 import thrustmap.protocols  # noqa: F401 - registers the URL handlers
 from thrustmap.clock import SimClock
 from thrustmap.errors import ConfigError, ThrustmapError
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols.mavlink_link import MavlinkSerialLink, open_mavlink
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink, open_mavlink
 from thrustmap.protocols.peer import register_peer, unregister_peer
 from thrustmap.protocols.transcript import read_transcript
 from thrustmap.protocols.transport import open_transport

@@ -12,21 +12,21 @@ import pytest
 
 from thrustmap.clock import SimClock
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.linestand import preset
-from thrustmap.protocols.msp import encode_request
-from thrustmap.protocols.msp_messages import ArmingDisable, MspCommand
+from thrustmap.protocols.msp.framing import encode_request
+from thrustmap.protocols.msp.messages import ArmingDisable, MspCommand
 from thrustmap.protocols.peer import BytePeer
+from thrustmap.protocols.stands.line import preset
 from thrustmap.protocols.transcript import TranscriptWriter
 from thrustmap.protocols.urlhandlers import protocol_sim
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig import connect
-from thrustmap.rig.fc_msp import MspThrottleOutput
+from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer, TytoStandPeer
-from thrustmap.rig.stand_line import LineStand, LineStandEscOutput, line_spec_to_dict
-from thrustmap.rig.stand_tyto import TytoEscOutput, TytoStand
+from thrustmap.rig.stand.line import LineStand, LineStandEscOutput, line_spec_to_dict
+from thrustmap.rig.stand.tyto import TytoEscOutput, TytoStand
 
 
 class Spy:
@@ -471,7 +471,7 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
 ) -> None:
     """``udpin:``/``tcp:`` go to stock ``mavutil.mavlink_connection``; here it hands back a link
     to a simulated vehicle on the SimClock (the real UDP loopback is fc_mavlink's test)."""
-    from thrustmap.protocols.mavlink_link import MavlinkSerialLink, mavutil
+    from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 
     found = connect.detect_from_url("udpin:0.0.0.0:14550")
     assert found is not None and found.kind == "mavlink"

@@ -14,16 +14,21 @@ from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from support.mavlink_transcripts import (
+    SCENARIOS,
+    record_scenario,
+    replay_scenario,
+)
 
 from thrustmap.clock import MonotonicClock, SimClock
 from thrustmap.errors import ConfigError, SafetyError
 from thrustmap.fitting.dsformat import DsWriter
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols.mavlink_link import MavlinkSerialLink, mavutil
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 from thrustmap.protocols.transcript import read_transcript
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig import plans
-from thrustmap.rig.fc_mavlink import (
+from thrustmap.rig.fc.mavlink import (
     ArduPilotThrottleOutput,
     MavlinkLinkLost,
     MavlinkThrottleOutput,
@@ -32,11 +37,6 @@ from thrustmap.rig.fc_mavlink import (
     UnsupportedAutopilot,
     decode_flight_sw_version,
     open_mavlink_output,
-)
-from thrustmap.rig.fc_mavlink_fixtures import (
-    SCENARIOS,
-    record_scenario,
-    replay_scenario,
 )
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
 from thrustmap.rig.interlocks import Limits
@@ -220,7 +220,7 @@ def test_px4_com_mot_test_en_off_is_refused_at_identify() -> None:
 def test_px4_thr_mdl_fac_is_recorded_and_warned(caplog: pytest.LogCaptureFixture) -> None:
     vehicle = PX4Vehicle(ConstantPlant(), params={"THR_MDL_FAC": 0.4})
     out, _, clock, _ = px4(vehicle)
-    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.fc_mavlink"):
+    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.fc.mavlink"):
         ident = out.identify()
     assert ident.details["THR_MDL_FAC"] == "0.4"
     assert any("THR_MDL_FAC=0.4 shapes" in r.getMessage() for r in caplog.records)
@@ -603,13 +603,13 @@ def test_fixture_ends_with_the_stop_sequence_in_exact_bytes(name: str) -> None:
 
 
 def test_fixtures_are_current_with_the_generator(tmp_path: Path) -> None:
-    """Regenerate with ``python -m thrustmap.rig.fc_mavlink_fixtures``; this fails if stale."""
+    """Regenerate with ``python -m support.mavlink_transcripts``; this fails if stale."""
     for name in SCENARIOS:
         path, _ = record_scenario(name, tmp_path)
         fresh, shipped = read_transcript(path), read_transcript(FIXTURES / f"{name}.jsonl")
         assert [(e.time_s, e.direction, e.data) for e in fresh.events] == [
             (e.time_s, e.direction, e.data) for e in shipped.events
-        ], f"{name}: fixture is stale; run python -m thrustmap.rig.fc_mavlink_fixtures"
+        ], f"{name}: fixture is stale; run python -m support.mavlink_transcripts"
 
 
 # ------------------------------------------------------------------------------------------

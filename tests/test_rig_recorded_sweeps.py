@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import sweep_recordings as recordings
 
 from thrustmap.fitting.loaders import load_dataset
 from thrustmap.protocols.transcript import read_transcript
-from thrustmap.rig import recordings
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "sweeps"
 

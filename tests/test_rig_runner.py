@@ -20,17 +20,17 @@ from thrustmap.demo import truth_error_pct
 from thrustmap.errors import SafetyError
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_dataset
-from thrustmap.protocols.msp import encode_request
-from thrustmap.protocols.msp_messages import MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import encode_request
+from thrustmap.protocols.msp.messages import MspCommand, SetMotor
 from thrustmap.protocols.transport import SerialLike, open_transport
 from thrustmap.rig import plans
-from thrustmap.rig.fc_msp import MspThrottleOutput
+from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.interfaces import Stand, StandSample
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
-from thrustmap.rig.stand_tyto import TytoStand
+from thrustmap.rig.stand.tyto import TytoStand
 
 STOP_FRAME = encode_request(MspCommand.SET_MOTOR, SetMotor.stop_all(8).encode())
 

@@ -10,11 +10,11 @@ import pytest
 
 from thrustmap.clock import SimClock
 from thrustmap.errors import ConfigError, SafetyError
-from thrustmap.protocols.linestand import REFERENCE, STM32_HX711, Column, LineStandSpec, preset
+from thrustmap.protocols.stands.line import REFERENCE, STM32_HX711, Column, LineStandSpec, preset
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer
-from thrustmap.rig.stand_line import (
+from thrustmap.rig.stand.line import (
     LineStand,
     LineStandError,
     LineStandEscOutput,
@@ -171,7 +171,7 @@ def test_bad_lines_are_counted_and_logged_with_line_numbers(
         ]
     )
     stand = LineStand(SimSerial(peer, clock), clock, REFERENCE)
-    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.stand_line"):
+    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.stand.line"):
         samples = stand.read_samples()
     assert [s.thrust_n for s in samples] == pytest.approx([0.1, 0.6])
     assert stand.error_count == 4
@@ -185,7 +185,7 @@ def test_error_logging_is_capped(caplog: pytest.LogCaptureFixture) -> None:
     clock = SimClock()
     peer = ScriptPeer([(0.0, HEADER + b"bad\n" * 250)])
     stand = LineStand(SimSerial(peer, clock), clock, REFERENCE, max_logged_errors=5)
-    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.stand_line"):
+    with caplog.at_level(logging.WARNING, logger="thrustmap.rig.stand.line"):
         assert stand.read_samples() == []
     assert stand.error_count == 250
     # 5 in full, one "no longer logged" note, then one summary per 100

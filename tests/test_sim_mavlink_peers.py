@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from thrustmap.clock import SimClock
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols.mavlink_link import MavlinkSerialLink, mavutil, open_mavlink
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil, open_mavlink
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle

@@ -8,14 +8,14 @@ from hypothesis import strategies as st
 
 from thrustmap.clock import SimClock
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.msp import (
+from thrustmap.protocols.msp.framing import (
     MspDecoder,
     MspDirection,
     MspFrame,
     MspVersion,
     encode_request,
 )
-from thrustmap.protocols.msp_messages import (
+from thrustmap.protocols.msp.messages import (
     Analog,
     ApiVersion,
     ArmingDisable,

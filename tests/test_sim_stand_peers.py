@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from thrustmap.clock import SimClock
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.linestand import (
+from thrustmap.protocols.peer import BytePeer
+from thrustmap.protocols.stands.line import (
     REFERENCE,
     RP2040_WHOOP,
     STM32_HX711,
@@ -18,8 +19,7 @@ from thrustmap.protocols.linestand import (
     LineSample,
     LineStandDecoder,
 )
-from thrustmap.protocols.peer import BytePeer
-from thrustmap.protocols.tyto import (
+from thrustmap.protocols.stands.tyto import (
     TytoDecoder,
     TytoFrame,
     TytoPoll,

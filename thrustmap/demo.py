@@ -23,13 +23,13 @@ from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.selection import Selection
 from thrustmap.protocols.transport import open_transport
 from thrustmap.rig import plans
-from thrustmap.rig.fc_msp import MspThrottleOutput
+from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunConfig, RunResult, record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.physics import PhysicsPlant
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
-from thrustmap.rig.stand_tyto import TytoStand
+from thrustmap.rig.stand.tyto import TytoStand
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from typing import Any
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.mavlink_link import mavutil
+from thrustmap.protocols.mavlink.link import mavutil
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 
 log = logging.getLogger(__name__)

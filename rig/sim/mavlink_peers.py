@@ -39,8 +39,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols import mavlink_encode as enc
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState

@@ -19,8 +19,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols import mavlink_encode as enc
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.rig.sim.plant import Plant, PlantState
 
 log = logging.getLogger(__name__)

@@ -31,14 +31,14 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.msp import (
+from thrustmap.protocols.msp.framing import (
     MSP_MAX_REQUEST_PAYLOAD,
     MspDecoder,
     MspDirection,
     MspFrame,
     encode_frame,
 )
-from thrustmap.protocols.msp_messages import (
+from thrustmap.protocols.msp.messages import (
     AdvancedConfig,
     Analog,
     ApiVersion,

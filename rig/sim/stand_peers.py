@@ -22,9 +22,9 @@ import random
 from collections.abc import Callable, Collection, Mapping
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.linestand import REFERENCE, LineStandSpec, preset
 from thrustmap.protocols.peer import BytePeer, register_peer
-from thrustmap.protocols.tyto import (
+from thrustmap.protocols.stands.line import REFERENCE, LineStandSpec, preset
+from thrustmap.protocols.stands.tyto import (
     TYTO_POLL_CODE,
     TYTO_READY_LINE,
     LoadCell,

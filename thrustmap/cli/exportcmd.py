@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.export import TARGETS, ExportOptions, export_map
+from thrustmap.fitting.export.encodings import TARGETS, ExportOptions, export_map
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.units import SCALES, parse_range
 

@@ -250,7 +250,7 @@ def export_encoding(
     extra_text = ""
     values: dict[str, Any] = {}
     if scale.name in ("crazyflie", "crazyflie-cmd"):
-        from thrustmap.fitting.export_platforms import crazyflie_seed2
+        from thrustmap.fitting.export.platforms import crazyflie_seed2
 
         cf = crazyflie_seed2(tmap, scale, opts)
         extra_residual, extra_text, values = cf.residual_lines, cf.text, {"seed2": cf}
@@ -329,14 +329,14 @@ def export_map(tmap: ThrustMap, target: str, options: ExportOptions | None = Non
             )
         return export_encoding(tmap, target_scale(target, opts.range_), opts)
     handlers: dict[str, Callable[[ThrustMap, ExportOptions], ExportResult]]
-    from thrustmap.fitting import export_c, export_firmware, export_platforms
+    from thrustmap.fitting.export import c_header, firmware, platforms
 
     handlers = {
-        "c-header": export_c.export_c_header,
-        "aerostack2": export_platforms.export_aerostack2,
-        "px4": export_firmware.export_px4,
-        "ardupilot": export_firmware.export_ardupilot,
-        "betaflight": export_firmware.export_betaflight,
+        "c-header": c_header.export_c_header,
+        "aerostack2": platforms.export_aerostack2,
+        "px4": firmware.export_px4,
+        "ardupilot": firmware.export_ardupilot,
+        "betaflight": firmware.export_betaflight,
     }
     handler = handlers.get(target)
     if handler is None:

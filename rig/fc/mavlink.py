@@ -69,8 +69,8 @@ from serial import SerialException
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
-from thrustmap.protocols import mavlink as mav
-from thrustmap.protocols.mavlink_link import open_mavlink
+from thrustmap.protocols.mavlink import codec as mav
+from thrustmap.protocols.mavlink.link import open_mavlink
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 from thrustmap.units import SCALES, ThrottleScale
 

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.export import (
+from thrustmap.fitting.export.encodings import (
     ExportOptions,
     ExportResult,
     comment,

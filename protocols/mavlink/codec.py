@@ -3,12 +3,12 @@
 MAVLink 2 everywhere, chosen by module, not by environment: this module imports pymavlink's
 generated v2.0 ``ardupilotmega`` dialect directly (it includes common.xml), so encoding and
 parsing are MAVLink 2 whatever ``MAVLINK20`` says and whether or not ``mavutil`` was imported
-first. (``thrustmap.protocols.mavlink_link`` sets ``MAVLINK20=1`` before importing ``mavutil``
+first. (``thrustmap.protocols.mavlink.link`` sets ``MAVLINK20=1`` before importing ``mavutil``
 for the connections it builds.) Framing, CRCs and field packing are pymavlink's; nothing here
 re-implements them. Functions only, no I/O: ``MavlinkCodec`` turns messages into bytes and bytes
 (in any chunking) into messages.
 
-Encoders for telemetry (``*_message``) live in ``thrustmap.protocols.mavlink_encode``.
+Encoders for telemetry (``*_message``) live in ``thrustmap.protocols.mavlink.encode``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Any, Union
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.mavlink_ext import register_extensions
+from thrustmap.protocols.mavlink.ext import register_extensions
 
 register_extensions()
 

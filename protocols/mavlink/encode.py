@@ -1,6 +1,6 @@
 """MAVLink telemetry encoders (SI units in, pymavlink messages out) for simulators and tests.
 
-The inverse of the decoders in ``thrustmap.protocols.mavlink``: unknown values become the
+The inverse of the decoders in ``thrustmap.protocols.mavlink.codec``: unknown values become the
 MAVLink sentinels (UINT16_MAX mV, -1 cA, INT16_MAX cdegC, ...). Functions only, no I/O.
 """
 
@@ -12,14 +12,14 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.mavlink import (
+from thrustmap.protocols.mavlink.codec import (
     INT16_MAX,
     MAV_MODE_FLAG_SAFETY_ARMED,
     MAV_TYPE_QUADROTOR,
     UINT16_MAX,
     Severity,
 )
-from thrustmap.protocols.mavlink_ext import MAVLink_esc_status_message
+from thrustmap.protocols.mavlink.ext import MAVLink_esc_status_message
 
 __all__ = [
     "heartbeat_message",

@@ -17,14 +17,14 @@ import numpy as np
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError, ThrustmapError
-from thrustmap.protocols.transport import SerialLike
-from thrustmap.protocols.tyto import (
+from thrustmap.protocols.stands.tyto import (
     TytoCalibration,
     TytoDecoder,
     TytoPoll,
     TytoReading,
     TytoReady,
 )
+from thrustmap.protocols.transport import SerialLike
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.units import SCALES
 

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.errors import FitError
-from thrustmap.fitting.export import (
+from thrustmap.fitting.export.encodings import (
     G0_MPS2,
     ExportOptions,
     ExportResult,

@@ -2,7 +2,7 @@
 telemetry, ADVANCED_CONFIG's motor protocol, and the mapping from MSP's "external" motor values
 (1000..2000) to what the ESC receives for each protocol.
 
-Records follow the conventions of :mod:`thrustmap.protocols.msp_messages` (which re-exports
+Records follow the conventions of :mod:`thrustmap.protocols.msp.messages` (which re-exports
 everything here): ``CMD``, ``encode() -> bytes``, ``decode(payload)``, SI units.
 
 Betaflight's motor protocol enum (ADVANCED_CONFIG) is :class:`MotorProtocol`; INAV numbers its
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from thrustmap.errors import ConfigError
-from thrustmap.protocols.msp import MspCommand, MspPayloadError
+from thrustmap.protocols.msp.framing import MspCommand, MspPayloadError
 from thrustmap.units import SCALES, ThrottleScale
 
 

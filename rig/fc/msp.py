@@ -21,8 +21,8 @@ from collections.abc import Mapping
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError, ThrustmapError
-from thrustmap.protocols.msp import MspDecoder, MspFrame, MspVersion, encode_request
-from thrustmap.protocols.msp_messages import (
+from thrustmap.protocols.msp.framing import MspDecoder, MspFrame, MspVersion, encode_request
+from thrustmap.protocols.msp.messages import (
     MSP_MOTOR_STOP,
     AdvancedConfig,
     ApiVersion,

@@ -21,7 +21,7 @@ Bytes outside frames (garbage, CLI text) are skipped and counted in ``decoder.sk
 After any error the decoder resumes scanning one byte after the bad frame's ``$``. No input can
 make the decoder raise.
 
-Message payloads (typed records in SI units) live in :mod:`thrustmap.protocols.msp_messages`.
+Message payloads (typed records in SI units) live in :mod:`thrustmap.protocols.msp.messages`.
 """
 
 from __future__ import annotations

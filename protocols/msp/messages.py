@@ -8,8 +8,8 @@ beyond what is modelled are kept in ``tail`` bytes. Scaled values (0.01 V, 0.01 
 floats; encoding rounds to the wire resolution.
 
 Decoding a payload too short for the fields it must hold raises :class:`MspPayloadError`
-(a :class:`~thrustmap.protocols.msp.MspProtocolError`). Motor records and throttle encodings live
-in :mod:`thrustmap.protocols.msp_motor` and are re-exported here, so one import serves a driver.
+(a :class:`~thrustmap.protocols.msp.framing.MspProtocolError`). Motor records and throttle encodings live
+in :mod:`thrustmap.protocols.msp.motor` and are re-exported here, so one import serves a driver.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar
 
-from thrustmap.protocols.msp import MspCommand, MspFrame, MspPayloadError
-from thrustmap.protocols.msp_motor import (
+from thrustmap.protocols.msp.framing import MspCommand, MspFrame, MspPayloadError
+from thrustmap.protocols.msp.motor import (
     DSHOT_MAX,
     DSHOT_MIN,
     MSP_MOTOR_SCALE,

@@ -1,6 +1,6 @@
 """Record the MAVLink driver fixtures from the simulated vehicles, and replay them.
 
-``python -m thrustmap.rig.fc_mavlink_fixtures [DIR]`` (default ``fixtures/transcripts``) runs
+``python -m support.mavlink_transcripts [DIR]`` (default ``fixtures/transcripts``) runs
 every scenario below with ``Px4ThrottleOutput``/``ArduPilotThrottleOutput`` against a simulated
 vehicle (``ConstantPlant``: no dynamics, so decoded values do not depend on exact timing),
 through the project's ``record://`` tap, and writes ``<name>.jsonl``. ``replay_scenario`` runs the
@@ -23,12 +23,12 @@ from typing import Any
 
 from thrustmap.clock import Clock, SimClock
 from thrustmap.errors import ThrustmapError
-from thrustmap.protocols.mavlink_link import MavlinkSerialLink
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink
 from thrustmap.protocols.transcript import TranscriptWriter, read_transcript
 from thrustmap.protocols.urlhandlers.protocol_record import RecordingSerial
 from thrustmap.protocols.urlhandlers.protocol_replay import ReplaySerial
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig.fc_mavlink import (
+from thrustmap.rig.fc.mavlink import (
     ArduPilotThrottleOutput,
     MavlinkThrottleOutput,
     Px4ThrottleOutput,
@@ -149,7 +149,7 @@ def record_scenario(name: str, directory: str | Path = DEFAULT_DIR) -> tuple[Pat
         path,
         inner=scenario.inner,
         origin_s=clock.now_s(),
-        extra={"clock": "SimClock", "generator": "thrustmap.rig.fc_mavlink_fixtures"},
+        extra={"clock": "SimClock", "generator": "support.mavlink_transcripts"},
     )
     port = RecordingSerial(inner, writer, clock, timeout=0)
     result = run_scenario(scenario, MavlinkSerialLink(port, clock, name=str(path)), clock)

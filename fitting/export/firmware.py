@@ -25,7 +25,7 @@ import numpy.typing as npt
 import scipy.optimize as opt
 
 from thrustmap.errors import ConfigError, FitError
-from thrustmap.fitting.export import (
+from thrustmap.fitting.export.encodings import (
     G0_MPS2,
     ExportOptions,
     ExportResult,

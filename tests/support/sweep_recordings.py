@@ -6,7 +6,7 @@ produced. ``replay(flavour, fixture_dir, out_csv)`` runs the same plan through t
 and runner on ``replay://`` transports, strictly: any byte the code writes that the recording
 did not is an error, and the Ds log must come out identical.
 
-Regenerate: ``python -m thrustmap.rig.recordings fixtures/sweeps``.
+Regenerate: ``python -m support.sweep_recordings fixtures/sweeps``.
 """
 
 from __future__ import annotations

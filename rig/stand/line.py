@@ -1,7 +1,7 @@
 """Configurable text-line thrust stands (DIY stands on a serial port) as a ``Stand``.
 
 ``LineStand(port, clock, spec)`` reads the stand's lines through
-:class:`~thrustmap.protocols.linestand.LineStandDecoder` and turns them into timestamped
+:class:`~thrustmap.protocols.stands.line.LineStandDecoder` and turns them into timestamped
 :class:`~thrustmap.rig.interfaces.StandSample` s:
 
 - Timestamps come from the injected clock. Lines arrive in bursts (a 250 Hz stand read at
@@ -42,7 +42,7 @@ from typing import Any
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
-from thrustmap.protocols.linestand import (
+from thrustmap.protocols.stands.line import (
     FIELDS,
     Column,
     LineComment,

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs import writers
+from support import flightlog_writers as writers
+from support.flightlog_writers import DataFlashWriter, TlogWriter, ULogTopic
 from thrustmap.fitting.flightlogs.series import FloatArray
-from thrustmap.fitting.flightlogs.writers import DataFlashWriter, TlogWriter, ULogTopic
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.units import SCALES
 
@@ -387,7 +387,7 @@ def write_fixtures(out_dir: str | Path) -> list[Path]:
     return [d / name for name in FIXTURE_FILES]
 
 
-if __name__ == "__main__":  # python -m thrustmap.fitting.flightlogs.simulate fixtures/flightlogs
+if __name__ == "__main__":  # python -m support.simulate_flight fixtures/flightlogs
     import sys
 
     for p in write_fixtures(sys.argv[1] if len(sys.argv) > 1 else "fixtures/flightlogs"):
