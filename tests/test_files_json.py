@@ -1,0 +1,113 @@
+"""The shared safe-writing and JSON-reading helpers."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.files import atomic_write_text, check_output_path, new_recording_path
+from thrustmap.jsonfile import Fields, load_json, loads_json
+
+
+def test_atomic_write_does_not_follow_planted_symlink(tmp_path: Path) -> None:
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    # a planted symlink at a predictable temporary name must not be followed
+    (tmp_path / "out.json.tmp").symlink_to(victim)
+    atomic_write_text(tmp_path / "out.json", "{}")
+    assert victim.read_text() == "keep"
+    assert (tmp_path / "out.json").read_text() == "{}"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.json.")]
+
+
+def test_atomic_write_replacing_a_symlink_replaces_the_link_not_its_target(tmp_path: Path) -> None:
+    target = tmp_path / "target.txt"
+    target.write_text("keep")
+    (tmp_path / "out.txt").symlink_to(target)
+    atomic_write_text(tmp_path / "out.txt", "new")
+    assert target.read_text() == "keep"
+
+
+def test_atomic_write_missing_folder_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist|cannot write"):
+        atomic_write_text(tmp_path / "nope" / "x.json", "{}")
+
+
+def test_output_never_overwrites_an_input(tmp_path: Path) -> None:
+    inp = tmp_path / "a.csv"
+    inp.write_text("x")
+    with pytest.raises(ConfigError, match="overwrite an input"):
+        check_output_path(tmp_path / "." / "a.csv", inputs=[inp])
+    link = tmp_path / "b.csv"
+    link.symlink_to(inp)
+    with pytest.raises(ConfigError, match="overwrite an input"):
+        check_output_path(link, inputs=[inp])
+    plan = check_output_path(tmp_path / "new.json", inputs=[inp])
+    assert not plan.replaced
+
+
+def test_output_folder_checks(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        check_output_path(tmp_path / "missing" / "x.json")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    os.chmod(ro, 0o500)
+    try:
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as a user who can write anywhere")
+        with pytest.raises(ConfigError, match="not writable"):
+            check_output_path(ro / "x.json")
+    finally:
+        os.chmod(ro, 0o700)
+
+
+def test_new_recording_path_never_overwrites(tmp_path: Path) -> None:
+    run = tmp_path / "run.csv"
+    assert new_recording_path(run, siblings=(".meta.json",)) == run
+    (tmp_path / "run.meta.json").write_text("{}")
+    assert new_recording_path(run, siblings=(".meta.json",)).name == "run-2.csv"
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("[" * 5000 + "]" * 5000, "nested deeper"),
+        ('{"a": NaN}', "not a number JSON allows"),
+        ('{"a": Infinity}', "not a number JSON allows"),
+        ('{"a": 1e400}', "too large"),
+        ('{"a": ' + "9" * 400 + "}", "too large"),
+        ('{"a": 1,\n "b": }', "not valid JSON"),
+    ],
+)
+def test_loads_json_rejects_hostile_text(text: str, match: str) -> None:
+    with pytest.raises(DataFormatError, match=match) as info:
+        loads_json(text, source="m.json")
+    assert str(info.value).startswith("m.json")
+
+
+def test_load_json_reports_bad_utf8_and_line(tmp_path: Path) -> None:
+    bad = tmp_path / "cal.json"
+    bad.write_bytes(b'{"a": "\xff"}')
+    with pytest.raises(DataFormatError, match="not UTF-8"):
+        load_json(bad)
+    broken = tmp_path / "b.json"
+    broken.write_text('{\n"a": 1,\n"b": ]\n}')
+    with pytest.raises(DataFormatError) as info:
+        load_json(broken)
+    assert f"{broken}:3:" in str(info.value)
+
+
+def test_fields_name_the_path() -> None:
+    f = Fields({"cal": {"scale": "x", "n": True}}, source="c.json")
+    with pytest.raises(DataFormatError, match=r"field 'cal.scale': expected a number"):
+        f.sub("cal").number("scale")
+    with pytest.raises(DataFormatError, match=r"field 'cal.n': expected an integer"):
+        f.sub("cal").integer("n")
+    with pytest.raises(DataFormatError, match=r"field 'cal.zero': missing"):
+        f.sub("cal").number("zero")
+    with pytest.raises(DataFormatError, match=r"expected one of a, b"):
+        Fields({"k": "c"}, source="c.json").string("k", choices=("a", "b"))
+    assert Fields({"v": 2}, source="c.json").number("v", minimum=0) == 2.0
