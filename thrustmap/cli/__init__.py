@@ -14,7 +14,6 @@ from typing import Any
 
 import click
 
-from thrustmap import __version__
 from thrustmap.errors import ThrustmapError
 
 log = logging.getLogger("thrustmap")
@@ -38,9 +37,43 @@ COMMANDS: dict[str, str] = {
 }
 
 
+#: command name -> its one-line summary, so `thrustmap --help` lists the commands without
+#: importing them (a command missing here is imported to read its summary).
+SUMMARIES: dict[str, str] = {
+    "models": "List the thrust-map models with their formulas.",
+    "fit": "Fit a thrust map to stand logs.",
+    "compare": "Compare models on stand logs under a validation mode.",
+    "evaluate": "Score a map on new stand data.",
+    "predict": "Throttle for a thrust (or thrust for a throttle) at a voltage.",
+    "inspect": "Show how stand logs load and what selection keeps.",
+    "ports": "List serial ports with a guess at what each is.",
+    "probe": "Identity and a live reading of a flight controller or a stand.",
+    "spin": "One short, capped, confirmed motor spin.",
+    "sweep": "Run a bench sweep with interlocks and record it as a Ds log.",
+    "demo": "The paper's SR and MR campaigns on the simulator, fitted and compared.",
+    "flightlog": "Flight logs: inspect them and extract Df.",
+    "gamma": "Fit the flight correction factor gamma(B).",
+    "export": "Export a map for a throttle encoding or a firmware.",
+}
+
+
 class LazyGroup(click.Group):
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(COMMANDS)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            summary = SUMMARIES.get(name)
+            if summary is None:
+                command = self.get_command(ctx, name)
+                if command is None or command.hidden:
+                    continue
+                summary = command.get_short_help_str(formatter.width)
+            rows.append((name, summary))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         target = COMMANDS.get(cmd_name)
@@ -58,7 +91,7 @@ class LazyGroup(click.Group):
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="thrustmap")
+@click.version_option(package_name="thrustmap", prog_name="thrustmap")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
 @click.option("--debug", is_flag=True, help="Show tracebacks for internal errors.")
 @click.pass_context
