@@ -2,7 +2,7 @@
 
 Each signal keeps its own timestamps (logs mix rates: IMU at 200 Hz, battery at 10 Hz); Df
 extraction resamples them onto one timeline. Units and signs are normalised by the reader
-(see ../shared/reference/flight-logs.md):
+(see docs/flight-logs.md):
 - ``voltage_v``: battery voltage, V.
 - ``accel_up_mps2``: upward specific force, m/s² (≈ +9.81 at rest, level).
 - ``thrust_cmd_n``: collective thrust command, N (when the log has it).

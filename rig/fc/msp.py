@@ -1,6 +1,6 @@
 """Betaflight / INAV flight controller over MSP, as a ``ThrottleOutput``.
 
-Motor test semantics (../shared/reference/msp.md): SET_MOTOR values (external 1000..2000) apply
+Motor test semantics (docs/msp.md): SET_MOTOR values (external 1000..2000) apply
 only while disarmed and the firmware keeps the last value FOREVER, even after the host dies.
 So this driver:
 - refuses to run when the FC reports ARMED, and disables arming (SET_ARMING_DISABLED 1) while

@@ -5,7 +5,7 @@ Every number is in SI units except where the name says otherwise (``kv_rpm_per_v
 ``rig.sim.physics`` builds a plant from one, optionally with fields overridden.
 
 ``xnova-2207-6s`` is tuned against the seed paper's single-rotor stand data
-(/work/shared/data/xnova-thrust-stand, xNova 2207-2100Kv, 5" prop, Foxeer Reaper 65 A ESC,
+(published with the paper: xNova 2207-2100Kv, 5" prop, Foxeer Reaper 65 A ESC,
 TATTU R-Line 6S): kt, kq, I0 and the ESC curve by least squares on the SR plateaus (thrust and
 current at the measured voltage), Kv and R nominal. At the measured voltage the steady SR thrust
 is within 3.4 % of every real SR plateau (1150-1800 us) and the MR data, not used for the fit,
