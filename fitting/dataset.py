@@ -13,6 +13,14 @@ from thrustmap.units import ThrottleScale
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
+#: ``Dataset.meta["layout"]`` of an export with one averaged row per throttle step.
+STEP_SUMMARY = "step-summary"
+#: What each detected layout means, as ``inspect`` says it.
+LAYOUTS: dict[str, str] = {
+    STEP_SUMMARY: "one averaged row per throttle step, detected from the rows' shape; "
+    "every row is taken as a steady-state point",
+}
+
 
 @dataclass(frozen=True)
 class Dataset:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from thrustmap.errors import DataFormatError
-from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset, FloatArray
 from thrustmap.units import SCALES, ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -204,6 +204,14 @@ def _finish(
 ) -> Dataset:
     meta = dict(meta or {})
     thrust_n = _normalise_sign(thrust_n, throttle, meta, table.path)
+    if "layout" not in meta and is_step_summary(throttle, time_s, scale):
+        meta["layout"] = STEP_SUMMARY
+        log.info(
+            "%s: step-summary export (one averaged row per throttle step, %d steps): "
+            "every row is taken as a steady-state point",
+            table.path,
+            len(throttle),
+        )
     return Dataset(
         path=table.path,
         format=fmt,
@@ -219,6 +227,31 @@ def _finish(
         sha256=_sha256(table.path),
         meta=meta,
     )
+
+
+#: Shape of a step summary: every row a new command at least this far (% of the throttle span)
+#: from the previous one, and (where time is logged) rows this far apart: a stand's own log
+#: samples at several Hz and repeats a held command, a step export holds each step for seconds.
+STEP_SUMMARY_MIN_STEP_PCT = 1.0
+STEP_SUMMARY_MIN_DT_S = 0.75
+
+
+def is_step_summary(throttle: FloatArray, time_s: FloatArray | None, scale: ThrottleScale) -> bool:
+    """True when the rows look like one averaged row per throttle step (the RCbenchmark app's
+    "steps" export): at least three rows, every row at a command distinct from the previous one
+    by ``STEP_SUMMARY_MIN_STEP_PCT`` of the span, and rows ``STEP_SUMMARY_MIN_DT_S`` apart in
+    the median where the file has a time column. A continuous log repeats each held command; a
+    ramp moves in small increments at the logging rate."""
+    if len(throttle) < 3 or not np.all(np.isfinite(throttle)):
+        return False
+    step = np.abs(np.diff(throttle)) / scale.span * 100.0
+    if float(step.min()) < STEP_SUMMARY_MIN_STEP_PCT:
+        return False
+    if time_s is not None:
+        dt = np.diff(time_s)
+        if not np.all(np.isfinite(dt)) or float(np.median(dt)) < STEP_SUMMARY_MIN_DT_S:
+            return False
+    return True
 
 
 def _normalise_sign(

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.errors import FitError
-from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset, FloatArray
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ class Points:
     thrust_n: FloatArray
     voltage_v: FloatArray
     throttle_pct: FloatArray
-    kind: npt.NDArray[np.str_]  # "plateau", "ramp-pair", "ramp" or "sample" per point
+    kind: npt.NDArray[np.str_]  # "plateau", "ramp-pair", "ramp", "step-summary" or "sample"
     report: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -80,6 +80,11 @@ def select(ds: Dataset, sel: Selection) -> Points:
     if sel.all_samples:
         t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
         kind = np.full(len(ds), "sample")
+    elif ds.meta.get("layout") == STEP_SUMMARY:
+        # The stand software already averaged each step: every row is a steady-state point.
+        t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
+        kind = np.full(len(ds), "step-summary")
+        report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
     else:
         t, b, th, kind, info = _steady_state(ds, sel)
         report.update(info)
