@@ -12,6 +12,7 @@ from thrustmap.units import ThrottleScale
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 #: ``Dataset.meta["layout"]`` of an export with one averaged row per throttle step.
 STEP_SUMMARY = "step-summary"
@@ -38,6 +39,10 @@ class Dataset:
     current_a: FloatArray | None = None
     rpm: FloatArray | None = None
     rotors_on_esc: int | None = None
+    # What the recorder knew (thrustmap Ds logs): the plan step of each sample (-1: outside the
+    # plan, e.g. the spin-down after the stop) and whether the runner had seen it settled.
+    step: IntArray | None = None
+    settled: BoolArray | None = None
     sha256: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
@@ -65,6 +70,8 @@ class Dataset:
             time_s=pick(self.time_s),
             current_a=pick(self.current_a),
             rpm=pick(self.rpm),
+            step=None if self.step is None else self.step[mask],
+            settled=None if self.settled is None else self.settled[mask],
         )
 
     def source_record(self) -> dict[str, Any]:

@@ -1,7 +1,7 @@
 """Load Ds (bench data) from stand logs, auto-detected by header.
 
 Formats: RCbenchmark (Tyto app) logs and their spreadsheet re-saves, Flight Stand exports,
-Crazyflie system-id logs, the project's own Ds log (``dsformat``), and any CSV through an
+Crazyflie system-id logs, the project's own Ds log (:mod:`thrustmap.dslog`), and any CSV through an
 explicit ``ColumnMap``. Every error names the file, the line or column, and what was expected.
 """
 
@@ -18,8 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from thrustmap import dslog
 from thrustmap.errors import DataFormatError
-from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset, FloatArray
+from thrustmap.fitting.dataset import STEP_SUMMARY, BoolArray, Dataset, FloatArray, IntArray
 from thrustmap.units import SCALES, ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -201,10 +202,12 @@ def _finish(
     rpm: FloatArray | None = None,
     rotors_on_esc: int | None = None,
     meta: dict[str, Any] | None = None,
+    step: IntArray | None = None,
+    settled: BoolArray | None = None,
 ) -> Dataset:
     meta = dict(meta or {})
     thrust_n = _normalise_sign(thrust_n, throttle, meta, table.path)
-    if "layout" not in meta and is_step_summary(throttle, time_s, scale):
+    if step is None and "layout" not in meta and is_step_summary(throttle, time_s, scale):
         meta["layout"] = STEP_SUMMARY
         log.info(
             "%s: step-summary export (one averaged row per throttle step, %d steps): "
@@ -224,6 +227,8 @@ def _finish(
         current_a=current_a,
         rpm=rpm,
         rotors_on_esc=rotors_on_esc,
+        step=step,
+        settled=settled,
         sha256=_sha256(table.path),
         meta=meta,
     )
@@ -371,9 +376,82 @@ def _crazyflie(table: _Table) -> Dataset | None:
 
 
 def _thrustmap_ds(table: _Table) -> Dataset | None:
-    from thrustmap.fitting import dsformat
-
-    return dsformat.from_table(table)
+    """thrustmap's own Ds log: decoded by :mod:`thrustmap.dslog`, checked against its sidecar."""
+    if not dslog.is_ds_header(table.keys):
+        return None
+    cols = dslog.parse(table.header, table.rows, table.lines, table.path)
+    side = dslog.read_sidecar(table.path)
+    side_name = dslog.sidecar_path(table.path).name
+    column = f"throttle_{cols.throttle_unit}"
+    info: dict[str, Any] = {}
+    if side is not None:
+        scale = side.throttle_scale
+        if dslog.throttle_column(scale) != column:
+            raise DataFormatError(
+                f"sidecar {side_name} gives throttle scale '{scale.name}' in {scale.unit}, "
+                f"but the log's column is '{column}'; expected them to agree",
+                file=table.path,
+            )
+        info["outcome"] = {"status": side.status, "reason": side.reason}
+        info["strategy"] = side.strategy
+        if side.status == "running":
+            info["partial"] = "the run never finished (process died?): log kept as recorded"
+        elif side.status == "aborted":
+            info["partial"] = f"run aborted: {side.reason}"
+        if side.samples is not None and side.samples != len(table.rows):
+            if len(table.rows) > side.samples:
+                raise DataFormatError(
+                    f"the log has {len(table.rows)} rows but its sidecar {side_name} recorded "
+                    f"{side.samples} samples; expected the sidecar of this log",
+                    file=table.path,
+                )
+            info["partial"] = (
+                f"sidecar {side_name} recorded {side.samples} samples but the log has "
+                f"{len(table.rows)} rows: the log was cut short; loaded what is left"
+            )
+        rotors = side.rotors_on_esc
+    else:
+        rotors = None
+        defaults = {"us": SCALES["pwm"], "pct": SCALES["percent"]}
+        if cols.throttle_unit not in defaults:
+            raise DataFormatError(
+                f"no sidecar {side_name}: it gives the throttle scale of '{column}'",
+                file=table.path,
+            )
+        scale = defaults[cols.throttle_unit]
+        if cols.throttle_unit == "us":
+            log.warning("%s: no sidecar %s; assuming PWM 1000..2000 us", table.path, side_name)
+            info["assumed"] = f"no sidecar: throttle scale PWM 1000..2000 us assumed for '{column}'"
+    outside = np.flatnonzero(
+        (cols.throttle_native < scale.lo - scale.span / 2)
+        | (cols.throttle_native > scale.hi + scale.span / 2)
+    )
+    if outside.size:
+        k = int(outside[0])
+        raise DataFormatError(
+            f"throttle {cols.throttle_native[k]:g} is far outside the scale '{scale.name}' "
+            f"{scale.lo:g}..{scale.hi:g} {scale.unit}; expected values on that scale",
+            file=table.path,
+            line=int(cols.line[k]),
+            column=column,
+        )
+    if "partial" in info:
+        log.warning("%s: %s", table.path, info["partial"])
+    return _finish(
+        table,
+        "thrustmap",
+        scale,
+        cols.throttle_native,
+        cols.thrust_n,
+        cols.voltage_v,
+        time_s=cols.time_s,
+        current_a=cols.current_a,
+        rpm=cols.rpm,
+        rotors_on_esc=rotors,
+        meta=info,
+        step=np.where(cols.stopping, -1, cols.step) if cols.step is not None else None,
+        settled=cols.settled,
+    )
 
 
 #: name -> (description, reader). Tried in this order; a reader returns None when the header

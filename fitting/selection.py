@@ -159,6 +159,29 @@ def _ramp_pairs(
     return pairs
 
 
+def _levels(ds: Dataset, tol: float) -> list[tuple[int, int, int | None]]:
+    """Candidate plateaus [a, b) and, where the recorder marked it, the first settled sample.
+
+    A thrustmap Ds log says which plan step each sample belongs to and where the runner saw the
+    level settle: plateaus are the steps' final levels (the start of a step is the slew toward
+    it), and settled marks are used as recorded. Other logs: runs of equal throttle."""
+    if ds.step is None:
+        return [(a, b, None) for a, b in plateaus(ds.throttle_native, tol)]
+    out: list[tuple[int, int, int | None]] = []
+    step = ds.step
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(step) != 0) + 1, [len(step)]])
+    for a0, b0 in zip(bounds[:-1], bounds[1:], strict=True):
+        a, b = int(a0), int(b0)
+        if step[a] < 0:
+            continue  # outside the plan (spin-down after the stop)
+        runs = plateaus(ds.throttle_native[a:b], tol)
+        ra, rb = runs[-1]  # the level the step holds (a ramp step leaves a short run here)
+        a_lvl, b_lvl = a + ra, a + rb
+        marks = np.flatnonzero(ds.settled[a_lvl:b_lvl]) if ds.settled is not None else np.array([])
+        out.append((a_lvl, b_lvl, a_lvl + int(marks[0]) if marks.size else None))
+    return out
+
+
 def _settle_index(thrust: FloatArray, sigmas: float) -> int:
     """First index from which the thrust stays within the plateau's noise band."""
     n = len(thrust)
@@ -190,11 +213,16 @@ def _steady_state(
     kinds: list[str] = []
     n_plateau_samples = n_settle_dropped = n_ramp_kept = 0
     in_plateau = np.zeros(len(ds), dtype=bool)
-    for a, b in plateaus(th, tol):
+    n_runner_settled = 0
+    for a, b, settled_from in _levels(ds, tol):
         if b - a < sel.min_plateau_samples:
             continue
         in_plateau[a:b] = True
-        k = _settle_index(ds.thrust_n[a:b], sel.settle_sigmas)
+        if settled_from is not None:
+            k = settled_from - a  # the recorder saw it settled from here: no guessing
+            n_runner_settled += 1
+        else:
+            k = _settle_index(ds.thrust_n[a:b], sel.settle_sigmas)
         if b - a - k < 2:
             continue
         n_plateau_samples += b - a
@@ -246,6 +274,7 @@ def _steady_state(
         )
     info = {
         "plateaus": kinds.count("plateau"),
+        "plateaus_settled_by_recorder": n_runner_settled,
         "plateau_samples": n_plateau_samples,
         "settling_samples_dropped": n_settle_dropped,
         "ramp_samples_kept": n_ramp_kept,

@@ -9,7 +9,7 @@ import pytest
 
 from thrustmap.cli import main
 from thrustmap.errors import DataFormatError
-from thrustmap.fitting.dsformat import DsWriter
+from thrustmap.dslog import DsWriter
 from thrustmap.fitting.loaders import ColumnMap, load_dataset
 from thrustmap.units import SCALES
 
