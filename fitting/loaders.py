@@ -12,7 +12,7 @@ import hashlib
 import logging
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ class ColumnMap:
     voltage: str
     time: str | None = None
     current: str | None = None
+    rpm: str | None = None
     thrust_unit: str = "N"
     throttle_scale: ThrottleScale = SCALES["pwm"]
     rotors_on_esc: int | None = None
@@ -59,6 +60,8 @@ class _Table:
     rows: list[list[str]]
     lines: list[int]  # 1-based line number of each row
     delimiter: str
+    notes: list[str] = field(default_factory=list)  # conversions made while reading, for meta
+    decimal_comma: bool | None = None  # decided on first use
 
 
 def normalise_header(name: str) -> str:
@@ -128,8 +131,25 @@ def _find(table: _Table, pattern: str) -> tuple[int, re.Match[str]] | None:
     return hits[0] if hits else None
 
 
+_DECIMAL_COMMA = re.compile(r"-?\d*,\d+")
+_GROUPED = re.compile(r"-?\d{1,3}(?:\.\d{3})+(?:,\d*)?")
+
+
+def _uses_decimal_comma(table: _Table) -> bool:
+    """A ';'-separated re-save from a locale that writes 1.234,5: some cell has a decimal comma."""
+    if table.decimal_comma is None:
+        table.decimal_comma = table.delimiter == ";" and any(
+            _DECIMAL_COMMA.fullmatch(c.strip()) for row in table.rows for c in row
+        )
+    return table.decimal_comma
+
+
 def _column(table: _Table, index: int, *, allow_empty: bool = False) -> FloatArray:
-    """Convert column ``index`` to floats; name the line and column of the first bad cell."""
+    """Convert column ``index`` to floats; name the line and column of the first bad cell.
+
+    Empty cells are NaN with ``allow_empty`` and an error otherwise; a written ``nan`` or
+    ``inf`` is always an error (a measurement that cannot be). In a file with decimal commas,
+    dots are thousands separators (``1.500`` is 1500, said in the dataset's notes)."""
     cells: list[str] = []
     for row, line in zip(table.rows, table.lines, strict=True):
         if index >= len(row):
@@ -140,30 +160,56 @@ def _column(table: _Table, index: int, *, allow_empty: bool = False) -> FloatArr
             )
         cells.append(row[index].strip())
     col = table.header[index]
-    if allow_empty:
-        cells = [c if c else "nan" for c in cells]
-    try:
-        values = np.asarray(cells, dtype=float)
-    except ValueError:
-        values = np.empty(len(cells))
-        decimal_comma = table.delimiter == ";"
-        for k, (cell, line) in enumerate(zip(cells, table.lines, strict=True)):
-            try:
-                values[k] = float(cell.replace(",", ".") if decimal_comma else cell)
-            except ValueError:
-                what = "empty cell" if not cell else f"'{cell[:30]}' is not a number"
+    decimal_comma = _uses_decimal_comma(table)
+    grouped = 0
+    values = np.empty(len(cells))
+    for k, cell in enumerate(cells):
+        text = cell
+        if decimal_comma:
+            if "." in text:
+                if not _GROUPED.fullmatch(text):
+                    raise DataFormatError(
+                        f"'{cell[:30]}' mixes '.' into a decimal-comma file; expected a number "
+                        "like 1.234,5 or 1234,5",
+                        file=table.path,
+                        line=table.lines[k],
+                        column=col,
+                    )
+                text = text.replace(".", "")
+                grouped += 1
+            text = text.replace(",", ".")
+        if not text:
+            if not allow_empty:
                 raise DataFormatError(
-                    f"{what}; expected a number", file=table.path, line=line, column=col
-                ) from None
-    if not allow_empty:
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
+                    "empty cell; expected a number",
+                    file=table.path,
+                    line=table.lines[k],
+                    column=col,
+                )
+            values[k] = np.nan
+            continue
+        try:
+            v = float(text)
+        except ValueError:
             raise DataFormatError(
-                f"'{cells[bad[0]]}' is not a finite number; expected a measured value",
+                f"'{cell[:30]}' is not a number; expected a number",
                 file=table.path,
-                line=table.lines[bad[0]],
+                line=table.lines[k],
+                column=col,
+            ) from None
+        if not np.isfinite(v):
+            raise DataFormatError(
+                f"'{cell[:30]}' is not a finite number; expected a measured value",
+                file=table.path,
+                line=table.lines[k],
                 column=col,
             )
+        values[k] = v
+    if grouped:
+        note = f"'{col}': '.' read as a thousands separator in {grouped} cells (decimal commas)"
+        if note not in table.notes:
+            table.notes.append(note)
+            log.warning("%s: %s", table.path, note)
     return values
 
 
@@ -206,6 +252,8 @@ def _finish(
     settled: BoolArray | None = None,
 ) -> Dataset:
     meta = dict(meta or {})
+    if table.notes:
+        meta["read_notes"] = list(table.notes)
     thrust_n = _normalise_sign(thrust_n, throttle, meta, table.path)
     if step is None and "layout" not in meta and is_step_summary(throttle, time_s, scale):
         meta["layout"] = STEP_SUMMARY
@@ -276,6 +324,121 @@ def _normalise_sign(
 MU = "\u00b5"
 
 
+#: Sparse logs (each sensor written when it updates): how old a carried-forward command or
+#: voltage may be, in seconds where the log has a time column, else in rows.
+CARRY_THROTTLE_S = 0.5
+CARRY_VOLTAGE_S = 2.0
+CARRY_THROTTLE_ROWS = 5
+CARRY_VOLTAGE_ROWS = 20
+#: A log is sparse (not a dense log with a hole) when this share of rows lacks a required cell.
+SPARSE_MIN_FRACTION = 0.1
+
+
+def _carry(values: FloatArray, age_axis: FloatArray, max_age: float) -> tuple[FloatArray, int]:
+    """Forward-fill NaN cells with the last value at most ``max_age`` old on ``age_axis``
+    (time or row index); returns the filled column and how many cells were filled."""
+    have = np.isfinite(values)
+    idx = np.where(have, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    src = np.maximum(idx, 0)
+    fresh = (idx >= 0) & (age_axis - age_axis[src] <= max_age)
+    out = np.where(fresh, values[src], np.nan)
+    return np.asarray(out, dtype=float), int((fresh & ~have).sum())
+
+
+def _assemble(
+    table: _Table,
+    fmt: str,
+    scale: ThrottleScale,
+    cols: dict[str, int | None],
+    thrust_factor: float,
+    *,
+    meta: dict[str, Any] | None = None,
+    rotors_on_esc: int | None = None,
+    current_factor: float = 1.0,
+) -> Dataset:
+    """Columns ``throttle``, ``thrust``, ``voltage`` (required) and ``time``, ``current``, ``rpm``
+    (optional) into a Dataset. A dense log must have every required cell; a sparse one (empty
+    cells in the required columns: each sensor logged when it updates) keeps the rows with a
+    thrust reading and carries the last command and voltage forward within a bounded age."""
+    meta = dict(meta or {})
+    raw = {k: _column(table, i, allow_empty=True) for k, i in cols.items() if i is not None}
+    required = ("throttle", "thrust", "voltage")
+    gaps = ~np.all([np.isfinite(raw[k]) for k in required], axis=0)
+    if float(gaps.mean()) < SPARSE_MIN_FRACTION:
+        for k in required:  # a dense log with a few holes: the first one is an error
+            _column(table, cols[k] or 0)
+        keep = np.ones(len(table.rows), dtype=bool)
+    else:
+        t = raw.get("time")
+        if t is not None and not np.all(np.isfinite(t)):
+            bad = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise DataFormatError(
+                "empty cell; expected a time on every row of a sparse log",
+                file=table.path,
+                line=table.lines[bad],
+                column=table.header[cols["time"] or 0],
+            )
+        if t is not None and np.any(np.diff(t) < 0):
+            bad = int(np.flatnonzero(np.diff(t) < 0)[0]) + 1
+            raise DataFormatError(
+                "time goes backwards; expected increasing times in a sparse log",
+                file=table.path,
+                line=table.lines[bad],
+                column=table.header[cols["time"] or 0],
+            )
+        axis = t if t is not None else np.arange(len(table.rows), dtype=float)
+        unit = "s" if t is not None else " rows"
+        ages = {
+            "throttle": CARRY_THROTTLE_S if t is not None else CARRY_THROTTLE_ROWS,
+            "voltage": CARRY_VOLTAGE_S if t is not None else CARRY_VOLTAGE_ROWS,
+        }
+        have_thrust = np.isfinite(raw["thrust"])
+        filled: dict[str, int] = {}
+        for k in ("throttle", "voltage", "current", "rpm"):
+            if k in raw:
+                age = ages.get(k, ages["throttle"])
+                raw[k], filled[k] = _carry(raw[k], axis, age)
+        keep = have_thrust & np.isfinite(raw["throttle"]) & np.isfinite(raw["voltage"])
+        if not keep.any():
+            raise DataFormatError(
+                "sparse log: no row has a thrust reading with a throttle command and a voltage "
+                f"at most {ages['throttle']:g}{unit} / {ages['voltage']:g}{unit} old",
+                file=table.path,
+            )
+        stale = int((have_thrust & ~keep).sum())
+        meta["sparse"] = (
+            f"sensors logged as they update: kept the {int(keep.sum())} rows with a thrust "
+            f"reading of {len(keep)}; throttle carried forward on {filled['throttle']} rows "
+            f"(at most {ages['throttle']:g}{unit} old), voltage on {filled['voltage']} rows "
+            f"(at most {ages['voltage']:g}{unit} old)"
+            + (f"; {stale} thrust rows dropped: no command or voltage that recent" if stale else "")
+        )
+        log.info("%s: %s", table.path, meta["sparse"])
+        table = replace(
+            table,
+            rows=[r for r, k in zip(table.rows, keep, strict=True) if k],
+            lines=[n for n, k in zip(table.lines, keep, strict=True) if k],
+        )
+
+    def opt(k: str, factor: float = 1.0) -> FloatArray | None:
+        return None if k not in raw else raw[k][keep] * factor
+
+    return _finish(
+        table,
+        fmt,
+        scale,
+        raw["throttle"][keep],
+        raw["thrust"][keep] * thrust_factor,
+        raw["voltage"][keep],
+        time_s=opt("time"),
+        current_a=opt("current", current_factor),
+        rpm=opt("rpm"),
+        rotors_on_esc=rotors_on_esc,
+        meta=meta,
+    )
+
+
 def _rcbenchmark(table: _Table) -> Dataset | None:
     th = _find(table, rf"esc(?: signal)? \({MU}s\)")
     thrust = _find(table, r"thrust \(([^)]*)\)")
@@ -288,17 +451,19 @@ def _rcbenchmark(table: _Table) -> Dataset | None:
     rpm = _find(table, r"motor electrical speed \(rpm\)") or _find(
         table, r"motor optical speed \(rpm\)"
     )
-    fmt = "rcbenchmark" if t is not None else "rcbenchmark-resaved"
-    return _finish(
+    return _assemble(
         table,
-        fmt,
+        "rcbenchmark" if t is not None else "rcbenchmark-resaved",
         SCALES["pwm"],
-        _column(table, th[0]),
-        _column(table, thrust[0]) * factor,
-        _column(table, volt[0]),
-        time_s=None if t is None else _column(table, t[0]),
-        current_a=None if cur is None else _column(table, cur[0], allow_empty=True),
-        rpm=None if rpm is None else _column(table, rpm[0], allow_empty=True),
+        {
+            "throttle": th[0],
+            "thrust": thrust[0],
+            "voltage": volt[0],
+            "time": None if t is None else t[0],
+            "current": None if cur is None else cur[0],
+            "rpm": None if rpm is None else rpm[0],
+        },
+        factor,
     )
 
 
@@ -306,51 +471,35 @@ def _flight_stand(table: _Table) -> Dataset | None:
     th = _find(table, rf"(.+) - esc throttle \({MU}s\)")
     if th is None:
         return None
-    prefix = re.escape(th[1].group(1))
+    name = th[1].group(1)
+    prefix = re.escape(name)
     thrust = _need(
         table, rf"{prefix} - force fz \(thrust\) \(([^)]*)\)", "'force Fz (thrust)'", "Flight Stand"
     )
     volt = _need(table, rf"{prefix} - voltage \(v\)", "'voltage (V)'", "Flight Stand")
     factor = _thrust_factor(table, thrust[0], thrust[1].group(1))
     t = _find(table, r"time \(s\)")
-    # Continuous recordings are sparse (each sensor at its own rate): hold each value forward,
-    # keep the rows where a thrust reading arrived.
-    cols = {
-        k: _column(table, i, allow_empty=True)
-        for k, i in (("th", th[0]), ("thrust", thrust[0]), ("v", volt[0]))
-    }
-    have_thrust = np.isfinite(cols["thrust"])
-    for k in ("th", "v"):
-        cols[k] = _ffill(cols[k])
-    keep = have_thrust & np.isfinite(cols["th"]) & np.isfinite(cols["v"])
-    if not keep.any():
-        raise DataFormatError("no row has thrust, throttle and voltage together", file=table.path)
-    sub = _Table(
-        table.path,
-        table.header,
-        table.keys,
-        [r for r, k in zip(table.rows, keep, strict=True) if k],
-        [n for n, k in zip(table.lines, keep, strict=True) if k],
-        table.delimiter,
-    )
-    return _finish(
-        sub,
+    cur = _find(table, rf"{prefix} - current \(a\)")
+    rpm = _find(table, rf"{prefix} - rotation speed \(rpm\)")
+    return _assemble(
+        table,
         "flight-stand",
         SCALES["pwm"],
-        cols["th"][keep],
-        cols["thrust"][keep] * factor,
-        cols["v"][keep],
-        time_s=None if t is None else _column(table, t[0], allow_empty=True)[keep],
-        meta={"powertrain": th[1].group(1)},
+        {
+            "throttle": th[0],
+            "thrust": thrust[0],
+            "voltage": volt[0],
+            "time": None if t is None else t[0],
+            "current": None if cur is None else cur[0],
+            "rpm": None if rpm is None else rpm[0],
+        },
+        factor,
+        meta={"powertrain": name},
     )
 
 
-def _ffill(a: FloatArray) -> FloatArray:
-    idx = np.where(np.isfinite(a), np.arange(len(a)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    out = a[idx]
-    out[~np.isfinite(a) & (np.cumsum(np.isfinite(a)) == 0)] = np.nan
-    return np.asarray(out, dtype=float)
+#: The Crazyflie system-id logger writes one row every 10 ms and no time column.
+CRAZYFLIE_PERIOD_S = 0.01
 
 
 def _crazyflie(table: _Table) -> Dataset | None:
@@ -360,19 +509,31 @@ def _crazyflie(table: _Table) -> Dataset | None:
     if w is None or pwm is None or vbat is None:
         return None
     cur = _find(table, r"i\[a\]")
-    # weight[g] is the TOTAL of four motors; the map is per rotor.
-    thrust_n = _column(table, w[0]) * G0 / 1000.0 / 4.0
-    return _finish(
+    rpms = [hit[0] for k in range(1, 5) if (hit := _find(table, rf"rpm{k}")) is not None]
+    ds = _assemble(
         table,
         "crazyflie",
         SCALES["crazyflie"],
-        _column(table, pwm[0]),
-        thrust_n,
-        _column(table, vbat[0]),
-        current_a=None if cur is None else _column(table, cur[0], allow_empty=True),
+        {"throttle": pwm[0], "thrust": w[0], "voltage": vbat[0], "current": cur and cur[0]},
+        # weight[g] is the TOTAL of four motors; the map is per rotor (current likewise).
+        G0 / 1000.0 / 4.0,
         rotors_on_esc=4,
-        meta={"thrust_note": "weight[g] of 4 motors divided by 4"},
+        current_factor=0.25,
+        meta={
+            "thrust_note": "weight[g] of 4 motors divided by 4; i[A] likewise",
+            "time_note": f"no time column: one row every {CRAZYFLIE_PERIOD_S * 1000:g} ms",
+        },
     )
+    n_rows = len(ds)
+    time_s = (ds.line - ds.line[0]).astype(float) * CRAZYFLIE_PERIOD_S
+    rpm = None
+    if rpms:
+        by_row = dict(zip(table.lines, range(len(table.lines)), strict=True))
+        rows = [by_row[int(n)] for n in ds.line]
+        each = np.vstack([_column(table, i, allow_empty=True)[rows] for i in rpms])
+        rpm = np.nanmean(np.where(np.isfinite(each), each, np.nan), axis=0) if n_rows else None
+        ds.meta["rpm_note"] = f"mean of {len(rpms)} motors' rpm"
+    return replace(ds, time_s=time_s, rpm=rpm)
 
 
 def _thrustmap_ds(table: _Table) -> Dataset | None:
@@ -524,16 +685,19 @@ def _with_column_map(table: _Table, cm: ColumnMap) -> Dataset:
             f"unknown thrust unit '{cm.thrust_unit}'; expected one of: N, kgf, gf, g, lbf, ozf",
             file=table.path,
         )
-    t_i, c_i = index(cm.time, "time"), index(cm.current, "current")
-    return _finish(
+    return _assemble(
         table,
         "column-map",
         cm.throttle_scale,
-        _column(table, ti),
-        _column(table, fi) * factor,
-        _column(table, vi),
-        time_s=None if t_i is None else _column(table, t_i),
-        current_a=None if c_i is None else _column(table, c_i, allow_empty=True),
+        {
+            "throttle": ti,
+            "thrust": fi,
+            "voltage": vi,
+            "time": index(cm.time, "time"),
+            "current": index(cm.current, "current"),
+            "rpm": index(cm.rpm, "rpm"),
+        },
+        factor,
         rotors_on_esc=cm.rotors_on_esc,
     )
 
