@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.errors import DataFormatError
 from thrustmap.dslog import DsWriter
+from thrustmap.errors import DataFormatError
 from thrustmap.fitting.loaders import ColumnMap, load_dataset
 from thrustmap.units import SCALES
 
