@@ -334,4 +334,5 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         for k, v in ds.meta.items():
             note = LAYOUTS.get(v, "") if k == "layout" else ""
             click.echo(f"  {k}: {v}" + (f" ({note})" if note else ""))
-        click.echo(f"  selection: {p.report}")
+        rules = ", ".join(f"{k}={v}" for k, v in p.report.items() if k != "file")
+        click.echo(f"  selection (what each rule did): {rules}")
