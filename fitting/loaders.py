@@ -114,10 +114,35 @@ def read_table(path: str | Path) -> _Table:
             continue
         rows.append(row)
         numbers.append(offset)
+    keys = [normalise_header(h) for h in header]
+    notes: list[str] = []
+    if rows and not text.endswith(("\n", "\r")) and _torn(rows, dslog.is_ds_header(keys)):
+        note = f"last row (line {numbers[-1]}) has no line end and is cut short: dropped"
+        notes.append(note + " (a partial write?)")
+        log.warning("%s: %s (a partial write?)", name, note)
+        rows.pop()
+        numbers.pop()
     if not rows:
         raise DataFormatError("header only, no data rows", file=name, line=first + 1)
-    keys = [normalise_header(h) for h in header]
-    return _Table(name, header, keys, rows, numbers, delimiter)
+    return _Table(name, header, keys, rows, numbers, delimiter, notes)
+
+
+def _torn(rows: list[list[str]], always: bool) -> bool:
+    """Is the last row (written without a line end) cut short? Yes when ``always`` (a writer that
+    ends every row, as thrustmap's own), when it has fewer fields than the rows before it, or
+    when its last cell is shorter than that column's cell in every earlier row (a number cut
+    in the middle still parses: ``23.9`` of ``23.912``)."""
+    if always or len(rows) < 2:
+        return always
+    last = rows[-1]
+    counts = sorted(len(r) for r in rows[:-1])
+    if len(last) < counts[len(counts) // 2]:
+        return True
+    k = max((i for i, c in enumerate(last) if c.strip()), default=-1)
+    if k < 0:
+        return False
+    earlier = [len(r[k].strip()) for r in rows[:-1] if k < len(r) and r[k].strip()]
+    return bool(earlier) and len(last[k].strip()) < min(earlier)
 
 
 def _find(table: _Table, pattern: str) -> tuple[int, re.Match[str]] | None:
@@ -252,9 +277,11 @@ def _finish(
     settled: BoolArray | None = None,
 ) -> Dataset:
     meta = dict(meta or {})
+    voltage_v = _check_voltage(table, voltage_v, meta)
     if table.notes:
         meta["read_notes"] = list(table.notes)
     thrust_n = _normalise_sign(thrust_n, throttle, meta, table.path)
+    _check_thrust(table, thrust_n, voltage_v, current_a)
     if step is None and "layout" not in meta and is_step_summary(throttle, time_s, scale):
         meta["layout"] = STEP_SUMMARY
         log.info(
@@ -307,6 +334,67 @@ def is_step_summary(throttle: FloatArray, time_s: FloatArray | None, scale: Thro
     return True
 
 
+#: A battery from 1S under load to 14S fully charged (and a bench supply up to 63 V).
+BATTERY_V = (2.5, 63.0)
+#: Propellers make at most a few tens of grams of thrust per electrical watt (hover-optimised
+#: large props ~20 g/W at low power); 5-inch racers 3-6 g/W. Outside this: a wrong unit.
+THRUST_PER_WATT_GF = (0.2, 60.0)
+#: Per-rotor thrust no multirotor stand measures (about 200 kgf).
+MAX_ROTOR_THRUST_N = 2000.0
+
+
+def _check_voltage(table: _Table, voltage_v: FloatArray, meta: dict[str, Any]) -> FloatArray:
+    """Battery voltage must be a battery's (1S..14S); millivolts are converted and said."""
+    lo, hi = BATTERY_V
+    if voltage_v.size == 0:
+        return voltage_v
+    med = float(np.median(voltage_v))
+    if lo * 1000 <= med <= hi * 1000:
+        note = f"voltage reads {med:.0f} (median): taken as mV and divided by 1000"
+        meta["voltage_note"] = note
+        log.warning("%s: %s", table.path, note)
+        voltage_v = voltage_v / 1000.0
+    bad = np.flatnonzero((voltage_v < lo) | (voltage_v > hi))
+    if bad.size:
+        k = int(bad[0])
+        raise DataFormatError(
+            f"voltage {voltage_v[k]:g} V is not a battery voltage; expected {lo:g}..{hi:g} V "
+            "(1S..14S) in volts or millivolts",
+            file=table.path,
+            line=table.lines[k],
+        )
+    return voltage_v
+
+
+def _check_thrust(
+    table: _Table, thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray | None
+) -> None:
+    """Thrust against what a rotor can make: absolute size, and per electrical watt."""
+    big = np.flatnonzero(np.abs(thrust_n) > MAX_ROTOR_THRUST_N)
+    if big.size:
+        k = int(big[0])
+        raise DataFormatError(
+            f"thrust {thrust_n[k]:g} N per rotor is beyond any multirotor stand "
+            f"(> {MAX_ROTOR_THRUST_N:g} N); is the thrust unit right?",
+            file=table.path,
+            line=table.lines[k],
+        )
+    if current_a is None:
+        return
+    power_w = voltage_v * current_a
+    ok = np.isfinite(power_w) & (power_w > max(5.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
+    if ok.sum() < 3:
+        return
+    gf_per_w = float(np.median(np.abs(thrust_n[ok]) / G0 * 1000.0 / power_w[ok]))
+    lo, hi = THRUST_PER_WATT_GF
+    if not lo <= gf_per_w <= hi:
+        raise DataFormatError(
+            f"thrust per electrical watt is {gf_per_w:.3g} gf/W (median at load); propellers "
+            f"make {lo:g}..{hi:g} gf/W: is the thrust (or current) unit right?",
+            file=table.path,
+        )
+
+
 def _normalise_sign(
     thrust_n: FloatArray, throttle: FloatArray, meta: dict[str, Any], path: str
 ) -> FloatArray:
@@ -332,6 +420,36 @@ CARRY_THROTTLE_ROWS = 5
 CARRY_VOLTAGE_ROWS = 20
 #: A log is sparse (not a dense log with a hole) when this share of rows lacks a required cell.
 SPARSE_MIN_FRACTION = 0.1
+
+
+_THOUSANDS = re.compile(r"\d{1,2}\.\d{3}")
+
+
+def _check_pulse_us(table: _Table, index: int, us: FloatArray) -> FloatArray:
+    """An ESC pulse is 500..2600 µs. Cells like ``1.500`` below that are a spreadsheet's
+    thousands separator (1500 µs): converted and said; anything else is refused."""
+    lo, hi = 500.0, 2600.0
+    bad = np.flatnonzero(np.isfinite(us) & ((us < lo) | (us > hi)))
+    if not bad.size:
+        return us
+    cells = [table.rows[i][index].strip() for i in bad]
+    if all(_THOUSANDS.fullmatch(c) for c in cells) and np.all(us[bad] * 1000 >= lo):
+        us = us.copy()
+        us[bad] *= 1000.0
+        note = (
+            f"'{table.header[index]}': {len(bad)} cells like '{cells[0]}' read as "
+            f"{us[bad[0]]:g} µs ('.' taken as a thousands separator)"
+        )
+        table.notes.append(note)
+        log.warning("%s: %s", table.path, note)
+        return us
+    k = int(bad[0])
+    raise DataFormatError(
+        f"'{table.rows[k][index].strip()[:30]}' is not an ESC pulse; expected {lo:g}..{hi:g} µs",
+        file=table.path,
+        line=table.lines[k],
+        column=table.header[index],
+    )
 
 
 def _carry(values: FloatArray, age_axis: FloatArray, max_age: float) -> tuple[FloatArray, int]:
@@ -363,6 +481,8 @@ def _assemble(
     thrust reading and carries the last command and voltage forward within a bounded age."""
     meta = dict(meta or {})
     raw = {k: _column(table, i, allow_empty=True) for k, i in cols.items() if i is not None}
+    if scale.unit == "us":
+        raw["throttle"] = _check_pulse_us(table, cols["throttle"] or 0, raw["throttle"])
     required = ("throttle", "thrust", "voltage")
     gaps = ~np.all([np.isfinite(raw[k]) for k in required], axis=0)
     if float(gaps.mean()) < SPARSE_MIN_FRACTION:

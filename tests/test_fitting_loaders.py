@@ -159,7 +159,11 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
     ("wrong delimiter", GOOD.replace(",", "|"), "single column"),
     ("duplicated headers", GOOD.replace("Current (A)", "Thrust (N)"), "duplicated header"),
     ("unknown format", "a,b,c\n1,2,3\n", "unrecognised stand log header"),
-    ("short row", "\n".join([RCB_HEADER, *_rcb_rows()[:5], "0.6,1100"]), ":7: row has 2 fields"),
+    (
+        "short row",
+        "\n".join([RCB_HEADER, *_rcb_rows()[:5], "0.6,1100", *_rcb_rows()[5:]]),
+        ":7: row has 2 fields",
+    ),
     ("json instead of csv", '{"format": "x"}\n', "single column"),
 ]
 
