@@ -534,7 +534,7 @@ def _assemble(
             f"(at most {ages['voltage']:g}{unit} old)"
             + (f"; {stale} thrust rows dropped: no command or voltage that recent" if stale else "")
         )
-        log.info("%s: %s", table.path, meta["sparse"])
+        log.warning("%s: %s", table.path, meta["sparse"])
         table = replace(
             table,
             rows=[r for r, k in zip(table.rows, keep, strict=True) if k],

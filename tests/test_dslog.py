@@ -148,3 +148,50 @@ def test_sidecar_fields_are_typed(tmp_path: Path) -> None:
         with pytest.raises(DataFormatError, match=expected) as exc:
             load_dataset(p)
         assert "run.meta.json" in str(exc.value)
+
+
+class _DiskFillsUp(dslog.DsWriter):
+    """A Ds writer whose disk fills up after ``rows_left`` rows (every later write: ENOSPC)."""
+
+    rows_left = 40
+
+    def write_row(self, row: dslog.DsRow) -> None:
+        if self.rows == self.rows_left and self._file is not None and self.write_error is None:
+            self._file.close()
+            self._file = open("/dev/full", "w", encoding="utf-8")  # noqa: SIM115
+        super().write_row(row)
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_sweep_on_a_full_disk_stops_and_records_the_outcome(tmp_path: Path) -> None:
+    """The run's Ds log hits a full disk mid-sweep: the motor is stopped and verified, the run
+    ends in a one-line error (not an internal one), and the sidecar says how and why."""
+    from thrustmap.clock import SimClock
+    from thrustmap.rig import connect, plans
+    from thrustmap.rig.interlocks import Limits
+    from thrustmap.rig.runner import Runner
+
+    clock = SimClock()
+    stand = connect.open_stand("sim://tyto-1585?bench=full&drive_esc=0", clock, kind="tyto-1585")
+    with stand:
+        fc = connect.open_throttle_output(
+            "sim://betaflight?bench=full&rotors=1&protocol=PWM", clock, kind="msp"
+        )
+        with fc:
+            writer = _DiskFillsUp(tmp_path / "run.csv", fc.throttle_scale, {"rotors_on_esc": 1})
+            runner = Runner(
+                plans.stairs(10, 30, 10, dwell_s=1.0),
+                fc,
+                stand,
+                writer,
+                clock,
+                limits=Limits(max_current_a=120),
+            )
+            with pytest.raises(ConfigError, match="cannot write the Ds log after 40 rows"):
+                runner.run()
+            assert fc.verify_stopped()
+    side = dslog.read_sidecar(tmp_path / "run.csv")
+    assert side is not None and side.status == "aborted" and side.stop_verified is True
+    assert "No space left" in side.reason and side.samples == 40
+    ds = load_dataset(tmp_path / "run.csv")
+    assert len(ds) == 40 and "partial" in ds.meta
