@@ -186,6 +186,15 @@ def _column(table: _Table, index: int, *, allow_empty: bool = False) -> FloatArr
         cells.append(row[index].strip())
     col = table.header[index]
     decimal_comma = _uses_decimal_comma(table)
+    if not decimal_comma:  # fast path; the slow one below names the first bad cell
+        empty = np.array([not c for c in cells], dtype=bool)
+        try:
+            fast = np.asarray([c or "nan" for c in cells], dtype=float)
+        except ValueError:
+            fast = None
+        if fast is not None and not (~np.isfinite(fast) & ~empty).any():
+            if allow_empty or not empty.any():
+                return fast
     grouped = 0
     values = np.empty(len(cells))
     for k, cell in enumerate(cells):
