@@ -192,9 +192,9 @@ def _column(table: _Table, index: int, *, allow_empty: bool = False) -> FloatArr
             fast = np.asarray([c or "nan" for c in cells], dtype=float)
         except ValueError:
             fast = None
-        if fast is not None and not (~np.isfinite(fast) & ~empty).any():
-            if allow_empty or not empty.any():
-                return fast
+        clean = fast is not None and not (~np.isfinite(fast) & ~empty).any()
+        if fast is not None and clean and (allow_empty or not empty.any()):
+            return fast
     grouped = 0
     values = np.empty(len(cells))
     for k, cell in enumerate(cells):
@@ -495,8 +495,9 @@ def _assemble(
     required = ("throttle", "thrust", "voltage")
     gaps = ~np.all([np.isfinite(raw[k]) for k in required], axis=0)
     if float(gaps.mean()) < SPARSE_MIN_FRACTION:
-        for k in required:  # a dense log with a few holes: the first one is an error
-            _column(table, cols[k] or 0)
+        for k in (*required, "time"):  # a dense log with a few holes: the first one is an error
+            if cols.get(k) is not None:
+                _column(table, cols[k] or 0)
         keep = np.ones(len(table.rows), dtype=bool)
     else:
         t = raw.get("time")
@@ -660,7 +661,9 @@ def _crazyflie(table: _Table) -> Dataset | None:
         by_row = dict(zip(table.lines, range(len(table.lines)), strict=True))
         rows = [by_row[int(n)] for n in ds.line]
         each = np.vstack([_column(table, i, allow_empty=True)[rows] for i in rpms])
-        rpm = np.nanmean(np.where(np.isfinite(each), each, np.nan), axis=0) if n_rows else None
+        count = np.isfinite(each).sum(axis=0)
+        total = np.where(np.isfinite(each), each, 0.0).sum(axis=0)
+        rpm = np.where(count > 0, total / np.maximum(count, 1), np.nan) if n_rows else None
         ds.meta["rpm_note"] = f"mean of {len(rpms)} motors' rpm"
     return replace(ds, time_s=time_s, rpm=rpm)
 

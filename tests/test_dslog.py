@@ -195,3 +195,10 @@ def test_sweep_on_a_full_disk_stops_and_records_the_outcome(tmp_path: Path) -> N
     assert "No space left" in side.reason and side.samples == 40
     ds = load_dataset(tmp_path / "run.csv")
     assert len(ds) == 40 and "partial" in ds.meta
+
+
+def test_step_index_must_be_a_plan_index(tmp_path: Path) -> None:
+    p = tmp_path / "run.csv"
+    p.write_text("time_s,throttle_pct,thrust_n,voltage_v,step\n0,10,1,16,0\n0.1,10,1,16,1e300\n")
+    with pytest.raises(DataFormatError, match=":3: column 'step': expected a plan step index"):
+        load_dataset(p)

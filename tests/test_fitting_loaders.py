@@ -376,3 +376,10 @@ def test_real_files_keep_rpm_and_current(shared_data: Path) -> None:
         ds = load_dataset(f)
         assert ds.rpm is not None and float(np.nanmax(ds.rpm)) > 1000, f
         assert ds.current_a is not None and float(np.nanmax(ds.current_a)) > 1.0, f
+
+
+def test_dense_log_time_column_stays_strict(tmp_path: Path) -> None:
+    rows = _rcb_rows()
+    rows[6] = "," + rows[6].split(",", 1)[1]  # no time on one row of a dense log
+    with pytest.raises(DataFormatError, match=":8: column 'Time \\(s\\)': empty cell"):
+        load_dataset(write(tmp_path / "t.csv", "\n".join([RCB_HEADER, *rows])))

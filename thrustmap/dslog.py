@@ -405,7 +405,9 @@ def parse(
     step_f = numbers("step", required=False)
     step = None
     if step_f is not None:
-        bad = np.flatnonzero(np.isfinite(step_f) & ((step_f < 0) | (step_f != np.round(step_f))))
+        bad = np.flatnonzero(
+            np.isfinite(step_f) & ((step_f < 0) | (step_f > 1e6) | (step_f != np.round(step_f)))
+        )
         if bad.size:
             raise DataFormatError(
                 "expected a plan step index (0, 1, 2, ...)",
