@@ -16,6 +16,9 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: ``Dataset.meta["layout"]`` of an export with one averaged row per throttle step.
 STEP_SUMMARY = "step-summary"
+#: ``Dataset.meta["thrust_sensor"]`` of a stand whose load cell updates every few samples and
+#: holds its value in between (the loader knows it from the format).
+SAMPLE_AND_HOLD = "sample-and-hold"
 #: What each detected layout means, as ``inspect`` says it.
 LAYOUTS: dict[str, str] = {
     STEP_SUMMARY: "one averaged row per throttle step, detected from the rows' shape; "

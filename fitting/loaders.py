@@ -20,7 +20,14 @@ import numpy as np
 
 from thrustmap import dslog
 from thrustmap.errors import DataFormatError
-from thrustmap.fitting.dataset import STEP_SUMMARY, BoolArray, Dataset, FloatArray, IntArray
+from thrustmap.fitting.dataset import (
+    SAMPLE_AND_HOLD,
+    STEP_SUMMARY,
+    BoolArray,
+    Dataset,
+    FloatArray,
+    IntArray,
+)
 from thrustmap.units import SCALES, ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -652,6 +659,7 @@ def _crazyflie(table: _Table) -> Dataset | None:
         meta={
             "thrust_note": "weight[g] of 4 motors divided by 4; i[A] likewise",
             "time_note": f"no time column: one row every {CRAZYFLIE_PERIOD_S * 1000:g} ms",
+            "thrust_sensor": SAMPLE_AND_HOLD,  # its load cell updates every ~10 rows and holds
         },
     )
     n_rows = len(ds)

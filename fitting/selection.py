@@ -38,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.errors import FitError
-from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset, FloatArray
+from thrustmap.fitting.dataset import SAMPLE_AND_HOLD, STEP_SUMMARY, Dataset, FloatArray
 
 log = logging.getLogger(__name__)
 
@@ -259,13 +259,14 @@ def _settle_index(thrust: FloatArray, sigmas: float) -> int:
 
 
 def _updates(
-    thrust: FloatArray, throttle: FloatArray, tol: float
+    thrust: FloatArray, throttle: FloatArray, tol: float, known_held: bool
 ) -> tuple[npt.NDArray[np.bool_], dict[str, Any]]:
     """Which samples carry a new thrust reading. A sample-and-hold sensor repeats its last
-    value exactly until it updates, and updates on its own clock, mostly while the command
-    holds; a continuously sampled one (with noise) practically never repeats. Held: more than
-    half the samples exact repeats and at least half the changes away from command changes
-    (a log whose thrust only changes with the command says nothing about its sensor)."""
+    value exactly until it updates; a continuously sampled one (with noise) practically never
+    repeats. Held: more than half the samples exact repeats, and either the loader knows the
+    stand's load cell holds (``known_held``) or at least half the value changes happen away
+    from command changes, on the sensor's own clock (a log whose thrust only changes with the
+    command, exactly constant in between, says nothing about its sensor)."""
     n = len(thrust)
     fresh = np.ones(n, dtype=bool)
     if n < 8:
@@ -274,13 +275,14 @@ def _updates(
     if float(repeat.mean()) <= 0.5:
         return fresh, {}
     changes = np.flatnonzero(~repeat) + 1
-    cmd = np.flatnonzero(np.abs(np.diff(throttle)) > tol) + 1
-    near_cmd = np.zeros(n + 2, dtype=bool)
-    for d in (0, 1, 2):  # a change up to two samples after the command follows it
-        near_cmd[np.minimum(cmd + d, n + 1)] = True
-    own_clock = int((~near_cmd[changes]).sum())
-    if len(changes) < 3 or own_clock < 0.5 * len(changes):
-        return fresh, {}
+    if not known_held:
+        cmd = np.flatnonzero(np.abs(np.diff(throttle)) > tol) + 1
+        near_cmd = np.zeros(n, dtype=bool)
+        for d in (-2, -1, 0, 1, 2):  # a change within two samples of a command change
+            near_cmd[np.clip(cmd + d, 0, n - 1)] = True
+        own_clock = int((~near_cmd[changes]).sum())
+        if len(changes) < 3 or own_clock < 0.5 * len(changes):
+            return fresh, {}
     fresh[1:] = ~repeat
     updates = int(fresh.sum())
     return fresh, {
@@ -343,7 +345,8 @@ def _steady_state(
 ]:
     th = ds.throttle_native
     tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
-    fresh, held = _updates(ds.thrust_n, th, tol)
+    known = ds.meta.get("thrust_sensor") == SAMPLE_AND_HOLD
+    fresh, held = _updates(ds.thrust_n, th, tol, known)
     t_out: list[float] = []
     b_out: list[float] = []
     th_out: list[float] = []

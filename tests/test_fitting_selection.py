@@ -149,7 +149,11 @@ def test_real_step_summaries_give_points_by_default(shared_data: Path) -> None:
 
 
 def crazyflie_staircase(
-    stall_levels: int = 2, hold_every: int = 10, tau_s: float = 0.1, with_time: bool = False
+    stall_levels: int = 2,
+    hold_every: int = 10,
+    tau_s: float = 0.1,
+    with_time: bool = False,
+    phase: int = 3,
 ) -> tuple[Dataset, np.ndarray]:
     """A Crazyflie-style system-id staircase: 10 ms samples, the command raised every 10
     samples up to 70 % and back down, a rotor with lag ``tau_s``, a load cell that updates every
@@ -170,7 +174,7 @@ def crazyflie_staircase(
     cell = rotor + offset_n + np.random.default_rng(3).normal(0.0, 2e-5, n)  # load-cell noise
     held = cell.copy()
     for k in range(n):
-        held[k] = cell[k - (k - 3) % hold_every] if k >= 3 else cell[0]
+        held[k] = cell[k - (k - phase) % hold_every] if k >= phase else cell[0]
     ds = Dataset(
         path="cf_stairs.csv",
         format="synthetic",
@@ -208,6 +212,25 @@ def test_held_load_cell_staircase_pairs_legs_without_time() -> None:
     # the same with the loader's 10 ms time base: the same pairs, no ramp points invented
     timed = select(crazyflie_staircase(with_time=True)[0], Selection(drop_tare_points=True))
     assert timed.report["stair_pairs"] == 10 and set(timed.kind.tolist()) == {"stair-pair"}
+
+
+def test_crazyflie_file_updates_in_step_with_the_command(tmp_path: Path) -> None:
+    """The load cell may update on the very sample the command changes: nothing in the numbers
+    tells it from a constant plateau, but the loader knows this stand's load cell holds."""
+    ds, _ = crazyflie_staircase(phase=0)
+    weight_g = ds.thrust_n * 4 / 9.80665e-3
+    rows = [
+        f"{float(w)!r},{int(round(c))},4.0,0,0,0,0,4.0,0.5,2"
+        for w, c in zip(weight_g, ds.throttle_native, strict=True)
+    ]
+    p = tmp_path / "cf.csv"
+    p.write_text("weight[g],pwm,vbat[V],rpm1,rpm2,rpm3,rpm4,v[V],i[A],p[W]\n" + "\n".join(rows))
+    loaded = load_dataset(p)
+    r = select(loaded, Selection(drop_tare_points=True)).report
+    assert r["sample_and_hold_sensor"] is True and r["stair_pairs"] == 10
+    # the same numbers from an unknown stand are not assumed to be held
+    unknown = Dataset(**{**loaded.__dict__, "meta": {}})
+    assert "sample_and_hold_sensor" not in select(unknown, Selection()).report
 
 
 def test_continuous_sensor_is_not_taken_for_held() -> None:
