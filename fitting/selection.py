@@ -74,6 +74,8 @@ class Selection:
             "plateau_tolerance_pct": self.plateau_tolerance_pct,
             "settle_sigmas": self.settle_sigmas,
             "lag_budget_pct": self.lag_budget_pct,
+            "trend_rel": self.trend_rel,
+            "stall_fraction": self.stall_fraction,
             "drop_tare_points": self.drop_tare_points,
         }
 

@@ -202,3 +202,32 @@ def test_step_index_must_be_a_plan_index(tmp_path: Path) -> None:
     p.write_text("time_s,throttle_pct,thrust_n,voltage_v,step\n0,10,1,16,0\n0.1,10,1,16,1e300\n")
     with pytest.raises(DataFormatError, match=":3: column 'step': expected a plan step index"):
         load_dataset(p)
+
+
+def test_settled_marks_from_a_real_runner_are_used(tmp_path: Path) -> None:
+    """A settling sweep on the simulated bench: the runner marks where each hold settled, and
+    selection averages exactly those samples (no second guess)."""
+    from thrustmap.clock import SimClock
+    from thrustmap.rig import connect, plans
+    from thrustmap.rig.interlocks import Limits
+    from thrustmap.rig.runner import record_sweep
+
+    clock = SimClock()
+    stand = connect.open_stand("sim://tyto-1585?bench=settle&drive_esc=0", clock, kind="tyto-1585")
+    with stand:
+        fc = connect.open_throttle_output(
+            "sim://betaflight?bench=settle&rotors=1&protocol=PWM", clock, kind="msp"
+        )
+        with fc:
+            plan = plans.stairs(20, 40, 10, dwell_s=6.0, settle=True, record_s=0.8)
+            result = record_sweep(
+                plan, fc, stand, str(tmp_path / "s.csv"), clock, limits=Limits(max_current_a=120)
+            )
+    assert result.status == "completed"
+    ds = load_dataset(tmp_path / "s.csv")
+    assert ds.settled is not None and ds.settled.any() and ds.step is not None
+    pts = select(ds, Selection())
+    assert pts.report["plateaus_settled_by_recorder"] == 3 and (pts.kind == "plateau").sum() == 3
+    for level, thrust in zip((0, 1, 2), pts.thrust_n, strict=True):
+        marked = ds.settled & (ds.step == level)
+        assert thrust == pytest.approx(float(np.mean(ds.thrust_n[marked])), rel=1e-12)
