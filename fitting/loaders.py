@@ -397,7 +397,7 @@ def _check_thrust(
         )
     if current_a is None:
         return
-    power_w = voltage_v * current_a
+    power_w = np.abs(voltage_v * current_a)  # some stands log the current negative
     ok = np.isfinite(power_w) & (power_w > max(5.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
     if ok.sum() < 3:
         return
@@ -605,10 +605,19 @@ def _rcbenchmark(table: _Table) -> Dataset | None:
 
 
 def _flight_stand(table: _Table) -> Dataset | None:
-    th = _find(table, rf"(.+) - esc throttle \({MU}s\)")
-    if th is None:
+    rx = re.compile(rf"(.+) - esc throttle \({MU}s\)")
+    trains = [(i, m) for i, k in enumerate(table.keys) if (m := rx.fullmatch(k))]
+    if not trains:
         return None
+    th = trains[0]
     name = th[1].group(1)
+    meta: dict[str, Any] = {"powertrain": name}
+    if len({m.group(1) for _, m in trains}) > 1:
+        others = ", ".join(repr(table.header[i]) for i, _ in trains[1:])
+        meta["powertrain_note"] = f"several powertrains: loaded '{name}' only; ignored {others}"
+        log.warning("%s: %s", table.path, meta["powertrain_note"])
+    elif len(trains) > 1:
+        _find(table, rx.pattern)  # the same powertrain twice: the duplicated-header error
     prefix = re.escape(name)
     thrust = _need(
         table, rf"{prefix} - force fz \(thrust\) \(([^)]*)\)", "'force Fz (thrust)'", "Flight Stand"
@@ -631,7 +640,7 @@ def _flight_stand(table: _Table) -> Dataset | None:
             "rpm": None if rpm is None else rpm[0],
         },
         factor,
-        meta={"powertrain": name},
+        meta=meta,
     )
 
 

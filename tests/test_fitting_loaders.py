@@ -383,3 +383,14 @@ def test_dense_log_time_column_stays_strict(tmp_path: Path) -> None:
     rows[6] = "," + rows[6].split(",", 1)[1]  # no time on one row of a dense log
     with pytest.raises(DataFormatError, match=":8: column 'Time \\(s\\)': empty cell"):
         load_dataset(write(tmp_path / "t.csv", "\n".join([RCB_HEADER, *rows])))
+
+
+def test_flight_stand_with_two_powertrains_loads_the_first_and_says_so(tmp_path: Path) -> None:
+    header = (
+        "Time (s),Top - ESC throttle (μs),Top - force Fz (thrust) (N),Top - voltage (V),"
+        "Bottom - ESC throttle (μs),Bottom - force Fz (thrust) (N),Bottom - voltage (V)"
+    )
+    rows = [f"{0.1 * k:.1f},1500,-3.{k},22.0,1600,-4.{k},22.0" for k in range(6)]
+    ds = load_dataset(write(tmp_path / "coax.csv", "\n".join([header, *rows])))
+    assert ds.meta["powertrain"] == "top" and ds.thrust_n[2] == pytest.approx(3.2)
+    assert "ignored 'Bottom - ESC throttle (μs)'" in ds.meta["powertrain_note"]
