@@ -759,7 +759,10 @@ def _thrustmap_ds(table: _Table) -> Dataset | None:
         rpm=cols.rpm,
         rotors_on_esc=rotors,
         meta=info,
-        step=np.where(cols.stopping, -1, cols.step) if cols.step is not None else None,
+        # steps as recorded; none recorded (a hand-made log): plateaus from the throttle
+        step=None
+        if cols.step is None or not (cols.step >= 0).any()
+        else np.where(cols.stopping, -1, cols.step),
         settled=cols.settled,
     )
 

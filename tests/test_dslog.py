@@ -231,3 +231,13 @@ def test_settled_marks_from_a_real_runner_are_used(tmp_path: Path) -> None:
     for level, thrust in zip((0, 1, 2), pts.thrust_n, strict=True):
         marked = ds.settled & (ds.step == level)
         assert thrust == pytest.approx(float(np.mean(ds.thrust_n[marked])), rel=1e-12)
+
+
+def test_ds_log_without_recorded_steps_falls_back_to_throttle_plateaus(tmp_path: Path) -> None:
+    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
+    for k in range(40):
+        w.write(0.05 * k, 1300 + 100 * (k // 20), {"thrust_n": 1.0 + k // 20, "voltage_v": 16.0})
+    w.finish("completed")
+    ds = load_dataset(tmp_path / "run.csv")
+    assert ds.step is None
+    assert select(ds, Selection()).report["plateaus"] == 2
