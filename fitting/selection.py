@@ -110,14 +110,13 @@ def select(ds: Dataset, sel: Selection) -> Points:
     else:
         if ds.meta.get("layout") == STEP_SUMMARY:
             # The stand software already averaged each step: every row is a steady-state point.
-            sources = [np.array([i]) for i in range(len(ds))]
+            stopped = _rotor_stopped(ds, sel)
             t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
             kind = np.full(len(ds), "step-summary")
             report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
         else:
-            t, b, th, kind, sources, info = _steady_state(ds, sel)
+            t, b, th, kind, stopped, info = _steady_state(ds, sel, _rotor_stopped(ds, sel))
             report.update(info)
-        stopped = _rotor_stopped(ds, sel, sources)
         if stopped.any():
             # The rotor was not turning: the load cell reads its offset (tare information).
             at_zero = stopped & (ds.throttle_scale.to_pct(th) <= sel.plateau_tolerance_pct)
@@ -150,20 +149,16 @@ def select(ds: Dataset, sel: Selection) -> Points:
     )
 
 
-def _rotor_stopped(
-    ds: Dataset, sel: Selection, sources: list[npt.NDArray[np.int64]]
-) -> npt.NDArray[np.bool_]:
-    """Points whose samples mostly have the rotor stopped: a command at the bottom of the scale
-    (within the plateau tolerance), or, where the log has rpm that rises above 1000, rpm under
-    1 % of its maximum. Their thrust is the load cell's offset, not a point of the map."""
-    tol_pct = sel.plateau_tolerance_pct
-    stopped = ds.throttle_pct <= tol_pct
-    if ds.rpm is not None:
-        rpm = np.nan_to_num(ds.rpm, nan=np.inf)
-        top = float(np.nanmax(ds.rpm)) if np.isfinite(ds.rpm).any() else 0.0
+def _rotor_stopped(ds: Dataset, sel: Selection) -> npt.NDArray[np.bool_]:
+    """Samples with the rotor stopped: a command at the bottom of the scale (within the plateau
+    tolerance), or, where the log has rpm that rises above 1000, rpm under 1 % of its maximum.
+    Their thrust is the load cell's offset, not a point of the map."""
+    stopped = ds.throttle_pct <= sel.plateau_tolerance_pct
+    if ds.rpm is not None and np.isfinite(ds.rpm).any():
+        top = float(np.nanmax(ds.rpm))
         if top > 1000.0:
-            stopped = stopped | (rpm < 0.01 * top)
-    return np.array([bool(stopped[src].mean() > 0.5) for src in sources], dtype=bool)
+            stopped = stopped | (np.nan_to_num(ds.rpm, nan=np.inf) < 0.01 * top)
+    return np.asarray(stopped, dtype=bool)
 
 
 def plateaus(throttle: FloatArray, tolerance: float) -> list[tuple[int, int]]:
@@ -336,15 +331,16 @@ def _stair_pairs(
 
 
 def _steady_state(
-    ds: Dataset, sel: Selection
+    ds: Dataset, sel: Selection, stopped: npt.NDArray[np.bool_]
 ) -> tuple[
     FloatArray,
     FloatArray,
     FloatArray,
     np.ndarray[Any, Any],
-    list[npt.NDArray[np.int64]],
+    npt.NDArray[np.bool_],
     dict[str, Any],
 ]:
+    """Points, their kinds, whether each was taken with the rotor mostly stopped, and a report."""
     th = ds.throttle_native
     tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
     known = ds.meta.get("thrust_sensor") == SAMPLE_AND_HOLD
@@ -353,7 +349,7 @@ def _steady_state(
     b_out: list[float] = []
     th_out: list[float] = []
     kinds: list[str] = []
-    sources: list[npt.NDArray[np.int64]] = []
+    point_at_rest: list[bool] = []  # per point: most of its samples had the rotor stopped
     n_plateau_samples = n_settle_dropped = n_ramp_kept = 0
     n_runner_settled = n_trending = n_unsettled = 0
     in_plateau = np.zeros(len(ds), dtype=bool)
@@ -392,7 +388,7 @@ def _steady_state(
         b_out.append(float(np.mean(ds.voltage_v[start:b])))
         th_out.append(float(np.mean(th[start:b])))
         kinds.append("plateau")
-        sources.append(np.arange(start, b))
+        point_at_rest.append(bool(stopped[start:b].mean() > 0.5))
     # Staircases too fast for the sensor: pair each up-leg stair with the down-leg stair at the
     # same command; the rotor (and a held load cell) lags low going up and high coming down.
     n_stair_pairs = n_stalled = 0
@@ -412,7 +408,7 @@ def _steady_state(
         b_out.append((vu + vw) / 2.0)
         th_out.append((cu + cw) / 2.0)
         kinds.append("stair-pair")
-        sources.append(np.concatenate([su, sw]))
+        point_at_rest.append(bool(stopped[np.concatenate([su, sw])].mean() > 0.5))
         in_plateau[su] = True
         in_plateau[sw] = True
         n_stair_pairs += 1
@@ -441,7 +437,7 @@ def _steady_state(
                 out.extend(((arr[up][inside] + other) / 2.0).tolist())
             th_out.extend(x_up[inside].tolist())
             kinds.extend(["ramp-pair"] * int(inside.sum()))
-            sources.extend(np.array([i]) for i in up[inside])
+            point_at_rest.extend(stopped[up[inside]].tolist())
             n_paired += int(inside.sum())
             paired[up[inside]] = True
             paired[down] = True
@@ -452,7 +448,7 @@ def _steady_state(
         b_out.extend(ds.voltage_v[idx].tolist())
         th_out.extend(th[idx].tolist())
         kinds.extend(["ramp"] * len(idx))
-        sources.extend(np.array([i]) for i in idx)
+        point_at_rest.extend(stopped[idx].tolist())
     if not t_out:
         raise FitError(
             "no steady-state points found (no throttle plateau of "
@@ -484,6 +480,6 @@ def _steady_state(
         np.asarray(b_out),
         np.asarray(th_out),
         np.asarray(kinds),
-        sources,
+        np.asarray(point_at_rest, dtype=bool),
         info,
     )
