@@ -12,6 +12,18 @@ from thrustmap.units import ThrottleScale
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: ``Dataset.meta["layout"]`` of an export with one averaged row per throttle step.
+STEP_SUMMARY = "step-summary"
+#: ``Dataset.meta["thrust_sensor"]`` of a stand whose load cell updates every few samples and
+#: holds its value in between (the loader knows it from the format).
+SAMPLE_AND_HOLD = "sample-and-hold"
+#: What each detected layout means, as ``inspect`` says it.
+LAYOUTS: dict[str, str] = {
+    STEP_SUMMARY: "one averaged row per throttle step, detected from the rows' shape; "
+    "every row is taken as a steady-state point",
+}
 
 
 @dataclass(frozen=True)
@@ -30,6 +42,10 @@ class Dataset:
     current_a: FloatArray | None = None
     rpm: FloatArray | None = None
     rotors_on_esc: int | None = None
+    # What the recorder knew (thrustmap Ds logs): the plan step of each sample (-1: outside the
+    # plan, e.g. the spin-down after the stop) and whether the runner had seen it settled.
+    step: IntArray | None = None
+    settled: BoolArray | None = None
     sha256: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
@@ -57,6 +73,8 @@ class Dataset:
             time_s=pick(self.time_s),
             current_a=pick(self.current_a),
             rpm=pick(self.rpm),
+            step=None if self.step is None else self.step[mask],
+            settled=None if self.settled is None else self.settled[mask],
         )
 
     def source_record(self) -> dict[str, Any]:

@@ -21,8 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.clock import Clock
+from thrustmap.dslog import DsWriter
 from thrustmap.errors import SafetyError
-from thrustmap.fitting.dsformat import DsWriter
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
+from thrustmap.dslog import DsWriter
 from thrustmap.errors import DataFormatError
-from thrustmap.fitting.dsformat import DsWriter
 from thrustmap.fitting.loaders import ColumnMap, load_dataset
 from thrustmap.units import SCALES
 
@@ -159,7 +159,11 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
     ("wrong delimiter", GOOD.replace(",", "|"), "single column"),
     ("duplicated headers", GOOD.replace("Current (A)", "Thrust (N)"), "duplicated header"),
     ("unknown format", "a,b,c\n1,2,3\n", "unrecognised stand log header"),
-    ("short row", "\n".join([RCB_HEADER, *_rcb_rows()[:5], "0.6,1100"]), ":7: row has 2 fields"),
+    (
+        "short row",
+        "\n".join([RCB_HEADER, *_rcb_rows()[:5], "0.6,1100", *_rcb_rows()[5:]]),
+        ":7: row has 2 fields",
+    ),
     ("json instead of csv", '{"format": "x"}\n', "single column"),
 ]
 
@@ -248,3 +252,145 @@ def test_real_stand_files_load(shared_data: Path) -> None:
     steps = load_dataset(root / "single_rotor" / "xNova-SR-steps.csv")
     assert steps.format == "rcbenchmark" and steps.time_s is not None
     assert 21.0 < float(np.median(steps.voltage_v)) < 23.0
+
+
+# -- sparse continuous logs, Crazyflie time base, rpm/current kept -----------------------------
+
+
+def _sparse_rcb(path: Path, gap_s: float = 0.0) -> Path:
+    """An RCbenchmark continuous log where each sensor is written when it updates: the ESC
+    command on change, the voltage every 4th row, thrust on most rows, rpm every other row."""
+    header = (
+        "Time (s),ESC signal (µs),Servo 1 (µs),Thrust (N),Voltage (V),Current (A),"
+        "Motor Electrical Speed (RPM),App message,"
+    )
+    rows = []
+    t = 0.0
+    for k in range(80):
+        us = 1200 + 100 * (k // 20)
+        cmd = str(us) if k % 20 == 0 else ""
+        volt = f"{16.0 - 0.01 * k:.2f}" if k % 4 == 0 else ""
+        thrust = f"{-(us - 1000) / 100:.2f}" if k % 5 != 4 else ""
+        rpm = str(10 * (us - 1000)) if k % 2 == 0 else ""
+        cur = f"{(us - 1000) / 50:.1f}" if k % 3 == 0 else ""
+        rows.append(f"{t:.3f},{cmd},,{thrust},{volt},{cur},{rpm},,")
+        t += 0.1 if k != 40 else gap_s + 0.1
+    path.write_text("\ufeff" + "\n".join([header, *rows]) + "\n", encoding="utf-8")
+    return path
+
+
+def test_sparse_rcbenchmark_continuous_log_loads_with_bounded_carry(tmp_path: Path) -> None:
+    ds = load_dataset(_sparse_rcb(tmp_path / "sparse.csv"))
+    assert ds.format == "rcbenchmark"
+    # commands are written once per 20 rows (2 s): carried at most 0.5 s, so only the rows
+    # within 0.5 s of a command row with a thrust reading are kept
+    assert set(ds.throttle_native.tolist()) == {1200, 1300, 1400, 1500}
+    assert len(ds) == 4 * 5  # rows k % 20 in 0..5 minus the one without thrust (k % 5 == 4)
+    assert ds.thrust_n.tolist()[:5] == pytest.approx([2.0, 2.0, 2.0, 2.0, 2.0])
+    assert ds.voltage_v[1] == pytest.approx(16.0)  # carried from row 0 (0.1 s old)
+    assert ds.rpm is not None and ds.rpm[1] == pytest.approx(2000)  # carried, not dropped
+    assert ds.current_a is not None and np.isfinite(ds.current_a).all()
+    note = ds.meta["sparse"]
+    assert "throttle carried forward" in note and "at most 0.5s old" in note
+    assert "44 thrust rows dropped" in note
+
+
+def test_sparse_log_never_carries_across_a_long_gap(tmp_path: Path) -> None:
+    ds = load_dataset(_sparse_rcb(tmp_path / "gap.csv", gap_s=5.0))
+    # the 1400 µs command is written on row 40, then the log pauses 5 s: the rows after the
+    # pause have no command that recent and are dropped (and the drop is said)
+    assert ds.throttle_native.tolist().count(1400) == 1
+    assert ds.throttle_native.tolist().count(1300) == 5
+    assert "48 thrust rows dropped" in ds.meta["sparse"]  # 44 without the pause
+
+
+def test_dense_log_with_one_hole_is_still_an_error(tmp_path: Path) -> None:
+    p = write(
+        tmp_path / "hole.csv", "\n".join([RCB_HEADER, *_rcb_rows()]).replace(",24.000,", ",,")
+    )
+    with pytest.raises(DataFormatError, match=":2: column 'Voltage \\(V\\)': empty cell"):
+        load_dataset(p)
+
+
+def test_flight_stand_keeps_rpm_and_current(tmp_path: Path) -> None:
+    header = (
+        "Time (s),Powertrain 1 - ESC throttle (μs),Powertrain 1 - force Fz (thrust) (kgf),"
+        "Powertrain 1 - voltage (V),Powertrain 1 - current (A),Powertrain 1 - rotation speed (rpm)"
+    )
+    rows = [
+        f"{0.1 * k:.1f},1500,{-0.5 - 0.001 * k},22.0,{8 + 0.1 * k},{12000 + k}" for k in range(8)
+    ]
+    ds = load_dataset(write(tmp_path / "fs.csv", "\n".join([header, *rows])))
+    assert ds.rpm is not None and ds.rpm.tolist() == [12000 + k for k in range(8)]
+    assert ds.current_a is not None and ds.current_a[2] == pytest.approx(8.2)
+    assert ds.thrust_n[0] == pytest.approx(0.5 * 9.80665)
+    assert "sparse" not in ds.meta
+
+
+def test_crazyflie_time_base_rpm_and_current(tmp_path: Path) -> None:
+    header = "weight[g],pwm,vbat[V],rpm1,rpm2,rpm3,rpm4,v[V],i[A],p[W]"
+    rows = [
+        f"{4 * k},{6000 * k},4.{k},{1000 * k},{1000 * k + 4},{1000 * k},{1000 * k},4,{0.4 * k},1"
+        for k in range(1, 8)
+    ]
+    ds = load_dataset(write(tmp_path / "cf.csv", "\n".join([header, *rows])))
+    assert ds.time_s is not None and ds.time_s.tolist() == pytest.approx(
+        [0.01 * k for k in range(7)]
+    )
+    assert ds.rpm is not None and ds.rpm[1] == pytest.approx(2001.0)
+    assert ds.current_a is not None and ds.current_a[1] == pytest.approx(0.2)  # 0.8 A / 4 rotors
+    assert "10 ms" in ds.meta["time_note"]
+
+
+def test_column_map_keeps_rpm_and_current(tmp_path: Path) -> None:
+    p = write(
+        tmp_path / "diy.csv",
+        "t,cmd,load_g,vbus,amps,erpm\n"
+        + "\n".join(f"{k},{1100 + 100 * k},{100 * k},12.{k},{k},{900 * k}" for k in range(5)),
+    )
+    cm = ColumnMap(
+        throttle="cmd", thrust="load_g", voltage="vbus", current="amps", rpm="erpm", thrust_unit="g"
+    )
+    ds = load_dataset(p, cm)
+    assert ds.rpm is not None and ds.rpm[3] == 2700
+    assert ds.current_a is not None and ds.current_a[4] == 4
+
+
+def test_ds_log_keeps_rpm_and_current(tmp_path: Path) -> None:
+    w = DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
+    for k in range(5):
+        w.write(
+            0.1 * k, 1300, {"thrust_n": 1.0, "voltage_v": 16.0, "rpm": 9000 + k, "current_a": 3}
+        )
+    w.finish("completed")
+    ds = load_dataset(tmp_path / "run.csv")
+    assert ds.rpm is not None and ds.rpm.tolist() == [9000, 9001, 9002, 9003, 9004]
+    assert ds.current_a is not None and ds.current_a.tolist() == [3.0] * 5
+
+
+def test_real_files_keep_rpm_and_current(shared_data: Path) -> None:
+    for f in (
+        shared_data / "xnova-thrust-stand" / "single_rotor" / "xNova-SR-steps.csv",
+        shared_data / "third-party-stands" / "strawson-5inch" / "c3_11.csv",
+    ):
+        ds = load_dataset(f)
+        assert ds.rpm is not None and float(np.nanmax(ds.rpm)) > 1000, f
+        assert ds.current_a is not None and float(np.nanmax(ds.current_a)) > 1.0, f
+
+
+def test_dense_log_time_column_stays_strict(tmp_path: Path) -> None:
+    rows = _rcb_rows()
+    rows[6] = "," + rows[6].split(",", 1)[1]  # no time on one row of a dense log
+    with pytest.raises(DataFormatError, match=":8: column 'Time \\(s\\)': empty cell"):
+        load_dataset(write(tmp_path / "t.csv", "\n".join([RCB_HEADER, *rows])))
+
+
+def test_flight_stand_with_two_powertrains_loads_the_first_and_says_so(tmp_path: Path) -> None:
+    header = (
+        "Time (s),Top - ESC throttle (μs),Top - force Fz (thrust) (N),Top - voltage (V),"
+        "Bottom - ESC throttle (μs),Bottom - force Fz (thrust) (N),Bottom - voltage (V)"
+    )
+    rows = [f"{0.1 * k:.1f},1500,-3.{k},22.0,1600,-4.{k},22.0" for k in range(6)]
+    ds = load_dataset(write(tmp_path / "coax.csv", "\n".join([header, *rows])))
+    assert ds.meta["powertrain"] == "top" and ds.thrust_n[2] == pytest.approx(3.2)
+    assert "ignored 'Bottom - ESC throttle (μs)'" in ds.meta["powertrain_note"]

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
-from thrustmap.fitting.dataset import Dataset
+import numpy as np
+import pytest
+
+from thrustmap.cli import main
+from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
+from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.selection import Selection, plateaus, select
 from thrustmap.units import SCALES
 
@@ -79,3 +84,206 @@ def test_fast_transitions_between_steps_are_not_paired() -> None:
 def test_plateaus_split_on_command_changes_only() -> None:
     th = np.array([10.0] * 5 + [10.01] * 3 + [12.0] * 6)
     assert plateaus(th, 0.05) == [(0, 8), (8, 14)]
+
+
+# -- step-summary exports (one averaged row per throttle step) --------------------------------
+
+STEP_HEADER = (
+    "Time (s),ESC signal (µs),Servo 1 (µs),Servo 2 (µs),Servo 3 (µs),Thrust (gf),Voltage (V),"
+    "Current (A),Motor Electrical Speed (RPM),Motor Optical Speed (RPM),Electrical Power (W),"
+    "Overall Efficiency (gf/W),App message,"
+)
+
+
+def _step_summary(path: Path, dt_s: float = 1.7, repeat: int = 1) -> Path:
+    rows = []
+    k = 0
+    for i, us in enumerate(range(1050, 2001, 95)):
+        for _ in range(repeat):
+            thrust_gf = 300.0 * ((us - 1000) / 1000) ** 2
+            rows.append(
+                f"{k * dt_s:.3f},{us},,,,{thrust_gf:.3f},{7.4 - 0.02 * i:.3f},{0.4 + i},"
+                f"{3000 + 1200 * i},0,10,3,,"
+            )
+            k += 1
+    path.write_text("\ufeff" + "\n".join([STEP_HEADER, *rows]) + "\n", encoding="utf-8")
+    return path
+
+
+def test_step_summary_detected_and_every_row_is_a_point(tmp_path: Path) -> None:
+    ds = load_dataset(_step_summary(tmp_path / "s_7.csv"))
+    assert ds.meta["layout"] == STEP_SUMMARY
+    pts = select(ds, Selection())
+    assert len(pts) == 11 and set(pts.kind.tolist()) == {"step-summary"}
+    assert pts.report["step_summary_rows"] == 11
+    assert pts.thrust_n[-1] == pytest.approx(300.0 * 9.80665e-3)
+    # the same levels logged continuously (each command repeated at the logging rate) are not
+    for dt, rep in ((0.12, 8), (1.7, 2)):
+        cont = load_dataset(_step_summary(tmp_path / f"c{rep}.csv", dt_s=dt, repeat=rep))
+        assert "layout" not in cont.meta
+
+
+def test_step_summary_said_by_inspect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = _step_summary(tmp_path / "s_7.csv")
+    main(["inspect", str(p)])
+    out = capsys.readouterr().out
+    assert "layout: step-summary (one averaged row per throttle step" in out
+    assert "step_summary_rows=11" in out
+
+
+def test_real_step_summaries_give_points_by_default(shared_data: Path) -> None:
+    folder = shared_data / "third-party-stands" / "strawson-5inch"
+    files = sorted(folder.glob("*.csv"))
+    assert len(files) == 96
+    for f in files:
+        ds = load_dataset(f)
+        assert ds.meta.get("layout") == STEP_SUMMARY, f
+        pts = select(ds, Selection())
+        assert len(pts) >= 9, (f, pts.report)
+    # the stand's own continuous logs (steps, ramps, re-saved) are not step summaries
+    for f in sorted((shared_data / "xnova-thrust-stand").glob("*/*.csv")):
+        assert "layout" not in load_dataset(f).meta, f
+
+
+# -- sensors, trends, staircases and tare -----------------------------------------------------
+
+
+def crazyflie_staircase(
+    stall_levels: int = 2,
+    hold_every: int = 10,
+    tau_s: float = 0.1,
+    with_time: bool = False,
+    phase: int = 3,
+) -> tuple[Dataset, np.ndarray]:
+    """A Crazyflie-style system-id staircase: 10 ms samples, the command raised every 10
+    samples up to 70 % and back down, a rotor with lag ``tau_s``, a load cell that updates every
+    ``hold_every`` samples and holds, a rotor that does not start on the first ``stall_levels``
+    stairs going up, and 20 samples at command 0 first (the load cell reads its offset)."""
+    levels = np.arange(10.0, 71.0, 5.0)
+    cmd_pct = np.concatenate([np.zeros(20), np.repeat(levels, 10), np.repeat(levels[::-1], 10)])
+    steady = 0.15 * (cmd_pct / 100.0) ** 2  # N per rotor
+    n = len(cmd_pct)
+    rotor = np.zeros(n)
+    a = np.exp(-0.01 / tau_s)
+    for k in range(1, n):
+        rotor[k] = steady[k] + (rotor[k - 1] - steady[k]) * a
+    going_up = np.arange(n) < 20 + 10 * len(levels)
+    stalled = going_up & (cmd_pct > 0) & (cmd_pct < levels[stall_levels])
+    rotor[stalled] = 0.0
+    offset_n = 0.002
+    cell = rotor + offset_n + np.random.default_rng(3).normal(0.0, 2e-5, n)  # load-cell noise
+    held = cell.copy()
+    for k in range(n):
+        held[k] = cell[k - (k - phase) % hold_every] if k >= phase else cell[0]
+    ds = Dataset(
+        path="cf_stairs.csv",
+        format="synthetic",
+        throttle_scale=SCALES["crazyflie"],
+        throttle_native=SCALES["crazyflie"].from_pct(cmd_pct),
+        thrust_n=held,
+        voltage_v=np.full(n, 4.0),
+        line=np.arange(n, dtype=np.int64) + 2,
+        time_s=np.arange(n) * 0.01 if with_time else None,
+        rotors_on_esc=4,
+    )
+    return ds, steady
+
+
+def test_held_load_cell_staircase_pairs_legs_without_time() -> None:
+    ds, _ = crazyflie_staircase()
+    pts = select(ds, Selection(drop_tare_points=True))
+    r = pts.report
+    assert r["sample_and_hold_sensor"] is True and r["samples_per_update"] == pytest.approx(
+        10, abs=1
+    )
+    assert r["plateaus"] == 0  # a 10-sample stair is ONE load-cell update, not a plateau
+    assert set(pts.kind.tolist()) == {"stair-pair"}
+    assert r["stair_pairs_dropped_stalled"] == 2  # the rotor had not started on the way up
+    assert r["stair_pairs"] == len(pts) == 10
+    true = 0.15 * (pts.throttle_pct / 100.0) ** 2 + 0.002
+    paired_err = np.abs(pts.thrust_n / true - 1.0)
+    # the up-leg alone (the old reading: every stair a "plateau") lags by far more
+    up_pct = ds.throttle_pct[20 : 20 + 130].reshape(13, 10).mean(axis=1)[2:]
+    up_t = ds.thrust_n[20 : 20 + 130].reshape(13, 10).mean(axis=1)[2:]
+    up_err = np.abs(up_t / (0.15 * (up_pct / 100) ** 2 + 0.002) - 1.0)
+    assert float(np.median(paired_err)) < 0.2 * float(np.median(up_err))
+    # the zero-command samples were the load cell's offset: tare information
+    assert r["tare_points"] >= 1 and r["tare_offset_n"] == pytest.approx(0.002, abs=1e-4)
+    # the same with the loader's 10 ms time base: the same pairs, no ramp points invented
+    timed = select(crazyflie_staircase(with_time=True)[0], Selection(drop_tare_points=True))
+    assert timed.report["stair_pairs"] == 10 and set(timed.kind.tolist()) == {"stair-pair"}
+
+
+def test_crazyflie_file_updates_in_step_with_the_command(tmp_path: Path) -> None:
+    """The load cell may update on the very sample the command changes: nothing in the numbers
+    tells it from a constant plateau, but the loader knows this stand's load cell holds."""
+    ds, _ = crazyflie_staircase(phase=0)
+    weight_g = ds.thrust_n * 4 / 9.80665e-3
+    rows = [
+        f"{float(w)!r},{int(round(c))},4.0,0,0,0,0,4.0,0.5,2"
+        for w, c in zip(weight_g, ds.throttle_native, strict=True)
+    ]
+    p = tmp_path / "cf.csv"
+    p.write_text("weight[g],pwm,vbat[V],rpm1,rpm2,rpm3,rpm4,v[V],i[A],p[W]\n" + "\n".join(rows))
+    loaded = load_dataset(p)
+    r = select(loaded, Selection(drop_tare_points=True)).report
+    assert r["sample_and_hold_sensor"] is True and r["stair_pairs"] == 10
+    # the same numbers from an unknown stand are not assumed to be held
+    unknown = Dataset(**{**loaded.__dict__, "meta": {}})
+    assert "sample_and_hold_sensor" not in select(unknown, Selection()).report
+
+
+def test_continuous_sensor_is_not_taken_for_held() -> None:
+    ds = ramp_dataset()
+    assert "sample_and_hold_sensor" not in select(ds, Selection()).report
+
+
+def _plateau_dataset(drift_n: float, noise_n: float = 0.002) -> Dataset:
+    rng = np.random.default_rng(1)
+    throttle = np.repeat([1300.0, 1500.0], 60)
+    thrust = np.repeat([2.0, 4.0], 60) + rng.normal(0, noise_n, 120)
+    thrust[60:] += np.linspace(0.0, drift_n, 60)  # the second level creeps the whole time
+    return Dataset(
+        path="trend.csv",
+        format="synthetic",
+        throttle_scale=SCALES["pwm"],
+        throttle_native=throttle,
+        thrust_n=thrust,
+        voltage_v=np.full(120, 16.0),
+        line=np.arange(120, dtype=np.int64) + 2,
+    )
+
+
+def test_plateau_that_still_trends_is_dropped() -> None:
+    pts = select(_plateau_dataset(drift_n=0.2), Selection())
+    assert pts.report["plateaus_dropped_still_trending"] == 1 and len(pts) == 1
+    assert pts.thrust_n[0] == pytest.approx(2.0, abs=0.01)
+    steady = select(_plateau_dataset(drift_n=0.0), Selection())
+    assert "plateaus_dropped_still_trending" not in steady.report and len(steady) == 2
+
+
+def test_rotor_not_turning_at_a_positive_command_is_not_a_map_point() -> None:
+    ds, _ = crazyflie_staircase(stall_levels=0)
+    rpm = np.where(ds.throttle_pct > 12.0, 20000.0 * ds.throttle_pct / 100, 0.0)
+    from dataclasses import replace
+
+    pts = select(replace(ds, rpm=rpm), Selection())
+    assert pts.report["stopped_rotor_points_dropped"] >= 1
+    assert float(pts.throttle_pct.min()) > 12.0
+
+
+def test_selection_rules_on_real_data(shared_data: Path) -> None:
+    xn = shared_data / "xnova-thrust-stand"
+    for f in sorted(xn.glob("*/*.csv")):
+        r = select(load_dataset(f), Selection()).report
+        assert "sample_and_hold_sensor" not in r and "stair_pairs" not in r, f
+    # the long transmission-map log has plateaus that never stop creeping
+    tm = select(load_dataset(xn / "single_rotor" / "xNova-TM-SR.csv"), Selection()).report
+    assert tm["plateaus_dropped_still_trending"] >= 5 and tm["kept_points"] >= 250
+    # the 1000 µs rest level is tare information
+    steps = select(load_dataset(xn / "single_rotor" / "xNova-SR-steps.csv"), Selection()).report
+    assert steps["tare_points"] >= 1 and abs(steps["tare_offset_n"]) < 0.1
+    # a strawson step at 1050 µs with the rotor at 0 rpm is not a map point
+    a1 = load_dataset(shared_data / "third-party-stands" / "strawson-5inch" / "a1_7.csv")
+    pts = select(a1, Selection())
+    assert pts.report["stopped_rotor_points_dropped"] == 1 and len(pts) == 10

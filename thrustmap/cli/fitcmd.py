@@ -316,6 +316,8 @@ def predict_cmd(
 @selection_options
 def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
     """Show how stand logs load: format, scale, ranges, and what selection keeps."""
+    from thrustmap.fitting.dataset import LAYOUTS
+
     sel = _selection(kw)
     for ds in load_datasets(files, _column_map(kw)):
         p = select(ds, sel)
@@ -330,5 +332,7 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
             f"voltage {np.min(ds.voltage_v):.2f}..{np.max(ds.voltage_v):.2f} V"
         )
         for k, v in ds.meta.items():
-            click.echo(f"  {k}: {v}")
-        click.echo(f"  selection: {p.report}")
+            note = LAYOUTS.get(v, "") if k == "layout" else ""
+            click.echo(f"  {k}: {v}" + (f" ({note})" if note else ""))
+        rules = ", ".join(f"{k}={v}" for k, v in p.report.items() if k != "file")
+        click.echo(f"  selection (what each rule did): {rules}")
