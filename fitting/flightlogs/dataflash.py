@@ -59,6 +59,8 @@ _FORMAT: dict[str, tuple[str, float | None]] = {
     "Q": ("<u8", None),
 }
 
+#: messages on the boot clock used to time messages that carry no time (EV before Copter 3.4)
+TIME_REFERENCE_MESSAGES = ("IMU", "ATT", "CTUN", "BARO", "RCOU", "CURR", "BAT", "RCIN", "MAG")
 #: EV ids (ArduCopter LogEvent)
 EV_ARMED, EV_DISARMED, EV_LAND_COMPLETE, EV_NOT_LANDED = 10, 11, 18, 28
 
@@ -145,7 +147,39 @@ class DataFlashLog:
             return np.asarray(cols["TimeUS"], float) * 1e-6
         if "TimeMS" in cols:
             return np.asarray(cols["TimeMS"], float) * 1e-3
-        raise DataFormatError(f"message {name} has no TimeUS/TimeMS column", file=self.path)
+        return self._time_from_neighbours(name)
+
+    def _time_from_neighbours(self, name: str) -> FloatArray:
+        """Times of a message without a time column (EV in Copter <= 3.3): each takes the time of
+        the nearest timestamped message written before it (after it, when none precedes)."""
+        f = self.by_name.get(name)
+        own = self.starts.get(f.type_id, np.zeros(0, np.int64)) if f else np.zeros(0, np.int64)
+        ref_pos: list[npt.NDArray[np.int64]] = []
+        ref_t: list[FloatArray] = []
+        for ref in TIME_REFERENCE_MESSAGES:  # boot-clock messages (GPS TimeMS is GPS time)
+            rf = self.by_name.get(ref)
+            if rf is None or not self.has(ref):
+                continue
+            col = next((c for c in ("TimeUS", "TimeMS") if c in rf.columns), None)
+            if col is None:
+                continue
+            ref_pos.append(self.starts[rf.type_id])
+            ref_t.append(
+                np.asarray(self.records(ref)[col], float) * (1e-6 if col == "TimeUS" else 1e-3)
+            )
+        if not len(own):
+            return np.zeros(0)
+        if not ref_pos:
+            raise DataFormatError(
+                f"message {name} has no TimeUS/TimeMS column and no timestamped message "
+                "(IMU, ATT, CTUN, ...) to time it by",
+                file=self.path,
+            )
+        pos = np.concatenate(ref_pos)
+        order = np.argsort(pos, kind="stable")
+        pos, t = pos[order], np.concatenate(ref_t)[order]
+        k = np.searchsorted(pos, own) - 1  # the timestamped message written just before
+        return np.asarray(t[np.clip(k, 0, len(t) - 1)], float)
 
     def params(self) -> dict[str, float]:
         cols = self.columns("PARM")
@@ -356,7 +390,11 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         fmt = df.by_name["CURR"].format[df.by_name["CURR"].columns.index("Volt")]
         if fmt in "hHiI":  # integer centivolts; 'c'/'f' forms are already volts
             volt = volt / 100.0
-        flight.voltage_v = _signal(df.time_s("CURR"), volt, "V", "CURR.Volt")
+        sensed = volt > 0.5  # 0 V: no voltage sensor connected (or not yet read)
+        if sensed.any():
+            flight.voltage_v = _signal(df.time_s("CURR")[sensed], volt[sensed], "V", "CURR.Volt")
+        else:
+            flight.warnings.append("CURR.Volt reads 0 V throughout: no battery voltage sensed")
     else:
         flight.warnings.append("no BAT or CURR messages: no battery voltage")
     # upward specific force: -IMU.AccZ (FRD body frame), first IMU only
@@ -378,6 +416,12 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             )
         if "ThH" in c:
             flight.extras["hover_throttle"] = _signal(t, c["ThH"], "1", "CTUN.ThH")
+        # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
+        if "Alt" in c:
+            flight.extras["height_m"] = _signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
+        if "CRt" in c:
+            crt = np.asarray(c["CRt"], float)
+            flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))

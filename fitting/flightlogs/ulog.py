@@ -39,6 +39,7 @@ TOPICS = [
     "vehicle_land_detected",
     "hover_thrust_estimate",
     "vehicle_attitude",
+    "vehicle_local_position",
 ]
 ARMING_STATE_ARMED = 2
 #: PX4 UAVCAN ESC raw command range
@@ -58,6 +59,19 @@ def _topics(ulog: Any) -> dict[tuple[str, int], Data]:
 
 def _time(data: Data, t0_us: int) -> FloatArray:
     return (np.asarray(data["timestamp"], dtype=np.int64) - int(t0_us)).astype(float) * 1e-6
+
+
+def _state_time(data: Data, t0_us: int) -> FloatArray:
+    """Times of a state topic (armed, landed). A log with appended data may hold state samples
+    stamped before its first data; the last of them still holds at the start, so it is stamped
+    at the start instead of being dropped (samples with timestamp 0 were never published)."""
+    raw = np.asarray(data["timestamp"], dtype=np.int64)
+    t = _time(data, t0_us)
+    early = np.flatnonzero((raw > 0) & (t < 0))
+    if len(early) and not (t == 0).any():
+        t = t.copy()
+        t[early[np.argmax(raw[early])]] = 0.0
+    return t
 
 
 def _signal(t: FloatArray, values: npt.ArrayLike, unit: str, origin: str) -> Signal:
@@ -224,19 +238,48 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         )
     if (vs := topic("vehicle_status")) is not None:
         flight.armed = _signal(
-            _time(vs, t0),
+            _state_time(vs, t0),
             np.asarray(vs["arming_state"]) == ARMING_STATE_ARMED,
             "bool",
             "vehicle_status.arming_state == 2",
         )
-    if (ld := topic("vehicle_land_detected")) is not None:
-        flight.landed = _signal(_time(ld, t0), ld["landed"], "bool", "vehicle_land_detected.landed")
+    ld = topic("vehicle_land_detected")
+    if ld is not None:
+        flight.landed = _signal(
+            _state_time(ld, t0), ld["landed"], "bool", "vehicle_land_detected.landed"
+        )
+    if ld is not None:
+        contact = [k for k in ("ground_contact", "maybe_landed") if k in ld]
+        if contact:
+            on_ground = np.zeros(len(ld["timestamp"]), bool)
+            for k in contact:
+                on_ground |= np.asarray(ld[k], bool)
+            flight.extras["ground_contact"] = _signal(
+                _state_time(ld, t0),
+                on_ground,
+                "bool",
+                "vehicle_land_detected." + " | ".join(contact),
+            )
+    if (lp := topic("vehicle_local_position")) is not None:
+        t_lp = _time(lp, t0)
+        ok = np.asarray(lp.get("z_valid", np.ones(len(t_lp))), bool)
+        flight.extras["height_m"] = _signal(
+            t_lp[ok], -np.asarray(lp["z"], float)[ok], "m", "-vehicle_local_position.z"
+        )
+        if "vz" in lp:
+            flight.extras["climb_mps"] = _signal(
+                t_lp[ok], -np.asarray(lp["vz"], float)[ok], "m/s", "-vehicle_local_position.vz"
+            )
     if (h := topic("hover_thrust_estimate")) is not None:
         valid = np.asarray(h.get("valid", np.ones(len(h["timestamp"]))), bool)
         ht = np.where(valid, np.asarray(h["hover_thrust"], float), np.nan)
         flight.hover_thrust_estimate = _signal(
             _time(h, t0), ht, "1", "hover_thrust_estimate.hover_thrust (valid only)"
         )
+        if "valid" in h:
+            flight.extras["hover_estimate_valid"] = _signal(
+                _state_time(h, t0), valid, "bool", "hover_thrust_estimate.valid"
+            )
     if (att := topic("vehicle_attitude")) is not None:
         q0, q1, q2, q3 = (np.asarray(att[f"q[{i}]"], float) for i in range(4))
         # body z axis vs earth z: R[2,2] = 1 - 2(q1² + q2²)
@@ -265,6 +308,11 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         found = _pwm_outputs(topics, t0, flight.armed)
         if found is not None:
             flight.motor_outputs, flight.motor_output_scale = found
+    for state in ("armed", "landed"):  # an empty step signal holds nothing: treat as absent
+        sig = getattr(flight, state)
+        if sig is not None and not len(sig):
+            setattr(flight, state, None)
+            warnings.append(f"{sig.origin}: no sample within the log's time span; not used")
     if flight.accel_up_mps2 is None:
         warnings.append("no sensor_combined / vehicle_acceleration: no upward specific force")
     if flight.voltage_v is None:

@@ -214,7 +214,17 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             w.define("CTUN", tfmt + "fffff", f"{tcol},ThI,ABst,ThO,ThH,Alt")
             w.define("RCOU", tfmt + "hhhhhhhh", f"{tcol}," + ",".join(f"C{i}" for i in range(1, 9)))
         w.define("ATT", tfmt + "cccc", f"{tcol},DesRoll,Roll,DesPitch,Pitch")
-        w.define("EV", tfmt + "B", f"{tcol},Id")
+        if old_firmware:  # Copter <= 3.3 writes EV without any timestamp (LOG_EVENT_MSG: Id only)
+            w.define("EV", "B", "Id")
+        else:
+            w.define("EV", tfmt + "B", f"{tcol},Id")
+
+        def event(t_s: float, ev_id: int) -> None:
+            if old_firmware:
+                w.write("EV", ev_id)
+            else:
+                w.write("EV", int(round((t_s + 1.0) * tmul)), ev_id)
+
         w.write("MSG", 0, b"ArduCopter V4.5.0-sim (thrustmap simulate)")
         for name, value in (
             ("MOT_PWM_MIN", scale.lo),
@@ -230,7 +240,7 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
         for k in range(len(flight.time_s)):
             tk = flight.time_s[k] + 1.0
             while ev_k < len(events) and events[ev_k][0] <= flight.time_s[k]:
-                w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
+                event(*events[ev_k])
                 ev_k += 1
             ts = int(round(tk * tmul))
             w.write("IMU", ts, 0.0, 0.0, 0.0, 0.0, 0.0, -float(flight.accel_up_mps2[k]))
@@ -258,7 +268,7 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             tilt = int(round(flight.tilt_deg[k] * 100))
             w.write("ATT", ts, 0, tilt, 0, 0)
         while ev_k < len(events):
-            w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
+            event(*events[ev_k])
             ev_k += 1
 
 
