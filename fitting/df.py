@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 G0 = 9.80665
 #: an altitude signal whose 5-95 % spread exceeds this while standing on the ground is not used
 GROUND_HEIGHT_SPREAD_M = 3.0
+#: fewer Df samples than this are too few for a γ fit (the report says why)
+MIN_DF_SAMPLES = 50
 #: a command at or above this fraction of full scale is saturated (thrust limited)
 SATURATED_NORM = 0.98
 DF_FORMAT = "thrustmap.df"
@@ -317,9 +319,43 @@ def _flight_id(flight: FlightLog) -> str:
     return f"{Path(flight.path).name}#{flight.index}"
 
 
+def select_motors(flight: FlightLog, rotors: int | None) -> FlightLog:
+    """The flight with exactly ``rotors`` motor-output columns when the user gave a count.
+
+    The readers take the motors from the log's frame (FRAME_CLASS / SERVOn_FUNCTION,
+    CA_ROTOR_COUNT, the blackbox motor fields); a count given by the user overrides that: the
+    first ``rotors`` of the frame's motors, or of all the log's outputs when it needs more."""
+    sig = flight.motor_outputs
+    if (
+        rotors is None
+        or sig is None
+        or sig.values.ndim != 2
+        or flight.metadata.get("motor_outputs_collective")
+    ):
+        return flight
+    have = sig.values.shape[1]
+    if have == rotors:
+        return flight
+    if rotors < have:
+        new = Signal(sig.time_s, sig.values[:, :rotors], sig.unit,
+                     f"{sig.origin} (first {rotors} of {have}: --rotors {rotors})")  # fmt: skip
+        note = f"--rotors {rotors}: only the first {rotors} of the {have} motor outputs summed"
+    else:
+        allo = flight.extras.get("outputs_all")
+        if allo is None or allo.values.ndim != 2 or allo.values.shape[1] < rotors:
+            raise ConfigError(
+                f"--rotors {rotors}, but the log has only {have} motor outputs ({sig.origin})"
+            )
+        new = Signal(allo.time_s, allo.values[:, :rotors], allo.unit,
+                     f"{allo.origin.split(',')[0]}..{rotors} (--rotors {rotors})")  # fmt: skip
+        note = f"--rotors {rotors}: outputs 1..{rotors} summed, the log's frame has {have} motors"
+    return replace(flight, motor_outputs=new, warnings=[*flight.warnings, note])
+
+
 def extract_flight(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
+    flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
     missing = [
         n for n, s in (("voltage", flight.voltage_v), ("upward acceleration", flight.accel_up_mps2))
@@ -405,7 +441,9 @@ def extract_flight(
         sat |= np.nan_to_num(norm_cmd, nan=0.0) >= SATURATED_NORM
         sat_what.append(f"normalised command ≥ {SATURATED_NORM:g}")
     if flight.motor_outputs is not None and flight.motor_output_scale is not None:
-        mpct = flight.motor_output_scale.to_pct(rs(flight.motor_outputs))
+        mpct = flight.motor_output_scale.to_pct(
+            _bin_mean(flight.motor_outputs, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        )
         if mpct.ndim == 2 and mpct.shape[1] > 1:
             sat |= np.nan_to_num(mpct, nan=0.0).max(axis=1) >= SATURATED_NORM * 100.0
             sat_what.append(f"a motor output ≥ {SATURATED_NORM:.0%} of its range")
@@ -456,6 +494,11 @@ def extract_flight(
             f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit}"
         )
         sources["motor_output_scale"] = sc.to_dict()
+        sources["motor_output_scale_source"] = flight.metadata.get(
+            "motor_output_scale_source", "not stated by the reader"
+        )
+        if "motor_channels" in flight.metadata:
+            sources["motor_channels"] = flight.metadata["motor_channels"]
     norm = rs(flight.thrust_cmd_norm)
     if norm is not None:
         cols["thrust_cmd_norm"] = norm
@@ -517,6 +560,13 @@ def extract_flight(
     for k, v in cols.items():
         table[k] = v
     table = table[keep].reset_index(drop=True)
+    if int(keep.sum()) < MIN_DF_SAMPLES:
+        worst = sorted((st for st in steps if st.dropped_s > 0), key=lambda st: -st.dropped_s)
+        warnings.append(
+            f"only {int(keep.sum())} samples of steady flight (fewer than {MIN_DF_SAMPLES}): too "
+            "short for a γ fit; most time dropped by "
+            + ", ".join(f"{st.name} {st.dropped_s:.1f} s ({st.reason})" for st in worst[:3])
+        )
     report = FlightReport(
         flight=fid,
         path=flight.path,

@@ -1,0 +1,193 @@
+"""What real logs mean (issue 13): event timing on old ArduCopter, in-air evidence, which
+outputs are motors, the throttle scale from the log's parameters."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support import simulate_flight as sim
+
+from thrustmap.errors import ConfigError
+from thrustmap.fitting.df import G0, DfOptions, extract
+from thrustmap.fitting.flightlogs import dataflash
+from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.fitting.mapfile import ThrustMap
+
+FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
+ARDU = "flightlogs/ardupilot"
+
+
+# -- 1. ArduCopter <= 3.3: EV has no timestamp ---------------------------------------------------
+
+
+def test_copter33_events_are_timed_by_their_neighbours(shared_data: Path) -> None:
+    """Copter 3.3 EV = Id only. Ids 10 ARMED, 15, 28 NOT_LANDED, 18 LAND_COMPLETE, 28, 18; each
+    takes the time of the timestamped message written just before it."""
+    path = shared_data / ARDU / "copter3.3_althold_pxf.bin"
+    log = dataflash.parse(path)
+    assert log.by_name["EV"].columns == ("Id",)
+    t_ev = log.time_s("EV")
+    assert log.columns("EV")["Id"].tolist() == [10, 15, 28, 18, 28, 18]
+    assert np.all(np.diff(t_ev) >= 0)
+    assert t_ev[2] == pytest.approx(10.49, abs=0.02) and t_ev[3] == pytest.approx(242.95, abs=0.02)
+    (fl,) = read_log(path)
+    assert fl.landed is not None
+    assert fl.landed.hold(np.array([5.0, 100.0, 243.5]))[1:].tolist() == [0.0, 1.0]
+    assert fl.armed is not None and fl.armed.hold(np.array([100.0]))[0] == 1.0
+
+
+def test_copter3_fixture_writes_ev_without_time_like_the_firmware() -> None:
+    truth = sim.simulate_hover(sim.FIXTURE_SIM)
+    path = FL / "sim_hover_copter3.bin"
+    log = dataflash.parse(path)
+    assert log.by_name["EV"].columns == ("Id",) and log.by_name["EV"].format == "B"
+    (fl,) = read_log(path)
+    assert fl.landed is not None
+    air = truth.time_s[truth.landed < 0.5] + 1.0  # the writer's clock starts at 1 s
+    flips = fl.landed.time_s[np.flatnonzero(np.diff(fl.landed.values)) + 1]
+    assert flips[0] == pytest.approx(air[0], abs=0.06)  # within one 20 Hz sample
+    assert flips[-1] == pytest.approx(air[-1], abs=0.06)
+
+
+# -- 2. spool-up on the ground and the takeoff ramp ----------------------------------------------
+
+
+def _spoolup_flight(*, height: bool, contact: bool) -> FlightLog:
+    """On the ground until 8 s with the land detector already saying 'flying' from 5 s and the
+    command ramping 0.1 -> 0.45 (hover 0.5): a_up = g there. Liftoff at 8 s, hover to 60 s."""
+    t = np.arange(0.0, 70.0, 0.02)
+    hover = 0.5
+    cmd = np.where(t < 5, 0.1, np.where(t < 8, 0.1 + (t - 5) / 3 * 0.35, hover))
+    cmd = np.where(t > 62, 0.1, cmd)
+    rng = np.random.default_rng(1)
+    acc = G0 + rng.normal(0, 0.05, len(t))
+    volt = 16.4 - 0.02 * t
+    fl = FlightLog(path="spoolup.sim", format="sim")
+    fl.voltage_v = Signal(t, volt, "V", "sim")
+    fl.accel_up_mps2 = Signal(t, acc, "m/s^2", "sim")
+    fl.thrust_cmd_norm = Signal(t, cmd, "1", "sim")
+    fl.armed = Signal(np.array([0.0, 1.0, 66.0]), np.array([0.0, 1.0, 0.0]), "bool", "sim")
+    fl.landed = Signal(np.array([0.0, 5.0, 62.0]), np.array([1.0, 0.0, 1.0]), "bool", "sim")
+    if height:
+        z = np.clip((t - 8.0) * 1.0, 0.0, 2.0) * (t < 61) + 0.01 * np.sin(t)
+        fl.extras["height_m"] = Signal(t, z, "m", "sim altitude")
+    if contact:
+        fl.extras["ground_contact"] = Signal(
+            np.array([0.0, 8.2, 61.5]), np.array([1.0, 0.0, 1.0]), "bool", "sim contact"
+        )
+    return fl
+
+
+@pytest.mark.parametrize(
+    ("height", "contact"), [(False, False), (True, False), (False, True), (True, True)]
+)
+def test_spool_up_on_the_ground_is_not_kept(height: bool, contact: bool) -> None:
+    df = extract([_spoolup_flight(height=height, contact=contact)], DfOptions(mass_kg=1.0))
+    t = df.table["time_s"].to_numpy()
+    assert len(t) > 400
+    assert t.min() > 8.0 + 2.0 - 0.05  # liftoff at 8 s plus the 2 s margin
+    assert np.all(df.table["thrust_cmd_norm"] > 0.45)
+    steps = {s.name: s.dropped_s for s in df.reports[0].steps}
+    # the seconds each in-air filter dropped are reported by name
+    dropped = sum(steps.get(k, 0.0) for k in ("liftoff", "height", "ground-contact"))
+    assert dropped >= 2.5
+
+
+def test_altitude_that_drifts_on_the_ground_is_questioned_not_used() -> None:
+    fl = _spoolup_flight(height=True, contact=False)
+    assert fl.extras["height_m"] is not None
+    hs = fl.extras["height_m"]
+    fl.extras["height_m"] = Signal(hs.time_s, hs.values - 10.0 * hs.time_s, "m", "hot baro")
+    df = extract([fl], DfOptions(mass_kg=1.0))
+    assert any("hot baro not used" in w for w in df.reports[0].warnings)
+    assert df.table["time_s"].min() > 10.0  # the command still marks liftoff
+
+
+def test_saturated_command_is_not_steady_flight() -> None:
+    fl = _spoolup_flight(height=False, contact=False)
+    assert fl.thrust_cmd_norm is not None
+    c = fl.thrust_cmd_norm
+    sat = np.where((c.time_s > 30) & (c.time_s < 40), 1.0, c.values)
+    fl.thrust_cmd_norm = Signal(c.time_s, sat, "1", "sim")
+    df = extract([fl], DfOptions(mass_kg=1.0, steady_tol=0.0))
+    t = df.table["time_s"]
+    assert not ((t > 30.1) & (t < 39.9)).any()
+    assert {s.name: s.dropped_s for s in df.reports[0].steps}["saturation"] > 9.5
+
+
+def test_copter34_spool_up_is_cut_from_the_real_log(shared_data: Path) -> None:
+    """On the 3.4 log NOT_LANDED flips at half of hover throttle; its baro drifts by hundreds
+    of metres (PXF), so the command marks liftoff. Kept commands are all near hover."""
+    (fl,) = read_log(shared_data / ARDU / "copter3.4_pxf_3s.bin")
+    df = extract([fl], DfOptions(mass_kg=1.2))
+    rep = df.reports[0]
+    steps = {s.name: s.dropped_s for s in rep.steps}
+    assert steps["liftoff"] > 30.0
+    assert any("CTUN.Alt" in w and "not used" in w for w in rep.warnings)
+    ratio = df.table["thrust_cmd_norm"] / df.table["accel_up_mps2"] * G0
+    assert ratio.min() > 0.45  # spool-up samples went down to 0.2
+
+
+# -- 3. which outputs are motors -----------------------------------------------------------------
+
+
+def test_servo_channels_are_not_rotors(shared_data: Path) -> None:
+    """Copter 3.4-rc2 quad: RCOU C5 is a servo, C6 moves, C7 sits at 1500 us; 'Frame: QUAD'."""
+    (fl,) = read_log(shared_data / ARDU / "copter3.4rc2_erlebrain3_servo_channels.bin")
+    assert fl.motor_outputs is not None
+    assert fl.motor_outputs.origin == "RCOU.C1,C2,C3,C4"
+    assert "Frame: QUAD" in fl.metadata["motor_channels"]
+    df = extract([fl], DfOptions(mass_kg=1.0))
+    assert df.sources["flights"][f"{Path(fl.path).name}#0"]["rotors"] == 4
+
+
+def test_motor_layout_from_parameters() -> None:
+    servo = {"SERVO1_FUNCTION": 33.0, "SERVO2_FUNCTION": 34.0, "SERVO3_FUNCTION": 1.0,
+             "SERVO4_FUNCTION": 36.0, "SERVO5_FUNCTION": 35.0}  # fmt: skip
+    chans, how = dataflash.motor_layout(servo, [])  # type: ignore[misc]
+    assert chans == [1, 2, 5, 4] and "SERVOn_FUNCTION" in how
+    hexa = dataflash.motor_layout({"FRAME_CLASS": 2.0, "SERVO7_FUNCTION": 7.0}, [])
+    assert hexa is not None and hexa[0] == [1, 2, 3, 4, 5, 6]
+    old = dataflash.motor_layout({"FRAME": 1.0, "RC5_FUNCTION": 7.0}, ["Frame: HEXA"])
+    assert old is not None and old[0] == [1, 2, 3, 4, 6, 7]  # output 5 drives a mount
+    assert dataflash.motor_layout({"FRAME": 1.0}, ["ArduCopter V3.3"]) is None
+
+
+def test_rotors_option_changes_what_is_summed() -> None:
+    tmap = ThrustMap.load(FL / "sim_map.json")
+    (fl,) = read_log(FL / "sim_hover.bin")
+    four = extract([fl], DfOptions(mass_kg=1.0), tmap)
+    three = extract([fl], DfOptions(mass_kg=1.0, rotors=3), tmap)
+    assert [c for c in three.table.columns if c.startswith("motor")] == [
+        "motor0_pct", "motor1_pct", "motor2_pct"
+    ]  # fmt: skip
+    ratio = (three.table["thrust_cmd_n"] / four.table["thrust_cmd_n"]).to_numpy()
+    assert 0.7 < float(np.median(ratio)) < 0.8  # three of four near-equal rotors
+    assert any("--rotors 3" in w for w in three.reports[0].warnings)
+    six = extract([fl], DfOptions(mass_kg=1.0, rotors=6), tmap)  # outputs 5, 6 are 0 us
+    assert "RCOU.C1..6" in six.sources["columns"]["motor_pct"]
+    with pytest.raises(ConfigError, match="only 4 motor outputs"):
+        extract(read_log(FL / "sim_hover.ulg"), DfOptions(mass_kg=1.0, rotors=6), tmap)
+
+
+# -- 6. ULog with appended data ------------------------------------------------------------------
+
+
+def test_ulog_with_appended_data_inspects(shared_data: Path) -> None:
+    """vehicle_land_detected's only sample is stamped before the first data: it still holds."""
+    from thrustmap.cli.flight import inspect_flight
+    from thrustmap.errors import DataFormatError
+
+    path = shared_data / "flightlogs/px4/pyulog_sample_appended_multiple.ulg"
+    (fl,) = read_log(path)
+    assert fl.landed is not None and fl.landed.time_s.tolist() == [0.0]
+    assert fl.landed.values.tolist() == [1.0]
+    info = inspect_flight(fl)
+    assert info["airborne_windows_s"] == []
+    assert info["fields"]["landed"]["samples"] == 1
+    # no battery_status in this log: extraction names what is missing
+    with pytest.raises(DataFormatError, match="no voltage"):
+        extract([fl], DfOptions(mass_kg=1.0))
