@@ -117,7 +117,10 @@ def test_read_simulated_flightlogs_normalised(fixtures_dir: Path) -> None:
     assert fl.motor_outputs is not None and fl.motor_outputs.values.shape == (1000, 4)
     np.testing.assert_array_equal(fl.motor_outputs.values, exp[:, 14:18])
     assert fl.motor_output_scale is not None
-    assert (fl.motor_output_scale.lo, fl.motor_output_scale.hi) == (158.0, 2047.0)
+    # DShot: the ESC's 0 % is 48; motorOutput's low end 158 is the armed idle (issue 13.4)
+    assert (fl.motor_output_scale.lo, fl.motor_output_scale.hi) == (48.0, 2047.0)
+    assert fl.metadata["motor_idle"] == 158.0
+    assert "idle" in fl.metadata["motor_output_scale_source"]
     assert fl.armed is not None
     np.testing.assert_array_equal(fl.armed.hold(np.array([5.0, 8.996, 9.0])), [1.0, 1.0, 0.0])
     assert fl.extras["current_a"].values[0] == pytest.approx(12.34)
@@ -274,8 +277,9 @@ def test_real_bf428_log(shared_data: Path) -> None:
     m = fl.motor_outputs
     assert m is not None and fl.motor_output_scale is not None
     assert m.values.shape[1] == 4
-    lo, hi = fl.motor_output_scale.lo, fl.motor_output_scale.hi
-    assert (lo, hi) == (158, 2047)
+    lo, hi = fl.metadata["motor_idle"], fl.motor_output_scale.hi
+    assert (fl.motor_output_scale.lo, lo, hi) == (48, 158, 2047)
+    assert "dshot_idle_value 5.5 %" in fl.metadata["motor_output_scale_source"]
     assert m.values.min() >= lo - 1 and m.values.max() <= hi  # 157.95 idle logs as 157
     assert fl.armed is not None and fl.armed.values[0] == 1 and fl.armed.values[-1] == 0
 

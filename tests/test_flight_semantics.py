@@ -191,3 +191,36 @@ def test_ulog_with_appended_data_inspects(shared_data: Path) -> None:
     # no battery_status in this log: extraction names what is missing
     with pytest.raises(DataFormatError, match="no voltage"):
         extract([fl], DfOptions(mass_kg=1.0))
+
+
+# -- 4. throttle scale from the log's own parameters ---------------------------------------------
+
+
+def test_px4_motor_range_from_pwm_main_min_max() -> None:
+    """actuator_motors 0..1 spans PWM_MAIN_MINn..MAXn (1100..1900 in the fixture): through a
+    1000..2000 us stand map the hover throttle must be the ESC's, not the control value."""
+    truth = sim.simulate_hover(sim.FIXTURE_SIM)
+    (fl,) = read_log(FL / "sim_hover.ulg")
+    sc = fl.motor_output_scale
+    assert sc is not None and (sc.lo, sc.hi, sc.unit) == (1100.0, 1900.0, "us")
+    assert fl.metadata["motor_output_scale_source"].startswith("PWM_MAIN_MIN1/MAX1 1100..1900")
+    assert fl.metadata["motor_channels"] == "CA_ROTOR_COUNT 4"
+    tmap = ThrustMap.load(FL / "sim_map.json")
+    df = extract([fl], DfOptions(mass_kg=1.0), tmap)
+    t = df.table
+    expect = np.interp(t["time_s"], truth.time_s, truth.throttle_pct.mean(axis=1))
+    assert float(np.median(np.abs(t["throttle_pct"] - expect))) < 0.05  # 1000..1900 read: 2.5
+    assert "PWM_MAIN_MIN1/MAX1" in df.sources["columns"]["motor_output_scale_source"]
+    (legacy,) = read_log(FL / "sim_hover_v1.9.ulg")
+    assert legacy.motor_output_scale is not None
+    assert (legacy.motor_output_scale.lo, legacy.motor_output_scale.hi) == (1075.0, 1950.0)
+    assert legacy.metadata["motor_output_scale_source"].startswith("PWM_MIN/PWM_MAX")
+
+
+def test_ardupilot_scale_names_its_parameters(shared_data: Path) -> None:
+    (fl,) = read_log(shared_data / ARDU / "copter3.4rc2_erlebrain3_servo_channels.bin")
+    src = fl.metadata["motor_output_scale_source"]
+    assert src.startswith("RC3_MIN/MAX 1079..1919 us (MOT_PWM_MIN/MAX unset)")
+    assert "MOT_SPIN_MIN 0.15" in src
+    (sim_fl,) = read_log(FL / "sim_hover.bin")
+    assert sim_fl.metadata["motor_output_scale_source"].startswith("MOT_PWM_MIN/MAX 1000..2000")

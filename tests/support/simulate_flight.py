@@ -296,14 +296,25 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
             "hover_thrust_estimate", [("float", "hover_thrust", 0), ("bool", "valid", 0)]
         )
         topics += [thr, mot, hte]
-    pwm = SCALES["pwm"].from_pct(flight.throttle_pct)
+    # the ESC range the log's parameters give (PWM_MAIN_MINn/MAXn, v1.14+; PWM_MIN/MAX before):
+    # deliberately not 1000..2000, so a reader that assumes it is caught
+    pwm = flight.stand_map.throttle_scale.from_pct(flight.throttle_pct)
+    lo_us, hi_us = (1075.0, 1950.0) if legacy else (1100.0, 1900.0)
+    params: dict[str, float | int] = {"MC_BAT_SCALE_EN": 0, "MPC_THR_HOVER": 0.4}
+    if legacy:
+        params.update({"MAV_TYPE": 2, "PWM_MIN": int(lo_us), "PWM_MAX": int(hi_us)})
+    else:
+        params["CA_ROTOR_COUNT"] = rot
+        for m in range(1, rot + 1):
+            params.update({f"PWM_MAIN_FUNC{m}": 100 + m, f"PWM_MAIN_MIN{m}": int(lo_us),
+                           f"PWM_MAIN_MAX{m}": int(hi_us)})  # fmt: skip
     for k in range(n):
         u = int(us[k])
         sc.rows.append((u, [0.0, 0.0, -float(flight.accel_up_mps2[k])]))
         half = np.radians(flight.tilt_deg[k]) / 2
         att.rows.append((u, [float(np.cos(half)), float(np.sin(half)), 0.0, 0.0]))
         tn = float(flight.thrust_norm[k])
-        norm = [float(x) for x in flight.throttle_pct[k] / 100.0]
+        norm = [float(x) for x in (pwm[k] - lo_us) / (hi_us - lo_us)]  # control 0..1
         if legacy:
             thr.rows.append((u, [0.0, 0.0, 0.0, tn, 0.0, 0.0, 0.0, 0.0]))
             outs.rows.append((u, rot, [float(x) for x in pwm[k]] + [900.0] * (16 - rot)))
@@ -323,7 +334,7 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
         path,
         topics,
         info={"sys_name": "PX4", "ver_hw": "SITL_SIM", "ver_sw_release": release},
-        params={"MC_BAT_SCALE_EN": 0, "MPC_THR_HOVER": 0.4},
+        params=params,
     )
 
 
