@@ -224,3 +224,32 @@ def test_ardupilot_scale_names_its_parameters(shared_data: Path) -> None:
     assert "MOT_SPIN_MIN 0.15" in src
     (sim_fl,) = read_log(FL / "sim_hover.bin")
     assert sim_fl.metadata["motor_output_scale_source"].startswith("MOT_PWM_MIN/MAX 1000..2000")
+
+
+# -- 5. ArduPilot telemetry logs -----------------------------------------------------------------
+
+
+def test_ardupilot_tlog_raw_imu_in_mg_and_a_mid_frame_start(tmp_path: Path) -> None:
+    """ArduCopter streams RAW_IMU / SCALED_IMU2 in mG, not HIGHRES_IMU; a recording joined
+    mid-frame is still a tlog (found by a chain of valid records, not by its first bytes)."""
+    from thrustmap.fitting.flightlogs.detect import detect
+
+    truth = sim.simulate_hover(sim.FIXTURE_SIM)
+    full = tmp_path / "ap.tlog"
+    sim.write_tlog(truth, full, ardupilot=True)
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(full.read_bytes()[5:])  # starts inside the first record
+    assert detect(cut).name == "tlog"
+    for path in (full, cut):
+        (fl,) = read_log(path)
+        a = fl.accel_up_mps2
+        assert a is not None and a.origin.startswith(("-SCALED_IMU2", "-RAW_IMU"))
+        idx = np.round((a.time_s - a.time_s[0]) * sim.FIXTURE_SIM.rate_hz).astype(int)
+        idx += int(round(truth.time_s[-1] * sim.FIXTURE_SIM.rate_hz)) - idx[-1] - 1  # cut start
+        expect = truth.accel_up_mps2[idx]
+        assert np.max(np.abs(a.values - expect)) < G0 / 1000 + 1e-6  # 1 mG steps
+        assert fl.thrust_cmd_norm is not None and "VFR_HUD" in fl.thrust_cmd_norm.origin
+        assert "height_m" in fl.extras and "climb_mps" in fl.extras
+        assert fl.metadata["motor_channels"].startswith("FRAME_CLASS 1")
+        assert fl.metadata["motor_output_scale_source"].startswith("MOT_PWM_MIN/MAX 1000..2000")
+        assert fl.motor_outputs is not None and fl.motor_outputs.values.shape[1] == 4

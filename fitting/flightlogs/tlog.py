@@ -111,8 +111,8 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
     vehicle: int | None = None
     autopilot: int | None = None
     vehicle_type: int | None = None
-    params: dict[str, float] = {}
-    texts: list[str] = []
+    params_by_src: dict[int, dict[str, float]] = {}
+    texts_by_src: dict[int, list[str]] = {}
     bad_bytes = 0
     total = 0
     try:
@@ -146,6 +146,17 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
                 vehicle = src
                 autopilot = int(m.autopilot)
                 vehicle_type = int(m.type)
+            if mtype == "PARAM_VALUE":  # kept per system: a cut recording may lack the first
+                pid = m.param_id  # heartbeat, and parameters are fetched once, early
+                name = pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)
+                params_by_src.setdefault(src, {})[name.rstrip("\x00")] = float(m.param_value)
+                continue
+            if mtype == "STATUSTEXT":
+                txt = m.text
+                texts_by_src.setdefault(src, []).append(
+                    txt.decode("ascii", "replace") if isinstance(txt, bytes) else str(txt)
+                )
+                continue
             if vehicle is None or src != vehicle:
                 continue
             t = float(m._timestamp)
@@ -168,13 +179,6 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
                 rows[mtype].append((t, [float(m.throttle) / 100.0, float(m.climb)]))
             elif mtype == "GLOBAL_POSITION_INT":
                 rows[mtype].append((t, float(m.relative_alt) / 1000.0))
-            elif mtype == "PARAM_VALUE":
-                pid = m.param_id
-                name = pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)
-                params[name.rstrip("\x00")] = float(m.param_value)
-            elif mtype == "STATUSTEXT":
-                txt = m.text
-                texts.append(txt.decode("ascii", "replace") if isinstance(txt, bytes) else str(txt))
             elif mtype == "ATTITUDE_TARGET":
                 rows[mtype].append((t, float(m.thrust)))
             elif mtype == "ATTITUDE":
@@ -188,6 +192,8 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         )
     if vehicle is None:
         raise DataFormatError("no vehicle HEARTBEAT in the telemetry log", file=str(path))
+    params = params_by_src.get(vehicle, {})
+    texts = texts_by_src.get(vehicle, [])
     t0 = min(r[0][0] for r in rows.values() if r)
     for r in rows.values():
         r[:] = [(t - t0, v) for t, v in r]

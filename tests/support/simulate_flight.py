@@ -338,9 +338,13 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
     )
 
 
-def write_tlog(flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9) -> None:
+def write_tlog(
+    flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9, ardupilot: bool = False
+) -> None:
     """MAVLink telemetry at 10 Hz: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, SERVO_OUTPUT_RAW,
-    HIGHRES_IMU, ATTITUDE_TARGET, ATTITUDE."""
+    HIGHRES_IMU, ATTITUDE_TARGET, ATTITUDE (PX4-like). ``ardupilot``: what ArduCopter streams
+    instead: RAW_IMU and SCALED_IMU2 in mG (no HIGHRES_IMU), VFR_HUD (throttle %, climb),
+    GLOBAL_POSITION_INT, PARAM_VALUE (FRAME_CLASS, MOT_PWM_MIN/MAX), no ATTITUDE_TARGET."""
     scale = flight.stand_map.throttle_scale
     pwm = scale.from_pct(flight.throttle_pct)
     step = max(1, int(round(flight.sim.rate_hz / 10.0)))
@@ -348,30 +352,49 @@ def write_tlog(flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9)
         w = TlogWriter(f)
         mav = w.encoder()
         gcs = TlogWriter(f, system_id=255, component_id=190).encoder()
+        autopilot = 3 if ardupilot else 12
         for k in range(0, len(flight.time_s), step):
             t = t0_unix_s + float(flight.time_s[k])
             if k % (step * 10) == 0:
-                w.write(t, mav.heartbeat_encode(2, 12, 128 | 1, 0, 4))
+                w.write(t, mav.heartbeat_encode(2, autopilot, 128 | 1, 0, 4))
+            if ardupilot and k == 0:  # the parameters a ground station fetched after connecting
+                for i, (name, value) in enumerate(
+                    (("FRAME_CLASS", 1.0), ("MOT_PWM_MIN", scale.lo), ("MOT_PWM_MAX", scale.hi))
+                ):
+                    w.write(t, mav.param_value_encode(name.encode(), value, 9, 3, i))
                 w.write(t, gcs.heartbeat_encode(6, 8, 0, 0, 0))
                 state = 1 if flight.landed[k] > 0.5 else 2
                 w.write(t, mav.extended_sys_state_encode(0, state))
             volt_mv = int(round(flight.voltage_v[k] * 1000))
             w.write(t, mav.sys_status_encode(0, 0, 0, 500, volt_mv, 2000, 80, 0, 0, 0, 0, 0, 0))
             a = float(flight.accel_up_mps2[k])
-            w.write(
-                t,
-                mav.highres_imu_encode(int(t * 1e6), 0, 0, -a, 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0),
-            )
+            if ardupilot:
+                mg = int(round(-a / G0 * 1000.0))
+                us = int(flight.time_s[k] * 1e6)
+                w.write(t, mav.raw_imu_encode(us, 0, 0, mg, 0, 0, 0, 0, 0, 0))
+                w.write(t, mav.scaled_imu2_encode(us // 1000, 0, 0, mg, 0, 0, 0, 0, 0, 0))
+                th = float(flight.thrust_norm[k])
+                w.write(t, mav.vfr_hud_encode(0.0, 0.0, 0, int(round(th * 100)), 0.0, 0.0))
+                h_mm = int(round(float(flight.height_m[k]) * 1000))
+                w.write(t, mav.global_position_int_encode(us // 1000, 0, 0, h_mm, h_mm, 0, 0, 0, 0))
+            else:
+                w.write(
+                    t,
+                    mav.highres_imu_encode(
+                        int(t * 1e6), 0, 0, -a, 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0
+                    ),
+                )
             servos = [int(round(x)) for x in pwm[k]] + [0] * (8 - pwm.shape[1])
             w.write(
                 t, mav.servo_output_raw_encode(int(flight.time_s[k] * 1e6) & 0xFFFFFFFF, 0, *servos)
             )
-            w.write(
-                t,
-                mav.attitude_target_encode(
-                    0, 0, [1, 0, 0, 0], 0, 0, 0, float(flight.thrust_norm[k])
-                ),
-            )
+            if not ardupilot:
+                w.write(
+                    t,
+                    mav.attitude_target_encode(
+                        0, 0, [1, 0, 0, 0], 0, 0, 0, float(flight.thrust_norm[k])
+                    ),
+                )
             r = float(np.radians(flight.tilt_deg[k]))
             w.write(t, mav.attitude_encode(0, r, 0.0, 0.0, 0.0, 0.0, 0.0))
 
