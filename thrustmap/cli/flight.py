@@ -209,9 +209,14 @@ def gamma_group() -> None:
     type=click.Choice(["auto", "0", "1", "2", "3"]),
     default="auto",
     show_default=True,
-    help="Polynomial degree in B; auto = by held-out error across flights.",
+    help="Polynomial degree in B; auto = one-standard-error rule over held-out folds.",
 )
 @click.option("--rotors", type=int, help="Rotor count, when the Df sidecar lacks it.")
+@click.option(
+    "--pool-mixed",
+    is_flag=True,
+    help="Fit one γ(B) over flights with different mass or rotor count (refused otherwise).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and metrics as JSON.")
 def gamma_fit_cmd(
     dfs: tuple[Path, ...],
@@ -220,6 +225,7 @@ def gamma_fit_cmd(
     loss: str,
     degree: str,
     rotors: int | None,
+    pool_mixed: bool,
     as_json: bool,
 ) -> None:
     """Fit γ(B) on DF... and write the map with its correction block."""
@@ -242,6 +248,7 @@ def gamma_fit_cmd(
         loss="l1" if loss == "l1" else "l2",
         degree=None if degree == "auto" else int(degree),
         rotors=rotors,
+        allow_mixed=pool_mixed,
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
     out_map = corrected_map(tmap, fit, sources)
@@ -254,9 +261,15 @@ def gamma_fit_cmd(
     click.echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
     click.echo(f"flown voltage {c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V; {fit.validation}")
     click.echo(
-        "held-out error by degree: "
-        + ", ".join(f"{d}: {e:.4g}" for d, e in sorted(fit.heldout.items()))
+        "held-out error by degree (± standard error; the simplest within one SE of the best "
+        "wins): "
+        + ", ".join(
+            f"{d}: {e:.4g} ± {fit.heldout_se.get(d, float('nan')):.2g}"
+            for d, e in sorted(fit.heldout.items())
+        )
     )
+    for w in fit.warnings:
+        click.echo(f"warning: {w}")
     m = fit.metrics
     for key in ("e_Th", "e_T"):
         b, a = m.get(f"{key}_before_pct"), m.get(f"{key}_after_pct")
