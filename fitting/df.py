@@ -315,6 +315,36 @@ def _in_air_evidence(
                   np.abs(np.nan_to_num(climb, nan=0.0)) <= opts.climb_max_mps)  # fmt: skip
 
 
+def _outside(values: FloatArray, lo: float, hi: float, what: str, unit: str) -> list[str]:
+    v = values[np.isfinite(values)]
+    if not len(v):
+        return []
+    out = []
+    below, above = v < lo, v > hi
+    if below.any():
+        out.append(
+            f"{below.mean():.0%} of the samples have {what} below the map's validity box "
+            f"{lo:g}..{hi:g} {unit}, by up to {lo - float(v.min()):.3g} {unit} (extrapolated)"
+        )
+    if above.any():
+        out.append(
+            f"{above.mean():.0%} of the samples have {what} above the map's validity box "
+            f"{lo:g}..{hi:g} {unit}, by up to {float(v.max()) - hi:.3g} {unit} (extrapolated)"
+        )
+    return out
+
+
+def map_extrapolation(
+    tmap: ThrustMap, voltage_v: FloatArray, thrust_per_rotor_n: FloatArray, what: str
+) -> list[str]:
+    """Warnings for Df samples outside the stand map's validity box (voltage, thrust), with how
+    far: there the map extrapolates and γ absorbs the map's error."""
+    box = tmap.validity
+    return _outside(
+        np.asarray(voltage_v, float), box.voltage_v.lo, box.voltage_v.hi, "battery voltage", "V"
+    ) + _outside(np.asarray(thrust_per_rotor_n, float), box.thrust_n.lo, box.thrust_n.hi, what, "N")
+
+
 def _flight_id(flight: FlightLog) -> str:
     return f"{Path(flight.path).name}#{flight.index}"
 
@@ -362,7 +392,12 @@ def extract_flight(
         if s is None or not len(s)
     ]  # fmt: skip
     if missing:
-        raise DataFormatError(f"flight log has no {' and no '.join(missing)}", file=flight.path)
+        why = [w for w in flight.warnings if "voltage" in w or "acceler" in w or "IMU" in w]
+        raise DataFormatError(
+            f"flight log has no {' and no '.join(missing)}: a Df needs both"
+            + (f" ({'; '.join(why)})" if why else ""),
+            file=flight.path,
+        )
     assert flight.accel_up_mps2 is not None and flight.voltage_v is not None
     mass = opts.mass_kg if opts.mass_kg is not None else flight.metadata.get("mass_kg")
     if mass is None:
@@ -560,6 +595,15 @@ def extract_flight(
     for k, v in cols.items():
         table[k] = v
     table = table[keep].reset_index(drop=True)
+    if tmap is not None and len(table) and rotors:
+        warnings.extend(
+            map_extrapolation(
+                tmap,
+                table["voltage_v"].to_numpy(float),
+                table["force_n"].to_numpy(float) / rotors,
+                "per-rotor thrust (F_m / rotors)",
+            )
+        )
     if int(keep.sum()) < MIN_DF_SAMPLES:
         worst = sorted((st for st in steps if st.dropped_s > 0), key=lambda st: -st.dropped_s)
         warnings.append(

@@ -29,7 +29,7 @@ import numpy.typing as npt
 import pandas as pd
 
 from thrustmap.errors import ConfigError, DataFormatError, FitError
-from thrustmap.fitting.df import motor_pct_in_map_scale, thrust_from_motors
+from thrustmap.fitting.df import map_extrapolation, motor_pct_in_map_scale, thrust_from_motors
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap
 from thrustmap.fitting.solve import Loss, solve
 from thrustmap.units import ThrottleScale
@@ -258,6 +258,11 @@ def fit_gamma(
     correction = GammaCorrection(
         coefficients=coef, voltage_v=Box(float(b.min()), float(b.max())), loss=loss
     )
+    if tmap is not None and rotors:
+        outside = map_extrapolation(tmap, b, force[ok] / rotors, "per-rotor thrust (F_m / rotors)")
+        for w in outside:
+            log.warning("γ fit: %s", w)
+        warnings.extend(outside)
     fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
     fit.heldout_se = heldout_se
     fit.warnings = warnings

@@ -253,3 +253,32 @@ def test_ardupilot_tlog_raw_imu_in_mg_and_a_mid_frame_start(tmp_path: Path) -> N
         assert fl.metadata["motor_channels"].startswith("FRAME_CLASS 1")
         assert fl.metadata["motor_output_scale_source"].startswith("MOT_PWM_MIN/MAX 1000..2000")
         assert fl.motor_outputs is not None and fl.motor_outputs.values.shape[1] == 4
+
+
+# -- 8. extrapolating the stand map --------------------------------------------------------------
+
+
+def test_df_outside_the_maps_validity_box_is_reported(tmp_path: Path) -> None:
+    """The sim map is valid for 20.4..25.2 V and 0..11 N per rotor; this flight drains to 19.6 V
+    and the map is cut to 0..2.3 N, below the hover thrust per rotor (~2.5 N)."""
+    from dataclasses import replace
+
+    from thrustmap.fitting.gamma import fit_gamma
+    from thrustmap.fitting.mapfile import Box
+
+    flight = sim.simulate_hover(
+        sim.HoverSim(duration_s=60.0, rate_hz=25.0, voltage_start_v=21.5, voltage_end_v=19.6)
+    )
+    sim.write_dataflash(flight, tmp_path / "low.bin")
+    tmap = flight.stand_map
+    tmap = replace(tmap, validity=replace(tmap.validity, thrust_n=Box(0.0, 2.3)))
+    df = extract(read_log(tmp_path / "low.bin"), DfOptions(mass_kg=1.0), tmap)
+    warnings = df.reports[0].warnings
+    volt = [w for w in warnings if "battery voltage below the map's validity box" in w]
+    assert volt and "20.4..25.2 V, by up to" in volt[0]
+    far = float(volt[0].split("by up to ")[1].split(" V")[0])
+    assert far == pytest.approx(20.4 - float(df.table["voltage_v"].min()), abs=1e-3)
+    assert far > 0.3
+    assert any("per-rotor thrust (F_m / rotors) above" in w for w in warnings)
+    fit = fit_gamma(df.table, df.sources, tmap)
+    assert any("validity box" in w for w in fit.warnings)

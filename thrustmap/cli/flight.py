@@ -174,7 +174,8 @@ def extract_cmd(
     df.sources["logs"] = [{"path": str(p), "sha256": file_sha256(p)} for p in logs if p.is_file()]
     if not len(df.table):
         raise ConfigError(
-            "no sample survived the filters: " + "; ".join(_summary(r) for r in df.reports)
+            "no steady flight to extract (0 samples; too short for a Df): "
+            + "; ".join(_summary(r) for r in df.reports)
         )
     side = write_df(df, output)
     if as_json:
