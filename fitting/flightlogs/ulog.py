@@ -12,6 +12,7 @@ Armed: vehicle_status.arming_state == 2; landed: vehicle_land_detected.landed.
 
 from __future__ import annotations
 
+import io
 import logging
 import re
 from pathlib import Path
@@ -192,21 +193,20 @@ def legacy_pwm_range(params: dict[str, Any], n: int) -> tuple[ThrottleScale, str
 _ULOG_TYPES = frozenset(b"BFIMPQARDLCSO")
 
 
-def check_integrity(path: Path) -> str | None:
+def check_integrity(path: Path, raw: bytes | None = None) -> str | None:
     """Walk the ULog message headers; describe a truncated or corrupt tail (None when intact)."""
-    import struct
-
-    raw = path.read_bytes()
+    if raw is None:
+        raw = path.read_bytes()
     n, pos = len(raw), 16
-    unpack = struct.Struct("<HB").unpack_from
-    while pos + 3 <= n:
-        size, kind = unpack(raw, pos)
-        if kind not in _ULOG_TYPES:
+    types = _ULOG_TYPES
+    while pos + 3 <= n:  # byte indexing: twice as fast as struct.unpack_from per header
+        kind = raw[pos + 2]
+        if kind not in types:
             return (
                 f"corrupt data at byte {pos} (message type {kind:#04x}); "
                 f"the {n - pos} bytes after it are not used"
             )
-        pos += 3 + size
+        pos += 3 + (raw[pos] | (raw[pos + 1] << 8))
     if pos > n:
         return f"corrupt tail: last message truncated at byte {n}; ignored"
     if pos < n:
@@ -230,10 +230,14 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         ) from None
     warnings: list[str] = []
     try:
-        ulog = ULog(str(path), message_name_filter_list=TOPICS, disable_str_exceptions=True)
+        raw = path.read_bytes()  # read once: pyulog parses it from memory, the walk reuses it
+    except OSError as exc:
+        raise DataFormatError(f"cannot read ULog: {exc.strerror}", file=str(path)) from None
+    try:
+        ulog = ULog(io.BytesIO(raw), message_name_filter_list=TOPICS, disable_str_exceptions=True)
     except Exception as exc:  # pyulog raises bare exceptions on malformed headers
         raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
-    problem = check_integrity(path)
+    problem = check_integrity(path, raw)
     if problem is not None:
         warnings.append(problem)
     elif getattr(ulog, "file_corruption", False):
