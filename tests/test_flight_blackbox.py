@@ -289,3 +289,24 @@ def test_simulated_header_layout_is_betaflight_like() -> None:
     hdr, defs, pos = bd.parse_headers(enc.header_bytes())
     assert defs["I"].names[:2] == ["loopIteration", "time"] and pos == len(enc.header_bytes())
     assert hdr["motorOutput"] == "158,2047" and bd._p_interval(hdr) == (1, 32)
+
+
+def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> None:
+    """Issue 13.9: main frames are first decoded without the per-field 32-bit wrap; that is
+    exact only while every value stays in range, which decode_log checks (else it re-decodes)."""
+    from dataclasses import replace
+
+    fd = bd.FrameDef(["a", "b"], [0, 1], [bd.PRED_PREVIOUS, bd.PRED_PREVIOUS],
+                     [bd.ENC_UNSIGNED_VB, bd.ENC_SIGNED_VB])  # fmt: skip
+    wrapped = bd.compile_frame(fd, constants={}, data_version=2)
+    raw = bd.compile_frame(fd, constants={}, data_version=2, wrap=False)
+    data = bytes([0x05, 0x02])  # a: +5, b: +1 (zig-zag)
+    prev = [0xFFFFFFFE, 0x7FFFFFFF]
+    assert wrapped(data, 0, prev, prev, 0, 0, [0, 0]) == ([3, -(1 << 31)], 2)
+    assert raw(data, 0, prev, prev, 0, 0, [0, 0]) == ([(1 << 32) + 3, 1 << 31], 2)
+    fl_dir = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
+    log = bd.decode_file((fl_dir / "bb_hover_sim.bbl").read_bytes())[0]
+    assert bd._in_32bit_range(log)
+    main = log.main.copy()
+    main[3, 0] = 1 << 32  # loopIteration is unsigned 32-bit
+    assert not bd._in_32bit_range(replace(log, main=main))
