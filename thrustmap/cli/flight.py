@@ -127,7 +127,11 @@ def readers_cmd() -> None:
 @click.option("--mass-kg", type=float, help="Vehicle take-off mass (kg); F_m = m·a_up.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Df CSV.")
-@click.option("--rotors", type=int, help="Rotor count (default: motor-output columns).")
+@click.option(
+    "--rotors",
+    type=int,
+    help="Rotor count: sums the first N motor outputs (default: the log's frame).",
+)
 @click.option(
     "--thrust-source",
     type=click.Choice(["auto", "log", "motors", "norm"]),
@@ -140,6 +144,16 @@ def readers_cmd() -> None:
 @click.option("--accel-tol", type=float, default=1.0, show_default=True, help="|a_up−g| max.")
 @click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
 @click.option("--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing.")
+@click.option(
+    "--min-height-m",
+    type=float,
+    default=0.5,
+    show_default=True,
+    help="Airborne only from this height above the takeoff level (0: off).",
+)
+@click.option(
+    "--climb-max", type=float, default=1.0, show_default=True, help="|climb rate| max, m/s."
+)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
 def extract_cmd(
@@ -153,6 +167,8 @@ def extract_cmd(
     accel_tol: float,
     tilt_max_deg: float,
     settle_s: float,
+    min_height_m: float,
+    climb_max: float,
     fmt: str | None,
     as_json: bool,
 ) -> None:
@@ -164,6 +180,8 @@ def extract_cmd(
         accel_tol_mps2=accel_tol,
         tilt_max_deg=tilt_max_deg,
         settle_s=settle_s,
+        min_height_m=min_height_m,
+        climb_max_mps=climb_max,
         thrust_source=thrust_source,
     )
     tmap = ThrustMap.load(map_path) if map_path else None
