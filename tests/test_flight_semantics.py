@@ -282,3 +282,16 @@ def test_df_outside_the_maps_validity_box_is_reported(tmp_path: Path) -> None:
     assert any("per-rotor thrust (F_m / rotors) above" in w for w in warnings)
     fit = fit_gamma(df.table, df.sources, tmap)
     assert any("validity box" in w for w in fit.warnings)
+
+
+def test_flight_cli_module_starts_without_numpy() -> None:
+    """`thrustmap flightlog --help` must not pay for numpy/pandas/the readers."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, thrustmap.cli.flight; "
+        "print(sorted(m for m in ('numpy', 'pandas', 'pyulog') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.df import DfOptions, airborne_windows, extract, read_df, write_df
-from thrustmap.fitting.flightlogs.detect import available, detect, read_log
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
-from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+
+if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
+    from thrustmap.fitting.flightlogs.series import FlightLog, Signal
 
 _FIELDS = (
     "voltage_v",
@@ -28,6 +26,8 @@ _FIELDS = (
 
 
 def _signal_info(sig: Signal) -> dict[str, Any]:
+    import numpy as np
+
     v = sig.values[np.isfinite(sig.values).all(axis=1)] if sig.values.ndim == 2 else sig.values
     v = v[np.isfinite(v)] if v.ndim == 1 else v
     dur = float(sig.time_s[-1] - sig.time_s[0]) if len(sig) > 1 else 0.0
@@ -47,6 +47,8 @@ def _signal_info(sig: Signal) -> dict[str, Any]:
 
 def inspect_flight(flight: FlightLog) -> dict[str, Any]:
     """What a flight log holds: duration, fields found (origin, rate, range), airborne windows."""
+    from thrustmap.fitting.df import airborne_windows
+
     fields = {
         name: _signal_info(sig)
         for name in _FIELDS
@@ -86,6 +88,8 @@ def flightlog_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
     """What is inside LOG: duration, fields found, airborne windows."""
+    from thrustmap.fitting.flightlogs.detect import detect, read_log
+
     out = []
     for path in logs:
         reader = detect(path) if fmt is None else None
@@ -117,6 +121,8 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
 @flightlog_group.command("readers")
 def readers_cmd() -> None:
     """List the flight-log readers and whether they are usable here."""
+    from thrustmap.fitting.flightlogs.detect import available
+
     for reader, why in available():
         state = "ok" if why is None else f"unavailable: {why}"
         click.echo(f"{reader.name:14s} {reader.description} ({state})")
@@ -173,6 +179,10 @@ def extract_cmd(
     as_json: bool,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
+    from thrustmap.fitting.df import DfOptions, extract, write_df
+    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+
     opts = DfOptions(
         mass_kg=mass_kg,
         rotors=rotors,
@@ -250,7 +260,9 @@ def gamma_fit_cmd(
     """Fit γ(B) on DF... and write the map with its correction block."""
     import pandas as pd
 
+    from thrustmap.fitting.df import read_df
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     tmap = ThrustMap.load(map_path)
     tables: list[pd.DataFrame] = []
