@@ -394,8 +394,8 @@ def extract_flight(
     if missing:
         why = [w for w in flight.warnings if "voltage" in w or "acceler" in w or "IMU" in w]
         raise DataFormatError(
-            f"flight log has no {' and no '.join(missing)}: a Df needs both"
-            + (f" ({'; '.join(why)})" if why else ""),
+            f"flight log has no {' and no '.join(missing)}: a Df needs the battery voltage and the "
+            "upward acceleration" + (f" ({'; '.join(why)})" if why else ""),
             file=flight.path,
         )
     assert flight.accel_up_mps2 is not None and flight.voltage_v is not None
@@ -408,8 +408,14 @@ def extract_flight(
     dt = 1.0 / opts.rate_hz
     centres: FloatArray = np.asarray(t0 + (np.arange(nbins) + 0.5) * dt, dtype=np.float64)
 
+    binned: dict[int, FloatArray] = {}  # each signal is binned once (callers do not mutate)
+
     def rs(sig: Signal | None) -> FloatArray | None:
-        return None if sig is None else _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        if sig is None:
+            return None
+        if id(sig) not in binned:
+            binned[id(sig)] = _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        return binned[id(sig)]
 
     a_up = rs(acc)
     volt = rs(flight.voltage_v)
@@ -476,9 +482,9 @@ def extract_flight(
         sat |= np.nan_to_num(norm_cmd, nan=0.0) >= SATURATED_NORM
         sat_what.append(f"normalised command ≥ {SATURATED_NORM:g}")
     if flight.motor_outputs is not None and flight.motor_output_scale is not None:
-        mpct = flight.motor_output_scale.to_pct(
-            _bin_mean(flight.motor_outputs, t0, opts.rate_hz, nbins, opts.max_gap_s)
-        )
+        binned_motors = rs(flight.motor_outputs)
+        assert binned_motors is not None
+        mpct = flight.motor_output_scale.to_pct(binned_motors)
         if mpct.ndim == 2 and mpct.shape[1] > 1:
             sat |= np.nan_to_num(mpct, nan=0.0).max(axis=1) >= SATURATED_NORM * 100.0
             sat_what.append(f"a motor output ≥ {SATURATED_NORM:.0%} of its range")
