@@ -295,3 +295,18 @@ def test_flight_cli_module_starts_without_numpy() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_px4_in_air_evidence_is_read(shared_data: Path) -> None:
+    """PX4 v1.15 SITL: landed flips at 16.7 s, ground_contact / maybe_landed at 16.85 s, the
+    hover-thrust estimate becomes valid at 22.5 s; altitude and climb from the local position."""
+    (fl,) = read_log(shared_data / "flightlogs/px4/sitl_v1.15_sample_px4_events.ulg")
+    gc = fl.extras["ground_contact"]
+    assert gc.hold(np.array([16.8, 16.9, 27.5]))[:2].tolist() == [1.0, 0.0]
+    assert gc.hold(np.array([27.5]))[0] == 1.0  # touchdown
+    hv = fl.extras["hover_estimate_valid"]
+    assert hv.hold(np.array([22.4, 22.6])).tolist() == [0.0, 1.0]
+    assert fl.extras["height_m"].values.max() == pytest.approx(2.2, abs=0.1)
+    assert "vehicle_local_position.vz" in fl.extras["climb_mps"].origin
+    df = extract([fl], DfOptions(mass_kg=1.5, settle_s=0.5))
+    assert df.table["time_s"].min() > 22.4  # nothing before the autopilot's own evidence
