@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 G0 = 9.80665
 #: an altitude signal whose 5-95 % spread exceeds this while standing on the ground is not used
 GROUND_HEIGHT_SPREAD_M = 3.0
+#: an accelerometer logged slower than this aliases vibration into a_up (the report says so)
+MIN_ACCEL_RATE_HZ = 20.0
 #: fewer Df samples than this are too few for a γ fit (the report says why)
 MIN_DF_SAMPLES = 50
 #: a command at or above this fraction of full scale is saturated (thrust limited)
@@ -437,6 +439,13 @@ def extract_flight(
         )
 
     warnings = list(flight.warnings)
+    span_s = float(acc.time_s[-1] - acc.time_s[0]) if len(acc) > 1 else 0.0
+    acc_rate_hz = (len(acc) - 1) / span_s if span_s > 0 else 0.0
+    if 0 < acc_rate_hz < MIN_ACCEL_RATE_HZ:
+        warnings.append(
+            f"upward acceleration logged at only {acc_rate_hz:.0f} Hz ({acc.origin}): vibration "
+            "aliases into a_up, so F_m scatters; log the IMU faster for a tighter γ"
+        )
     apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (log gap)", has_data)
     if flight.armed is not None:
         apply("armed", "disarmed", flight.armed.hold(centres) > 0.5)

@@ -310,3 +310,11 @@ def test_px4_in_air_evidence_is_read(shared_data: Path) -> None:
     assert "vehicle_local_position.vz" in fl.extras["climb_mps"].origin
     df = extract([fl], DfOptions(mass_kg=1.5, settle_s=0.5))
     assert df.table["time_s"].min() > 22.4  # nothing before the autopilot's own evidence
+
+
+def test_slow_accelerometer_logging_is_reported(shared_data: Path) -> None:
+    """PX4 v1.9 FMUv3 log: sensor_combined at ~9 Hz."""
+    df = extract(read_log(shared_data / "flightlogs/px4/fmuv3_v1.9_esc_status.ulg"),
+                 DfOptions(mass_kg=2.0))  # fmt: skip
+    assert any("logged at only 9 Hz" in w for w in df.reports[0].warnings)
+    assert any("only 32 samples of steady flight" in w for w in df.reports[0].warnings)
