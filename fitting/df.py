@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,14 @@ from thrustmap.units import ThrottleScale
 log = logging.getLogger(__name__)
 
 G0 = 9.80665
+#: an altitude signal whose 5-95 % spread exceeds this while standing on the ground is not used
+GROUND_HEIGHT_SPREAD_M = 3.0
+#: an accelerometer logged slower than this aliases vibration into a_up (the report says so)
+MIN_ACCEL_RATE_HZ = 20.0
+#: fewer Df samples than this are too few for a γ fit (the report says why)
+MIN_DF_SAMPLES = 50
+#: a command at or above this fraction of full scale is saturated (thrust limited)
+SATURATED_NORM = 0.98
 DF_FORMAT = "thrustmap.df"
 BoolArray = npt.NDArray[np.bool_]
 
@@ -50,6 +58,9 @@ class DfOptions:
     steady_tol: float = 0.15  # keep |cmd − running median| ≤ this fraction of the median
     steady_window_s: float = 3.0
     accel_smooth_s: float = 0.5  # centred running mean of a_up (IMU vibration, aliasing)
+    min_height_m: float = 0.5  # airborne only this far above the takeoff level (spool-up, ramp)
+    climb_max_mps: float = 1.0  # keep |climb rate| ≤ this (takeoff ramp, climbs, descents)
+    liftoff_frac: float = 0.9  # airborne from when the command first reaches this × hover
     thrust_source: str = "auto"  # auto | log (thrust_cmd_n) | motors | norm
 
     def __post_init__(self) -> None:
@@ -187,20 +198,208 @@ def thrust_from_motors(
 # -- extraction ----------------------------------------------------------------------------------
 
 
+def _ground_level(height: FloatArray, stay: tuple[int, int]) -> float:
+    """Median height over the last second (10 bins) of a stay on the ground... or its first
+    second when it is the stay after a landing (callers pass the slice they mean)."""
+    a, b = stay
+    seg = height[a:b]
+    return float(np.nanmedian(seg)) if np.isfinite(seg).any() else float("nan")
+
+
+def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
+    """Why an altitude signal cannot be trusted near the ground (None when it can): while the
+    vehicle stands on the ground its altitude must stay put (a hot barometer drifts by metres)."""
+    if not np.isfinite(height).any():
+        return "no altitude samples"
+    for a, b in _runs(ground):
+        seg = height[a:b]
+        seg = seg[np.isfinite(seg)]
+        if len(seg) >= 10:
+            lo, hi = np.percentile(seg, [5, 95])
+            if hi - lo > GROUND_HEIGHT_SPREAD_M:
+                return f"altitude moves {hi - lo:.1f} m while the vehicle stands on the ground"
+    return None
+
+
+def _in_air_evidence(
+    flight: FlightLog,
+    centres: FloatArray,
+    rs: Any,
+    opts: DfOptions,
+    apply: Any,
+    warnings: list[str],
+    cmd_pct: FloatArray | None,
+) -> None:
+    """Drop spool-up on the ground and the takeoff ramp with the autopilot's own in-air evidence.
+
+    PX4's ``landed`` and ArduPilot's NOT_LANDED flip before the vehicle leaves the ground (the
+    IMU reads ≈ g there, so the hover filter alone keeps ground samples). So, in this order:
+    the land detector must report no ground contact (PX4 ground_contact / maybe_landed) and the
+    autopilot's hover-thrust estimator must be valid (PX4); each airborne stretch then starts
+    only once the vehicle is ``min_height_m`` above the level it took off from (altitude
+    signal, when it holds still on the ground) and the command has reached
+    ``liftoff_frac`` of the stretch's hover command (the vehicle cannot leave the ground
+    before), and ends symmetrically before landing; the climb rate must stay within
+    ``climb_max_mps``. A margin of ``settle_s`` is trimmed afterwards by the caller."""
+    ex = flight.extras
+    n = len(centres)
+    gc = ex.get("ground_contact")
+    if gc is not None and len(gc):
+        apply("ground-contact", f"land detector reports ground contact ({gc.origin})",
+              gc.hold(centres) < 0.5)  # fmt: skip
+    hv = ex.get("hover_estimate_valid")
+    if hv is not None and len(hv):
+        apply("hover-estimate", f"autopilot's hover-thrust estimate not valid ({hv.origin})",
+              hv.hold(centres) > 0.5)  # fmt: skip
+    # airborne stretches by the state signals alone (data gaps must not start a new stretch)
+    ground = np.zeros(n, bool)
+    if flight.armed is not None:
+        ground |= flight.armed.hold(centres) < 0.5
+    if flight.landed is not None:
+        ground |= flight.landed.hold(centres) > 0.5
+    if gc is not None and len(gc):
+        ground |= gc.hold(centres) > 0.5
+    stays = _runs(ground)
+    stretches = _runs(~ground)
+    hs = ex.get("height_m")
+    height = rs(hs) if hs is not None and len(hs) else None
+    if height is not None:
+        why = _height_trusted(height, ground)
+        if why is not None:
+            warnings.append(f"{hs.origin if hs else 'altitude'} not used: {why}")
+            height = None
+    if height is not None and opts.min_height_m > 0:
+        ok = np.ones(n, bool)
+        for a, b in stretches:
+            before = [st for st in stays if st[1] <= a]
+            after = [st for st in stays if st[0] >= b]
+            if before:
+                sa, sb = before[-1]
+                lvl = _ground_level(height, (max(sa, sb - 10), sb))
+                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
+                ok[a : a + (int(up[0]) if len(up) else b - a)] = False
+            if after:
+                sa, sb = after[0]
+                lvl = _ground_level(height, (sa, min(sb, sa + 10)))
+                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
+                ok[(a + int(up[-1]) + 1 if len(up) else a) : b] = False
+        apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or "
+              f"after leaving it before landing ({hs.origin if hs else ''})", ok)  # fmt: skip
+    if cmd_pct is not None and opts.liftoff_frac > 0:
+        ok = np.ones(n, bool)
+        hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
+        est = rs(hover) * 100.0 if hover is not None else None
+        for a, b in stretches:
+            c = cmd_pct[a:b]
+            if not np.isfinite(c).any():
+                continue
+            level = (
+                float(np.nanmedian(est[a:b]))
+                if est is not None and np.isfinite(est[a:b]).any()
+                else float(np.nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
+            )
+            with np.errstate(invalid="ignore"):
+                up = np.flatnonzero(c >= opts.liftoff_frac * level)
+            if not len(up):
+                ok[a:b] = False
+                continue
+            ok[a : a + int(up[0])] = False
+            ok[a + int(up[-1]) + 1 : b] = False
+        apply("liftoff", f"command below {opts.liftoff_frac:.0%} of the hover command before "
+              "liftoff or after touchdown (spool-up / spool-down on the ground)", ok)  # fmt: skip
+    cs = ex.get("climb_mps")
+    if cs is not None and len(cs) and opts.climb_max_mps > 0:
+        climb = rs(cs)
+        if np.nanmax(np.abs(climb)) > 50.0:
+            warnings.append(f"{cs.origin} not used: climb rates above 50 m/s are not physical")
+        else:
+            apply("climb", f"|climb rate| > {opts.climb_max_mps:g} m/s ({cs.origin})",
+                  np.abs(np.nan_to_num(climb, nan=0.0)) <= opts.climb_max_mps)  # fmt: skip
+
+
+def _outside(values: FloatArray, lo: float, hi: float, what: str, unit: str) -> list[str]:
+    v = values[np.isfinite(values)]
+    if not len(v):
+        return []
+    out = []
+    below, above = v < lo, v > hi
+    if below.any():
+        out.append(
+            f"{below.mean():.0%} of the samples have {what} below the map's validity box "
+            f"{lo:g}..{hi:g} {unit}, by up to {lo - float(v.min()):.3g} {unit} (extrapolated)"
+        )
+    if above.any():
+        out.append(
+            f"{above.mean():.0%} of the samples have {what} above the map's validity box "
+            f"{lo:g}..{hi:g} {unit}, by up to {float(v.max()) - hi:.3g} {unit} (extrapolated)"
+        )
+    return out
+
+
+def map_extrapolation(
+    tmap: ThrustMap, voltage_v: FloatArray, thrust_per_rotor_n: FloatArray, what: str
+) -> list[str]:
+    """Warnings for Df samples outside the stand map's validity box (voltage, thrust), with how
+    far: there the map extrapolates and γ absorbs the map's error."""
+    box = tmap.validity
+    return _outside(
+        np.asarray(voltage_v, float), box.voltage_v.lo, box.voltage_v.hi, "battery voltage", "V"
+    ) + _outside(np.asarray(thrust_per_rotor_n, float), box.thrust_n.lo, box.thrust_n.hi, what, "N")
+
+
 def _flight_id(flight: FlightLog) -> str:
     return f"{Path(flight.path).name}#{flight.index}"
+
+
+def select_motors(flight: FlightLog, rotors: int | None) -> FlightLog:
+    """The flight with exactly ``rotors`` motor-output columns when the user gave a count.
+
+    The readers take the motors from the log's frame (FRAME_CLASS / SERVOn_FUNCTION,
+    CA_ROTOR_COUNT, the blackbox motor fields); a count given by the user overrides that: the
+    first ``rotors`` of the frame's motors, or of all the log's outputs when it needs more."""
+    sig = flight.motor_outputs
+    if (
+        rotors is None
+        or sig is None
+        or sig.values.ndim != 2
+        or flight.metadata.get("motor_outputs_collective")
+    ):
+        return flight
+    have = sig.values.shape[1]
+    if have == rotors:
+        return flight
+    if rotors < have:
+        new = Signal(sig.time_s, sig.values[:, :rotors], sig.unit,
+                     f"{sig.origin} (first {rotors} of {have}: --rotors {rotors})")  # fmt: skip
+        note = f"--rotors {rotors}: only the first {rotors} of the {have} motor outputs summed"
+    else:
+        allo = flight.extras.get("outputs_all")
+        if allo is None or allo.values.ndim != 2 or allo.values.shape[1] < rotors:
+            raise ConfigError(
+                f"--rotors {rotors}, but the log has only {have} motor outputs ({sig.origin})"
+            )
+        new = Signal(allo.time_s, allo.values[:, :rotors], allo.unit,
+                     f"{allo.origin.split(',')[0]}..{rotors} (--rotors {rotors})")  # fmt: skip
+        note = f"--rotors {rotors}: outputs 1..{rotors} summed, the log's frame has {have} motors"
+    return replace(flight, motor_outputs=new, warnings=[*flight.warnings, note])
 
 
 def extract_flight(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
+    flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
     missing = [
         n for n, s in (("voltage", flight.voltage_v), ("upward acceleration", flight.accel_up_mps2))
         if s is None or not len(s)
     ]  # fmt: skip
     if missing:
-        raise DataFormatError(f"flight log has no {' and no '.join(missing)}", file=flight.path)
+        why = [w for w in flight.warnings if "voltage" in w or "acceler" in w or "IMU" in w]
+        raise DataFormatError(
+            f"flight log has no {' and no '.join(missing)}: a Df needs the battery voltage and the "
+            "upward acceleration" + (f" ({'; '.join(why)})" if why else ""),
+            file=flight.path,
+        )
     assert flight.accel_up_mps2 is not None and flight.voltage_v is not None
     mass = opts.mass_kg if opts.mass_kg is not None else flight.metadata.get("mass_kg")
     if mass is None:
@@ -211,8 +410,14 @@ def extract_flight(
     dt = 1.0 / opts.rate_hz
     centres: FloatArray = np.asarray(t0 + (np.arange(nbins) + 0.5) * dt, dtype=np.float64)
 
+    binned: dict[int, FloatArray] = {}  # each signal is binned once (callers do not mutate)
+
     def rs(sig: Signal | None) -> FloatArray | None:
-        return None if sig is None else _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        if sig is None:
+            return None
+        if id(sig) not in binned:
+            binned[id(sig)] = _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        return binned[id(sig)]
 
     a_up = rs(acc)
     volt = rs(flight.voltage_v)
@@ -234,6 +439,13 @@ def extract_flight(
         )
 
     warnings = list(flight.warnings)
+    span_s = float(acc.time_s[-1] - acc.time_s[0]) if len(acc) > 1 else 0.0
+    acc_rate_hz = (len(acc) - 1) / span_s if span_s > 0 else 0.0
+    if 0 < acc_rate_hz < MIN_ACCEL_RATE_HZ:
+        warnings.append(
+            f"upward acceleration logged at only {acc_rate_hz:.0f} Hz ({acc.origin}): vibration "
+            "aliases into a_up, so F_m scatters; log the IMU faster for a tighter γ"
+        )
     apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (log gap)", has_data)
     if flight.armed is not None:
         apply("armed", "disarmed", flight.armed.hold(centres) > 0.5)
@@ -245,6 +457,21 @@ def extract_flight(
     else:
         airborne = np.ones(nbins, bool)
         warnings.append("no landed state in the log: airborne time judged by the filters alone")
+    cmd_for_steady = rs(flight.thrust_cmd_n) if flight.thrust_cmd_n is not None else None
+    if cmd_for_steady is None:
+        cmd_for_steady = rs(flight.thrust_cmd_norm)
+    if cmd_for_steady is None and flight.motor_outputs is not None:
+        m = rs(flight.motor_outputs)
+        if m is not None and flight.motor_output_scale is not None:
+            m = flight.motor_output_scale.to_pct(m)
+        cmd_for_steady = None if m is None else (m.mean(axis=1) if m.ndim == 2 else m)
+    cmd_pct = cmd_for_steady
+    if cmd_pct is not None and flight.thrust_cmd_n is None and flight.thrust_cmd_norm is not None:
+        cmd_pct = cmd_pct * 100.0
+    _in_air_evidence(
+        flight, centres, rs, opts, apply, warnings,
+        cmd_pct if flight.thrust_cmd_n is None else None,
+    )  # fmt: skip
     # takeoff / landing transients: trim settle_s from both ends of every airborne run
     settled = np.zeros(nbins, bool)
     trim = int(round(opts.settle_s * opts.rate_hz))
@@ -257,12 +484,21 @@ def extract_flight(
         f"|a_up − g| > {opts.accel_tol_mps2:g} m/s² (not near hover)",
         np.abs(np.nan_to_num(a_up, nan=np.inf) - G0) <= opts.accel_tol_mps2,
     )
-    cmd_for_steady = rs(flight.thrust_cmd_n) if flight.thrust_cmd_n is not None else None
-    if cmd_for_steady is None:
-        cmd_for_steady = rs(flight.thrust_cmd_norm)
-    if cmd_for_steady is None and flight.motor_outputs is not None:
-        m = rs(flight.motor_outputs)
-        cmd_for_steady = None if m is None else (m.mean(axis=1) if m.ndim == 2 else m)
+    sat = np.zeros(nbins, bool)
+    sat_what = []
+    norm_cmd = rs(flight.thrust_cmd_norm)
+    if norm_cmd is not None:
+        sat |= np.nan_to_num(norm_cmd, nan=0.0) >= SATURATED_NORM
+        sat_what.append(f"normalised command ≥ {SATURATED_NORM:g}")
+    if flight.motor_outputs is not None and flight.motor_output_scale is not None:
+        binned_motors = rs(flight.motor_outputs)
+        assert binned_motors is not None
+        mpct = flight.motor_output_scale.to_pct(binned_motors)
+        if mpct.ndim == 2 and mpct.shape[1] > 1:
+            sat |= np.nan_to_num(mpct, nan=0.0).max(axis=1) >= SATURATED_NORM * 100.0
+            sat_what.append(f"a motor output ≥ {SATURATED_NORM:.0%} of its range")
+    if sat_what:
+        apply("saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat)
     if cmd_for_steady is not None and keep.any():
         level = float(np.nanmedian(cmd_for_steady[keep]))
         with np.errstate(invalid="ignore"):
@@ -308,6 +544,11 @@ def extract_flight(
             f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit}"
         )
         sources["motor_output_scale"] = sc.to_dict()
+        sources["motor_output_scale_source"] = flight.metadata.get(
+            "motor_output_scale_source", "not stated by the reader"
+        )
+        if "motor_channels" in flight.metadata:
+            sources["motor_channels"] = flight.metadata["motor_channels"]
     norm = rs(flight.thrust_cmd_norm)
     if norm is not None:
         cols["thrust_cmd_norm"] = norm
@@ -369,6 +610,22 @@ def extract_flight(
     for k, v in cols.items():
         table[k] = v
     table = table[keep].reset_index(drop=True)
+    if tmap is not None and len(table) and rotors:
+        warnings.extend(
+            map_extrapolation(
+                tmap,
+                table["voltage_v"].to_numpy(float),
+                table["force_n"].to_numpy(float) / rotors,
+                "per-rotor thrust (F_m / rotors)",
+            )
+        )
+    if int(keep.sum()) < MIN_DF_SAMPLES:
+        worst = sorted((st for st in steps if st.dropped_s > 0), key=lambda st: -st.dropped_s)
+        warnings.append(
+            f"only {int(keep.sum())} samples of steady flight (fewer than {MIN_DF_SAMPLES}): too "
+            "short for a γ fit; most time dropped by "
+            + ", ".join(f"{st.name} {st.dropped_s:.1f} s ({st.reason})" for st in worst[:3])
+        )
     report = FlightReport(
         flight=fid,
         path=flight.path,

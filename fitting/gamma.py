@@ -3,8 +3,13 @@
 γ_j = T_c,j / F_m,j per Df sample; γ(B) is a polynomial of degree 0-3 in the battery voltage,
 fitted by least squares or least absolute deviations (eq. 11, exact LP). The degree is chosen by
 held-out error: leave-one-flight-out when the Df holds several flights, otherwise contiguous
-time blocks of the one flight. The smallest degree within 2 % of the best held-out error wins
-(the paper settled on degree 2 for the same reason: higher degrees were not better).
+time blocks of the one flight. The one-standard-error rule picks it: the simplest degree whose
+held-out error is within one standard error (over the folds) of the best one, so a higher
+degree must be clearly better, not just better on this draw (the paper settled on degree 2
+for the same reason). A degree needs ``MIN_SAMPLES_PER_COEF`` samples per coefficient, and a
+slope needs ``MIN_SLOPE_SPAN_V`` of battery span: on a narrower span the automatic choice is
+degree 0 and a warning says why. Flights with different mass or rotor count are not pooled
+unless asked (``allow_mixed``): their γ need not be the same function of B.
 
 Metrics (per sample, then mean ± std, overall and binned by voltage):
 - e_Th = |Th − f̂(F_m/n, B)| before, |Th − f̂(γ(B)·F_m/n, B)| after (throttle %), where Th is the
@@ -24,7 +29,7 @@ import numpy.typing as npt
 import pandas as pd
 
 from thrustmap.errors import ConfigError, DataFormatError, FitError
-from thrustmap.fitting.df import motor_pct_in_map_scale, thrust_from_motors
+from thrustmap.fitting.df import map_extrapolation, motor_pct_in_map_scale, thrust_from_motors
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap
 from thrustmap.fitting.solve import Loss, solve
 from thrustmap.units import ThrottleScale
@@ -33,9 +38,11 @@ log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 DEGREES = (0, 1, 2, 3)
-#: a higher degree must beat the best simpler one by more than this (relative) to be chosen
-DEGREE_TOLERANCE = 0.02
 DEFAULT_BLOCKS = 5
+#: samples needed per polynomial coefficient for a degree to be a candidate
+MIN_SAMPLES_PER_COEF = 10
+#: battery-voltage span below which a γ slope cannot be told from noise and drift
+MIN_SLOPE_SPAN_V = 0.5
 
 
 @dataclass
@@ -47,6 +54,8 @@ class GammaFit:
     validation: str  # "leave-one-flight-out (k flights)" or "k contiguous time blocks"
     samples: int
     metrics: dict[str, Any] = field(default_factory=dict)
+    heldout_se: dict[int, float] = field(default_factory=dict)  # standard error over folds
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -55,6 +64,9 @@ class GammaFit:
             "coefficients": list(self.correction.coefficients),
             "voltage_v": self.correction.voltage_v.to_list(),
             "heldout_error": {str(k): v for k, v in self.heldout.items()},
+            "heldout_standard_error": {str(k): v for k, v in self.heldout_se.items()},
+            "degree_rule": "one standard error over the held-out folds",
+            "warnings": self.warnings,
             "validation": self.validation,
             "samples": self.samples,
             "metrics": self.metrics,
@@ -134,6 +146,31 @@ def _folds(groups: npt.NDArray[Any], time_s: FloatArray, blocks: int) -> tuple[l
     return masks, f"{blocks} contiguous time blocks of one flight"
 
 
+def _check_pooling(side: dict[str, Any], allow_mixed: bool, warnings: list[str]) -> None:
+    """Refuse to pool flights of different vehicles (mass or rotor count) unless asked."""
+    flights = side.get("flights", {}) or {}
+    masses = {k: v.get("mass_kg") for k, v in flights.items() if v.get("mass_kg") is not None}
+    rotors = {k: v.get("rotors") for k, v in flights.items() if v.get("rotors") is not None}
+    problems = []
+    if len({round(float(m), 6) for m in masses.values()}) > 1:
+        problems.append(
+            "masses " + ", ".join(f"{k}: {float(m):g} kg" for k, m in sorted(masses.items()))
+        )
+    if len({int(r) for r in rotors.values()}) > 1:
+        problems.append(
+            "rotor counts " + ", ".join(f"{k}: {int(r)}" for k, r in sorted(rotors.items()))
+        )
+    if not problems:
+        return
+    text = "the Df mixes flights with different " + " and ".join(problems)
+    if not allow_mixed:
+        raise FitError(
+            text + ": γ(B) of different vehicles need not agree; fit them separately, or pool "
+            "them on purpose (--pool-mixed)"
+        )
+    warnings.append(text + " (pooled on request)")
+
+
 def fit_gamma(
     table: pd.DataFrame,
     sidecar: dict[str, Any] | None = None,
@@ -145,6 +182,7 @@ def fit_gamma(
     blocks: int = DEFAULT_BLOCKS,
     voltage_bins: int = 6,
     rotors: int | None = None,
+    allow_mixed: bool = False,
 ) -> GammaFit:
     """Fit γ(B) on a Df (one or more flights); ``degree=None`` chooses it by held-out error."""
     side = sidecar or {}
@@ -152,6 +190,8 @@ def fit_gamma(
         raise ConfigError(f"unknown loss '{loss}'; expected l1 or l2")
     if degree is not None and degree not in DEGREES:
         raise ConfigError(f"γ degree must be one of {DEGREES}, got {degree}")
+    warnings: list[str] = []
+    _check_pooling(side, allow_mixed, warnings)
     t_cmd, t_src = thrust_command_n(table, side, tmap, rotors)
     if tmap is not None:
         rotors = _rotors(table, side, rotors)
@@ -167,11 +207,34 @@ def fit_gamma(
         dtype=np.float64,
     )
     span = float(np.ptp(b))
+    n = len(b)
     candidates = [degree] if degree is not None else list(degrees)
+    if degree is None:
+        few = [d for d in candidates if n < MIN_SAMPLES_PER_COEF * (d + 1)]
+        if few and len(few) < len(candidates):
+            warnings.append(
+                f"{n} samples: degree {', '.join(map(str, few))} not tried (needs "
+                f"{MIN_SAMPLES_PER_COEF} samples per coefficient)"
+            )
+        candidates = [d for d in candidates if d not in few] or [0]
+        if span < MIN_SLOPE_SPAN_V and any(d > 0 for d in candidates):
+            warnings.append(
+                f"battery voltage spans only {span:.2f} V (< {MIN_SLOPE_SPAN_V:g} V): a slope of "
+                "γ in B cannot be told from noise; fitted a constant γ (fly the battery down "
+                "further, or pool flights at other voltages)"
+            )
+            candidates = [0]
+    elif degree > 0 and span < MIN_SLOPE_SPAN_V:
+        warnings.append(
+            f"battery voltage spans only {span:.2f} V (< {MIN_SLOPE_SPAN_V:g} V): the requested "
+            f"degree-{degree} γ(B) is not supported by the data"
+        )
     masks, how = _folds(groups, time_s, blocks)
     heldout: dict[int, float] = {}
+    heldout_se: dict[int, float] = {}
     for d in candidates:
         res = np.full(len(b), np.nan)
+        per_fold: list[float] = []
         for test in masks:
             train = ~test
             if train.sum() < d + 2 or not test.any():
@@ -179,19 +242,30 @@ def fit_gamma(
             coef = _fit_poly(b[train], gam[train], d, loss)
             box = Box(float(b[train].min()), float(b[train].max()))
             res[test] = gam[test] - GammaCorrection(coef, box).gamma(b[test])
+            per_fold.append(_error(res[test], loss))
         heldout[d] = _error(res[np.isfinite(res)], loss) if np.isfinite(res).any() else np.inf
+        k = len(per_fold)
+        heldout_se[d] = float(np.std(per_fold, ddof=1) / np.sqrt(k)) if k >= 2 else np.inf
     if degree is None:
-        best = min(heldout.values())
-        chosen = min(d for d, e in heldout.items() if e <= best * (1 + DEGREE_TOLERANCE))
+        best = min(heldout, key=lambda d: heldout[d])
+        limit = heldout[best] + (heldout_se[best] if np.isfinite(heldout_se[best]) else 0.0)
+        chosen = min(d for d, e in heldout.items() if e <= limit)
     else:
         chosen = degree
-    if span < 0.2 and chosen > 0:
-        log.warning("voltage spans only %.2f V: a γ slope is poorly determined", span)
+    for w in warnings:
+        log.warning("γ fit: %s", w)
     coef = _fit_poly(b, gam, chosen, loss)
     correction = GammaCorrection(
         coefficients=coef, voltage_v=Box(float(b.min()), float(b.max())), loss=loss
     )
+    if tmap is not None and rotors:
+        outside = map_extrapolation(tmap, b, force[ok] / rotors, "per-rotor thrust (F_m / rotors)")
+        for w in outside:
+            log.warning("γ fit: %s", w)
+        warnings.extend(outside)
     fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
+    fit.heldout_se = heldout_se
+    fit.warnings = warnings
     fit.metrics = flight_metrics(table[ok], side, tmap, correction, t_cmd[ok], voltage_bins, rotors)
     fit.metrics["thrust_cmd_source"] = t_src
     fit.correction = GammaCorrection(

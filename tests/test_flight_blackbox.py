@@ -117,7 +117,10 @@ def test_read_simulated_flightlogs_normalised(fixtures_dir: Path) -> None:
     assert fl.motor_outputs is not None and fl.motor_outputs.values.shape == (1000, 4)
     np.testing.assert_array_equal(fl.motor_outputs.values, exp[:, 14:18])
     assert fl.motor_output_scale is not None
-    assert (fl.motor_output_scale.lo, fl.motor_output_scale.hi) == (158.0, 2047.0)
+    # DShot: the ESC's 0 % is 48; motorOutput's low end 158 is the armed idle (issue 13.4)
+    assert (fl.motor_output_scale.lo, fl.motor_output_scale.hi) == (48.0, 2047.0)
+    assert fl.metadata["motor_idle"] == 158.0
+    assert "idle" in fl.metadata["motor_output_scale_source"]
     assert fl.armed is not None
     np.testing.assert_array_equal(fl.armed.hold(np.array([5.0, 8.996, 9.0])), [1.0, 1.0, 0.0])
     assert fl.extras["current_a"].values[0] == pytest.approx(12.34)
@@ -274,8 +277,9 @@ def test_real_bf428_log(shared_data: Path) -> None:
     m = fl.motor_outputs
     assert m is not None and fl.motor_output_scale is not None
     assert m.values.shape[1] == 4
-    lo, hi = fl.motor_output_scale.lo, fl.motor_output_scale.hi
-    assert (lo, hi) == (158, 2047)
+    lo, hi = fl.metadata["motor_idle"], fl.motor_output_scale.hi
+    assert (fl.motor_output_scale.lo, lo, hi) == (48, 158, 2047)
+    assert "dshot_idle_value 5.5 %" in fl.metadata["motor_output_scale_source"]
     assert m.values.min() >= lo - 1 and m.values.max() <= hi  # 157.95 idle logs as 157
     assert fl.armed is not None and fl.armed.values[0] == 1 and fl.armed.values[-1] == 0
 
@@ -285,3 +289,24 @@ def test_simulated_header_layout_is_betaflight_like() -> None:
     hdr, defs, pos = bd.parse_headers(enc.header_bytes())
     assert defs["I"].names[:2] == ["loopIteration", "time"] and pos == len(enc.header_bytes())
     assert hdr["motorOutput"] == "158,2047" and bd._p_interval(hdr) == (1, 32)
+
+
+def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> None:
+    """Issue 13.9: main frames are first decoded without the per-field 32-bit wrap; that is
+    exact only while every value stays in range, which decode_log checks (else it re-decodes)."""
+    from dataclasses import replace
+
+    fd = bd.FrameDef(["a", "b"], [0, 1], [bd.PRED_PREVIOUS, bd.PRED_PREVIOUS],
+                     [bd.ENC_UNSIGNED_VB, bd.ENC_SIGNED_VB])  # fmt: skip
+    wrapped = bd.compile_frame(fd, constants={}, data_version=2)
+    raw = bd.compile_frame(fd, constants={}, data_version=2, wrap=False)
+    data = bytes([0x05, 0x02])  # a: +5, b: +1 (zig-zag)
+    prev = [0xFFFFFFFE, 0x7FFFFFFF]
+    assert wrapped(data, 0, prev, prev, 0, 0, [0, 0]) == ([3, -(1 << 31)], 2)
+    assert raw(data, 0, prev, prev, 0, 0, [0, 0]) == ([(1 << 32) + 3, 1 << 31], 2)
+    fl_dir = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
+    log = bd.decode_file((fl_dir / "bb_hover_sim.bbl").read_bytes())[0]
+    assert bd._in_32bit_range(log)
+    main = log.main.copy()
+    main[3, 0] = 1 << 32  # loopIteration is unsigned 32-bit
+    assert not bd._in_32bit_range(replace(log, main=main))

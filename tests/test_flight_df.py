@@ -96,12 +96,14 @@ def test_hover_throttle_agrees_with_px4_estimate_on_fixture() -> None:
 def test_hover_throttle_agrees_with_px4_estimate_sitl(shared_data: Path) -> None:
     """PX4 SITL v1.15: median of thrust·g/a_up over the kept samples vs hover_thrust_estimate.
 
-    Tolerance 0.01 (normalised thrust, i.e. 1 % of full scale); measured agreement 0.0004
-    (0.4898 extracted vs 0.4901 PX4, over 6.9 s of kept hover).
+    Tolerance 0.01 (normalised thrust, i.e. 1 % of full scale). The flight climbs to 2 m and
+    descends at once: with the in-air evidence (hover estimate valid from 22.5 s, 0.5 m above
+    the landing level until 25.7 s) only ~3 s are airborne and steady, so the settle margin is
+    shortened to 0.5 s here to keep a few seconds to compare.
     """
     path = shared_data / "flightlogs/px4/sitl_v1.15_sample_px4_events.ulg"
-    df = extract(read_log(path), DfOptions(mass_kg=1.5))
-    assert df.reports[0].kept_s > 5.0
+    df = extract(read_log(path), DfOptions(mass_kg=1.5, settle_s=0.5))
+    assert df.reports[0].kept_s > 2.0
     est = float(np.nanmedian(df.table["hover_thrust_est"]))
     assert 0.48 < est < 0.50
     assert hover_throttle(df.table) == pytest.approx(est, abs=0.01)

@@ -124,6 +124,9 @@ def test_fixture_values_match_the_simulation(name: str, reader: str, truth: sim.
         assert np.max(np.abs(fl.thrust_cmd_n.values - expect)) < 1e-4
     if fl.motor_outputs is not None and fl.motor_output_scale is not None:
         pct = fl.motor_output_scale.to_pct(fl.motor_outputs.values)
+        if fl.motor_output_scale.unit == truth.stand_map.throttle_scale.unit:
+            # native units (µs) compared in the map's scale: the log's own range was used
+            pct = truth.stand_map.throttle_scale.to_pct(fl.motor_outputs.values)
         idx = np.searchsorted(truth.time_s, fl.motor_outputs.time_s + t_off - 1e-6)
         expect_pct = truth.throttle_pct[idx]
         if pct.shape[1] == 1:

@@ -231,7 +231,16 @@ def _accel_mps2(
     return raw / acc_1g * G0, f"{name} / acc_1G {acc_1g:g}", acc_1g
 
 
-def motor_scale(headers: dict[str, str], motors: FloatArray, warnings: list[str]) -> ThrottleScale:
+def motor_scale(
+    headers: dict[str, str], motors: FloatArray, warnings: list[str]
+) -> tuple[ThrottleScale, float, str]:
+    """The ESC's 0..100 % range for the motor values, the idle value and where both came from.
+
+    DShot: the ESC's range is 48..2047 whatever the headers say; the low end of the
+    ``motorOutput`` header is the idle Betaflight spins at when armed (``dshot_idle_value``,
+    e.g. 158 = 5.5 %), not 0 %. PWM-family protocols: 0 % is ``mincommand`` (1000 when the
+    headers lack it), 100 % the high end of ``motorOutput`` (maxthrottle); the low end
+    (minthrottle) is idle."""
     protocol = bd.header_int(headers, "motor_pwm_protocol", -1)
     lo = bd.header_int(headers, "motorOutput", -1, 0)
     hi = bd.header_int(headers, "motorOutput", -1, 1)
@@ -245,16 +254,34 @@ def motor_scale(headers: dict[str, str], motors: FloatArray, warnings: list[str]
             "motor protocol unknown (no headers); assumed "
             + ("DShot" if digital else "PWM-equivalent µs")
         )
-    if lo < 0 or hi <= lo:
-        lo, hi = (int(DSHOT_RANGE[0]), int(DSHOT_RANGE[1])) if digital else (1000, 2000)
-        warnings.append(f"motorOutput range unknown; assumed {lo}..{hi}")
     if digital:
-        return ThrottleScale("dshot", float(lo), float(hi), "dshot")
-    return ThrottleScale("pwm", float(lo), float(hi), "us")
+        scale = ThrottleScale("dshot", DSHOT_RANGE[0], DSHOT_RANGE[1], "dshot")
+        idle = float(lo) if 0 <= lo < hi else DSHOT_RANGE[0]
+        idle_pct = float(scale.to_pct(idle))
+        src = (
+            f"DShot {DSHOT_RANGE[0]:g}..{DSHOT_RANGE[1]:g} (the ESC's 0..100 %); motorOutput low "
+            f"end {idle:g} is the armed idle ({idle_pct:.1f} %)"
+        )
+        if "dshot_idle_value" in headers:
+            src += f", dshot_idle_value {bd.header_int(headers, 'dshot_idle_value', 0) / 100:g} %"
+        return scale, idle, src
+    zero = bd.header_int(headers, "mincommand", -1)
+    if lo < 0 or hi <= lo:
+        lo, hi = 1000, 2000
+        warnings.append(f"motorOutput range unknown; assumed {lo}..{hi}")
+    src_zero = "mincommand" if zero > 0 else "assumed 1000 (no mincommand header)"
+    if not 0 < zero < hi:
+        zero = 1000 if hi > 1000 else lo
+    scale = ThrottleScale("pwm", float(zero), float(hi), "us")
+    src = (
+        f"PWM {zero}..{hi} us ({src_zero} .. motorOutput high end); motorOutput low end {lo} "
+        "is the armed idle (minthrottle)"
+    )
+    return scale, float(lo), src
 
 
 def _armed(
-    table: BlackboxTable, time_s: FloatArray, motors: FloatArray | None, scale: ThrottleScale | None
+    table: BlackboxTable, time_s: FloatArray, motors: FloatArray | None, idle: float | None
 ) -> Signal | None:
     fw, version = firmware_version(table.headers)
     flags_are_boxes = fw in ("", "Betaflight") and (not version or version >= (3, 2))
@@ -273,9 +300,9 @@ def _armed(
             v = np.insert(v, 0, v[0])
         keep = np.append(t[1:] > t[:-1], True)  # last value wins at equal times
         return Signal(t[keep], v[keep], "bool", origin)
-    if motors is not None and scale is not None:
-        armed = (np.nanmin(motors, axis=1) >= scale.lo - 1.0).astype(float)
-        return Signal(time_s, armed, "bool", f"all motors >= motorOutput low {scale.lo:g}")
+    if motors is not None and idle is not None:
+        armed = (np.nanmin(motors, axis=1) >= idle - 1.0).astype(float)
+        return Signal(time_s, armed, "bool", f"all motors >= motorOutput low (idle) {idle:g}")
     return None
 
 
@@ -370,7 +397,10 @@ def to_flightlog(
     motors: FloatArray | None = None
     if motor_names:
         motors = np.stack([cols[n] for n in motor_names], axis=1)
-        fl.motor_output_scale = motor_scale(headers, motors, warnings)
+        fl.motor_output_scale, idle, scale_src = motor_scale(headers, motors, warnings)
+        meta["motor_idle"] = idle
+        meta["motor_output_scale_source"] = scale_src
+        meta["motor_channels"] = f"{len(motor_names)} motor fields in the log header"
         fl.motor_outputs = Signal(
             time_s, motors, fl.motor_output_scale.unit, f"{motor_names[0]}..{motor_names[-1]}"
         )
@@ -382,5 +412,5 @@ def to_flightlog(
             "1",
             "rcCommand[3] (pilot stick throttle 1000..2000, not the mixer output)",
         )
-    fl.armed = _armed(table, time_s, motors, fl.motor_output_scale)
+    fl.armed = _armed(table, time_s, motors, meta.get("motor_idle"))
     return fl

@@ -19,6 +19,7 @@ garbage; the readers downstream range-check what they use.
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,8 @@ _FORMAT: dict[str, tuple[str, float | None]] = {
     "Q": ("<u8", None),
 }
 
+#: messages on the boot clock used to time messages that carry no time (EV before Copter 3.4)
+TIME_REFERENCE_MESSAGES = ("IMU", "ATT", "CTUN", "BARO", "RCOU", "CURR", "BAT", "RCIN", "MAG")
 #: EV ids (ArduCopter LogEvent)
 EV_ARMED, EV_DISARMED, EV_LAND_COMPLETE, EV_NOT_LANDED = 10, 11, 18, 28
 
@@ -145,7 +148,39 @@ class DataFlashLog:
             return np.asarray(cols["TimeUS"], float) * 1e-6
         if "TimeMS" in cols:
             return np.asarray(cols["TimeMS"], float) * 1e-3
-        raise DataFormatError(f"message {name} has no TimeUS/TimeMS column", file=self.path)
+        return self._time_from_neighbours(name)
+
+    def _time_from_neighbours(self, name: str) -> FloatArray:
+        """Times of a message without a time column (EV in Copter <= 3.3): each takes the time of
+        the nearest timestamped message written before it (after it, when none precedes)."""
+        f = self.by_name.get(name)
+        own = self.starts.get(f.type_id, np.zeros(0, np.int64)) if f else np.zeros(0, np.int64)
+        ref_pos: list[npt.NDArray[np.int64]] = []
+        ref_t: list[FloatArray] = []
+        for ref in TIME_REFERENCE_MESSAGES:  # boot-clock messages (GPS TimeMS is GPS time)
+            rf = self.by_name.get(ref)
+            if rf is None or not self.has(ref):
+                continue
+            col = next((c for c in ("TimeUS", "TimeMS") if c in rf.columns), None)
+            if col is None:
+                continue
+            ref_pos.append(self.starts[rf.type_id])
+            ref_t.append(
+                np.asarray(self.records(ref)[col], float) * (1e-6 if col == "TimeUS" else 1e-3)
+            )
+        if not len(own):
+            return np.zeros(0)
+        if not ref_pos:
+            raise DataFormatError(
+                f"message {name} has no TimeUS/TimeMS column and no timestamped message "
+                "(IMU, ATT, CTUN, ...) to time it by",
+                file=self.path,
+            )
+        pos = np.concatenate(ref_pos)
+        order = np.argsort(pos, kind="stable")
+        pos, t = pos[order], np.concatenate(ref_t)[order]
+        k = np.searchsorted(pos, own) - 1  # the timestamped message written just before
+        return np.asarray(t[np.clip(k, 0, len(t) - 1)], float)
 
     def params(self) -> dict[str, float]:
         cols = self.columns("PARM")
@@ -319,8 +354,58 @@ def _events(df: DataFlashLog) -> tuple[Signal | None, Signal | None]:
     return armed, landed
 
 
+#: ArduCopter FRAME_CLASS -> motor count (AP_Motors; single/coax/heli/scripting are not here)
+FRAME_CLASS_MOTORS = {1: 4, 2: 6, 3: 8, 4: 8, 5: 6, 7: 3, 12: 12, 13: 4, 14: 10}
+#: the frame name ArduCopter prints at boot ("Frame: QUAD", "Frame: HEXA/X") -> motor count
+FRAME_NAME_MOTORS = {
+    "QUAD": 4, "HEXA": 6, "OCTA": 8, "OCTAQUAD": 8, "OCTA_QUAD": 8, "Y6": 6, "TRI": 3,
+    "DODECAHEXA": 12, "DODECA_HEXA": 12, "DECA": 10, "HELI_QUAD": 4,
+}  # fmt: skip
+
+
+def _motor_function(value: float) -> int | None:
+    """Motor number (1-based) of an output function (SERVOn_FUNCTION / RCn_FUNCTION)."""
+    f = int(value)
+    if 33 <= f <= 40:
+        return f - 32  # k_motor1..k_motor8
+    if 82 <= f <= 85:
+        return f - 73  # k_motor9..k_motor12
+    return None
+
+
+def _rcou_column(rcou: dict[str, npt.NDArray[Any]], channel: int) -> str | None:
+    return next((c for c in (f"C{channel}", f"Ch{channel}") if c in rcou), None)
+
+
+def motor_layout(params: dict[str, float], messages: list[str]) -> tuple[list[int], str] | None:
+    """Output channels (1-based, in motor order) that drive motors, from the log's own
+    parameters: SERVOn_FUNCTION 33..40/82..85, else the frame (FRAME_CLASS, or the 'Frame:' line
+    Copter 3.4+ prints at boot) on outputs 1..N unless an RCn_FUNCTION gives the output to
+    something else. None when the log does not say (Copter <= 3.3)."""
+    funcs = {int(k[5:-9]): v for k, v in params.items() if re.fullmatch(r"SERVO\d+_FUNCTION", k)}
+    motors = {m: ch for ch, v in funcs.items() if (m := _motor_function(v)) is not None}
+    if motors:
+        return [motors[m] for m in sorted(motors)], "SERVOn_FUNCTION 33..40 (motor1..motor8)"
+    count: int | None = None
+    how = ""
+    fc = params.get("FRAME_CLASS")
+    if fc is not None and int(fc) in FRAME_CLASS_MOTORS:
+        count, how = FRAME_CLASS_MOTORS[int(fc)], f"FRAME_CLASS {int(fc)}"
+    else:
+        for text in messages:
+            hit = re.match(r"Frame: ?([A-Z0-9_]+)", text)
+            if hit and hit.group(1) in FRAME_NAME_MOTORS:
+                count, how = FRAME_NAME_MOTORS[hit.group(1)], f"'{text.strip()}' (boot message)"
+                break
+    if count is None:
+        return None
+    old = {int(k[2:-9]): v for k, v in params.items() if re.fullmatch(r"RC\d+_FUNCTION", k)}
+    chans = [ch for ch in range(1, 17) if not old.get(ch) or _motor_function(old[ch])][:count]
+    return chans, f"{how}: {count} motors on outputs {','.join(map(str, chans))}"
+
+
 def _motor_channels(rcou: dict[str, npt.NDArray[Any]], active: npt.NDArray[np.bool_]) -> list[str]:
-    """Motor channels: consecutive from output 1, PWM-like and moving while armed."""
+    """Fallback when the log names no frame: consecutive outputs from 1, PWM-like and moving."""
     names = [c for c in rcou if c.startswith(("C", "Ch")) and c.lstrip("Ch").isdigit()]
     names.sort(key=lambda c: int(c.lstrip("Ch")))
     chosen: list[str] = []
@@ -331,6 +416,27 @@ def _motor_channels(rcou: dict[str, npt.NDArray[Any]], active: npt.NDArray[np.bo
         else:
             break
     return chosen
+
+
+def pwm_scale(params: dict[str, float]) -> tuple[ThrottleScale, str]:
+    """The ESC range ArduCopter outputs: MOT_PWM_MIN/MAX, or the throttle channel's RC3_MIN/MAX
+    when those are 0 (as the firmware does); 1000..2000 only when the log has neither."""
+    lo, hi = params.get("MOT_PWM_MIN", 0.0), params.get("MOT_PWM_MAX", 0.0)
+    if lo > 0 and hi > lo:
+        src = f"MOT_PWM_MIN/MAX {lo:g}..{hi:g} us"
+    else:
+        lo, hi = params.get("RC3_MIN", 0.0), params.get("RC3_MAX", 0.0)
+        src = f"RC3_MIN/MAX {lo:g}..{hi:g} us (MOT_PWM_MIN/MAX unset)"
+        if not (lo > 0 and hi > lo):
+            lo, hi, src = (
+                1000.0,
+                2000.0,
+                "assumed 1000..2000 us (no MOT_PWM_MIN/MAX or RC3_MIN/MAX)",
+            )
+    spin = params.get("MOT_SPIN_MIN")
+    if spin is not None:
+        src += f"; MOT_SPIN_MIN {spin:g} (idle in flight = {lo + spin * (hi - lo):.0f} us)"
+    return ThrottleScale("pwm", float(lo), float(hi), "us"), src
 
 
 def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> list[FlightLog]:
@@ -356,7 +462,11 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         fmt = df.by_name["CURR"].format[df.by_name["CURR"].columns.index("Volt")]
         if fmt in "hHiI":  # integer centivolts; 'c'/'f' forms are already volts
             volt = volt / 100.0
-        flight.voltage_v = _signal(df.time_s("CURR"), volt, "V", "CURR.Volt")
+        sensed = volt > 0.5  # 0 V: no voltage sensor connected (or not yet read)
+        if sensed.any():
+            flight.voltage_v = _signal(df.time_s("CURR")[sensed], volt[sensed], "V", "CURR.Volt")
+        else:
+            flight.warnings.append("CURR.Volt reads 0 V throughout: no battery voltage sensed")
     else:
         flight.warnings.append("no BAT or CURR messages: no battery voltage")
     # upward specific force: -IMU.AccZ (FRD body frame), first IMU only
@@ -378,6 +488,12 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             )
         if "ThH" in c:
             flight.extras["hover_throttle"] = _signal(t, c["ThH"], "1", "CTUN.ThH")
+        # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
+        if "Alt" in c:
+            flight.extras["height_m"] = _signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
+        if "CRt" in c:
+            crt = np.asarray(c["CRt"], float)
+            flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))
@@ -393,13 +509,35 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         c = df.columns("RCOU")
         t = df.time_s("RCOU")
         active = flight.armed.hold(t) > 0.5 if flight.armed is not None else np.ones(len(t), bool)
-        chans = motor_channels or _motor_channels(c, active)
+        layout = None if motor_channels else motor_layout(params, msgs)
+        how = "given"
+        if motor_channels:
+            chans = list(motor_channels)
+        elif layout is not None:
+            chans = [col for ch in layout[0] if (col := _rcou_column(c, ch)) is not None]
+            how = layout[1]
+            if len(chans) < len(layout[0]):
+                flight.warnings.append(f"{how}, but RCOU lacks some of those outputs")
+        else:
+            chans = _motor_channels(c, active)
+            how = "no frame class in the log: leading outputs that move while armed"
+            flight.warnings.append(
+                "the log names no frame (FRAME_CLASS, SERVOn_FUNCTION, 'Frame:' message): motors "
+                f"taken as the leading moving outputs ({', '.join(chans)}); check --rotors"
+            )
         if chans:
             outs = np.stack([np.asarray(c[ch], float) for ch in chans], axis=1)
             flight.motor_outputs = _signal(t, outs, "us", "RCOU." + ",".join(chans))
-            lo = params.get("MOT_PWM_MIN") or params.get("RC3_MIN") or 1000.0
-            hi = params.get("MOT_PWM_MAX") or params.get("RC3_MAX") or 2000.0
-            flight.motor_output_scale = ThrottleScale("pwm", float(lo), float(hi), "us")
+            flight.motor_output_scale, scale_src = pwm_scale(params)
+            flight.metadata["motor_channels"] = how
+            flight.metadata["motor_output_scale_source"] = scale_src
+            allc = sorted(
+                (k for k in c if re.fullmatch(r"Ch?\d+", k)), key=lambda k: int(k.lstrip("Ch"))
+            )
+            flight.extras["outputs_all"] = _signal(
+                t, np.stack([np.asarray(c[k], float) for k in allc], axis=1), "us",
+                "RCOU." + ",".join(allc),
+            )  # fmt: skip
         else:
             flight.warnings.append("no RCOU channel looks like a motor output")
     flight.metadata["params"] = {
@@ -408,7 +546,10 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
     if flight.accel_up_mps2 is None or flight.voltage_v is None:
         missing = [
             n
-            for n, s in (("IMU", flight.accel_up_mps2), ("BAT/CURR", flight.voltage_v))
+            for n, s in (
+                ("IMU", flight.accel_up_mps2),
+                ("battery voltage (BAT/CURR)", flight.voltage_v),
+            )
             if s is None
         ]
         flight.warnings.append(f"missing {', '.join(missing)} messages")

@@ -214,7 +214,17 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             w.define("CTUN", tfmt + "fffff", f"{tcol},ThI,ABst,ThO,ThH,Alt")
             w.define("RCOU", tfmt + "hhhhhhhh", f"{tcol}," + ",".join(f"C{i}" for i in range(1, 9)))
         w.define("ATT", tfmt + "cccc", f"{tcol},DesRoll,Roll,DesPitch,Pitch")
-        w.define("EV", tfmt + "B", f"{tcol},Id")
+        if old_firmware:  # Copter <= 3.3 writes EV without any timestamp (LOG_EVENT_MSG: Id only)
+            w.define("EV", "B", "Id")
+        else:
+            w.define("EV", tfmt + "B", f"{tcol},Id")
+
+        def event(t_s: float, ev_id: int) -> None:
+            if old_firmware:
+                w.write("EV", ev_id)
+            else:
+                w.write("EV", int(round((t_s + 1.0) * tmul)), ev_id)
+
         w.write("MSG", 0, b"ArduCopter V4.5.0-sim (thrustmap simulate)")
         for name, value in (
             ("MOT_PWM_MIN", scale.lo),
@@ -230,7 +240,7 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
         for k in range(len(flight.time_s)):
             tk = flight.time_s[k] + 1.0
             while ev_k < len(events) and events[ev_k][0] <= flight.time_s[k]:
-                w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
+                event(*events[ev_k])
                 ev_k += 1
             ts = int(round(tk * tmul))
             w.write("IMU", ts, 0.0, 0.0, 0.0, 0.0, 0.0, -float(flight.accel_up_mps2[k]))
@@ -258,7 +268,7 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             tilt = int(round(flight.tilt_deg[k] * 100))
             w.write("ATT", ts, 0, tilt, 0, 0)
         while ev_k < len(events):
-            w.write("EV", int(round((events[ev_k][0] + 1.0) * tmul)), events[ev_k][1])
+            event(*events[ev_k])
             ev_k += 1
 
 
@@ -286,14 +296,25 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
             "hover_thrust_estimate", [("float", "hover_thrust", 0), ("bool", "valid", 0)]
         )
         topics += [thr, mot, hte]
-    pwm = SCALES["pwm"].from_pct(flight.throttle_pct)
+    # the ESC range the log's parameters give (PWM_MAIN_MINn/MAXn, v1.14+; PWM_MIN/MAX before):
+    # deliberately not 1000..2000, so a reader that assumes it is caught
+    pwm = flight.stand_map.throttle_scale.from_pct(flight.throttle_pct)
+    lo_us, hi_us = (1075.0, 1950.0) if legacy else (1100.0, 1900.0)
+    params: dict[str, float | int] = {"MC_BAT_SCALE_EN": 0, "MPC_THR_HOVER": 0.4}
+    if legacy:
+        params.update({"MAV_TYPE": 2, "PWM_MIN": int(lo_us), "PWM_MAX": int(hi_us)})
+    else:
+        params["CA_ROTOR_COUNT"] = rot
+        for m in range(1, rot + 1):
+            params.update({f"PWM_MAIN_FUNC{m}": 100 + m, f"PWM_MAIN_MIN{m}": int(lo_us),
+                           f"PWM_MAIN_MAX{m}": int(hi_us)})  # fmt: skip
     for k in range(n):
         u = int(us[k])
         sc.rows.append((u, [0.0, 0.0, -float(flight.accel_up_mps2[k])]))
         half = np.radians(flight.tilt_deg[k]) / 2
         att.rows.append((u, [float(np.cos(half)), float(np.sin(half)), 0.0, 0.0]))
         tn = float(flight.thrust_norm[k])
-        norm = [float(x) for x in flight.throttle_pct[k] / 100.0]
+        norm = [float(x) for x in (pwm[k] - lo_us) / (hi_us - lo_us)]  # control 0..1
         if legacy:
             thr.rows.append((u, [0.0, 0.0, 0.0, tn, 0.0, 0.0, 0.0, 0.0]))
             outs.rows.append((u, rot, [float(x) for x in pwm[k]] + [900.0] * (16 - rot)))
@@ -313,13 +334,17 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
         path,
         topics,
         info={"sys_name": "PX4", "ver_hw": "SITL_SIM", "ver_sw_release": release},
-        params={"MC_BAT_SCALE_EN": 0, "MPC_THR_HOVER": 0.4},
+        params=params,
     )
 
 
-def write_tlog(flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9) -> None:
+def write_tlog(
+    flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9, ardupilot: bool = False
+) -> None:
     """MAVLink telemetry at 10 Hz: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, SERVO_OUTPUT_RAW,
-    HIGHRES_IMU, ATTITUDE_TARGET, ATTITUDE."""
+    HIGHRES_IMU, ATTITUDE_TARGET, ATTITUDE (PX4-like). ``ardupilot``: what ArduCopter streams
+    instead: RAW_IMU and SCALED_IMU2 in mG (no HIGHRES_IMU), VFR_HUD (throttle %, climb),
+    GLOBAL_POSITION_INT, PARAM_VALUE (FRAME_CLASS, MOT_PWM_MIN/MAX), no ATTITUDE_TARGET."""
     scale = flight.stand_map.throttle_scale
     pwm = scale.from_pct(flight.throttle_pct)
     step = max(1, int(round(flight.sim.rate_hz / 10.0)))
@@ -327,30 +352,49 @@ def write_tlog(flight: SimFlight, path: str | Path, *, t0_unix_s: float = 1.7e9)
         w = TlogWriter(f)
         mav = w.encoder()
         gcs = TlogWriter(f, system_id=255, component_id=190).encoder()
+        autopilot = 3 if ardupilot else 12
         for k in range(0, len(flight.time_s), step):
             t = t0_unix_s + float(flight.time_s[k])
             if k % (step * 10) == 0:
-                w.write(t, mav.heartbeat_encode(2, 12, 128 | 1, 0, 4))
+                w.write(t, mav.heartbeat_encode(2, autopilot, 128 | 1, 0, 4))
+            if ardupilot and k == 0:  # the parameters a ground station fetched after connecting
+                for i, (name, value) in enumerate(
+                    (("FRAME_CLASS", 1.0), ("MOT_PWM_MIN", scale.lo), ("MOT_PWM_MAX", scale.hi))
+                ):
+                    w.write(t, mav.param_value_encode(name.encode(), value, 9, 3, i))
                 w.write(t, gcs.heartbeat_encode(6, 8, 0, 0, 0))
                 state = 1 if flight.landed[k] > 0.5 else 2
                 w.write(t, mav.extended_sys_state_encode(0, state))
             volt_mv = int(round(flight.voltage_v[k] * 1000))
             w.write(t, mav.sys_status_encode(0, 0, 0, 500, volt_mv, 2000, 80, 0, 0, 0, 0, 0, 0))
             a = float(flight.accel_up_mps2[k])
-            w.write(
-                t,
-                mav.highres_imu_encode(int(t * 1e6), 0, 0, -a, 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0),
-            )
+            if ardupilot:
+                mg = int(round(-a / G0 * 1000.0))
+                us = int(flight.time_s[k] * 1e6)
+                w.write(t, mav.raw_imu_encode(us, 0, 0, mg, 0, 0, 0, 0, 0, 0))
+                w.write(t, mav.scaled_imu2_encode(us // 1000, 0, 0, mg, 0, 0, 0, 0, 0, 0))
+                th = float(flight.thrust_norm[k])
+                w.write(t, mav.vfr_hud_encode(0.0, 0.0, 0, int(round(th * 100)), 0.0, 0.0))
+                h_mm = int(round(float(flight.height_m[k]) * 1000))
+                w.write(t, mav.global_position_int_encode(us // 1000, 0, 0, h_mm, h_mm, 0, 0, 0, 0))
+            else:
+                w.write(
+                    t,
+                    mav.highres_imu_encode(
+                        int(t * 1e6), 0, 0, -a, 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0
+                    ),
+                )
             servos = [int(round(x)) for x in pwm[k]] + [0] * (8 - pwm.shape[1])
             w.write(
                 t, mav.servo_output_raw_encode(int(flight.time_s[k] * 1e6) & 0xFFFFFFFF, 0, *servos)
             )
-            w.write(
-                t,
-                mav.attitude_target_encode(
-                    0, 0, [1, 0, 0, 0], 0, 0, 0, float(flight.thrust_norm[k])
-                ),
-            )
+            if not ardupilot:
+                w.write(
+                    t,
+                    mav.attitude_target_encode(
+                        0, 0, [1, 0, 0, 0], 0, 0, 0, float(flight.thrust_norm[k])
+                    ),
+                )
             r = float(np.radians(flight.tilt_deg[k]))
             w.write(t, mav.attitude_encode(0, r, 0.0, 0.0, 0.0, 0.0, 0.0))
 

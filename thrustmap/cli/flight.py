@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.df import DfOptions, airborne_windows, extract, read_df, write_df
-from thrustmap.fitting.flightlogs.detect import available, detect, read_log
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
-from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+
+if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
+    from thrustmap.fitting.flightlogs.series import FlightLog, Signal
 
 _FIELDS = (
     "voltage_v",
@@ -28,6 +26,8 @@ _FIELDS = (
 
 
 def _signal_info(sig: Signal) -> dict[str, Any]:
+    import numpy as np
+
     v = sig.values[np.isfinite(sig.values).all(axis=1)] if sig.values.ndim == 2 else sig.values
     v = v[np.isfinite(v)] if v.ndim == 1 else v
     dur = float(sig.time_s[-1] - sig.time_s[0]) if len(sig) > 1 else 0.0
@@ -47,6 +47,8 @@ def _signal_info(sig: Signal) -> dict[str, Any]:
 
 def inspect_flight(flight: FlightLog) -> dict[str, Any]:
     """What a flight log holds: duration, fields found (origin, rate, range), airborne windows."""
+    from thrustmap.fitting.df import airborne_windows
+
     fields = {
         name: _signal_info(sig)
         for name in _FIELDS
@@ -86,6 +88,8 @@ def flightlog_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
     """What is inside LOG: duration, fields found, airborne windows."""
+    from thrustmap.fitting.flightlogs.detect import detect, read_log
+
     out = []
     for path in logs:
         reader = detect(path) if fmt is None else None
@@ -117,6 +121,8 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
 @flightlog_group.command("readers")
 def readers_cmd() -> None:
     """List the flight-log readers and whether they are usable here."""
+    from thrustmap.fitting.flightlogs.detect import available
+
     for reader, why in available():
         state = "ok" if why is None else f"unavailable: {why}"
         click.echo(f"{reader.name:14s} {reader.description} ({state})")
@@ -127,7 +133,11 @@ def readers_cmd() -> None:
 @click.option("--mass-kg", type=float, help="Vehicle take-off mass (kg); F_m = m·a_up.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Df CSV.")
-@click.option("--rotors", type=int, help="Rotor count (default: motor-output columns).")
+@click.option(
+    "--rotors",
+    type=int,
+    help="Rotor count: sums the first N motor outputs (default: the log's frame).",
+)
 @click.option(
     "--thrust-source",
     type=click.Choice(["auto", "log", "motors", "norm"]),
@@ -140,6 +150,16 @@ def readers_cmd() -> None:
 @click.option("--accel-tol", type=float, default=1.0, show_default=True, help="|a_up−g| max.")
 @click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
 @click.option("--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing.")
+@click.option(
+    "--min-height-m",
+    type=float,
+    default=0.5,
+    show_default=True,
+    help="Airborne only from this height above the takeoff level (0: off).",
+)
+@click.option(
+    "--climb-max", type=float, default=1.0, show_default=True, help="|climb rate| max, m/s."
+)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
 def extract_cmd(
@@ -153,10 +173,16 @@ def extract_cmd(
     accel_tol: float,
     tilt_max_deg: float,
     settle_s: float,
+    min_height_m: float,
+    climb_max: float,
     fmt: str | None,
     as_json: bool,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
+    from thrustmap.fitting.df import DfOptions, extract, write_df
+    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+
     opts = DfOptions(
         mass_kg=mass_kg,
         rotors=rotors,
@@ -164,6 +190,8 @@ def extract_cmd(
         accel_tol_mps2=accel_tol,
         tilt_max_deg=tilt_max_deg,
         settle_s=settle_s,
+        min_height_m=min_height_m,
+        climb_max_mps=climb_max,
         thrust_source=thrust_source,
     )
     tmap = ThrustMap.load(map_path) if map_path else None
@@ -174,7 +202,8 @@ def extract_cmd(
     df.sources["logs"] = [{"path": str(p), "sha256": file_sha256(p)} for p in logs if p.is_file()]
     if not len(df.table):
         raise ConfigError(
-            "no sample survived the filters: " + "; ".join(_summary(r) for r in df.reports)
+            "no steady flight to extract (0 samples; too short for a Df): "
+            + "; ".join(_summary(r) for r in df.reports)
         )
     side = write_df(df, output)
     if as_json:
@@ -209,9 +238,14 @@ def gamma_group() -> None:
     type=click.Choice(["auto", "0", "1", "2", "3"]),
     default="auto",
     show_default=True,
-    help="Polynomial degree in B; auto = by held-out error across flights.",
+    help="Polynomial degree in B; auto = one-standard-error rule over held-out folds.",
 )
 @click.option("--rotors", type=int, help="Rotor count, when the Df sidecar lacks it.")
+@click.option(
+    "--pool-mixed",
+    is_flag=True,
+    help="Fit one γ(B) over flights with different mass or rotor count (refused otherwise).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and metrics as JSON.")
 def gamma_fit_cmd(
     dfs: tuple[Path, ...],
@@ -220,12 +254,15 @@ def gamma_fit_cmd(
     loss: str,
     degree: str,
     rotors: int | None,
+    pool_mixed: bool,
     as_json: bool,
 ) -> None:
     """Fit γ(B) on DF... and write the map with its correction block."""
     import pandas as pd
 
+    from thrustmap.fitting.df import read_df
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     tmap = ThrustMap.load(map_path)
     tables: list[pd.DataFrame] = []
@@ -242,6 +279,7 @@ def gamma_fit_cmd(
         loss="l1" if loss == "l1" else "l2",
         degree=None if degree == "auto" else int(degree),
         rotors=rotors,
+        allow_mixed=pool_mixed,
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
     out_map = corrected_map(tmap, fit, sources)
@@ -254,9 +292,15 @@ def gamma_fit_cmd(
     click.echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
     click.echo(f"flown voltage {c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V; {fit.validation}")
     click.echo(
-        "held-out error by degree: "
-        + ", ".join(f"{d}: {e:.4g}" for d, e in sorted(fit.heldout.items()))
+        "held-out error by degree (± standard error; the simplest within one SE of the best "
+        "wins): "
+        + ", ".join(
+            f"{d}: {e:.4g} ± {fit.heldout_se.get(d, float('nan')):.2g}"
+            for d, e in sorted(fit.heldout.items())
+        )
     )
+    for w in fit.warnings:
+        click.echo(f"warning: {w}")
     m = fit.metrics
     for key in ("e_Th", "e_T"):
         b, a = m.get(f"{key}_before_pct"), m.get(f"{key}_after_pct")

@@ -1,0 +1,186 @@
+"""Flight-log throughput in one run: thrustmap's readers beside the reference decoders.
+
+| ours                               | baseline                                    |
+|------------------------------------|---------------------------------------------|
+| ULog reader (+ Df)                 | pyulog, the same topics (our reader wraps it) |
+| DataFlash numpy decoder (+ Df)     | pymavlink DFReader reading the same messages |
+| Betaflight blackbox decoder        | orangebox, only when it is installed (GPL-3, never a dependency) |
+
+Files: the shared real logs (../shared/data/flightlogs, skipped when absent) and synthetic
+flights written by the test-fixture generators in tests/support.
+
+    .venv/bin/python benchmarks/bench_flightlogs.py [--minutes 5] [--repeat 3] [--profile]
+
+``--profile`` adds a cProfile of the blackbox decoder (where its time goes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))  # the fixture generators live in tests/support
+
+import numpy as np  # noqa: E402
+from support import simulate_flight as simulate  # noqa: E402
+
+from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
+from thrustmap.fitting.flightlogs import blackbox, dataflash, ulog  # noqa: E402
+from thrustmap.fitting.flightlogs.blackbox_decode import decode_file  # noqa: E402
+
+SHARED = ROOT.parent / "shared/data/flightlogs"
+DF_MESSAGES = ["IMU", "BAT", "CURR", "RCOU", "CTUN", "ATT", "EV", "PARM", "MSG"]
+
+
+def best_of(fn: Callable[[], object], repeat: int) -> float:
+    times = []
+    for _ in range(max(repeat, 1)):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def row(label: str, mb: float, t: float, base: float | None = None, how: str = "") -> None:
+    rel = ""
+    if base is not None:
+        rel = f"  {base / t:6.1f}x the baseline speed" if how == "x" else f"  {t / base:.2f}x time"
+    print(f"  {label:34s} {t:8.3f} s {mb / t:8.1f} MB/s{rel}")
+
+
+def extract_quiet(flights: list[object]) -> object:
+    try:
+        return extract(flights, DfOptions(mass_kg=1.0))  # type: ignore[arg-type]
+    except Exception as exc:  # a log without a Df (no voltage): the timing is still the reader's
+        return exc
+
+
+# -- ULog -----------------------------------------------------------------------------------------
+
+
+def bench_ulog(path: Path, label: str, repeat: int) -> None:
+    from pyulog import ULog
+
+    mb = path.stat().st_size / 1e6
+    print(f"ULog, {label}: {path.name}, {mb:.2f} MB")
+    t_py = best_of(lambda: ULog(str(path), message_name_filter_list=ulog.TOPICS), repeat)
+    t_read = best_of(lambda: ulog.read(path), repeat)
+    t_df = best_of(lambda: extract_quiet(ulog.read(path)), repeat)  # type: ignore[arg-type]
+    row("pyulog, same topics (baseline)", mb, t_py)
+    row("thrustmap reader", mb, t_read, t_py)
+    row("thrustmap reader + Df", mb, t_df, t_py)
+
+
+# -- DataFlash ------------------------------------------------------------------------------------
+
+
+def pymavlink_arrays(path: Path) -> dict[str, np.ndarray]:
+    from pymavlink import DFReader
+
+    reader = DFReader.DFReader_binary(str(path))
+    rows: dict[str, list[list[float]]] = {}
+    while True:
+        m = reader.recv_match(type=DF_MESSAGES)
+        if m is None:
+            break
+        d = m.to_dict()
+        rows.setdefault(m.get_type(), []).append(
+            [float(v) for k, v in d.items() if k != "mavpackettype" and isinstance(v, (int, float))]
+        )
+    return {k: np.asarray(v) for k, v in rows.items()}
+
+
+def bench_dataflash(path: Path, label: str, repeat: int) -> None:
+    mb = path.stat().st_size / 1e6
+    print(f"DataFlash, {label}: {path.name}, {mb:.2f} MB")
+    t_base = best_of(lambda: pymavlink_arrays(path), 1)
+    t_read = best_of(lambda: dataflash.read(path), repeat)
+    t_df = best_of(lambda: extract_quiet(dataflash.read(path)), repeat)  # type: ignore[arg-type]
+    row("pymavlink DFReader (baseline)", mb, t_base)
+    row("thrustmap reader", mb, t_read, t_base, "x")
+    row("thrustmap reader + Df", mb, t_df, t_base, "x")
+
+
+# -- Betaflight blackbox --------------------------------------------------------------------------
+
+
+def bench_blackbox(path: Path, label: str, repeat: int, profile: bool) -> None:
+    data = path.read_bytes()
+    mb = len(data) / 1e6
+    frames = sum(len(lg.main) for lg in decode_file(data))
+    print(f"Blackbox, {label}: {path.name}, {mb:.2f} MB, {frames} main frames")
+    t_decode = best_of(lambda: decode_file(data), repeat)
+    t_read = best_of(lambda: blackbox.read(path), repeat)
+    try:
+        from orangebox import Parser  # type: ignore[import-not-found]
+    except ImportError:
+        Parser = None
+    t_ob = None
+    if Parser is not None:
+
+        def orange() -> None:
+            parser = Parser.load(str(path))
+            for _ in parser.frames():
+                pass
+
+        t_ob = best_of(orange, 1)
+        row("orangebox (baseline)", mb, t_ob)
+    else:
+        print("  orangebox (baseline)               not installed here: no baseline measured")
+    row("thrustmap decode_file", mb, t_decode, t_ob, "x")
+    row("thrustmap blackbox.read (+ units)", mb, t_read, t_ob, "x")
+    if profile:
+        import cProfile
+        import pstats
+
+        prof = cProfile.Profile()
+        prof.enable()
+        decode_file(data)
+        prof.disable()
+        print("  where decode_file spends its time (cProfile, tottime):")
+        stats = pstats.Stats(prof)
+        stats.sort_stats("tottime").print_stats(8)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=5.0, help="synthetic flight length")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--profile", action="store_true", help="profile the blackbox decoder")
+    args = ap.parse_args()
+    for name in ("sitl_v1.15_sample_px4_events.ulg", "fmuv3_v1.9_esc_status.ulg"):
+        p = SHARED / "px4" / name
+        if p.exists():
+            bench_ulog(p, "shared real log", args.repeat)
+        else:
+            print(f"shared log not found at {p}; skipped")
+    p = SHARED / "ardupilot/copter3.4_pxf_3s.bin"
+    if p.exists():
+        bench_dataflash(p, "shared real log (Copter 3.4)", args.repeat)
+    else:
+        print(f"shared log not found at {p}; skipped")
+    p = SHARED / "betaflight/bf4.2.8_4s.bbl"
+    if not p.exists():
+        p = ROOT / "fixtures/flightlogs/bb_hover_sim.bbl"
+    bench_blackbox(p, "real Betaflight 4.2.8" if "shared" in str(p) else "fixture", args.repeat,
+                   args.profile)  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        flight = simulate.simulate_hover(
+            simulate.HoverSim(duration_s=args.minutes * 60.0, rate_hz=200.0, seed=0)
+        )
+        synth = f"synthetic {args.minutes:g} min flight at 200 Hz"
+        path = Path(tmp) / "synthetic.ulg"
+        simulate.write_ulog(flight, path)
+        bench_ulog(path, synth, args.repeat)
+        path = Path(tmp) / "synthetic.bin"
+        simulate.write_dataflash(flight, path)
+        bench_dataflash(path, synth, args.repeat)
+
+
+if __name__ == "__main__":
+    main()
