@@ -10,30 +10,34 @@ Differences from the stock ``mavutil`` classes, all so tests never sleep for rea
 - waiting is a ``transport.read(1)`` with the port's timeout set to the wait (a real port blocks
   in the OS, ``sim://`` advances its clock, ``replay://`` returns at once);
 - ``recv_match`` timeouts and message timestamps use the injected clock, not ``time.time()``;
-- the link is always MAVLink 2 (pymavlink's v2.0 ardupilotmega dialect, independent of the
-  process-wide ``MAVLINK20`` switch and of whatever dialect ``mavutil`` loaded).
+- the link is always MAVLink 2 (pymavlink's v2.0 ardupilotmega dialect, chosen here where the
+  connection is built; nothing reads or sets the process-wide ``MAVLINK20`` switch);
+- bytes are read in chunks (everything the port holds, up to ``MAX_READ_CHUNK``), so a
+  ``record://`` transcript holds one event per read, not one per byte.
 
-``open_mavlink(url, clock=..., **serial_kwargs)`` opens the transport by URL and wraps it.
+``open_mavlink(url, clock=..., **serial_kwargs)`` opens the transport by URL and wraps it. Besides
+thrustmap's URLs and device paths it takes pymavlink's spellings: ``udpin:HOST:PORT``,
+``udpout:HOST:PORT``, ``udp:`` (= ``udpin:``) and ``tcp:HOST:PORT`` (= ``socket://HOST:PORT``),
+also inside ``record://`` (``record://udpin:0.0.0.0:14550?file=run.jsonl``).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from typing import Any
 
-os.environ.setdefault("MAVLINK20", "1")  # for mavutil connections made elsewhere in-process
+from pymavlink import mavutil as mavutil  # re-exported for callers that need pymavlink helpers
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from pymavlink import mavutil as mavutil  # noqa: E402 - re-exported, after MAVLINK20
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
-
-from thrustmap.clock import Clock, MonotonicClock  # noqa: E402
-from thrustmap.protocols.transcript import TransportError  # noqa: E402
-from thrustmap.protocols.transport import SerialLike, open_transport  # noqa: E402
+from thrustmap.clock import Clock, MonotonicClock
+from thrustmap.protocols.transcript import TransportError
+from thrustmap.protocols.transport import SerialLike, open_transport
+from thrustmap.protocols.urlhandlers.protocol_udpin import is_udp_url, normalize_udp_url
 
 log = logging.getLogger(__name__)
 
 MAX_IDLE_POLLS = 100_000
+MAX_READ_CHUNK = 4096  # bytes per transport read: bounded, and a whole burst in one event
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 
@@ -72,12 +76,12 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
         if n is None:
             n = self.mav.bytes_needed()
         n = max(1, int(n))
+        if len(self._pushback) < n:
+            available = self.port.in_waiting
+            if available:  # take the whole burst in one read (one transcript event)
+                self._pushback += self.port.read(min(available, MAX_READ_CHUNK))
         out = bytes(self._pushback[:n])
         del self._pushback[:n]
-        if len(out) < n:
-            available = self.port.in_waiting
-            if available:
-                out += self.port.read(min(n - len(out), available))
         return out
 
     def write(self, buf: Any) -> int:
@@ -94,6 +98,10 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
             data = self.port.read(1)
         finally:
             self.port.timeout = previous
+        if data:
+            available = self.port.in_waiting  # the rest of the burst, in the same breath
+            if available:
+                data += self.port.read(min(available, MAX_READ_CHUNK))
         self._pushback += data
         return bool(data)
 
@@ -146,6 +154,18 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
             return msg
 
 
+def normalize_mavlink_url(url: str) -> str:
+    """pymavlink spellings -> thrustmap transport URLs (also inside ``record://``)."""
+    if url.lower().startswith("record://"):
+        return "record://" + normalize_mavlink_url(url[len("record://") :])
+    if is_udp_url(url):
+        return normalize_udp_url(url)
+    scheme, sep, rest = url.partition(":")
+    if sep and scheme.lower() == "tcp" and not rest.startswith("//"):
+        return f"socket://{rest}"
+    return url
+
+
 def open_mavlink(
     url: str,
     *,
@@ -154,7 +174,9 @@ def open_mavlink(
     source_component: int = GCS_COMPONENT_ID,
     **serial_kwargs: Any,
 ) -> MavlinkSerialLink:
-    """Open ``url`` (a device path, ``sim://px4``, ``record://...``, ``replay://...``) as MAVLink."""
+    """Open ``url`` (a device path, ``sim://px4``, ``record://...``, ``replay://...``,
+    ``udpin:``/``udpout:``/``tcp:``) as a MAVLink 2 link."""
+    url = normalize_mavlink_url(url)
     if clock is not None and url.split("://", 1)[0].lower() in ("sim", "record", "replay"):
         serial_kwargs["clock"] = clock
     serial_kwargs.setdefault("timeout", 0)
