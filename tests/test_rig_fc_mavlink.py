@@ -259,7 +259,18 @@ class VersionedPX4(PX4Vehicle):
             sw = (1 << 24) | (14 << 16) | (3 << 8) | 255
             self.send(
                 mavlink2.MAVLink_autopilot_version_message(
-                    59647, sw, 0, 0, 0x00380000, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11, 0, [0] * 18
+                    59647,
+                    sw,
+                    0,
+                    0,
+                    0x00380000,
+                    [0] * 8,
+                    [0] * 8,
+                    [0] * 8,
+                    0x26AC,
+                    0x11,
+                    0,
+                    [0] * 18,
                 )
             )
             return R.ACCEPTED
