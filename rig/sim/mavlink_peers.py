@@ -118,6 +118,7 @@ class PX4Vehicle(SimMavlinkVehicle):
             for message_id, builder in self._flood_streams().items():
                 self._streams[message_id] = (builder, period_s)
                 self._default_periods[message_id] = period_s
+                self.catch_up_streams.add(message_id)
 
     def default_params(self) -> Mapping[str, float]:
         params = {
@@ -158,7 +159,7 @@ class PX4Vehicle(SimMavlinkVehicle):
             ],
             85: lambda s: [
                 mavlink2.MAVLink_position_target_local_ned_message(
-                    t(), 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+                    t(), 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
                 )
             ],
             83: lambda s: [
@@ -199,7 +200,10 @@ class PX4Vehicle(SimMavlinkVehicle):
         """All 8 main outputs, as PX4 reports them (disarmed value where no test runs)."""
         out = []
         for ch in range(1, PX4_OUTPUTS + 1):
-            lo, hi, dis = (self.params[f"PWM_MAIN_{k}{ch}"] for k in ("MIN", "MAX", "DIS"))
+            lo, hi, dis = (
+                self.params.get(f"PWM_MAIN_{k}{ch}", self.params.get(f"PWM_MAIN_{k}", default))
+                for k, default in (("MIN", 1000.0), ("MAX", 2000.0), ("DIS", 900.0))
+            )
             motor = int(self.params[f"PWM_MAIN_FUNC{ch}"]) - 101
             if motor in self._tests:
                 out.append(round(lo + (hi - lo) * self._tests[motor][0]))

@@ -42,6 +42,7 @@ from thrustmap.rig.sim.plant import Plant, PlantState
 log = logging.getLogger(__name__)
 
 HEARTBEAT_ID = 0
+MAX_CATCH_UP = 100  # instances of one catch-up stream per read, at most
 
 
 class SimMavlinkVehicle(ABC):
@@ -81,6 +82,8 @@ class SimMavlinkVehicle(ABC):
             self._streams[message_id] = (builder, period_s)
         self._default_periods = {k: v[1] for k, v in self._streams.items()}
         self._next_due: dict[int, float] = {}
+        #: streams sent at their rate even when nobody reads (see ``_advance``)
+        self.catch_up_streams: set[int] = set()
         self.commands_received: list[mav.CommandLong] = []
 
     # -- what subclasses provide ----------------------------------------------------------
@@ -150,6 +153,15 @@ class SimMavlinkVehicle(ABC):
         state = self.plant.state(now_s)
         for message_id in due:
             builder, period_s = self._streams[message_id]
+            if message_id in self.catch_up_streams:
+                # Sent at its own rate whether or not anyone reads: a slow reader finds every
+                # missed instance waiting (as in a serial or socket buffer), up to a bound.
+                missed = int((now_s - self._next_due[message_id]) / period_s) + 1
+                for _ in range(min(missed, MAX_CATCH_UP)):
+                    for msg in builder(state):
+                        self.send(msg)
+                self._next_due[message_id] += missed * period_s
+                continue
             for msg in builder(state):
                 self.send(msg)
             nxt = self._next_due[message_id] + period_s
@@ -220,7 +232,7 @@ class SimMavlinkVehicle(ABC):
                 190,
                 name.encode("ascii")[:16],
                 -1,
-                2,  # MAV_PARAM_ERROR_DOES_NOT_EXIST
+                1,  # MAV_PARAM_ERROR_DOES_NOT_EXIST
             )
         )
 
