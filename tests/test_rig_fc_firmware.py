@@ -338,7 +338,7 @@ def test_px4_sim_answers_missing_params_with_param_error_like_the_firmware() -> 
 # 3. Bounded receive loop, commands on schedule, recorder per call, UDP
 # ------------------------------------------------------------------------------------------
 def test_sim_px4_floods_like_the_real_gcs_link() -> None:
-    real = real_transcript("px4/spin_workaround")
+    real = real_transcript("px4/probe")
     duration_s = real.events[-1].time_s - real.events[0].time_s
     real_rate = len(real.read()) / duration_s
     assert 11_000 <= real_rate <= 21_000  # what the issue quotes
@@ -584,3 +584,43 @@ def test_motor_option_parsing() -> None:
     out, _, _, _ = px4()
     with pytest.raises(ConfigError, match="ArduPilot"):
         resolve_motor(out, "A")
+
+
+# ------------------------------------------------------------------------------------------
+# No import-time side effects; MAVLink 2 chosen where the connection is built
+# ------------------------------------------------------------------------------------------
+def test_importing_the_mavlink_modules_leaves_the_environment_alone() -> None:
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import os; os.environ.pop('MAVLINK20', None)\n"
+        "import thrustmap.protocols.mavlink.link, thrustmap.rig.fc.mavlink\n"
+        "print(os.environ.get('MAVLINK20'))"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "None"
+
+
+def test_links_are_mavlink2_without_the_environment_switch() -> None:
+    from thrustmap.protocols.mavlink.link import mavutil_connection, normalize_mavlink_url
+
+    assert normalize_mavlink_url("udpin:0.0.0.0:14550") == "udpin://0.0.0.0:14550"
+    assert normalize_mavlink_url("udp:127.0.0.1:14550") == "udpin://127.0.0.1:14550"
+    assert normalize_mavlink_url("tcp:127.0.0.1:5760") == "socket://127.0.0.1:5760"
+    assert (
+        normalize_mavlink_url("record://udpout:10.0.0.2:14550?file=a.jsonl")
+        == "record://udpout://10.0.0.2:14550?file=a.jsonl"
+    )
+    port = _free_udp_port()
+    conn = mavutil_connection(f"udpin:127.0.0.1:{port}")
+    try:
+        frame = conn.mav.heartbeat_encode(6, 8, 0, 0, 0).pack(conn.mav)
+        assert frame[0] == 0xFD  # MAVLink 2 magic
+    finally:
+        conn.close()

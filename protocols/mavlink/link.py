@@ -154,6 +154,32 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
             return msg
 
 
+def mavutil_connection(
+    url: str,
+    *,
+    source_system: int = GCS_SYSTEM_ID,
+    source_component: int = GCS_COMPONENT_ID,
+    **kwargs: Any,
+) -> Any:
+    """A stock ``mavutil.mavlink_connection`` (for forms thrustmap has no transport for, e.g.
+    ``tcpin:``), switched to MAVLink 2 here, explicitly: no ``MAVLINK20`` in the environment,
+    and no auto-switching (which would edit the environment and the global dialect)."""
+    conn = mavutil.mavlink_connection(
+        url, source_system=source_system, source_component=source_component, **kwargs
+    )
+    conn.mav = mavlink2.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+    conn.mav.robust_parsing = True
+    conn.WIRE_PROTOCOL_VERSION = "2.0"
+    conn.first_byte = False
+    return conn
+
+
+def is_own_transport(url: str) -> bool:
+    """``open_mavlink`` has a transport for it (so it can be recorded and replayed)."""
+    scheme = url.split(":", 1)[0].lower()
+    return scheme not in ("tcpin", "udpbcast")
+
+
 def normalize_mavlink_url(url: str) -> str:
     """pymavlink spellings -> thrustmap transport URLs (also inside ``record://``)."""
     if url.lower().startswith("record://"):
