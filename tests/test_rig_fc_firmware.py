@@ -19,6 +19,7 @@ import pytest
 
 from thrustmap.clock import MonotonicClock, SimClock
 from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.fitting.dsformat import DsWriter
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.frames import motor_order, parse_test_letter
 from thrustmap.protocols.mavlink.frames import test_letter as letter_of
@@ -32,15 +33,20 @@ from thrustmap.protocols.mavlink.params import (
 )
 from thrustmap.protocols.transcript import Transcript, read_transcript
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
+from thrustmap.rig import plans
 from thrustmap.rig.fc.ardupilot import ArduPilotThrottleOutput
 from thrustmap.rig.fc.mavlink import open_mavlink_output
 from thrustmap.rig.fc.mavlink_session import CommandsLate, MavlinkSession, MotorTestRefused
 from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
 from thrustmap.rig.fc.px4 import Px4ThrottleOutput
+from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
+from thrustmap.rig.interlocks import Limits
+from thrustmap.rig.runner import Runner
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
-from thrustmap.rig.sim.plant import ConstantPlant
+from thrustmap.rig.sim.physics import make_plant
+from thrustmap.rig.sim.plant import ConstantPlant, Plant
 from thrustmap.rig.spin import SpinRequest, run_spin
 
 R = mav.MavResult
@@ -624,3 +630,50 @@ def test_links_are_mavlink2_without_the_environment_switch() -> None:
         assert frame[0] == 0xFD  # MAVLink 2 magic
     finally:
         conn.close()
+
+
+class StallingStand(Stand):
+    """Test double: reads the plant; once, a read holds the loop up for ``stall_s`` (as a
+    starved receive loop did), after ``after_s`` of the run."""
+
+    def __init__(self, plant: Plant, clock: SimClock, after_s: float, stall_s: float) -> None:
+        self.plant, self.clock = plant, clock
+        self.after_s, self.stall_s, self.stalled = after_s, stall_s, False
+
+    def identify(self) -> DeviceIdentity:
+        return DeviceIdentity(kind="test-stalling-stand")
+
+    def read_samples(self) -> list[StandSample]:
+        if not self.stalled and self.clock.now_s() >= self.after_s:
+            self.stalled = True
+            self.clock.sleep_s(self.stall_s)
+        s = self.plant.state(self.clock.now_s())
+        return [StandSample(s.time_s, s.thrust_n, s.torque_nm, s.voltage_v, s.current_a)]
+
+    def tare(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_sweep_whose_commands_went_out_late_failed(tmp_path: Path) -> None:
+    plant = make_plant("xnova-2207-6s", rotors_on_esc=1, seed=1)
+    vehicle = PX4Vehicle(plant, cells=6)
+    clock, link = connect(vehicle)
+    out = open_mavlink_output(link, clock, autopilot="px4")
+    writer = DsWriter(tmp_path / "run.csv", out.throttle_scale, {"rig": "px4"})
+    stand = StallingStand(plant, clock, after_s=3.0, stall_s=2.5)
+    plan = plans.stairs(10, 40, 10, dwell_s=2.0)
+    runner = Runner(
+        plan,
+        out,
+        stand,
+        writer,
+        clock,
+        limits=Limits(cells=6, stale_data_s=5.0, link_timeout_s=5.0),
+    )
+    with pytest.raises(CommandsLate, match="did not hold"):
+        runner.run()
+    assert vehicle.running_motors() == {}  # stopped on the way out
+    assert "completed" not in (tmp_path / "run.meta.json").read_text()

@@ -218,7 +218,7 @@ class PX4Vehicle(SimMavlinkVehicle):
 
     def _stop(self, motor: int, time_s: float) -> None:
         self._tests.pop(motor, None)
-        self.plant.set_throttle(motor, 0.0, time_s)
+        self.set_plant_throttle(motor, 0.0, time_s)
 
     def _fraction(self, value: float) -> float:
         """Inverse of PX4's thrust model rel_thrust = f·u² + (1-f)·u (THR_MDL_FAC = f)."""
@@ -249,7 +249,7 @@ class PX4Vehicle(SimMavlinkVehicle):
             timeout_s = mav.PX4_ACTUATOR_TEST_MAX_TIMEOUT_S
         fraction = self._fraction(value)
         self._tests[motor] = (fraction, now_s + timeout_s)
-        self.plant.set_throttle(motor, fraction, now_s)
+        self.set_plant_throttle(motor, fraction, now_s)
         return R.ACCEPTED
 
 
@@ -369,11 +369,11 @@ class ArduPilotVehicle(SimMavlinkVehicle):
 
     def _output(self, motor: int | None, pwm: int, time_s: float) -> None:
         if self._running is not None and self._running != motor:
-            self.plant.set_throttle(self._running, 0.0, time_s)
+            self.set_plant_throttle(self._running, 0.0, time_s)
         self._running, self._running_pwm = motor, pwm
         if motor is not None:
             lo, hi = self.params["MOT_PWM_MIN"], self.params["MOT_PWM_MAX"]
-            self.plant.set_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
+            self.set_plant_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
 
     def stop_test(self, time_s: float) -> None:
         self._output(None, 0, time_s)

@@ -130,6 +130,14 @@ class SimMavlinkVehicle(ABC):
     def time_since_boot_s(self) -> float:
         return 0.0 if self._boot_s is None else self._now_s - self._boot_s
 
+    def set_plant_throttle(self, motor: int, fraction: float, time_s: float) -> None:
+        """Drive the plant at ``time_s``; a moment the plant has already passed (a stand that
+        shares it read it later, e.g. a motor-test timeout found late) is applied now."""
+        try:
+            self.plant.set_throttle(motor, fraction, time_s)
+        except ValueError:
+            self.plant.set_throttle(motor, fraction, self._now_s)
+
     def send(self, msg: Any) -> None:
         self._frames.append(self._codec.encode(msg))
 
