@@ -8,6 +8,7 @@ on a ``SimClock``.
 
 from __future__ import annotations
 
+import functools
 import logging
 import socket
 import struct
@@ -57,6 +58,11 @@ def real_transcript(name: str) -> Transcript:
     path = SHARED / f"{name}.jsonl"
     if not path.is_file():
         pytest.skip(f"real firmware transcript {name} not available (../shared absent)")
+    return _read_cached(str(path))
+
+
+@functools.lru_cache(maxsize=8)
+def _read_cached(path: str) -> Transcript:
     return read_transcript(path)
 
 
@@ -677,3 +683,36 @@ def test_a_sweep_whose_commands_went_out_late_failed(tmp_path: Path) -> None:
         runner.run()
     assert vehicle.running_motors() == {}  # stopped on the way out
     assert "completed" not in (tmp_path / "run.meta.json").read_text()
+
+
+def _servo_outputs(messages: list[Any]) -> list[tuple[int, ...]]:
+    return [
+        mav.decode_servo_output_raw(m).outputs_us[:8]
+        for m in messages
+        if m.get_type() == "SERVO_OUTPUT_RAW"
+    ]
+
+
+@pytest.mark.parametrize("name", ["px4/probe", "ardupilot/probe"])
+def test_sim_outputs_at_rest_match_the_real_firmware(name: str) -> None:
+    real = _servo_outputs(fc_messages(real_transcript(name)))[0]
+    sim: SimMavlinkVehicle = (
+        PX4Vehicle(ConstantPlant()) if name.startswith("px4") else ArduPilotVehicle(ConstantPlant())
+    )
+    clock, link = connect(sim)
+    clock.sleep_s(0.2)
+    assert _servo_outputs(mav.MavlinkCodec().feed(link.port.read(1 << 16)))[0] == real
+
+
+def test_sim_px4_actuator_test_and_its_timeout_match_the_real_firmware() -> None:
+    real = real_transcript("px4/spin_workaround")  # value 0.01, timeout 2 s, then nothing
+    outputs = _servo_outputs(fc_messages(real))
+    moved = [o for o in outputs if o[0] != 900]
+    assert set(moved) == {(1010, 900, 900, 900, 900, 900, 900, 900)}
+    assert outputs[-1] == (900,) * 8  # the firmware ended the test by itself
+    clock, link = connect(PX4Vehicle(ConstantPlant()))
+    link.mav.send(mav.actuator_test(1, 0.01, timeout_s=2.0).to_message())
+    clock.sleep_s(0.5)
+    assert _servo_outputs(mav.MavlinkCodec().feed(link.port.read(1 << 16)))[-1] == moved[0]
+    clock.sleep_s(2.0)
+    assert _servo_outputs(mav.MavlinkCodec().feed(link.port.read(1 << 16)))[-1] == (900,) * 8
