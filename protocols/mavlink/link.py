@@ -24,6 +24,7 @@ also inside ``record://`` (``record://udpin:0.0.0.0:14550?file=run.jsonl``).
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 from pymavlink import mavutil as mavutil  # re-exported for callers that need pymavlink helpers
@@ -37,6 +38,7 @@ from thrustmap.protocols.urlhandlers.protocol_udpin import is_udp_url, normalize
 log = logging.getLogger(__name__)
 
 MAX_IDLE_POLLS = 100_000
+MAX_IDLE_WALL_S = 10.0  # a real port on a clock that does not advance: give up after this
 MAX_READ_CHUNK = 4096  # bytes per transport read: bounded, and a whole burst in one event
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
@@ -124,6 +126,7 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
         types = None if type is None else ({type} if isinstance(type, str) else set(type))
         start_s = self.clock.now_s()
         idle_polls = 0
+        idle_since_wall_s = 0.0
         while True:
             if timeout is not None and self.clock.now_s() - start_s >= timeout:
                 return None
@@ -139,7 +142,10 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
                     idle_polls = 0
                 else:
                     idle_polls += 1
-                    if idle_polls > MAX_IDLE_POLLS:
+                    if idle_polls == 1:
+                        idle_since_wall_s = time.monotonic()
+                    stuck_s = time.monotonic() - idle_since_wall_s
+                    if idle_polls > MAX_IDLE_POLLS or stuck_s > MAX_IDLE_WALL_S:
                         raise TransportError(
                             f"{self.address}: no data and the clock does not advance; give the "
                             "transport the same clock as the link (clock=...)"
