@@ -4,7 +4,8 @@
   takes a TEST-ORDER instance instead (A = 1, B = 2, ...); the frame's motor table
   (``thrustmap.protocols.mavlink.frames``, from FRAME_CLASS/FRAME_TYPE) translates: on a plus
   quad Motor3 is test A. ``instances=`` overrides the table (``instances[n]`` = the test order
-  of motor n). ``motor_label`` names both. ESC telemetry is read from the motor's own ESC.
+  of motor n). ``motor_label`` names both. ESC telemetry and SERVO_OUTPUT_RAW are read at the
+  motor's own output, assuming ArduCopter's default wiring (SERVOn_FUNCTION = Motor n).
 - One motor at a time (a new command replaces the running test): two motors are refused.
 - **Throttle scale: PWM µs** over MOT_PWM_MIN..MOT_PWM_MAX (both 0 means RC3_MIN/RC3_MAX, as
   ArduCopter does; else 1000..2000).
