@@ -494,6 +494,21 @@ def test_ardupilot_sends_no_stop_after_its_test_timed_out() -> None:
     assert stops == [] and vehicle.tests_started == 1
 
 
+def test_ardupilot_no_stop_after_the_vehicle_ended_our_test_and_disarmed() -> None:
+    out, vehicle, tap, clock = ardupilot()
+    out.identify()
+    out.set_throttle({0: 1300.0})
+    vehicle.stop_test(clock.now_s())  # ended on the vehicle ("finished motor test")
+    clock.sleep_s(0.1)
+    out.poll()
+    assert out.test_may_be_running()  # ended, but no disarmed HEARTBEAT yet: still unsure
+    clock.sleep_s(1.0)
+    out.poll()
+    assert not out.test_may_be_running()
+    assert out.stop_and_verify() is True
+    assert [c for c in tap.commands(mav.MAV_CMD_DO_MOTOR_TEST) if c.params[3] == 0.0] == []
+
+
 def test_ardupilot_board_initialising_raises_no_critical(caplog: pytest.LogCaptureFixture) -> None:
     out, vehicle, tap, _ = ardupilot(init_delay_s=30.0)
     with caplog.at_level(logging.INFO), pytest.raises(MotorTestRefused) as info, out:

@@ -177,12 +177,19 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         return True  # ArduPilot disarms when the test ends: the HEARTBEAT confirms it
 
     def test_may_be_running(self) -> bool:
-        """A test of ours was accepted, and neither its timeout nor its end has been seen."""
+        """A test of ours was accepted, and neither its timeout has passed nor its end been seen
+        ("finished motor test", then a disarmed HEARTBEAT). When unsure: running (a needless
+        stop only arms the vehicle for a moment; a missing one leaves a motor turning)."""
         if self._test_until_s is None:
             return False
-        self.session.poll()
-        if FINISHED_TEXT in self.session.texts_after(self._test_seq):
-            self._test_until_s = None
+        s = self.session
+        s.poll()
+        finished = [
+            t.seq for t in s.statustext if t.seq > self._test_seq and t.value == FINISHED_TEXT
+        ]
+        hb = s.heartbeat
+        if finished and hb is not None and hb.seq > finished[-1] and not hb.value.armed:
+            self._test_until_s = None  # ended, and the vehicle has disarmed since
             return False
         if self.clock.now_s() > self._test_until_s:
             self._test_until_s = None
