@@ -731,3 +731,31 @@ def test_sim_px4_actuator_test_and_its_timeout_match_the_real_firmware() -> None
     assert _servo_outputs(mav.MavlinkCodec().feed(link.port.read(1 << 16)))[-1] == moved[0]
     clock.sleep_s(2.0)
     assert _servo_outputs(mav.MavlinkCodec().feed(link.port.read(1 << 16)))[-1] == (900,) * 8
+
+
+def test_ardupilot_a_label_asked_before_identify_does_not_fix_a_wrong_order() -> None:
+    out, _, tap, _ = ardupilot(frame_class=1, frame_type=0)
+    assert motor_label(out, 0) == "motor 1"  # the frame is not known yet
+    out.identify()
+    assert motor_label(out, 0) == "motor 1 (test order B)"
+    out.set_throttle({0: 1300.0})
+    assert tap.commands(mav.MAV_CMD_DO_MOTOR_TEST)[-1].params[0] == 2.0
+    out.stop_and_verify()
+
+
+def test_cli_spin_takes_the_test_order_letter_on_ardupilot_only() -> None:
+    from click.testing import CliRunner
+
+    from thrustmap.cli import cli
+
+    args = ["--motor", "A", "--throttle", "10", "--seconds", "1", "--yes"]
+    done = CliRunner().invoke(cli, ["spin", "sim://ardupilot?frame_type=0", *args])
+    assert done.exit_code == 0, done.output
+    assert "spinning motor 3 (test order A)" in done.output
+    assert "motor 3 stopped (verified)" in done.output
+    from thrustmap.rig.sim import peers
+
+    peers.reset_benches()  # a new clock: a new simulated bench
+    refused = CliRunner().invoke(cli, ["spin", "sim://px4", *args])
+    assert isinstance(refused.exception, ConfigError)  # main() maps it to exit 2, one line
+    assert "test-order letters are ArduPilot's" in str(refused.exception)

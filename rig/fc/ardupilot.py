@@ -95,16 +95,18 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         self._test_seq = 0  # received-stream position of our last accepted command
 
     # -- numbering -----------------------------------------------------------------------------
+    def _frame(self) -> tuple[int | None, int | None]:
+        cls, typ = self.session.param("FRAME_CLASS"), self.session.param("FRAME_TYPE")
+        return (None if cls is None else int(cls)), (None if typ is None else int(typ))
+
     def _order(self) -> MotorOrder:
-        if self.order is None:
-            s = self.session
-            cls, typ = s.param("FRAME_CLASS"), s.param("FRAME_TYPE")
-            self.order = motor_order(
-                None if cls is None else int(cls),
-                None if typ is None else int(typ),
-                self.motor_count or 4,
-            )
-        return self.order
+        """The frame's table (kept once the parameters were read; until then not cached)."""
+        if self.order is not None:
+            return self.order
+        order = motor_order(*self._frame(), self.motor_count or 4)
+        if self._identity is not None:
+            self.order = order
+        return order
 
     def instance_for_motor(self, motor: int) -> int:
         """DO_MOTOR_TEST instance (test order) for 0-based FC motor ``motor``."""
@@ -118,6 +120,8 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         return self._order().motor_for(instance)
 
     def motor_label(self, motor: int) -> str:
+        if self.order is None and self._identity is None:
+            return f"motor {motor + 1}"  # the frame is not known yet
         try:
             letter = test_letter(self._order().instance_for(motor))
         except ConfigError:
@@ -151,14 +155,13 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
     def _param_motor_count(self) -> int:
         if self.order is not None:
             return self.order.motor_count
-        order = self._order()
-        if order.known:
-            return order.motor_count
-        self.order = None  # unknown frame: decide again once the outputs are counted
-        return 0
+        order = motor_order(*self._frame(), 0)
+        return order.motor_count if order.known else 0
 
     def _after_motor_count(self) -> dict[str, str]:
-        order = self._order()
+        if self.order is None:
+            self.order = motor_order(*self._frame(), self.motor_count or 4)
+        order = self.order
         if not order.known:
             log.warning(
                 "frame %s is not in thrustmap's ArduPilot motor table: assuming test order = "

@@ -353,8 +353,9 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         }
 
     def outputs_us(self) -> list[int]:
+        """One output per FC motor (Motor n on output n); the plant holds the first ones."""
         idle = round(self.params["MOT_PWM_MIN"])
-        out = [idle] * self.plant.motor_count
+        out = [idle] * max(len(self.test_order), self.plant.motor_count)
         if self._running is not None:
             out[self._running] = self._running_pwm
         return out
@@ -368,10 +369,11 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         return lo + (hi - lo) * min(max(test.value, 0.0), 100.0) / 100.0  # PERCENT, COMPASS_CAL
 
     def _output(self, motor: int | None, pwm: int, time_s: float) -> None:
-        if self._running is not None and self._running != motor:
+        on_stand = self.plant.motor_count  # FC motors beyond the stand's drive nothing
+        if self._running is not None and self._running != motor and self._running < on_stand:
             self.set_plant_throttle(self._running, 0.0, time_s)
         self._running, self._running_pwm = motor, pwm
-        if motor is not None:
+        if motor is not None and motor < on_stand:
             lo, hi = self.params["MOT_PWM_MIN"], self.params["MOT_PWM_MAX"]
             self.set_plant_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
 

@@ -294,8 +294,7 @@ def sweep_cmd(
                     throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
                 )
             with output_dev:
-                if parse_motor(motor)[0] is None:  # a test-order letter: ask the FC's frame
-                    output_dev.identify()
+                output_dev.identify()  # the FC's frame says what a test-order letter means
                 motor_index = resolve_motor(output_dev, motor)
                 click.echo(
                     f"motor on the load cell: {motor_label(output_dev, motor_index)}", err=True

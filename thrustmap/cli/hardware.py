@@ -308,9 +308,8 @@ def spin_cmd(
             stand = connect.open_stand(stand_url, clock)
         elif isinstance(output, connect.StandEscOutput):
             stand = output.stand
-        if motor_number is None:  # a test-order letter: the FC's frame table says which motor
-            output.identify()
-            request = dataclasses.replace(request, motor=resolve_motor(output, motor))
+        output.identify()  # the FC's frame says which motor a test-order letter means
+        request = dataclasses.replace(request, motor=resolve_motor(output, motor))
         label = motor_label(output, request.motor)
         click.echo(f"spinning {label}")
         handed_over = True
