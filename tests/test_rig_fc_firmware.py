@@ -759,3 +759,38 @@ def test_cli_spin_takes_the_test_order_letter_on_ardupilot_only() -> None:
     refused = CliRunner().invoke(cli, ["spin", "sim://px4", *args])
     assert isinstance(refused.exception, ConfigError)  # main() maps it to exit 2, one line
     assert "test-order letters are ArduPilot's" in str(refused.exception)
+
+
+def test_cli_probe_records_a_udp_vehicle(tmp_path: Path) -> None:
+    """``thrustmap probe "record://udpin:HOST:PORT?file=x.jsonl"``: how a user records their
+    own PX4 link for a bug report (the vehicle here: the simulated PX4 on loopback UDP)."""
+    import threading
+
+    from click.testing import CliRunner
+
+    from thrustmap.cli import cli
+
+    port = _free_udp_port()
+    path = tmp_path / "my_px4.jsonl"
+    stop = threading.Event()
+    clock = MonotonicClock()
+    with UdpVehicleLink(PX4Vehicle(ConstantPlant()), port, clock) as vehicle_link:
+
+        def pump() -> None:
+            while not stop.is_set():
+                vehicle_link.pump()
+                stop.wait(0.005)
+
+        thread = threading.Thread(target=pump, daemon=True)
+        thread.start()
+        try:
+            done = CliRunner().invoke(
+                cli, ["probe", f"record://udpin:127.0.0.1:{port}?file={path}", "--seconds", "1"]
+            )
+        finally:
+            stop.set()
+            thread.join(timeout=5)
+    assert done.exit_code == 0, done.output
+    assert "px4" in done.output and "param_encoding: bytewise" in done.output
+    kinds = {m.get_type() for m in fc_messages(read_transcript(path))}
+    assert {"HEARTBEAT", "PARAM_VALUE", "SERVO_OUTPUT_RAW"} <= kinds
