@@ -1,8 +1,9 @@
 """PX4-like and ArduPilot-like vehicles that speak MAVLink 2 (via pymavlink) over bytes.
 
 Both are ``BytePeer``s (``sim://px4``, ``sim://ardupilot``, or ``SimSerial(PX4Vehicle(plant),
-clock)``) and forward motor commands to a ``Plant``. Behaviour follows the facts in
-reference/mavlink.md:
+clock)``) and forward motor commands to a ``Plant``. Behaviour follows the MAVLink
+specification and what real SITL builds were seen to do (checked in tests/test_rig_fc_firmware.py
+against recordings of them):
 
 PX4 (autopilot 12), as PX4 v1.17 SITL behaves
 - Parameters: INT32 ones (COM_MOT_TEST_EN, CA_ROTOR_COUNT, PWM_MAIN_*) are sent BYTEWISE (the
