@@ -515,6 +515,7 @@ def test_ardupilot_board_initialising_raises_no_critical(caplog: pytest.LogCaptu
         out.identify()
         out.set_throttle({0: 1200.0})
     assert info.value.statustext == ("Motor Test: Board initialising",)
+    assert "SERVO_OUTPUT_RAW" not in out.session.seen  # no output evidence yet, as on real boot
     assert out.last_stop_verified is True
     assert not [r for r in caplog.records if r.levelno >= logging.CRITICAL]
     assert len(tap.commands(mav.MAV_CMD_DO_MOTOR_TEST)) == 1  # the refused one; no stop

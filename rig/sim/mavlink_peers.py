@@ -29,7 +29,7 @@ ArduPilot / ArduCopter (autopilot 3), as ArduCopter 4.7 SITL behaves
 - Every accepted DO_MOTOR_TEST that finds no test running STARTS one ("starting motor test",
   armed), including a "stop" (PWM 0, timeout 0), which then ends at once ("finished motor
   test"). ``init_delay_s``: for that long after boot every test is refused with FAILED and
-  "Motor Test: Board initialising".
+  "Motor Test: Board initialising", and SERVO_OUTPUT_RAW / BATTERY_STATUS are not sent yet.
 - MAV_CMD_DO_MOTOR_TEST: preconditions board initialised, RC calibrated (unless p2 = PWM), landed,
   safety switch not engaged; failure -> FAILED plus STATUSTEXT "Motor Test: ...". While a test
   runs HEARTBEAT says ARMED. A new command during a test skips the checks, overwrites the
@@ -335,13 +335,20 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         return self._test is not None
 
     @property
+    def booting(self) -> bool:
+        """Within ``init_delay_s`` of boot: motor tests refused, no outputs or battery sent."""
+        return not self.initialised or self.time_since_boot_s < self.init_delay_s
+
+    @property
     def motor_test_running(self) -> bool:
         return self._test is not None
 
     def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
         return {
             MSG_SYS_STATUS: lambda s: [_sys_status(s)],
-            MSG_BATTERY_STATUS: lambda s: [enc.battery_status_message([s.voltage_v], s.current_a)],
+            MSG_BATTERY_STATUS: lambda s: (
+                [] if self.booting else [enc.battery_status_message([s.voltage_v], s.current_a)]
+            ),
             MSG_ESC_TELEMETRY_1_TO_4: lambda s: [
                 enc.esc_telemetry_message(
                     rpm=s.rpm[:4],
@@ -350,7 +357,9 @@ class ArduPilotVehicle(SimMavlinkVehicle):
                     temperature_c=s.temperature_c[:4],
                 )
             ],
-            MSG_SERVO_OUTPUT_RAW: lambda s: [_servo_raw(self, self.outputs_us())],
+            MSG_SERVO_OUTPUT_RAW: lambda s: (
+                [] if self.booting else [_servo_raw(self, self.outputs_us())]
+            ),
         }
 
     def outputs_us(self) -> list[int]:
@@ -403,7 +412,7 @@ class ArduPilotVehicle(SimMavlinkVehicle):
             self._output(motor, round(pwm), test.start_s + step * test.timeout_s)
 
     def _precondition_failure(self, throttle_type: int) -> str | None:
-        if not self.initialised or self.time_since_boot_s < self.init_delay_s:
+        if self.booting:
             return "Board initialising"
         if throttle_type != mav.MotorTestThrottleType.PWM and not self.rc_calibrated:
             return "RC not calibrated"
