@@ -479,7 +479,9 @@ def test_ardupilot_spin_stops_once_and_no_redundant_stop_starts_a_test() -> None
         clock.sleep_s(0.5)
         out.keepalive()
         assert out.stop_and_verify() is True
+        before_s = clock.now_s()
         assert out.stop_and_verify() is True  # a second, redundant stop: sends nothing
+        assert clock.now_s() - before_s < 0.1  # and does not wait for evidence it already has
     stops = [c for c in tap.commands(mav.MAV_CMD_DO_MOTOR_TEST) if c.params[3] == 0.0]
     assert len(stops) == 1 and vehicle.tests_started == 1 and not vehicle.armed
 

@@ -246,6 +246,9 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         running = sorted(self._current) or sorted(self._commanded) or [0]
         return [mav.motor_test_stop(self.instance_for_motor(running[0]))]
 
+    def _stop_is_idempotent_noop(self) -> bool:
+        return not self._current and not self.test_may_be_running()
+
     def _after_stop_acked(self, *, refused: bool) -> None:
         if not refused:
             self._test_until_s = None  # our stop ended our test

@@ -119,6 +119,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
         self._stop_acked_seq = 0  # received-message count when the last stop was acknowledged
         self._stop_rpm: dict[int, float] = {}
         self._stop_refused = False
+        self._verified_since_sent = False  # a verified stop since our last motor command
         self.last_stop_verified: bool | None = None
 
     # -- session shortcuts ----------------------------------------------------------------------
@@ -291,9 +292,11 @@ class MavlinkThrottleOutput(ThrottleOutput):
 
     def _sent(self) -> None:
         self._last_sent_s = self.clock.now_s()
+        self._verified_since_sent = False
 
     def _send_or_assume_running(self, values: dict[int, float]) -> None:
         """Send; if the outcome is unknown (no ACK, link gone), assume the motor may be turning."""
+        self._verified_since_sent = False
         try:
             self._send_throttle(values)
         except MotorTestRefused:
@@ -473,9 +476,17 @@ class MavlinkThrottleOutput(ThrottleOutput):
             log.info("no motor command of ours was accepted: nothing of ours to stop")
             self.last_stop_verified = True
             return True
+        if self._verified_since_sent and self._stop_is_idempotent_noop():
+            log.info("stop already verified and nothing commanded since")
+            return True
         ok = super().stop_and_verify(attempts)
         self.last_stop_verified = ok
+        self._verified_since_sent = ok
         return ok
+
+    def _stop_is_idempotent_noop(self) -> bool:
+        """True where a repeated stop would send nothing (ArduPilot with no test of ours)."""
+        return False
 
     # -- telemetry -------------------------------------------------------------------------------
     def _fresh(self, stamped: Stamped | None, now_s: float) -> Any:
