@@ -165,7 +165,8 @@ def _sim_line_preset(options: Mapping[str, str]) -> str:
 def detect_from_url(url: str) -> Detection | None:
     """The kind a URL names without any I/O on a device (sim peers, replay transcripts,
     pymavlink connection strings such as ``udpin:0.0.0.0:14550``)."""
-    if MAVLINK_CONNECTION.match(url):
+    inner = innermost_url(url)  # also recorded: record://udpin:0.0.0.0:14550?file=x.jsonl
+    if MAVLINK_CONNECTION.match(inner) or url_scheme(inner) in ("udpin", "udpout"):
         return Detection("mavlink", evidence="pymavlink connection string")
     peer = sim_peer(url)
     if peer is not None:
@@ -489,19 +490,11 @@ def _open_mavlink(
     factory = getattr(module, "open_mavlink_output", None)
     if factory is None:
         raise ConfigError("thrustmap.rig.fc.mavlink has no open_mavlink_output()")
-    from thrustmap.protocols.mavlink.link import (
-        GCS_COMPONENT_ID,
-        GCS_SYSTEM_ID,
-        mavutil,
-        open_mavlink,
-    )
+    from thrustmap.protocols.mavlink.link import is_own_transport, mavutil_connection, open_mavlink
 
     link: Any
-    if MAVLINK_CONNECTION.match(url):
-        # pymavlink's own UDP/TCP links run on real time (no record/replay on this path).
-        link = mavutil.mavlink_connection(
-            url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID
-        )
+    if MAVLINK_CONNECTION.match(url) and not is_own_transport(url):
+        link = mavutil_connection(url)  # tcpin:, udpbcast: (pymavlink's own, real time)
     else:
         serial_kwargs: dict[str, Any] = {}
         if url_scheme(url) not in CLOCK_AWARE_SCHEMES:

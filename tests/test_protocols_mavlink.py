@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,7 @@ from thrustmap.errors import ConfigError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.mavlink.ext import ESC_STATUS_XML, MAVLink_esc_status_message
+from thrustmap.protocols.mavlink.params import ParamEncoding
 
 
 def round_trip(msg: object) -> mav.Decoded | None:
@@ -162,7 +164,8 @@ def test_statustext_and_param_value() -> None:
     text = round_trip(enc.statustext_message("Motor Test: Safety switch", mav.Severity.CRITICAL))
     assert text == mav.StatusText(mav.Severity.CRITICAL, "Motor Test: Safety switch")
     param = round_trip(enc.param_value_message("THR_MDL_FAC", 0.25, 3, 7))
-    assert param == mav.ParamValue("THR_MDL_FAC", 0.25, 3, 7)
+    assert param == mav.ParamValue("THR_MDL_FAC", struct.pack("<f", 0.25), 9, 3, 7)
+    assert param.number(ParamEncoding.BYTEWISE) == param.number(ParamEncoding.C_CAST) == 0.25
 
 
 def test_decode_ignores_other_messages() -> None:

@@ -469,8 +469,10 @@ def test_describe_port(port: FakePort, guess: str, kinds: tuple[str, ...], safe:
 def test_pymavlink_connection_strings_reach_the_mavlink_driver(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """``udpin:``/``tcp:`` go to stock ``mavutil.mavlink_connection``; here it hands back a link
-    to a simulated vehicle on the SimClock (the real UDP loopback is fc_mavlink's test)."""
+    """``udpin:``/``tcp:`` open through thrustmap's own transports (so ``record://`` works on
+    them); here the transport is a simulated vehicle on the SimClock (real UDP is tested in
+    test_rig_fc_firmware). ``tcpin:`` still goes to stock ``mavutil``, switched to MAVLink 2."""
+    from thrustmap.protocols.mavlink import link as mavlink_link
     from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 
     found = connect.detect_from_url("udpin:0.0.0.0:14550")
@@ -479,17 +481,28 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
 
     clock = SimClock()
     vehicle = PX4Vehicle(ConstantPlant(4))
-    asked: list[tuple[str, dict[str, Any]]] = []
+    asked: list[str] = []
 
-    def connection(url: str, **kwargs: Any) -> Any:
-        asked.append((url, kwargs))
-        return MavlinkSerialLink(SimSerial(vehicle, clock), clock)
+    def transport(url: str, **kwargs: Any) -> Any:
+        asked.append(url)
+        return SimSerial(vehicle, clock)
 
-    monkeypatch.setattr(mavutil, "mavlink_connection", connection)
+    monkeypatch.setattr(mavlink_link, "open_transport", transport)
     out = connect.open_throttle_output("udpin:127.0.0.1:14550", clock)
     with out:
         assert out.identify().kind == "px4"
         out.set_throttle({0: 0.3})
         assert vehicle.running_motors() == {0: pytest.approx(0.3)}
     assert vehicle.running_motors() == {}
-    assert asked == [("udpin:127.0.0.1:14550", {"source_system": 255, "source_component": 190})]
+    assert asked == ["udpin://127.0.0.1:14550"]
+
+    stock: list[tuple[str, dict[str, Any]]] = []
+
+    def connection(url: str, **kwargs: Any) -> Any:
+        stock.append((url, kwargs))
+        return MavlinkSerialLink(SimSerial(PX4Vehicle(ConstantPlant(4)), clock), clock)
+
+    monkeypatch.setattr(mavutil, "mavlink_connection", connection)
+    with connect.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out2:
+        assert out2.identify().kind == "px4"
+    assert stock == [("tcpin:127.0.0.1:5760", {"source_system": 255, "source_component": 190})]

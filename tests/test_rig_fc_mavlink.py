@@ -126,8 +126,8 @@ def test_px4_identify_reads_params_cells_motors_and_asks_for_rates() -> None:
     ident = out.identify()
     assert (ident.kind, ident.motor_count, ident.battery_cells) == ("px4", 6, 6)
     assert ident.details["THR_MDL_FAC"] == "0" and ident.details["COM_MOT_TEST_EN"] == "1"
-    assert (ident.details["PWM_MAIN_MIN"], ident.details["PWM_MAIN_DIS"]) == ("1000", "900")
-    assert ident.details["motor_count_source"] == "SERVO_OUTPUT_RAW"
+    assert (ident.details["PWM_MAIN_MIN6"], ident.details["PWM_MAIN_DIS1"]) == ("1000", "900")
+    assert ident.details["motor_count_source"] == "parameter"  # CA_ROTOR_COUNT, bytewise INT32
     assert out.throttle_scale == SCALES["norm"]
     rates = received(vehicle, mav.MAV_CMD_SET_MESSAGE_INTERVAL)
     assert sorted((int(c.params[0]), c.params[1]) for c in rates) == [
@@ -254,16 +254,27 @@ def test_px4_refuses_values_outside_the_scale_and_unknown_motors() -> None:
 class VersionedPX4(PX4Vehicle):
     """Test double: answers MAV_CMD_REQUEST_MESSAGE(AUTOPILOT_VERSION) like real PX4."""
 
-    def handle_command(self, command: mav.CommandLong, now_s: float) -> int:
-        if command.command == 512 and int(command.params[0]) == 148:
+    def _request_message(self, command: mav.CommandLong) -> int:
+        if int(command.params[0]) == 148:
             sw = (1 << 24) | (14 << 16) | (3 << 8) | 255
             self.send(
                 mavlink2.MAVLink_autopilot_version_message(
-                    0, sw, 0, 0, 0x00380000, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11, 0, [0] * 18
+                    59647,
+                    sw,
+                    0,
+                    0,
+                    0x00380000,
+                    [0] * 8,
+                    [0] * 8,
+                    [0] * 8,
+                    0x26AC,
+                    0x11,
+                    0,
+                    [0] * 18,
                 )
             )
             return R.ACCEPTED
-        return super().handle_command(command, now_s)
+        return R.DENIED
 
 
 def test_px4_firmware_version_from_autopilot_version() -> None:
@@ -340,7 +351,7 @@ def test_ardupilot_spin_keepalive_armed_during_test_and_verified_stop() -> None:
     out.set_throttle({0: 1500.0})
     spin_for(out, clock, 8.0)  # 4x the 2 s timeout; HEARTBEAT says ARMED all along
     assert vehicle.motor_test_running and vehicle.armed
-    assert out._heartbeat is not None and out._heartbeat.value.armed
+    assert out.session.heartbeat is not None and out.session.heartbeat.value.armed
     out.set_throttle({0: 1300.0})  # ARMED during our own test is not a pre-armed vehicle
     spin_for(out, clock, 1.0)
     tel = out.read_telemetry()
@@ -361,7 +372,7 @@ def test_ardupilot_restart_right_after_stop_waits_for_a_fresh_heartbeat() -> Non
     out.set_throttle({0: 1400.0})
     spin_for(out, clock, 1.5)
     out.stop()  # no verify: the latest HEARTBEAT still says ARMED
-    assert out._heartbeat is not None and out._heartbeat.value.armed
+    assert out.session.heartbeat is not None and out.session.heartbeat.value.armed
     out.set_throttle({1: 1400.0})
     assert vehicle.motor_test_running and rpm(vehicle, clock)[1] == pytest.approx(12000.0)
     assert out.stop_and_verify()
@@ -400,9 +411,9 @@ def test_ardupilot_one_motor_at_a_time_and_instance_mapping() -> None:
     out.identify()
     with pytest.raises(SafetyError, match="one motor at a time"):
         out.set_throttle({0: 1200.0, 1: 1200.0})
-    out.set_throttle({1: 1600.0})  # motor 1 -> test-order instance 4 -> (sim order) motor 3
+    out.set_throttle({1: 1600.0})  # motor 2 -> instance 4 as given -> the sim's quad X: Motor3
     assert received(vehicle, mav.MAV_CMD_DO_MOTOR_TEST)[-1].params[0] == 4.0
-    assert rpm(vehicle, clock) == [0.0, 0.0, 0.0, pytest.approx(18000.0)]
+    assert rpm(vehicle, clock) == [0.0, 0.0, pytest.approx(18000.0), 0.0]
     with pytest.raises(SafetyError):
         out.set_throttle({0: 2100.0})  # above MOT_PWM_MAX
     assert out.stop_and_verify()
@@ -553,10 +564,11 @@ EXPECTED_TELEMETRY = {
     + [(16.792, 0.81, (9000.0, 0.0, 0.0, 0.0), (25.0,) * 4)] * 6,
 }
 EXPECTED_ERRORS = {
-    "px4_denied_safety": "px4 refused ACTUATOR_TEST motor 0 = 0.2 (DENIED). PX4 denies actuator "
+    "px4_denied_safety": "px4 refused ACTUATOR_TEST motor 1 (output 1) = 0.2 (DENIED). PX4 denies "
+    "actuator "
     "tests while armed, with the safety switch on, or when COM_MOT_TEST_EN != 1 (check the "
     "safety switch)",
-    "ardupilot_not_landed": "ardupilot refused DO_MOTOR_TEST motor 0 (instance 1) = 1200 µs "
+    "ardupilot_not_landed": "ardupilot refused DO_MOTOR_TEST motor 1 (test order A) = 1200 µs "
     "(FAILED): 'Motor Test: vehicle not landed'",
 }
 
@@ -586,6 +598,14 @@ def test_fixture_ends_with_the_stop_sequence_in_exact_bytes(name: str) -> None:
     ]
     if name.startswith("px4"):
         expected = [mav.actuator_test_stop(m) for m in (1, 2, 3, 4)]
+    elif name == "ardupilot_not_landed":
+        # The refused command started nothing, and an ArduPilot "stop" sent while no test runs
+        # STARTS one: the last command written is the refused one, no stop follows.
+        assert [c.command for _, c in commands][-1] == mav.MAV_CMD_DO_MOTOR_TEST
+        last = commands[-1][1]
+        assert last.params[2] == 1200.0 and last.params[3] > 0
+        assert frames[-1] is commands[-1][0]
+        return
     else:
         expected = [mav.motor_test_stop(1)]
     tail = commands[-len(expected) :]

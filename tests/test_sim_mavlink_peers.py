@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 import time
 from typing import Any
 
@@ -11,6 +12,7 @@ import pytest
 from thrustmap.clock import SimClock
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil, open_mavlink
+from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
@@ -106,20 +108,25 @@ def test_px4_denies_when_armed_or_safety_on() -> None:
 def test_px4_denies_unless_com_mot_test_en_and_params_round_trip() -> None:
     vehicle = PX4Vehicle(ConstantPlant())
     clock, link = connect(vehicle)
-    link.mav.send(mav.param_set("COM_MOT_TEST_EN", 0))
+    int32 = {"param_type": ParamType.INT32, "encoding": ParamEncoding.BYTEWISE}
+    link.mav.send(mav.param_set("COM_MOT_TEST_EN", 0, **int32))  # as a GCS sets it on PX4
     echo = mav.decode(link.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0))
-    assert isinstance(echo, mav.ParamValue) and echo.name == "COM_MOT_TEST_EN" and echo.value == 0.0
+    assert isinstance(echo, mav.ParamValue) and echo.name == "COM_MOT_TEST_EN"
+    assert echo.param_type == ParamType.INT32 and echo.number(ParamEncoding.BYTEWISE) == 0.0
     assert command(link, mav.actuator_test(1, 0.3)).result == R.DENIED
-    link.mav.send(mav.param_set("COM_MOT_TEST_EN", 1))
+    link.mav.send(mav.param_set("COM_MOT_TEST_EN", 1, **int32))
     link.mav.send(mav.param_request_read("THR_MDL_FAC"))
     values = [
         mav.decode(m)
         for m in (link.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0) for _ in range(2))
     ]
-    assert [(v.name, v.value) for v in values if isinstance(v, mav.ParamValue)] == [
-        ("COM_MOT_TEST_EN", 1.0),
-        ("THR_MDL_FAC", 0.0),
-    ]
+    assert [
+        (v.name, v.number(ParamEncoding.BYTEWISE)) for v in values if isinstance(v, mav.ParamValue)
+    ] == [("COM_MOT_TEST_EN", 1.0), ("THR_MDL_FAC", 0.0)]
+    # Bytewise on the wire, as real PX4: the float view of INT32 1 is the denormal 1.4e-45.
+    enabled = values[0]
+    assert isinstance(enabled, mav.ParamValue)
+    assert struct.unpack("<f", enabled.raw)[0] == pytest.approx(1.4013e-45, rel=1e-3)
     assert command(link, mav.actuator_test(1, 0.3)).result == R.ACCEPTED
 
 
@@ -273,10 +280,10 @@ def test_ardupilot_motor_count_runs_motors_in_test_order() -> None:
 def test_ardupilot_esc_telemetry_and_battery_total() -> None:
     vehicle = ArduPilotVehicle(ConstantPlant(voltage_v=12.0))
     clock, link = connect(vehicle)
-    command(link, mav.motor_test(2, 2000, timeout_s=5))
+    command(link, mav.motor_test(2, 2000, timeout_s=5))  # test order B = Motor4 on a quad X
     esc = latest(link, clock, "ESC_TELEMETRY_1_TO_4", 0.5)
-    assert esc.rpm == (0.0, 30000.0, 0.0, 0.0)
-    assert esc.current_a[1] == pytest.approx(30.0) and esc.temperature_c[1] == 25.0
+    assert esc.rpm == (0.0, 0.0, 0.0, 30000.0)
+    assert esc.current_a[3] == pytest.approx(30.0) and esc.temperature_c[3] == 25.0
     battery = latest(link, clock, "BATTERY_STATUS", 0.6)
     assert battery.cell_voltages_v == () and battery.total_voltage_v == pytest.approx(
         11.7, abs=0.001

@@ -3,8 +3,8 @@
 MAVLink 2 everywhere, chosen by module, not by environment: this module imports pymavlink's
 generated v2.0 ``ardupilotmega`` dialect directly (it includes common.xml), so encoding and
 parsing are MAVLink 2 whatever ``MAVLINK20`` says and whether or not ``mavutil`` was imported
-first. (``thrustmap.protocols.mavlink.link`` sets ``MAVLINK20=1`` before importing ``mavutil``
-for the connections it builds.) Framing, CRCs and field packing are pymavlink's; nothing here
+first. (``thrustmap.protocols.mavlink.link`` builds its connections on the same v2.0 dialect.)
+Framing, CRCs and field packing are pymavlink's; nothing here
 re-implements them. Functions only, no I/O: ``MavlinkCodec`` turns messages into bytes and bytes
 (in any chunking) into messages.
 
@@ -23,12 +23,29 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.errors import ConfigError
 from thrustmap.protocols.mavlink.ext import register_extensions
+from thrustmap.protocols.mavlink.params import (
+    ParamEncoding,
+    ParamType,
+    decode_param,
+    encode_param_float,
+    float_field_bytes,
+)
 
 register_extensions()
 
 MAV_CMD_DO_MOTOR_TEST = 209
 MAV_CMD_ACTUATOR_TEST = 310
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MSG_HEARTBEAT = 0
+MSG_SYS_STATUS = 1
+MSG_SERVO_OUTPUT_RAW = 36
+MSG_BATTERY_STATUS = 147
+MSG_AUTOPILOT_VERSION = 148
+MSG_ESC_STATUS = 291
+MSG_ESC_TELEMETRY_1_TO_4 = 11030
+MSG_ESC_TELEMETRY_5_TO_8 = 11031
+FIRMWARE_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_TYPE_QUADROTOR = 2
 MAV_TYPE_GCS = 6
@@ -233,19 +250,45 @@ def set_message_interval(
     )
 
 
+def request_message(
+    message_id: int, *, target_system: int = 1, target_component: int = 1
+) -> CommandLong:
+    """MAV_CMD_REQUEST_MESSAGE (512): ask the vehicle to send ``message_id`` once."""
+    return CommandLong(
+        MAV_CMD_REQUEST_MESSAGE, _params(message_id), target_system, target_component
+    )
+
+
+def decode_flight_sw_version(value: int) -> str:
+    """AUTOPILOT_VERSION.flight_sw_version -> "1.14.3" (with "-beta"/"-rc"/"-dev" if not official)."""
+    major, minor, patch = (value >> 24) & 0xFF, (value >> 16) & 0xFF, (value >> 8) & 0xFF
+    text = f"{major}.{minor}.{patch}"
+    label = FIRMWARE_TYPES.get(value & 0xFF, "")
+    return text if label in ("official", "") else f"{text}-{label}"
+
+
 def param_request_read(name: str, *, target_system: int = 1, target_component: int = 1) -> Any:
     return mavlink2.MAVLink_param_request_read_message(
         target_system, target_component, name.encode("ascii"), -1
     )
 
 
-def param_set(name: str, value: float, *, target_system: int = 1, target_component: int = 1) -> Any:
+def param_set(
+    name: str,
+    value: float,
+    *,
+    param_type: int = ParamType.REAL32,
+    encoding: ParamEncoding = ParamEncoding.C_CAST,
+    target_system: int = 1,
+    target_component: int = 1,
+) -> Any:
+    """PARAM_SET with ``value`` encoded for ``param_type`` the way the vehicle reads it."""
     return mavlink2.MAVLink_param_set_message(
         target_system,
         target_component,
         name.encode("ascii"),
-        float(value),
-        9,  # REAL32
+        encode_param_float(value, param_type, encoding),
+        int(param_type),
     )
 
 
@@ -354,10 +397,40 @@ class StatusText:
 
 @dataclass(frozen=True)
 class ParamValue:
+    """A PARAM_VALUE as it came: the value field's 4 wire bytes and its MAV_PARAM_TYPE.
+
+    There is deliberately no ``value``: an integer's number depends on the vehicle's encoding
+    (see ``thrustmap.protocols.mavlink.params``); ask ``number(encoding)``.
+    """
+
     name: str
-    value: float
+    raw: bytes
+    param_type: int
     index: int
     count: int
+
+    def number(self, encoding: ParamEncoding) -> float:
+        return decode_param(self.raw, self.param_type, encoding)
+
+
+@dataclass(frozen=True)
+class ParamError:
+    """PARAM_ERROR (345): the vehicle has no such parameter (or could not read or set it)."""
+
+    name: str
+    index: int
+    error: int
+
+
+@dataclass(frozen=True)
+class AutopilotVersion:
+    capabilities: int
+    flight_sw_version: int
+    board_version: int
+
+    @property
+    def version_text(self) -> str:
+        return decode_flight_sw_version(self.flight_sw_version)
 
 
 Decoded = Union[  # noqa: UP007 - a runtime alias must work on Python 3.10
@@ -370,6 +443,8 @@ Decoded = Union[  # noqa: UP007 - a runtime alias must work on Python 3.10
     CommandAck,
     StatusText,
     ParamValue,
+    ParamError,
+    AutopilotVersion,
 ]
 
 
@@ -462,12 +537,40 @@ def decode_statustext(msg: Any) -> StatusText:
     return StatusText(severity=_enum_or_int(Severity, msg.severity), text=decode_text(msg.text))
 
 
+def _param_value_bytes(msg: Any) -> bytes:
+    """The value field's wire bytes (from the frame when there is one: exact even for NaNs)."""
+    try:
+        frame = bytes(msg.get_msgbuf())
+    except (AttributeError, TypeError):
+        frame = b""
+    header = {0xFD: 10, 0xFE: 6}.get(frame[0], 0) if frame else 0
+    if header:
+        payload_len = frame[1]
+        return frame[header : header + min(4, payload_len)].ljust(4, b"\x00")
+    return float_field_bytes(float(msg.param_value))
+
+
 def decode_param_value(msg: Any) -> ParamValue:
     return ParamValue(
         name=decode_text(msg.param_id),
-        value=float(msg.param_value),
+        raw=_param_value_bytes(msg),
+        param_type=int(msg.param_type),
         index=int(msg.param_index),
         count=int(msg.param_count),
+    )
+
+
+def decode_param_error(msg: Any) -> ParamError:
+    return ParamError(
+        name=decode_text(msg.param_id), index=int(msg.param_index), error=int(msg.error)
+    )
+
+
+def decode_autopilot_version(msg: Any) -> AutopilotVersion:
+    return AutopilotVersion(
+        capabilities=int(msg.capabilities),
+        flight_sw_version=int(msg.flight_sw_version),
+        board_version=int(msg.board_version),
     )
 
 
@@ -483,6 +586,8 @@ _DECODERS: dict[str, Callable[[Any], Decoded]] = {
     "COMMAND_ACK": decode_command_ack,
     "STATUSTEXT": decode_statustext,
     "PARAM_VALUE": decode_param_value,
+    "PARAM_ERROR": decode_param_error,
+    "AUTOPILOT_VERSION": decode_autopilot_version,
 }
 
 

@@ -144,7 +144,10 @@ def statustext_message(text: str, severity: int = Severity.INFO) -> Any:
     return mavlink2.MAVLink_statustext_message(int(severity), text.encode("utf-8")[:50])
 
 
-def param_value_message(name: str, value: float, index: int, count: int) -> Any:
+def param_value_message(
+    name: str, value: float, index: int, count: int, *, param_type: int = 9
+) -> Any:
+    """PARAM_VALUE; ``value`` is the float field as sent (already encoded for integer types)."""
     return mavlink2.MAVLink_param_value_message(
-        name.encode("ascii")[:16], float(value), 9, count, index
+        name.encode("ascii")[:16], float(value), int(param_type), count, index
     )

@@ -13,6 +13,13 @@ Any other query parameters stay with the inner URL, in order. Examples::
     record://sim://px4?motors=4&file=px4.jsonl               -> sim://px4?motors=4
     record://loop://?file=loop.jsonl                         -> loop://
     record://socket://192.168.4.1:23?file=wifi.jsonl         -> socket://192.168.4.1:23
+    record://udpin:0.0.0.0:14550?file=px4.jsonl              -> udpin://0.0.0.0:14550
+    record://udpout:192.168.1.5:14550?file=px4.jsonl         -> udpout://192.168.1.5:14550
+
+UDP (pymavlink's ``udpin:``/``udpout:``/``udp:`` spellings, or ``udpin://``) is what PX4 SITL and
+most companion links speak. One transcript event is written per read or write CALL with all the
+bytes of that call, so the transcript grows with the number of calls, not of bytes (MAVLink
+links read a whole burst per call), and recording keeps up with a link streaming 20 kB/s.
 
 Keyword arguments (``timeout``, ``baudrate``, ...) apply to the inner port; ``clock=`` is used for
 the timestamps and handed on to an inner ``sim://``/``record://``/``replay://``.
@@ -32,6 +39,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 from thrustmap.clock import Clock, MonotonicClock
 from thrustmap.protocols.transcript import TranscriptWriter
 from thrustmap.protocols.transport import register_url_handlers
+from thrustmap.protocols.urlhandlers.protocol_udpin import is_udp_url, normalize_udp_url
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +64,8 @@ def split_record_url(url: str) -> tuple[str, dict[str, str]]:
         else:
             kept.append(part)
     inner = base + ("?" + "&".join(kept) if kept else "")
+    if is_udp_url(inner):
+        inner = normalize_udp_url(inner)
     if not base:
         raise SerialException(f"record:// needs an inner URL or device path: {url!r}")
     if "file" not in own:

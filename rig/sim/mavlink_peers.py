@@ -1,10 +1,19 @@
 """PX4-like and ArduPilot-like vehicles that speak MAVLink 2 (via pymavlink) over bytes.
 
 Both are ``BytePeer``s (``sim://px4``, ``sim://ardupilot``, or ``SimSerial(PX4Vehicle(plant),
-clock)``) and forward motor commands to a ``Plant``. Behaviour follows the facts in
-reference/mavlink.md:
+clock)``) and forward motor commands to a ``Plant``. Behaviour follows the MAVLink
+specification and what real SITL builds were seen to do (checked in tests/test_rig_fc_firmware.py
+against recordings of them):
 
-PX4 (autopilot 12)
+PX4 (autopilot 12), as PX4 v1.17 SITL behaves
+- Parameters: INT32 ones (COM_MOT_TEST_EN, CA_ROTOR_COUNT, PWM_MAIN_*) are sent BYTEWISE (the
+  integer's bytes in the float field), announced by AUTOPILOT_VERSION capabilities 59647 (bit
+  PARAM_ENCODE_BYTEWISE); an unknown name gets PARAM_ERROR. Output limits are per output:
+  PWM_MAIN_FUNC1..8 (101 = Motor1 ...), PWM_MAIN_MIN<n>/MAX<n>/DIS<n> (disarmed 900 µs); the
+  old PWM_MAIN_MIN/MAX/DIS exist only with ``legacy_pwm=True`` (older firmware).
+- Telemetry flood (``flood=True``): ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED,
+  GLOBAL_POSITION_INT, POSITION_TARGET_LOCAL_NED and ATTITUDE_TARGET at 50 Hz each, as the GCS
+  link streams them by default (about 15 kB/s).
 - MAV_CMD_DO_MOTOR_TEST -> UNSUPPORTED (current PX4).
 - MAV_CMD_ACTUATOR_TEST: DENIED while armed, with the safety button on, or COM_MOT_TEST_EN != 1;
   p5 = MOTOR1..16 (SERVO1..16 = 33..48 are accepted and drive no motor); timeout 0 or > 3 s -> 3 s;
@@ -13,7 +22,14 @@ PX4 (autopilot 12)
 - Streams: SYS_STATUS, BATTERY_STATUS (per-cell), ESC_STATUS, SERVO_OUTPUT_RAW.
 - Sim choice: a motor number beyond the plant's motor count is DENIED.
 
-ArduPilot / ArduCopter (autopilot 3)
+ArduPilot / ArduCopter (autopilot 3), as ArduCopter 4.7 SITL behaves
+- Integer parameters are sent as float values (C cast); capabilities 64495 (no bytewise bit).
+- Motor numbering: p1 is a TEST-ORDER number; the frame's table (FRAME_CLASS/FRAME_TYPE, quad X
+  by default) maps it to the FC motor (Motor N drives output N and plant motor N-1).
+- Every accepted DO_MOTOR_TEST that finds no test running STARTS one ("starting motor test",
+  armed), including a "stop" (PWM 0, timeout 0), which then ends at once ("finished motor
+  test"). ``init_delay_s``: for that long after boot every test is refused with FAILED and
+  "Motor Test: Board initialising", and SERVO_OUTPUT_RAW / BATTERY_STATUS are not sent yet.
 - MAV_CMD_DO_MOTOR_TEST: preconditions board initialised, RC calibrated (unless p2 = PWM), landed,
   safety switch not engaged; failure -> FAILED plus STATUSTEXT "Motor Test: ...". While a test
   runs HEARTBEAT says ARMED. A new command during a test skips the checks, overwrites the
@@ -28,8 +44,9 @@ ArduPilot / ArduCopter (autopilot 3)
 Registration: importing this module registers ``px4`` and ``ardupilot`` with
 ``thrustmap.protocols.peer`` using a ``ConstantPlant``; call ``register_mavlink_peers(factory,
 replace=True)`` to put a physics plant behind them. URL options: ``motors`` (4), ``sysid`` (1),
-``rate_hz`` (10), PX4 ``armed``/``safety``/``com_mot_test_en``/``thr_mdl_fac``,
-ArduPilot ``landed``/``safety``/``rc_calibrated``.
+``rate_hz`` (10), PX4 ``armed``/``safety``/``com_mot_test_en``/``thr_mdl_fac``/``legacy_pwm``/
+``flood``, ArduPilot ``landed``/``safety``/``rc_calibrated``/``frame_class``/``frame_type``/
+``init_delay_s``.
 """
 
 from __future__ import annotations
@@ -39,8 +56,12 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
+from thrustmap.protocols.mavlink.frames import motor_order
+from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
 from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
@@ -64,8 +85,16 @@ def _sys_status(state: PlantState) -> Any:
 # ---------------------------------------------------------------------------------------------
 # PX4
 # ---------------------------------------------------------------------------------------------
+PX4_OUTPUTS = 8
+FLOOD_RATE_HZ = 50.0
+
+
 class PX4Vehicle(SimMavlinkVehicle):
     autopilot = mav.Autopilot.PX4
+    param_encoding = ParamEncoding.BYTEWISE
+    param_error_for_unknown = True
+    capabilities = 59647  # PX4 v1.17 SITL: includes PARAM_ENCODE_BYTEWISE (16)
+    flight_sw_version = 17891392  # 1.17.0-dev
 
     def __init__(
         self,
@@ -74,22 +103,69 @@ class PX4Vehicle(SimMavlinkVehicle):
         armed: bool = False,
         safety_on: bool = False,
         cells: int = 4,
+        legacy_pwm: bool = False,
+        flood: bool = False,
         **kwargs: Any,
     ) -> None:
         self.pilot_armed = armed
         self.safety_on = safety_on
         self.cells = cells
+        self.legacy_pwm = legacy_pwm
+        self.flood = flood
         self._tests: dict[int, tuple[float, float]] = {}  # motor -> (fraction, deadline_s)
         super().__init__(plant, **kwargs)
+        if flood:
+            period_s = 1.0 / FLOOD_RATE_HZ
+            for message_id, builder in self._flood_streams().items():
+                self._streams[message_id] = (builder, period_s)
+                self._default_periods[message_id] = period_s
+                self.catch_up_streams.add(message_id)
 
     def default_params(self) -> Mapping[str, float]:
-        return {
+        params = {
             "COM_MOT_TEST_EN": 1.0,
             "THR_MDL_FAC": 0.0,
-            "PWM_MAIN_MIN": 1000.0,
-            "PWM_MAIN_MAX": 2000.0,
-            "PWM_MAIN_DIS": 900.0,
             "MC_BAT_SCALE_EN": 0.0,
+            "CA_ROTOR_COUNT": float(self.plant.motor_count),
+        }
+        for ch in range(1, PX4_OUTPUTS + 1):
+            is_motor = ch <= self.plant.motor_count
+            params[f"PWM_MAIN_FUNC{ch}"] = float(100 + ch) if is_motor else 0.0
+            params[f"PWM_MAIN_MIN{ch}"] = 1000.0
+            params[f"PWM_MAIN_MAX{ch}"] = 2000.0
+            params[f"PWM_MAIN_DIS{ch}"] = 900.0
+        if self.legacy_pwm:
+            params.update({"PWM_MAIN_MIN": 1000.0, "PWM_MAIN_MAX": 2000.0, "PWM_MAIN_DIS": 900.0})
+        return params
+
+    def default_param_types(self) -> Mapping[str, int]:
+        return {
+            name: ParamType.INT32
+            for name in self.default_params()
+            if name != "THR_MDL_FAC"  # the only REAL32 here
+        }
+
+    def _flood_streams(self) -> dict[int, Callable[[PlantState], list[Any]]]:
+        def t() -> int:
+            return round(self.time_since_boot_s * 1000) & 0xFFFFFFFF
+
+        return {
+            30: lambda s: [mavlink2.MAVLink_attitude_message(t(), 0.01, -0.02, 1.5, 0, 0, 0)],
+            31: lambda s: [mavlink2.MAVLink_attitude_quaternion_message(t(), 1, 0, 0, 0, 0, 0, 0)],
+            32: lambda s: [mavlink2.MAVLink_local_position_ned_message(t(), 0, 0, 0, 0, 0, 0)],
+            33: lambda s: [
+                mavlink2.MAVLink_global_position_int_message(
+                    t(), 473977418, 85455940, 488000, 0, 0, 0, 0, 0
+                )
+            ],
+            85: lambda s: [
+                mavlink2.MAVLink_position_target_local_ned_message(
+                    t(), 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+                )
+            ],
+            83: lambda s: [
+                mavlink2.MAVLink_attitude_target_message(t(), 0, [1, 0, 0, 0], 0, 0, 0, 0)
+            ],
         }
 
     @property
@@ -122,9 +198,14 @@ class PX4Vehicle(SimMavlinkVehicle):
         ]
 
     def outputs_us(self) -> list[int]:
-        lo, hi, dis = (self.params[k] for k in ("PWM_MAIN_MIN", "PWM_MAIN_MAX", "PWM_MAIN_DIS"))
+        """All 8 main outputs, as PX4 reports them (disarmed value where no test runs)."""
         out = []
-        for motor in range(self.plant.motor_count):
+        for ch in range(1, PX4_OUTPUTS + 1):
+            lo, hi, dis = (
+                self.params.get(f"PWM_MAIN_{k}{ch}", self.params.get(f"PWM_MAIN_{k}", default))
+                for k, default in (("MIN", 1000.0), ("MAX", 2000.0), ("DIS", 900.0))
+            )
+            motor = int(self.params[f"PWM_MAIN_FUNC{ch}"]) - 101
             if motor in self._tests:
                 out.append(round(lo + (hi - lo) * self._tests[motor][0]))
             else:
@@ -138,7 +219,7 @@ class PX4Vehicle(SimMavlinkVehicle):
 
     def _stop(self, motor: int, time_s: float) -> None:
         self._tests.pop(motor, None)
-        self.plant.set_throttle(motor, 0.0, time_s)
+        self.set_plant_throttle(motor, 0.0, time_s)
 
     def _fraction(self, value: float) -> float:
         """Inverse of PX4's thrust model rel_thrust = f·u² + (1-f)·u (THR_MDL_FAC = f)."""
@@ -169,7 +250,7 @@ class PX4Vehicle(SimMavlinkVehicle):
             timeout_s = mav.PX4_ACTUATOR_TEST_MAX_TIMEOUT_S
         fraction = self._fraction(value)
         self._tests[motor] = (fraction, now_s + timeout_s)
-        self.plant.set_throttle(motor, fraction, now_s)
+        self.set_plant_throttle(motor, fraction, now_s)
         return R.ACCEPTED
 
 
@@ -188,6 +269,8 @@ class _MotorTest:
 
 class ArduPilotVehicle(SimMavlinkVehicle):
     autopilot = mav.Autopilot.ARDUPILOT
+    capabilities = 64495  # ArduCopter 4.7 SITL: no PARAM_ENCODE_BYTEWISE (C cast)
+    flight_sw_version = 67567616  # 4.7.0-dev
 
     def __init__(
         self,
@@ -199,16 +282,24 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         rc_calibrated: bool = True,
         rc_throttle_fraction: float = 0.0,
         test_order: Sequence[int] | None = None,
+        frame_class: int = 1,
+        frame_type: int = 1,
+        init_delay_s: float = 0.0,
         **kwargs: Any,
     ) -> None:
+        self.frame_class = frame_class
+        self.frame_type = frame_type
+        self.init_delay_s = init_delay_s
+        self.tests_started = 0  # motor tests started (a stop sent while idle counts)
         self.initialised = initialised
         self.landed = landed
         self.safety_switch_engaged = safety_switch_engaged
         self.rc_calibrated = rc_calibrated
         self.rc_throttle_fraction = rc_throttle_fraction
-        self.test_order = (
-            list(test_order) if test_order is not None else list(range(plant.motor_count))
-        )
+        if test_order is None:  # test order n -> FC motor, from the frame's table
+            order = motor_order(frame_class, frame_type, plant.motor_count)
+            test_order = [order.motor_for(n) for n in range(1, order.motor_count + 1)]
+        self.test_order = list(test_order)
         self._test: _MotorTest | None = None
         self._running: int | None = None  # plant motor spinning now
         self._running_pwm = 0
@@ -225,11 +316,28 @@ class ArduPilotVehicle(SimMavlinkVehicle):
             "MOT_THST_HOVER": 0.35,
             "MOT_BAT_VOLT_MAX": 0.0,
             "MOT_BAT_VOLT_MIN": 0.0,
+            "MOT_PWM_TYPE": 0.0,
+            "FRAME_CLASS": float(self.frame_class),
+            "FRAME_TYPE": float(self.frame_type),
+        }
+
+    def default_param_types(self) -> Mapping[str, int]:
+        return {
+            "MOT_PWM_MIN": ParamType.INT16,
+            "MOT_PWM_MAX": ParamType.INT16,
+            "MOT_PWM_TYPE": ParamType.INT8,
+            "FRAME_CLASS": ParamType.INT8,
+            "FRAME_TYPE": ParamType.INT8,
         }
 
     @property
     def armed(self) -> bool:
         return self._test is not None
+
+    @property
+    def booting(self) -> bool:
+        """Within ``init_delay_s`` of boot: motor tests refused, no outputs or battery sent."""
+        return not self.initialised or self.time_since_boot_s < self.init_delay_s
 
     @property
     def motor_test_running(self) -> bool:
@@ -238,7 +346,9 @@ class ArduPilotVehicle(SimMavlinkVehicle):
     def telemetry_streams(self) -> Mapping[int, Callable[[PlantState], list[Any]]]:
         return {
             MSG_SYS_STATUS: lambda s: [_sys_status(s)],
-            MSG_BATTERY_STATUS: lambda s: [enc.battery_status_message([s.voltage_v], s.current_a)],
+            MSG_BATTERY_STATUS: lambda s: (
+                [] if self.booting else [enc.battery_status_message([s.voltage_v], s.current_a)]
+            ),
             MSG_ESC_TELEMETRY_1_TO_4: lambda s: [
                 enc.esc_telemetry_message(
                     rpm=s.rpm[:4],
@@ -247,12 +357,15 @@ class ArduPilotVehicle(SimMavlinkVehicle):
                     temperature_c=s.temperature_c[:4],
                 )
             ],
-            MSG_SERVO_OUTPUT_RAW: lambda s: [_servo_raw(self, self.outputs_us())],
+            MSG_SERVO_OUTPUT_RAW: lambda s: (
+                [] if self.booting else [_servo_raw(self, self.outputs_us())]
+            ),
         }
 
     def outputs_us(self) -> list[int]:
+        """One output per FC motor (Motor n on output n); the plant holds the first ones."""
         idle = round(self.params["MOT_PWM_MIN"])
-        out = [idle] * self.plant.motor_count
+        out = [idle] * max(len(self.test_order), self.plant.motor_count)
         if self._running is not None:
             out[self._running] = self._running_pwm
         return out
@@ -266,15 +379,18 @@ class ArduPilotVehicle(SimMavlinkVehicle):
         return lo + (hi - lo) * min(max(test.value, 0.0), 100.0) / 100.0  # PERCENT, COMPASS_CAL
 
     def _output(self, motor: int | None, pwm: int, time_s: float) -> None:
-        if self._running is not None and self._running != motor:
-            self.plant.set_throttle(self._running, 0.0, time_s)
+        on_stand = self.plant.motor_count  # FC motors beyond the stand's drive nothing
+        if self._running is not None and self._running != motor and self._running < on_stand:
+            self.set_plant_throttle(self._running, 0.0, time_s)
         self._running, self._running_pwm = motor, pwm
-        if motor is not None:
+        if motor is not None and motor < on_stand:
             lo, hi = self.params["MOT_PWM_MIN"], self.params["MOT_PWM_MAX"]
-            self.plant.set_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
+            self.set_plant_throttle(motor, min(max((pwm - lo) / (hi - lo), 0.0), 1.0), time_s)
 
     def stop_test(self, time_s: float) -> None:
         self._output(None, 0, time_s)
+        if self._test is not None:
+            self.send(enc.statustext_message("finished motor test", mav.Severity.INFO))
         self._test = None
 
     def update(self, now_s: float) -> None:
@@ -296,7 +412,7 @@ class ArduPilotVehicle(SimMavlinkVehicle):
             self._output(motor, round(pwm), test.start_s + step * test.timeout_s)
 
     def _precondition_failure(self, throttle_type: int) -> str | None:
-        if not self.initialised:
+        if self.booting:
             return "Board initialising"
         if throttle_type != mav.MotorTestThrottleType.PWM and not self.rc_calibrated:
             return "RC not calibrated"
@@ -316,6 +432,9 @@ class ArduPilotVehicle(SimMavlinkVehicle):
             if why is not None:
                 self.send(enc.statustext_message(f"Motor Test: {why}", mav.Severity.CRITICAL))
                 return R.FAILED
+            # Even a "stop" starts a test when none runs (it then ends at once).
+            self.tests_started += 1
+            self.send(enc.statustext_message("starting motor test", mav.Severity.INFO))
         if math.isnan(timeout_s) or math.isnan(value):
             timeout_s = 0.0
         self._test = _MotorTest(
@@ -364,6 +483,8 @@ def px4_from_options(options: Mapping[str, str], plant: Plant | None = None) -> 
         plant if plant is not None else constant_plant(options),
         armed=_flag(options, "armed", False),
         safety_on=_flag(options, "safety", False),
+        legacy_pwm=_flag(options, "legacy_pwm", False),
+        flood=_flag(options, "flood", False),
         params=params,
         **_common(options),
     )
@@ -377,6 +498,9 @@ def ardupilot_from_options(
         landed=_flag(options, "landed", True),
         safety_switch_engaged=_flag(options, "safety", False),
         rc_calibrated=_flag(options, "rc_calibrated", True),
+        frame_class=int(options.get("frame_class", "1")),
+        frame_type=int(options.get("frame_type", "1")),
+        init_delay_s=float(options.get("init_delay_s", "0")),
         **_common(options),
     )
 

@@ -7,8 +7,15 @@ only from the caller's clock. Framing and encoding are pymavlink's (``MavlinkCod
 
 This base class handles what both firmwares share: HEARTBEAT at 1 Hz, telemetry streams at
 ``telemetry_rate_hz`` (changed per message by MAV_CMD_SET_MESSAGE_INTERVAL), parameters
-(PARAM_REQUEST_READ/LIST, PARAM_SET) and COMMAND_ACK for every COMMAND_LONG. Subclasses say
-which autopilot they are, which streams they send and how they answer commands.
+(PARAM_REQUEST_READ/LIST, PARAM_SET), AUTOPILOT_VERSION on MAV_CMD_REQUEST_MESSAGE and
+COMMAND_ACK for every COMMAND_LONG. Subclasses say which autopilot they are, which streams they
+send and how they answer commands.
+
+Parameters travel as real firmware sends them: each has a MAV_PARAM_TYPE (``param_types``;
+REAL32 unless a subclass says otherwise) and integers are encoded the firmware's way
+(``param_encoding``: PX4 bytewise, ArduPilot C cast), announced by the AUTOPILOT_VERSION
+capability bits. An unknown name is answered with PARAM_ERROR where the firmware does that
+(``param_error_for_unknown``, PX4) and with silence otherwise (ArduPilot).
 """
 
 from __future__ import annotations
@@ -19,19 +26,34 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
+from thrustmap.protocols.mavlink.params import (
+    ParamEncoding,
+    ParamType,
+    decode_param,
+    encode_param_float,
+    float_field_bytes,
+)
 from thrustmap.rig.sim.plant import Plant, PlantState
 
 log = logging.getLogger(__name__)
 
 HEARTBEAT_ID = 0
+MAX_CATCH_UP = 100  # instances of one catch-up stream per read, at most
 
 
 class SimMavlinkVehicle(ABC):
     """A MAVLink vehicle at the byte level; see the module docstring."""
 
     autopilot: int = 0
+    param_encoding: ParamEncoding = ParamEncoding.C_CAST
+    param_error_for_unknown = False
+    #: AUTOPILOT_VERSION as the firmware sends it
+    capabilities = 0
+    flight_sw_version = 0
 
     def __init__(
         self,
@@ -51,6 +73,7 @@ class SimMavlinkVehicle(ABC):
         self._now_s = 0.0
         self.params: dict[str, float] = dict(self.default_params())
         self.params.update(params or {})
+        self.param_types: dict[str, int] = dict(self.default_param_types())
         period_s = 1.0 / telemetry_rate_hz if telemetry_rate_hz > 0 else math.inf
         self._streams: dict[int, tuple[Callable[[PlantState], list[Any]], float]] = {
             HEARTBEAT_ID: (lambda state: [self._heartbeat()], 1.0),
@@ -59,10 +82,16 @@ class SimMavlinkVehicle(ABC):
             self._streams[message_id] = (builder, period_s)
         self._default_periods = {k: v[1] for k, v in self._streams.items()}
         self._next_due: dict[int, float] = {}
+        #: streams sent at their rate even when nobody reads (see ``_advance``)
+        self.catch_up_streams: set[int] = set()
         self.commands_received: list[mav.CommandLong] = []
 
     # -- what subclasses provide ----------------------------------------------------------
     def default_params(self) -> Mapping[str, float]:
+        return {}
+
+    def default_param_types(self) -> Mapping[str, int]:
+        """MAV_PARAM_TYPE per name (REAL32 when absent)."""
         return {}
 
     @abstractmethod
@@ -101,6 +130,14 @@ class SimMavlinkVehicle(ABC):
     def time_since_boot_s(self) -> float:
         return 0.0 if self._boot_s is None else self._now_s - self._boot_s
 
+    def set_plant_throttle(self, motor: int, fraction: float, time_s: float) -> None:
+        """Drive the plant at ``time_s``; a moment the plant has already passed (a stand that
+        shares it read it later, e.g. a motor-test timeout found late) is applied now."""
+        try:
+            self.plant.set_throttle(motor, fraction, time_s)
+        except ValueError:
+            self.plant.set_throttle(motor, fraction, self._now_s)
+
     def send(self, msg: Any) -> None:
         self._frames.append(self._codec.encode(msg))
 
@@ -124,6 +161,15 @@ class SimMavlinkVehicle(ABC):
         state = self.plant.state(now_s)
         for message_id in due:
             builder, period_s = self._streams[message_id]
+            if message_id in self.catch_up_streams:
+                # Sent at its own rate whether or not anyone reads: a slow reader finds every
+                # missed instance waiting (as in a serial or socket buffer), up to a bound.
+                missed = int((now_s - self._next_due[message_id]) / period_s) + 1
+                for _ in range(min(missed, MAX_CATCH_UP)):
+                    for msg in builder(state):
+                        self.send(msg)
+                self._next_due[message_id] += missed * period_s
+                continue
             for msg in builder(state):
                 self.send(msg)
             nxt = self._next_due[message_id] + period_s
@@ -139,6 +185,8 @@ class SimMavlinkVehicle(ABC):
             self.commands_received.append(command)
             if command.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
                 result = self._set_message_interval(command)
+            elif command.command == mav.MAV_CMD_REQUEST_MESSAGE:
+                result = self._request_message(command)
             else:
                 result = self.handle_command(command, now_s)
             self.send(
@@ -157,9 +205,15 @@ class SimMavlinkVehicle(ABC):
         elif kind == "PARAM_SET":
             name = mav.decode_text(msg.param_id)
             if name in self.params:
-                self.params[name] = float(msg.param_value)
-                self.on_param_set(name, float(msg.param_value))
+                ptype = self.param_types.get(name, ParamType.REAL32)
+                value = decode_param(
+                    float_field_bytes(float(msg.param_value)), ptype, self.param_encoding
+                )
+                self.params[name] = value
+                self.on_param_set(name, value)
                 self._send_param(name, -1)
+            elif self.param_error_for_unknown:
+                self._send_param_error(name)
 
     def on_param_set(self, name: str, value: float) -> None:  # noqa: B027 - optional hook
         """React to a PARAM_SET (after ``params`` is updated)."""
@@ -168,12 +222,48 @@ class SimMavlinkVehicle(ABC):
         names = sorted(self.params)
         if name:
             if name not in self.params:
-                return  # real autopilots stay silent about unknown names
+                if self.param_error_for_unknown:
+                    self._send_param_error(name)
+                return  # ArduPilot stays silent about unknown names
             index = names.index(name)
         elif not 0 <= index < len(names):
             return
         key = names[index]
-        self.send(enc.param_value_message(key, self.params[key], index, len(names)))
+        ptype = self.param_types.get(key, ParamType.REAL32)
+        wire = encode_param_float(self.params[key], ptype, self.param_encoding)
+        self.send(enc.param_value_message(key, wire, index, len(names), param_type=ptype))
+
+    def _send_param_error(self, name: str) -> None:
+        self.send(
+            mavlink2.MAVLink_param_error_message(
+                255,
+                190,
+                name.encode("ascii")[:16],
+                -1,
+                1,  # MAV_PARAM_ERROR_DOES_NOT_EXIST
+            )
+        )
+
+    def _request_message(self, command: mav.CommandLong) -> int:
+        if int(command.params[0]) != mav.MSG_AUTOPILOT_VERSION:
+            return mav.MavResult.DENIED
+        self.send(
+            mavlink2.MAVLink_autopilot_version_message(
+                self.capabilities,
+                self.flight_sw_version,
+                0,
+                0,
+                0,
+                [0] * 8,
+                [0] * 8,
+                [0] * 8,
+                0,
+                0,
+                0,
+                [0] * 18,
+            )
+        )
+        return mav.MavResult.ACCEPTED
 
     def _set_message_interval(self, command: mav.CommandLong) -> int:
         message_id = int(command.params[0])

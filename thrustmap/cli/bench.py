@@ -10,7 +10,6 @@ from typing import Any
 import click
 
 from thrustmap.clock import Clock, MonotonicClock, SimClock
-from thrustmap.errors import ConfigError
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits, check_plan
 from thrustmap.rig.runner import RunConfig, Status, record_sweep
@@ -132,9 +131,10 @@ class _Readout:
 )
 @click.option(
     "--motor",
-    default=1,
+    default="1",
     show_default=True,
-    help="Motor on the load cell (1-based, as FCs number them).",
+    help="Motor on the load cell: the FC's motor number, 1-based (ArduPilot MotorN, PX4 MOTOR N,"
+    " Betaflight motor N); on ArduPilot also the test-order letter (A, B, ...).",
 )
 @click.option(
     "--rotors-on-esc",
@@ -234,7 +234,7 @@ def sweep_cmd(
     stand_url: str,
     throttle_url: str | None,
     fc_kind: str,
-    motor: int,
+    motor: str,
     rotors_on_esc: str,
     output: str,
     **kw: Any,
@@ -258,8 +258,9 @@ def sweep_cmd(
         link_timeout_s=kw["link_timeout"],
     )
     check_plan(plan, limits)
-    if motor < 1:
-        raise ConfigError(f"--motor is 1-based, got {motor}")
+    from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
+
+    parse_motor(motor)  # refuse a bad --motor before anything is opened
     if kw["dry_run"]:
         click.echo(plan.describe())
         click.echo(
@@ -293,6 +294,11 @@ def sweep_cmd(
                     throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
                 )
             with output_dev:
+                output_dev.identify()  # the FC's frame says what a test-order letter means
+                motor_index = resolve_motor(output_dev, motor)
+                click.echo(
+                    f"motor on the load cell: {motor_label(output_dev, motor_index)}", err=True
+                )
                 result = record_sweep(
                     plan,
                     output_dev,
@@ -300,7 +306,7 @@ def sweep_cmd(
                     output,
                     clock,
                     limits=limits,
-                    config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
+                    config=RunConfig(motor=motor_index, rotors_on_esc=int(rotors_on_esc)),
                     monitor=_Readout(kw["quiet"]),
                 )
     if not kw["quiet"]:

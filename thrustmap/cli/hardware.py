@@ -11,6 +11,7 @@ device on the monotonic clock. ``--clock real`` watches a simulation in real tim
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import sys
@@ -229,7 +230,10 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 @click.command("spin")
 @click.argument("url")
 @click.option(
-    "--motor", type=int, required=True, help="Motor number, 1-based (as in the motor tab)."
+    "--motor",
+    required=True,
+    help="The FC's motor number, 1-based (ArduPilot MotorN, PX4 MOTOR N, Betaflight motor N);"
+    " on ArduPilot also the test-order letter (A, B, ...).",
 )
 @click.option(
     "--throttle",
@@ -257,7 +261,7 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 @_device_options
 def spin_cmd(
     url: str,
-    motor: int,
+    motor: str,
     throttle: float,
     seconds: float,
     max_throttle: float,
@@ -275,9 +279,10 @@ def spin_cmd(
 
     The motor is stopped and the stop verified on every way out (the end, an error, Ctrl-C,
     SIGTERM). Exit codes: 0 done, 2 refused or error, 3 stop not verified, 130 interrupted."""
-    if motor < 1:
-        raise ConfigError(f"--motor is 1-based, got {motor}")
-    request = SpinRequest(motor - 1, throttle, seconds, ramp_s=ramp)
+    from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
+
+    motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
+    request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)
     check_spin(request, max_throttle)  # refuse before anything is opened
     clock = make_clock(clock_choice, [url] + ([stand_url] if stand_url else []))
     if not yes:
@@ -303,6 +308,10 @@ def spin_cmd(
             stand = connect.open_stand(stand_url, clock)
         elif isinstance(output, connect.StandEscOutput):
             stand = output.stand
+        output.identify()  # the FC's frame says which motor a test-order letter means
+        request = dataclasses.replace(request, motor=resolve_motor(output, motor))
+        label = motor_label(output, request.motor)
+        click.echo(f"spinning {label}")
         handed_over = True
         result = run_spin(
             output,
@@ -310,7 +319,9 @@ def spin_cmd(
             request,
             max_throttle_pct=max_throttle,
             stand=stand,
-            on_report=lambda r: click.echo(_report_line(r, motor, output.throttle_scale.unit)),
+            on_report=lambda r: click.echo(
+                _report_line(r, request.motor + 1, output.throttle_scale.unit)
+            ),
         )
     finally:
         if stand is not None and stand_url is not None:
@@ -319,9 +330,11 @@ def spin_cmd(
             with output:  # stop, verify and close: nothing was commanded, but be sure
                 pass
     if result.stop_verified:
-        click.echo(f"motor {motor} stopped (verified) after {result.duration_s:.1f} s")
+        click.echo(f"motor {request.motor + 1} stopped (verified) after {result.duration_s:.1f} s")
     else:
-        click.echo(f"STOP NOT VERIFIED on motor {motor} - disconnect the battery now", err=True)
+        click.echo(
+            f"STOP NOT VERIFIED on motor {request.motor + 1} - disconnect the battery now", err=True
+        )
     if result.status == "interrupted":
         click.echo(f"spin {result.reason}", err=True)
         sys.exit(130)

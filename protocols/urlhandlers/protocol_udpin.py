@@ -1,0 +1,164 @@
+"""``udpin://host:port`` and ``udpout://host:port`` — a UDP endpoint as a pyserial-like port.
+
+MAVLink links to PX4 SITL, companion computers and radios are mostly UDP. pymavlink writes them
+``udpin:0.0.0.0:14550`` (listen; answer whoever sent last) and ``udpout:10.0.0.2:14550`` (send
+to that address; listen on an ephemeral port); ``normalize_udp_url`` turns those spellings (and
+``udp:`` = ``udpin:``) into these URLs, so ``record://udpin:0.0.0.0:14550?file=x.jsonl`` works.
+
+Datagrams become a byte stream: ``read(n)`` returns buffered bytes first and waits (up to the
+port's ``timeout``) only when none are buffered; ``in_waiting`` drains what the socket holds
+(at most ``MAX_DATAGRAMS_PER_POLL`` datagrams per call, so a flood cannot pin the caller).
+A ``write`` before any peer has spoken to a ``udpin`` endpoint is dropped (logged), as
+pymavlink does: there is nobody to send it to yet.
+"""
+
+from __future__ import annotations
+
+import logging
+import select
+import socket
+from typing import Any
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+log = logging.getLogger(__name__)
+
+MAX_DATAGRAM = 65535
+MAX_DATAGRAMS_PER_POLL = 64
+UDP_SCHEMES = ("udpin", "udpout", "udp")
+
+
+def is_udp_url(url: str) -> bool:
+    scheme = url.split(":", 1)[0].lower()
+    return scheme in UDP_SCHEMES and ":" in url
+
+
+def normalize_udp_url(url: str) -> str:
+    """``udpin:h:p`` / ``udp:h:p`` / ``udpout:h:p`` (pymavlink) -> ``udpin://h:p`` ..."""
+    scheme, _, rest = url.partition(":")
+    scheme = scheme.lower()
+    rest = rest[2:] if rest.startswith("//") else rest
+    if scheme not in UDP_SCHEMES or not rest:
+        raise SerialException(f"expected udpin:HOST:PORT or udpout:HOST:PORT, got {url!r}")
+    return f"{'udpin' if scheme == 'udp' else scheme}://{rest}"
+
+
+def _address(url: str) -> tuple[str, bool, tuple[str, int]]:
+    scheme, _, rest = normalize_udp_url(url).partition("://")
+    hostport = rest.split("?", 1)[0]
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SerialException(f"{url!r}: expected HOST:PORT with a port 1..65535")
+    return scheme, scheme == "udpin", (host or "0.0.0.0", int(port))
+
+
+class UdpSerial(SerialBase):
+    """A UDP endpoint with the ``SerialLike`` surface; see the module docstring."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._sock: socket.socket | None = None
+        self._remote: tuple[str, int] | None = None
+        self._buffer = bytearray()
+        self.dropped_writes = 0
+        kwargs.pop("clock", None)  # real sockets run on real time
+        super().__init__(*args, **kwargs)
+
+    def open(self) -> None:
+        if self.port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        _, listen, address = _address(str(self.port))
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if listen:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                sock.bind(address)
+            else:
+                self._remote = address
+                sock.connect(address)  # replies come from the address we send to
+        except OSError as exc:
+            sock.close()
+            raise SerialException(f"{self.port}: cannot open UDP endpoint: {exc}") from exc
+        sock.setblocking(False)
+        self._sock = sock
+        self.is_open = True
+
+    def _reconfigure_port(self) -> None:
+        pass
+
+    @property
+    def remote(self) -> tuple[str, int] | None:
+        return self._remote
+
+    def _drain(self, wait_s: float) -> None:
+        sock = self._sock
+        if sock is None:
+            raise PortNotOpenError()
+        if wait_s > 0 and not self._buffer:
+            ready, _, _ = select.select([sock], [], [], wait_s)
+            if not ready:
+                return
+        for _ in range(MAX_DATAGRAMS_PER_POLL):
+            try:
+                data, sender = sock.recvfrom(MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionRefusedError:
+                continue  # ICMP from a udpout target not listening yet: no data
+            except OSError as exc:
+                raise SerialException(f"{self.port}: UDP receive failed: {exc}") from exc
+            if self._remote is None or sender != self._remote:
+                self._remote = (str(sender[0]), int(sender[1]))
+            self._buffer += data
+
+    @property
+    def in_waiting(self) -> int:
+        self._drain(0.0)
+        return len(self._buffer)
+
+    def read(self, size: int = 1, /) -> bytes:
+        if not self.is_open:
+            raise PortNotOpenError()
+        if not self._buffer:
+            timeout = self.timeout
+            self._drain(1e9 if timeout is None else float(timeout))
+        out = bytes(self._buffer[:size])
+        del self._buffer[:size]
+        return out
+
+    def write(self, b: Any, /) -> int | None:
+        sock = self._sock
+        if sock is None or not self.is_open:
+            raise PortNotOpenError()
+        data = bytes(b)
+        if self._remote is None:
+            self.dropped_writes += 1
+            log.debug("%s: no peer has spoken yet; dropped %d bytes", self.port, len(data))
+            return len(data)
+        try:
+            sock.sendto(data, self._remote)
+        except ConnectionRefusedError:
+            log.debug("%s: peer not listening (ICMP refused)", self.port)
+        except OSError as exc:
+            raise SerialException(f"{self.port}: UDP send failed: {exc}") from exc
+        return len(data)
+
+    def reset_input_buffer(self) -> None:
+        self._buffer.clear()
+
+    def reset_output_buffer(self) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        self.is_open = False
+
+
+class Serial(UdpSerial):
+    """The class pyserial instantiates for ``udpin://`` URLs."""
