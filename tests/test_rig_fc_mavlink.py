@@ -21,8 +21,8 @@ from support.mavlink_transcripts import (
 )
 
 from thrustmap.clock import MonotonicClock, SimClock
+from thrustmap.dslog import DsWriter
 from thrustmap.errors import ConfigError, SafetyError
-from thrustmap.fitting.dsformat import DsWriter
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 from thrustmap.protocols.transcript import read_transcript

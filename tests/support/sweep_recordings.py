@@ -88,6 +88,9 @@ def record(flavour: str, out_dir: Path) -> RunResult:
     fc_sim, kind = FLAVOURS[flavour]
     fc_log, stand_log, run_csv = paths(flavour, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # Regenerating replaces the fixtures on purpose (the Ds writer never overwrites a recording).
+    for old in (fc_log, stand_log, run_csv, run_csv.with_suffix(".meta.json")):
+        old.unlink(missing_ok=True)
     SIM_TYTO_CALIBRATION.save(calibration_path(out_dir))  # what a real unit's file would say
     peers.reset_benches()
     result, _ = _run(

@@ -1,0 +1,56 @@
+"""Every shipped fixture matches what its generator in tests/support writes today."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from support.regenerate import regenerate
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+#: fields that record when a file was made, not what it says
+VOLATILE = re.compile(rb'"(created_utc|started_utc|ended_utc)": ?"[^"]*"')
+
+
+def _normalised(path: Path) -> bytes:
+    data = path.read_bytes()
+    if path.suffix in (".jsonl", ".json"):
+        return VOLATILE.sub(rb'"\1":"-"', data.replace(b'": "', b'":"'))
+    return data
+
+
+@pytest.fixture(scope="module")
+def regenerated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("fixtures")
+    (out / "sweeps").mkdir()
+    # the sweep recordings need the shipped calibration beside them, as a user's rig would
+    regenerate(out)
+    return out
+
+
+def _shipped() -> list[Path]:
+    skip = {"metadata.yaml"}  # rosbag metadata carries the writer's own timestamps
+    files = [p for p in FIXTURES.rglob("*") if p.is_file() and p.name not in skip]
+    return sorted(p for p in files if not p.name.startswith("."))
+
+
+@pytest.mark.parametrize("shipped", _shipped(), ids=lambda p: str(p.relative_to(FIXTURES)))
+def test_fixture_is_fresh(shipped: Path, regenerated: Path) -> None:
+    rel = shipped.relative_to(FIXTURES)
+    fresh = regenerated / rel
+    assert fresh.exists(), f"{rel} is shipped but no generator writes it (delete it or add one)"
+    if _normalised(fresh) != _normalised(shipped):
+        pytest.fail(f"{rel} is stale: run `cd tests && python -m support.regenerate`")
+
+
+def test_every_generated_fixture_is_shipped(regenerated: Path) -> None:
+    made = {p.relative_to(regenerated) for p in regenerated.rglob("*") if p.is_file()}
+    shipped = {p.relative_to(FIXTURES) for p in FIXTURES.rglob("*") if p.is_file()}
+    assert made <= shipped, f"generated but not shipped: {sorted(map(str, made - shipped))}"
+
+
+def test_sidecar_timestamps_are_the_only_volatile_fields() -> None:
+    meta = json.loads((FIXTURES / "sweeps" / "msp_run.meta.json").read_text())
+    assert {"started_utc", "ended_utc"} <= set(meta)
