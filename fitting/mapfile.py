@@ -112,6 +112,10 @@ class ThrustMap:
     selection: dict[str, Any] = field(default_factory=dict)
     sources: tuple[dict[str, Any], ...] = ()
     correction: GammaCorrection | None = None
+    #: how the coefficients were identified (which were set by physics, and why)
+    identification: dict[str, Any] = field(default_factory=dict)
+    #: prediction interval learned from held-out residuals (see fitting.interval)
+    interval: dict[str, Any] = field(default_factory=dict)
     tool_version: str = __version__
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -197,6 +201,8 @@ class ThrustMap:
             "selection": self.selection,
             "sources": list(self.sources),
             "correction": None if self.correction is None else self.correction.to_dict(),
+            "identification": self.identification,
+            "interval": self.interval,
             "tool_version": self.tool_version,
             "created_utc": self.created_utc,
         }

@@ -12,6 +12,16 @@ pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·�
 
 (c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
 with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+
+Identification. At one battery voltage B0, c and k0/B0 are one number, so the data alone cannot
+say how the map scales with B. Physics can: k0 is the resistive drop of the no-load current
+(R·I0, a few tenths of a volt against a duty × voltage of several volts), while c is the ESC's
+throttle offset (dead band / idle), which does not scale with voltage. ``motor`` therefore fits
+the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
+span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
+points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
+throttle, and enough data at several voltages measures that). The choice and its reason are
+reported (:class:`Identification`).
 """
 
 from __future__ import annotations
@@ -57,6 +67,8 @@ class Model:
 
     #: validation may reuse one conditioned design across folds (False for special fits)
     linear_least_squares = True
+    #: the model's voltage dependence comes from physics when the data has no voltage spread
+    voltage_from_physics = False
 
     def conditioned(
         self, thrust_n: FloatArray, voltage_v: FloatArray
@@ -74,8 +86,34 @@ class Model:
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
     ) -> FloatArray:
+        return self.identify(thrust_n, voltage_v, throttle_pct, loss)[0]
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        """Coefficients, and how the data identified them (None: every coefficient fitted)."""
         design, to_raw = self.conditioned(thrust_n, voltage_v)
-        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower()))
+        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower())), None
+
+
+@dataclass(frozen=True)
+class Identification:
+    """How a model's coefficients were identified, in one line a user can check."""
+
+    form: str  # which form was fitted, e.g. "k0 fixed (physics)" or "full"
+    reason: str  # one line: what the data showed and what was assumed
+    voltage_span_v: float
+    fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
+    evidence: dict[str, float] = field(default_factory=dict)  # held-out errors that decided
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "form": self.form,
+            "reason": self.reason,
+            "voltage_span_v": self.voltage_span_v,
+            "fixed": list(self.fixed),
+            "evidence": dict(self.evidence),
+        }
 
 
 def _term_name(i: int, j: int) -> str:
@@ -182,6 +220,71 @@ def _motor_features(t: FloatArray, b: FloatArray) -> FloatArray:
     return np.stack([np.ones_like(t), 1.0 / b, np.sqrt(tt) / b, tt / b], axis=1)
 
 
+#: relative voltage span (max − min over mean) below which k0 cannot be told from c
+MIN_RELATIVE_SPAN = 0.05
+#: points per coefficient needed before k0 is fitted (below, c and k0/B trade off freely)
+MIN_POINTS_PER_COEFFICIENT = 8
+
+
+@dataclass(frozen=True)
+class MotorModel(FeatureModel):
+    """``motor``, fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
+
+    linear_least_squares = False
+    voltage_from_physics = True
+
+    def _fit_form(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, full: bool
+    ) -> FloatArray:
+        design, to_raw = self.conditioned(t, b)
+        lower = self.lower()
+        assert lower is not None
+        if full:
+            return to_raw(solve(design, th, loss=loss, lower=lower))
+        keep = [0, 2, 3]
+        sub = solve(design[:, keep], th, loss=loss, lower=lower[keep])
+        coef = np.zeros(4)
+        coef[keep] = sub
+        return to_raw(coef)
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        t, b, th = thrust_n, voltage_v, throttle_pct
+        span = float(np.ptp(b)) if len(b) else 0.0
+        mean_b = float(np.mean(b)) if len(b) else 0.0
+        rel = span / mean_b if mean_b > 0 else 0.0
+        physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
+        fixed = Identification(
+            form="k0 fixed (physics)",
+            reason="",
+            voltage_span_v=span,
+            fixed=("1/B",),
+        )
+        if rel < MIN_RELATIVE_SPAN:
+            reason = (
+                f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
+                "not fitted"
+            )
+            return self._fit_form(t, b, th, loss, False), _with(fixed, reason)
+        if len(b) < MIN_POINTS_PER_COEFFICIENT * self.n_coefficients:
+            reason = (
+                f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need "
+                f"{MIN_POINTS_PER_COEFFICIENT * self.n_coefficients}+ to be told apart): "
+                f"{physics}, not fitted"
+            )
+            return self._fit_form(t, b, th, loss, False), _with(fixed, reason)
+        reason = (
+            f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V) over {len(b)} "
+            "points: 1/B term fitted from the data"
+        )
+        return self._fit_form(t, b, th, loss, True), Identification("full", reason, span)
+
+
+def _with(ident: Identification, reason: str) -> Identification:
+    return Identification(ident.form, reason, ident.voltage_span_v, ident.fixed, ident.evidence)
+
+
 def motor_forward(
     coefficients: npt.ArrayLike, throttle_pct: FloatArray, voltage_v: FloatArray
 ) -> FloatArray:
@@ -215,11 +318,11 @@ MODELS: dict[str, Model] = {
         _poly("poly4", _poly_powers(4), "full bivariate polynomial, degree 4"),
         _poly("poly2-trunc", _PAPER_TRUNC2, "seed paper's 2nd-degree truncated form"),
         _poly("poly3-trunc", _PAPER_TRUNC3, "seed paper's 3rd-degree truncated form"),
-        FeatureModel(
+        MotorModel(
             name="motor",
             formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k1, k2 >= 0",
             description="physics-informed: duty x voltage drives rotor speed, thrust ~ speed^2; "
-            "monotone in T, scales as 1/B",
+            "monotone in T, scales as 1/B; k0 = 0 unless the data spans enough voltage to fit it",
             term_names=("1", "1/B", "sqrt(T)/B", "T/B"),
             uses_voltage=True,
             lower_bounds=(-np.inf, -np.inf, 0.0, 0.0),
