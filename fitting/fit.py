@@ -9,7 +9,7 @@ counts every held-out point, with the points inside and outside the training box
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -17,6 +17,7 @@ import numpy as np
 
 from thrustmap.errors import ConfigError, FitError
 from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.interval import advice, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import ErrorStats, error_stats
 from thrustmap.fitting.models import DEFAULT_MODEL, Identification, Model, get_model
@@ -115,6 +116,8 @@ class FitOutcome:
     map: ThrustMap
     pool: Pool
     warnings: list[str] = field(default_factory=list)
+    trust: str = ""  # where the map can be trusted (its prediction interval and box)
+    more_data: str = ""  # where more data would help most
 
 
 def fit_map(
@@ -134,6 +137,27 @@ def fit_map(
     )
     pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
     stats = error_stats(pred, data.throttle_pct)
+
+    def predictor(
+        t: FloatArray, b: FloatArray, th: FloatArray
+    ) -> Callable[[FloatArray, FloatArray], FloatArray]:
+        c = fit_coefficients(m, t, b, th, loss)
+        return lambda tq, bq: m.evaluate(c, tq, bq)
+
+    interval = learn_interval(
+        data.thrust_n,
+        data.voltage_v,
+        data.throttle_pct,
+        data.file_index,
+        predictor,
+        np.abs(pred - data.throttle_pct),
+    )
+    trust, more_data = advice(
+        interval,
+        data.thrust_n,
+        data.voltage_v,
+        physics_voltage=ident is not None and bool(ident.fixed),
+    )
     box = ValidityBox(
         thrust_n=Box(float(data.thrust_n.min()), float(data.thrust_n.max())),
         voltage_v=Box(float(data.voltage_v.min()), float(data.voltage_v.max())),
@@ -155,13 +179,14 @@ def fit_map(
         selection={**selection.to_dict(), "report": [p.report for p in data.points]},
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
+        interval={} if interval is None else interval.to_dict(),
     )
     if ident is not None:
         log.info("%s: %s", m.name, ident.reason)
     warnings = check_map(tmap, data)
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
-    return FitOutcome(tmap, data, warnings)
+    return FitOutcome(tmap, data, warnings, trust, more_data)
 
 
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
