@@ -167,7 +167,9 @@ def main() -> int:
         and float(np.median(vals)) <= 3.0
         and float(np.percentile(vals, 90)) <= 6.0
     )
-    print(f"  goal (default median <= 3.0 %, p90 <= 6.0 %, every pair fits): {'met' if ok else 'NOT met'}")
+    print(
+        f"  goal (default median <= 3.0 %, p90 <= 6.0 %, every pair fits): {'met' if ok else 'NOT met'}"
+    )
     print()
     for line in xnova_by_file(args.data):
         print(line)

@@ -108,7 +108,9 @@ def _distance(
     return np.asarray(np.maximum(dt, db), dtype=float)
 
 
-Fitter = Callable[[FloatArray, FloatArray, FloatArray], Callable[[FloatArray, FloatArray], FloatArray]]
+Fitter = Callable[
+    [FloatArray, FloatArray, FloatArray], Callable[[FloatArray, FloatArray], FloatArray]
+]
 
 
 def learn_interval(
@@ -157,9 +159,7 @@ def learn_interval(
         tb = (float(t[train].min()), float(t[train].max()))
         bb = (float(b[train].min()), float(b[train].max()))
         dist.append(
-            _distance(
-                t[test], b[test], tb, bb, max(tb[1] - tb[0], 1e-6), _voltage_unit(*bb)
-            )
+            _distance(t[test], b[test], tb, bb, max(tb[1] - tb[0], 1e-6), _voltage_unit(*bb))
         )
     if not resid:
         return None
@@ -169,7 +169,9 @@ def learn_interval(
     q_base = r[inside] if inside.any() else r
     q = float(np.percentile(q_base, 100 * LEVEL))
     # never narrower than what the map misses on its own data
-    q = max(q, float(np.percentile(in_sample_abs_err, 100 * LEVEL)) if len(in_sample_abs_err) else q)
+    q = max(
+        q, float(np.percentile(in_sample_abs_err, 100 * LEVEL)) if len(in_sample_abs_err) else q
+    )
     q = max(q, 1e-3)
     out = ~inside
     if out.sum() >= 3:

@@ -112,7 +112,8 @@ def test_fit_cli_says_what_it_identified_and_where_to_trust(
     ds = step_summary(7.4, "x.csv")
     csv = tmp_path / "x.csv"
     lines = ["throttle,thrust,volts"] + [
-        f"{a},{b},{c}" for a, b, c in zip(ds.throttle_native, ds.thrust_n, ds.voltage_v, strict=True)
+        f"{a},{b},{c}"
+        for a, b, c in zip(ds.throttle_native, ds.thrust_n, ds.voltage_v, strict=True)
     ]
     csv.write_text("\n".join(lines) + "\n")
     out_map = tmp_path / "m.json"

@@ -342,8 +342,7 @@ def predict_cmd(
         click.echo(
             f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's validity box "
             f"(T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V): "
-            "extrapolated"
-            + ("" if half is None else f", interval widened to ±{half:.2f} %"),
+            "extrapolated" + ("" if half is None else f", interval widened to ±{half:.2f} %"),
             err=True,
         )
     if as_json:
