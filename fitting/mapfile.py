@@ -214,8 +214,9 @@ class ThrustMap:
             "selection": self.selection,
             "sources": list(self.sources),
             "correction": None if self.correction is None else self.correction.to_dict(),
-            "identification": self.identification,
-            "interval": self.interval,
+            # written only when present, so maps built without them keep their old bytes
+            **({"identification": self.identification} if self.identification else {}),
+            **({"interval": self.interval} if self.interval else {}),
             "tool_version": self.tool_version,
             "created_utc": self.created_utc,
         }
