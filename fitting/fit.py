@@ -314,7 +314,12 @@ def validate(
                 gram, rhs = gram_all, rhs_all
             else:
                 gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht
-            coef_c = solve_gram(gram, rhs, m.lower())
+            cols = m.free_columns(t, b)
+            lower = m.lower()
+            coef_c = np.zeros(m.n_coefficients)
+            coef_c[cols] = solve_gram(
+                gram[np.ix_(cols, cols)], rhs[cols], None if lower is None else lower[cols]
+            )
             pred = dt @ coef_c
         else:
             coef = fit_coefficients(m, t, b, th, loss, where=f"{model} {validation} fold")

@@ -80,6 +80,10 @@ class Model:
         norms[norms == 0] = 1.0
         return d / norms, lambda c: np.asarray(c, float) / norms
 
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        """Coefficients the data at these points determines (the others are held at 0)."""
+        return list(range(self.n_coefficients))
+
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
 
@@ -230,7 +234,6 @@ MIN_POINTS_PER_COEFFICIENT = 8
 class MotorModel(FeatureModel):
     """``motor``, fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
 
-    linear_least_squares = False
     voltage_from_physics = True
 
     def _fit_form(
@@ -247,42 +250,43 @@ class MotorModel(FeatureModel):
         coef[keep] = sub
         return to_raw(coef)
 
+    def _physics_reason(self, b: FloatArray) -> str | None:
+        """Why the data cannot identify k0 (None: it can, so k0 is fitted)."""
+        span = float(np.ptp(b)) if len(b) else 0.0
+        mean_b = float(np.mean(b)) if len(b) else 0.0
+        rel = span / mean_b if mean_b > 0 else 0.0
+        physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
+        if rel < MIN_RELATIVE_SPAN:
+            return (
+                f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
+                "not fitted"
+            )
+        need = MIN_POINTS_PER_COEFFICIENT * self.n_coefficients
+        if len(b) < need:
+            return (
+                f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need {need}+ to "
+                f"be told apart): {physics}, not fitted"
+            )
+        return None
+
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        return [0, 2, 3] if self._physics_reason(voltage_v) is not None else [0, 1, 2, 3]
+
     def identify(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
     ) -> tuple[FloatArray, Identification | None]:
         t, b, th = thrust_n, voltage_v, throttle_pct
         span = float(np.ptp(b)) if len(b) else 0.0
-        mean_b = float(np.mean(b)) if len(b) else 0.0
-        rel = span / mean_b if mean_b > 0 else 0.0
-        physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
-        fixed = Identification(
-            form="k0 fixed (physics)",
-            reason="",
-            voltage_span_v=span,
-            fixed=("1/B",),
-        )
-        if rel < MIN_RELATIVE_SPAN:
-            reason = (
-                f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
-                "not fitted"
-            )
-            return self._fit_form(t, b, th, loss, False), _with(fixed, reason)
-        if len(b) < MIN_POINTS_PER_COEFFICIENT * self.n_coefficients:
-            reason = (
-                f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need "
-                f"{MIN_POINTS_PER_COEFFICIENT * self.n_coefficients}+ to be told apart): "
-                f"{physics}, not fitted"
-            )
-            return self._fit_form(t, b, th, loss, False), _with(fixed, reason)
+        reason = self._physics_reason(b)
+        if reason is not None:
+            coef = self._fit_form(t, b, th, loss, False)
+            return coef, Identification("k0 fixed (physics)", reason, span, ("1/B",))
+        mean_b = float(np.mean(b))
         reason = (
-            f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V) over {len(b)} "
-            "points: 1/B term fitted from the data"
+            f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "
+            f"{len(b)} points: 1/B term fitted from the data"
         )
         return self._fit_form(t, b, th, loss, True), Identification("full", reason, span)
-
-
-def _with(ident: Identification, reason: str) -> Identification:
-    return Identification(ident.form, reason, ident.voltage_span_v, ident.fixed, ident.evidence)
 
 
 def motor_forward(
