@@ -27,7 +27,7 @@ from thrustmap.fitting.fit import evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.metrics import ErrorStats
 from thrustmap.fitting.models import DEFAULT_MODEL
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.selection import Selection, select
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 BASELINES = ("la", "linear", "poly2", "poly2-trunc", "poly3")
@@ -48,7 +48,7 @@ def _selection_for(ds: Dataset) -> tuple[Selection, bool]:
     exports were accepted by the default selection): when it finds no steady-state points the
     file's rows are taken as they are, which for a step summary are already steady points."""
     try:
-        fit_map([ds], model="linear")  # cheapest way to run the default selection on this file
+        select(ds, Selection())  # the default selection, exactly as `fit` runs it
     except FitError as exc:
         if "no steady-state points" not in str(exc):
             raise

@@ -157,6 +157,7 @@ def fit_map(
         data.thrust_n,
         data.voltage_v,
         physics_voltage=ident is not None and bool(ident.fixed),
+        few_points=ident is not None and ident.limited_by == "points",
     )
     box = ValidityBox(
         thrust_n=Box(float(data.thrust_n.min()), float(data.thrust_n.max())),

@@ -191,7 +191,11 @@ def learn_interval(
 
 
 def advice(
-    interval: Interval | None, thrust_n: FloatArray, voltage_v: FloatArray, physics_voltage: bool
+    interval: Interval | None,
+    thrust_n: FloatArray,
+    voltage_v: FloatArray,
+    physics_voltage: bool,
+    few_points: bool = False,
 ) -> tuple[str, str]:
     """Two lines for ``fit``: where the map can be trusted, and where data would help most."""
     t_lo, t_hi = float(thrust_n.min()), float(thrust_n.max())
@@ -210,7 +214,7 @@ def advice(
             ext_b = reach * interval.voltage_unit_v
             doubled = (
                 f"; it doubles by T {max(t_lo - ext_t, 0):.3f}..{t_hi + ext_t:.3f} N, "
-                f"B {b_lo - ext_b:.2f}..{b_hi + ext_b:.2f} V"
+                f"B {max(b_lo - ext_b, 0):.2f}..{b_hi + ext_b:.2f} V"
             )
         else:
             doubled = ""
@@ -218,7 +222,12 @@ def advice(
             f"trustworthy to ±{q:.2f} % ({100 * interval.level:.0f} % interval) for "
             f"T {t_lo:.3f}..{t_hi:.3f} N, B {b_lo:.2f}..{b_hi:.2f} V{doubled}"
         )
-    if physics_voltage:
+    if physics_voltage and few_points:
+        more = (
+            f"more data would help most as more throttle levels at several voltages across "
+            f"B {b_lo:.2f}..{b_hi:.2f} V: with them the voltage term is fitted, not assumed"
+        )
+    elif physics_voltage:
         more = (
             f"more data would help most at another battery voltage (e.g. below {0.9 * b_lo:.1f} V "
             "or over a discharge): the voltage scaling now rests on motor physics"

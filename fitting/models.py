@@ -108,7 +108,8 @@ class Identification:
     reason: str  # one line: what the data showed and what was assumed
     voltage_span_v: float
     fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
-    evidence: dict[str, float] = field(default_factory=dict)  # held-out errors that decided
+    evidence: dict[str, float] = field(default_factory=dict)  # figures behind the choice
+    limited_by: str = ""  # what the data lacked: "voltage span", "points", or "" (nothing)
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -117,6 +118,7 @@ class Identification:
             "voltage_span_v": self.voltage_span_v,
             "fixed": list(self.fixed),
             "evidence": dict(self.evidence),
+            "limited_by": self.limited_by,
         }
 
 
@@ -250,20 +252,20 @@ class MotorModel(FeatureModel):
         coef[keep] = sub
         return to_raw(coef)
 
-    def _physics_reason(self, b: FloatArray) -> str | None:
-        """Why the data cannot identify k0 (None: it can, so k0 is fitted)."""
+    def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
+        """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""
         span = float(np.ptp(b)) if len(b) else 0.0
         mean_b = float(np.mean(b)) if len(b) else 0.0
         rel = span / mean_b if mean_b > 0 else 0.0
         physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
         if rel < MIN_RELATIVE_SPAN:
-            return (
+            return "voltage span", (
                 f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
                 "not fitted"
             )
         need = MIN_POINTS_PER_COEFFICIENT * self.n_coefficients
         if len(b) < need:
-            return (
+            return "points", (
                 f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need {need}+ to "
                 f"be told apart): {physics}, not fitted"
             )
@@ -277,10 +279,14 @@ class MotorModel(FeatureModel):
     ) -> tuple[FloatArray, Identification | None]:
         t, b, th = thrust_n, voltage_v, throttle_pct
         span = float(np.ptp(b)) if len(b) else 0.0
-        reason = self._physics_reason(b)
-        if reason is not None:
+        lacking = self._physics_reason(b)
+        if lacking is not None:
+            limit, reason = lacking
             coef = self._fit_form(t, b, th, loss, False)
-            return coef, Identification("k0 fixed (physics)", reason, span, ("1/B",))
+            evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit
+            )
         mean_b = float(np.mean(b))
         reason = (
             f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "

@@ -99,6 +99,14 @@ def discharge_sweeps(files: int = 3, levels: int = 20) -> list[Dataset]:
     return out
 
 
+def test_wide_span_but_few_points_keeps_physics_and_asks_for_more_levels() -> None:
+    a = step_summary(7.4, "a.csv")
+    b = step_summary(11.1, "b.csv")
+    out = fit_map([a, b], selection=ALL)  # 22 points across 7–11 V
+    assert out.map.identification["limited_by"] == "points"
+    assert "more throttle levels at several voltages" in out.more_data
+
+
 def test_wide_voltage_span_with_many_points_fits_the_voltage_term() -> None:
     out = fit_map(discharge_sweeps(), selection=ALL)
     assert out.map.identification["form"] == "full"
