@@ -109,7 +109,7 @@ class Identification:
     voltage_span_v: float
     fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
     evidence: dict[str, float] = field(default_factory=dict)  # figures behind the choice
-    limited_by: str = ""  # what the data lacked: "voltage span", "points", or "" (nothing)
+    limited_by: str = ""  # "voltage span", "points", "physical sense" (full fit rejected), ""
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -288,11 +288,39 @@ class MotorModel(FeatureModel):
                 "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit
             )
         mean_b = float(np.mean(b))
+        full = self._fit_form(t, b, th, loss, True)
+        unphysical = _unphysical(full, t)
+        if unphysical:
+            reason = (
+                f"voltage span {span:.2f} V over {len(b)} points, but fitting k0 gave {unphysical}:"
+                " 1/B scaling from motor physics (k0 = 0) kept"
+            )
+            coef = self._fit_form(t, b, th, loss, False)
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), {}, "physical sense"
+            )
         reason = (
             f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "
             f"{len(b)} points: 1/B term fitted from the data"
         )
-        return self._fit_form(t, b, th, loss, True), Identification("full", reason, span)
+        return full, Identification("full", reason, span)
+
+
+#: where the ESC's duty reaches zero must lie near the bottom of the throttle range
+OFFSET_RANGE_PCT = (-50.0, 50.0)
+
+
+def _unphysical(coef: FloatArray, thrust_n: FloatArray) -> str:
+    """Why a full ``motor`` fit cannot be a motor ('' when it can): the throttle offset far
+    outside the range, or more voltage needing MORE throttle over the upper half of the thrust
+    range (where a multirotor hovers and manoeuvres; near idle a real ESC may be flat in B)."""
+    c, k0, k1, k2 = (float(x) for x in coef)
+    if not OFFSET_RANGE_PCT[0] <= c <= OFFSET_RANGE_PCT[1]:
+        return f"a throttle offset c = {c:.0f} %"
+    t_mid = 0.5 * (float(np.min(thrust_n)) + float(np.max(thrust_n)))
+    if k0 + k1 * np.sqrt(max(t_mid, 0.0)) + k2 * t_mid <= 0:
+        return f"throttle rising with voltage at {t_mid:.3g} N"
+    return ""
 
 
 def motor_forward(

@@ -114,6 +114,24 @@ def test_wide_voltage_span_with_many_points_fits_the_voltage_term() -> None:
     assert out.map.identification["fixed"] == []
 
 
+def test_a_full_fit_that_cannot_be_a_motor_is_not_used() -> None:
+    """Data in which throttle RISES with voltage (lag or sag confounded with the battery, as in
+    a badly selected staircase) must not turn into a map with an absurd offset and 1/B term."""
+    from thrustmap.fitting.models import MODELS
+
+    rng = np.random.default_rng(1)
+    t = np.tile(np.linspace(0.3, 6.0, 20), 3)
+    b = np.repeat([21.0, 22.5, 24.0], 20) + rng.normal(0, 0.05, 60)
+    th = 5 + (400 * np.sqrt(t) + 30 * t) / b + 6.0 * (b - 22.5)
+    coef, ident = MODELS["motor"].identify(t, b, th, "l2")
+    assert ident is not None and ident.limited_by == "physical sense"
+    assert "throttle offset" in ident.reason and coef[1] == 0.0
+    # the map keeps the physical sign: more voltage, less throttle for the same thrust
+    lo = MODELS["motor"].evaluate(coef, np.array([3.0]), np.array([21.0]))[0]
+    hi = MODELS["motor"].evaluate(coef, np.array([3.0]), np.array([24.0]))[0]
+    assert hi < lo
+
+
 def test_fit_cli_says_what_it_identified_and_where_to_trust(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
