@@ -130,6 +130,11 @@ def test_a_full_fit_that_cannot_be_a_motor_is_not_used() -> None:
     lo = MODELS["motor"].evaluate(coef, np.array([3.0]), np.array([21.0]))[0]
     hi = MODELS["motor"].evaluate(coef, np.array([3.0]), np.array([24.0]))[0]
     assert hi < lo
+    # an offset inside the range, but throttle rising with voltage mid-range: also refused
+    th2 = -20 + (100 * np.sqrt(t) + 5 * t) / b + 2.0 * (b - 22.5)
+    coef2, ident2 = MODELS["motor"].identify(t, b, th2, "l2")
+    assert ident2 is not None and ident2.limited_by == "physical sense"
+    assert "throttle rising with voltage" in ident2.reason and coef2[1] == 0.0
 
 
 def test_fit_cli_says_what_it_identified_and_where_to_trust(
