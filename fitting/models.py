@@ -20,8 +20,9 @@ throttle offset (dead band / idle), which does not scale with voltage. ``motor``
 the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
 span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
 points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
-throttle, and enough data at several voltages measures that). The choice and its reason are
-reported (:class:`Identification`).
+throttle, and enough data at several voltages measures that), and only if that fit can be a
+motor (offset within ±50 % of the range, throttle falling with voltage mid-range). The choice
+and its reason are reported (:class:`Identification`).
 """
 
 from __future__ import annotations
