@@ -1,15 +1,15 @@
 """Fit thrust maps from Ds, validate them, and score maps on new data.
 
 ``fit_map``: selection -> model fit -> checks (monotone in T, conditioning) -> ``ThrustMap``.
-``compare``: several models under one validation mode (in-sample, by-file, k-fold); held-out
-points outside the training box are scored separately, never mixed in.
+``compare``: several models under one validation mode (in-sample, by-file, k-fold); the headline
+counts every held-out point, with the points inside and outside the training box beside it.
 ``evaluate``: an existing map against new files.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -17,9 +17,10 @@ import numpy as np
 
 from thrustmap.errors import ConfigError, FitError
 from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.interval import advice, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import ErrorStats, error_stats
-from thrustmap.fitting.models import DEFAULT_MODEL, Model, get_model
+from thrustmap.fitting.models import DEFAULT_MODEL, Identification, Model, get_model
 from thrustmap.fitting.selection import Points, Selection, select
 from thrustmap.fitting.solve import Loss, condition_number, solve_gram
 from thrustmap.units import ThrottleScale
@@ -79,7 +80,7 @@ def _check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> N
             f"coefficients of '{model.name}'; widen the ranges or record more levels",
             file=where,
         )
-    if model.uses_voltage and np.ptp(b) < 0.05:
+    if model.uses_voltage and not model.voltage_from_physics and np.ptp(b) < 0.05:
         raise FitError(
             f"all points at one battery voltage ({np.mean(b):.2f} V): a surface in voltage cannot be "
             f"fitted; record over a discharge, or use a model without voltage (linear, la)",
@@ -92,8 +93,22 @@ def _check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> N
 def fit_coefficients(
     model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
 ) -> FloatArray:
+    return identify_coefficients(model, t, b, th, loss, where)[0]
+
+
+def identify_coefficients(
+    model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
+) -> tuple[FloatArray, Identification | None]:
+    """Coefficients and how they were identified (which were set by physics, and why)."""
     _check_fit_data(model, t, b, where)
-    return model.fit(t, b, th, loss)
+    coef, ident = model.identify(t, b, th, loss)
+    if not np.all(np.isfinite(coef)):
+        raise FitError(
+            f"fit of '{model.name}' gave non-finite coefficients; the data cannot determine "
+            "this model (record more levels or use a simpler model)",
+            file=where,
+        )
+    return coef, ident
 
 
 @dataclass
@@ -101,6 +116,8 @@ class FitOutcome:
     map: ThrustMap
     pool: Pool
     warnings: list[str] = field(default_factory=list)
+    trust: str = ""  # where the map can be trusted (its prediction interval and box)
+    more_data: str = ""  # where more data would help most
 
 
 def fit_map(
@@ -115,9 +132,33 @@ def fit_map(
     m = get_model(model)
     data = pool(datasets, selection)
     where = ", ".join(d.path for d in datasets)
-    coef = fit_coefficients(m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where)
+    coef, ident = identify_coefficients(
+        m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
+    )
     pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
     stats = error_stats(pred, data.throttle_pct)
+
+    def predictor(
+        t: FloatArray, b: FloatArray, th: FloatArray
+    ) -> Callable[[FloatArray, FloatArray], FloatArray]:
+        c = fit_coefficients(m, t, b, th, loss)
+        return lambda tq, bq: m.evaluate(c, tq, bq)
+
+    interval = learn_interval(
+        data.thrust_n,
+        data.voltage_v,
+        data.throttle_pct,
+        data.file_index,
+        predictor,
+        np.abs(pred - data.throttle_pct),
+    )
+    trust, more_data = advice(
+        interval,
+        data.thrust_n,
+        data.voltage_v,
+        physics_voltage=ident is not None and bool(ident.fixed),
+        few_points=ident is not None and ident.limited_by == "points",
+    )
     box = ValidityBox(
         thrust_n=Box(float(data.thrust_n.min()), float(data.thrust_n.max())),
         voltage_v=Box(float(data.voltage_v.min()), float(data.voltage_v.max())),
@@ -138,11 +179,15 @@ def fit_map(
         metrics={"in_sample": stats.to_dict()},
         selection={**selection.to_dict(), "report": [p.report for p in data.points]},
         sources=tuple(d.source_record() for d in datasets),
+        identification={} if ident is None else ident.to_dict(),
+        interval={} if interval is None else interval.to_dict(),
     )
+    if ident is not None:
+        log.info("%s: %s", m.name, ident.reason)
     warnings = check_map(tmap, data)
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
-    return FitOutcome(tmap, data, warnings)
+    return FitOutcome(tmap, data, warnings, trust, more_data)
 
 
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
@@ -178,21 +223,46 @@ def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
 
 @dataclass(frozen=True)
 class Row:
+    """Held-out errors of one model: ALL held-out points (the headline), and the same points
+    split into inside and outside the training box (detail)."""
+
     model: str
     validation: str
-    inside: ErrorStats
-    outside: ErrorStats  # held-out points outside the training box (never mixed in)
+    inside: ErrorStats  # held-out points inside the training box
+    outside: ErrorStats  # held-out points outside the training box
     folds: int
+    all: ErrorStats  # every held-out point: the headline
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (no NaN: a figure with no points is null). Top-level figures are over all
+        held-out points; ``inside_box`` and ``outside_box`` give the split."""
         d: dict[str, Any] = {
             "model": self.model,
             "validation": self.validation,
             "folds": self.folds,
         }
-        d.update(self.inside.to_dict())
+        d.update(self.all.to_dict())
+        d["inside_box"] = self.inside.to_dict()
         d["outside_box"] = self.outside.to_dict()
         return d
+
+
+def _row(
+    model: str,
+    validation: str,
+    folds: int,
+    pred: FloatArray,
+    true: FloatArray,
+    inside: np.ndarray[Any, np.dtype[np.bool_]],
+) -> Row:
+    return Row(
+        model=model,
+        validation=validation,
+        inside=error_stats(pred[inside], true[inside]),
+        outside=error_stats(pred[~inside], true[~inside]),
+        folds=folds,
+        all=error_stats(pred, true),
+    )
 
 
 def _in_box(
@@ -225,10 +295,9 @@ def validate(
         raise ConfigError(
             f"unknown validation '{validation}'; expected one of: {', '.join(VALIDATIONS)}"
         )
-    pred_in: list[FloatArray] = []
-    true_in: list[FloatArray] = []
-    pred_out: list[FloatArray] = []
-    true_out: list[FloatArray] = []
+    preds: list[FloatArray] = []
+    trues: list[FloatArray] = []
+    insides: list[np.ndarray[Any, np.dtype[np.bool_]]] = []
     fast = loss == "l2" and m.linear_least_squares
     if fast:
         # One conditioned design for all points; each fold's fit comes from sums of per-split
@@ -246,7 +315,12 @@ def validate(
                 gram, rhs = gram_all, rhs_all
             else:
                 gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht
-            coef_c = solve_gram(gram, rhs, m.lower())
+            cols = m.free_columns(t, b)
+            lower = m.lower()
+            coef_c = np.zeros(m.n_coefficients)
+            coef_c[cols] = solve_gram(
+                gram[np.ix_(cols, cols)], rhs[cols], None if lower is None else lower[cols]
+            )
             pred = dt @ coef_c
         else:
             coef = fit_coefficients(m, t, b, th, loss, where=f"{model} {validation} fold")
@@ -256,16 +330,16 @@ def validate(
             if validation != "in-sample"
             else np.ones(len(tt), bool)
         )
-        pred_in.append(pred[inside])
-        true_in.append(tht[inside])
-        pred_out.append(pred[~inside])
-        true_out.append(tht[~inside])
-    return Row(
-        model=model,
-        validation=validation,
-        inside=error_stats(np.concatenate(pred_in), np.concatenate(true_in)),
-        outside=error_stats(np.concatenate(pred_out), np.concatenate(true_out)),
-        folds=len(splits),
+        preds.append(pred)
+        trues.append(tht)
+        insides.append(np.asarray(inside, bool))
+    return _row(
+        model,
+        validation,
+        len(splits),
+        np.concatenate(preds),
+        np.concatenate(trues),
+        np.concatenate(insides),
     )
 
 
@@ -289,7 +363,7 @@ def compare(
 def evaluate(
     tmap: ThrustMap, datasets: Sequence[Dataset], selection: Selection | None = None
 ) -> list[Row]:
-    """Score a map on files: points inside its validity box, and outside it separately."""
+    """Score a map on files: every point (the headline), and inside/outside its box apart."""
     rows = []
     for ds in datasets:
         if ds.throttle_scale != tmap.throttle_scale:
@@ -301,13 +375,5 @@ def evaluate(
         p = select(ds, selection or Selection())
         pred = tmap.throttle_pct(p.thrust_n, p.voltage_v, corrected=False)
         inside = tmap.in_box(p.thrust_n, p.voltage_v)
-        rows.append(
-            Row(
-                model=tmap.model,
-                validation=f"evaluate:{ds.name}",
-                inside=error_stats(pred[inside], p.throttle_pct[inside]),
-                outside=error_stats(pred[~inside], p.throttle_pct[~inside]),
-                folds=1,
-            )
-        )
+        rows.append(_row(tmap.model, f"evaluate:{ds.name}", 1, pred, p.throttle_pct, inside))
     return rows

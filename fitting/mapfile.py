@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -21,8 +22,11 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap import __version__
-from thrustmap.errors import DataFormatError
+from thrustmap.errors import ConfigError, DataFormatError, FitError
+from thrustmap.files import atomic_write_text
+from thrustmap.fitting.interval import Interval
 from thrustmap.fitting.models import Model, get_model, motor_forward
+from thrustmap.jsonfile import Fields, load_json
 from thrustmap.units import ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -112,6 +116,10 @@ class ThrustMap:
     selection: dict[str, Any] = field(default_factory=dict)
     sources: tuple[dict[str, Any], ...] = ()
     correction: GammaCorrection | None = None
+    #: how the coefficients were identified (which were set by physics, and why)
+    identification: dict[str, Any] = field(default_factory=dict)
+    #: prediction interval learned from held-out residuals (see fitting.interval)
+    interval: dict[str, Any] = field(default_factory=dict)
     tool_version: str = __version__
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -166,6 +174,15 @@ class ThrustMap:
         t = 0.5 * (lo + hi)
         return np.where(th <= f_lo, 0.0, t)
 
+    def prediction_interval(self) -> Interval | None:
+        """The map's prediction interval (None for a map without one, e.g. an older file)."""
+        if not self.interval:
+            return None
+        v = self.validity
+        return Interval.from_dict(
+            self.interval, (v.thrust_n.lo, v.thrust_n.hi), (v.voltage_v.lo, v.voltage_v.hi)
+        )
+
     def in_box(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         return self.validity.contains(thrust_n, voltage_v)
 
@@ -197,95 +214,182 @@ class ThrustMap:
             "selection": self.selection,
             "sources": list(self.sources),
             "correction": None if self.correction is None else self.correction.to_dict(),
+            # written only when present, so maps built without them keep their old bytes
+            **({"identification": self.identification} if self.identification else {}),
+            **({"interval": self.interval} if self.interval else {}),
             "tool_version": self.tool_version,
             "created_utc": self.created_utc,
         }
 
     def dumps(self) -> str:
-        return json.dumps(self.to_dict(), indent=2, sort_keys=False) + "\n"
+        """The map as JSON text. Refuses a map with a number JSON cannot carry (NaN, ±inf),
+        naming the field, so a broken fit never reaches a file or a firmware export."""
+        doc = self.to_dict()
+        bad = _non_finite_path(doc)
+        if bad is not None:
+            raise FitError(f"map has a non-finite number in field '{bad}'; not written")
+        return json.dumps(doc, indent=2, sort_keys=False, allow_nan=False) + "\n"
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(self.dumps(), encoding="utf-8")
+        atomic_write_text(path, self.dumps())
 
     @classmethod
     def load(cls, path: str | Path) -> ThrustMap:
         p = Path(path)
-        try:
-            raw = p.read_bytes()
-        except OSError as exc:
-            raise DataFormatError(f"cannot read map file: {exc.strerror}", file=str(p)) from None
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            line = getattr(exc, "lineno", None)
-            raise DataFormatError(f"not a JSON map file ({exc})", file=str(p), line=line) from None
+        data = load_json(p, what="map file")
         tmap = cls.from_dict(data, source=str(p))
-        return replace(tmap, file_sha256=hashlib.sha256(raw).hexdigest())
+        return replace(tmap, file_sha256=file_sha256(p))
 
     @classmethod
     def from_dict(cls, data: Any, *, source: str = "<map>") -> ThrustMap:
-        def need(obj: Any, key: str, where: str = "") -> Any:
-            if not isinstance(obj, dict) or key not in obj:
-                raise DataFormatError(f"map file has no field '{where}{key}'", file=source)
-            return obj[key]
-
+        """Build a map from its JSON document, checking every number that evaluates it: finite
+        coefficients, ordered finite boxes, a finite γ. Errors name the field."""
         if not isinstance(data, dict) or data.get("format") != MAP_FORMAT:
             raise DataFormatError(
                 f'not a thrustmap map file (expected "format": "{MAP_FORMAT}")', file=source
             )
-        version = need(data, "version")
+        f = Fields(data, source=source)
+        version = f.raw("version")
         if version != MAP_VERSION:
             raise DataFormatError(
                 f"map file version {version} is not supported (this tool reads {MAP_VERSION})",
                 file=source,
             )
+        name = f.string("model")
         try:
-            model = get_model(str(need(data, "model")))
-            coefs = tuple(float(c) for c in need(data, "coefficients"))
-            if len(coefs) != model.n_coefficients:
-                raise DataFormatError(
-                    f"field 'coefficients': model '{model.name}' needs {model.n_coefficients}, "
-                    f"got {len(coefs)}",
-                    file=source,
-                )
-            validity = need(data, "validity")
-            box = ValidityBox(
-                thrust_n=Box(*map(float, need(validity, "thrust_n", "validity."))),
-                voltage_v=Box(*map(float, need(validity, "voltage_v", "validity."))),
-                throttle_pct=Box(*map(float, need(validity, "throttle_pct", "validity."))),
+            model = get_model(name)
+        except ConfigError as exc:
+            raise f.error(exc.message, "model") from None
+        coefs = tuple(f.numbers("coefficients"))
+        if len(coefs) != model.n_coefficients:
+            raise f.error(
+                f"model '{model.name}' needs {model.n_coefficients} coefficients, got {len(coefs)}",
+                "coefficients",
             )
-            corr_raw = data.get("correction")
-            correction = None
-            if corr_raw is not None:
-                correction = GammaCorrection(
-                    coefficients=tuple(
-                        float(c) for c in need(corr_raw, "coefficients", "correction.")
-                    ),
-                    voltage_v=Box(*map(float, need(corr_raw, "voltage_v", "correction."))),
-                    loss=str(corr_raw.get("loss", "l2")),
-                    metrics=dict(corr_raw.get("metrics", {})),
-                    sources=tuple(corr_raw.get("sources", ())),
-                )
-            return cls(
-                model=model.name,
-                coefficients=coefs,
-                throttle_scale=ThrottleScale.from_dict(need(data, "throttle_scale")),
-                validity=box,
-                loss=str(data.get("loss", "l2")),
-                strategy=str(data.get("strategy", "unknown")),
-                rotors_on_esc=data.get("rotors_on_esc"),
-                thrust_meaning=str(data.get("thrust_meaning", "per_rotor")),
-                metrics=dict(data.get("metrics", {})),
-                selection=dict(data.get("selection", {})),
-                sources=tuple(data.get("sources", ())),
-                correction=correction,
-                tool_version=str(data.get("tool_version", "")),
-                created_utc=str(data.get("created_utc", "")),
+        vf = f.sub("validity")
+        box = ValidityBox(
+            thrust_n=_box(vf, "thrust_n", minimum=0.0),
+            voltage_v=_box(vf, "voltage_v", minimum=0.0, positive=True),
+            throttle_pct=_box(vf, "throttle_pct"),
+        )
+        correction = None
+        if f.has("correction"):
+            cf = f.sub("correction")
+            gamma = tuple(cf.numbers("coefficients"))
+            if not gamma:
+                raise cf.error("expected at least one coefficient", "coefficients")
+            metrics = cf.obj.get("metrics", {})
+            correction = GammaCorrection(
+                coefficients=gamma,
+                voltage_v=_box(cf, "voltage_v", minimum=0.0, positive=True),
+                loss=cf.string("loss", "l2"),
+                metrics=dict(metrics) if isinstance(metrics, dict) else {},
+                sources=tuple(_list(cf, "sources")),
             )
-        except DataFormatError:
-            raise
-        except Exception as exc:  # wrong types inside the document
-            raise DataFormatError(f"malformed map file: {exc}", file=source) from None
+        try:
+            throttle_scale = ThrottleScale.from_dict(dict(f.sub("throttle_scale").obj))
+        except ConfigError as exc:
+            raise f.error(exc.message, "throttle_scale") from None
+        if not (
+            math.isfinite(throttle_scale.lo)
+            and math.isfinite(throttle_scale.hi)
+            and throttle_scale.lo != throttle_scale.hi
+        ):
+            raise f.error("expected finite, different lo and hi", "throttle_scale")
+        rotors = data.get("rotors_on_esc")
+        if rotors is not None:
+            rotors = f.integer("rotors_on_esc", minimum=1, maximum=64)
+        return cls(
+            model=model.name,
+            coefficients=coefs,
+            throttle_scale=throttle_scale,
+            validity=box,
+            loss=f.string("loss", "l2"),
+            strategy=f.string("strategy", "unknown"),
+            rotors_on_esc=rotors,
+            thrust_meaning=f.string("thrust_meaning", "per_rotor"),
+            metrics=_dict(f, "metrics"),
+            selection=_dict(f, "selection"),
+            sources=tuple(_list(f, "sources")),
+            correction=correction,
+            identification=_dict(f, "identification"),
+            interval=_interval(f),
+            tool_version=f.string("tool_version", ""),
+            created_utc=f.string("created_utc", ""),
+        )
+
+
+def _box(f: Fields, key: str, *, minimum: float | None = None, positive: bool = False) -> Box:
+    lo_hi = f.numbers(key)
+    if len(lo_hi) != 2:
+        raise f.error(f"expected [lo, hi], got {len(lo_hi)} numbers", key)
+    lo, hi = lo_hi
+    if lo > hi:
+        raise f.error(f"reversed range [{lo:g}, {hi:g}]; expected lo <= hi", key)
+    if minimum is not None and lo < minimum:
+        raise f.error(f"expected values >= {minimum:g}, got {lo:g}", key)
+    if positive and lo <= 0:
+        raise f.error(f"expected positive values, got {lo:g}", key)
+    return Box(lo, hi)
+
+
+def _dict(f: Fields, key: str) -> dict[str, Any]:
+    if not f.has(key):
+        return {}
+    value = f.raw(key)
+    if not isinstance(value, dict):
+        raise f.error("expected an object", key)
+    return dict(value)
+
+
+def _list(f: Fields, key: str) -> list[Any]:
+    if not f.has(key):
+        return []
+    value = f.raw(key)
+    if not isinstance(value, list):
+        raise f.error("expected a list", key)
+    return value
+
+
+def _interval(f: Fields) -> dict[str, Any]:
+    """The prediction-interval block: its numbers are used by predict, so they are checked."""
+    if not f.has("interval") or not f.raw("interval"):
+        return {}
+    sub = f.sub("interval")
+    out = dict(sub.obj)
+    for key in ("half_width_pct", "growth_per_span"):
+        out[key] = sub.number(key, minimum=0.0)
+    return out
+
+
+def _non_finite_path(obj: Any, path: str = "") -> str | None:
+    """The path of the first NaN/±inf inside a JSON-ready structure, or None."""
+    if isinstance(obj, float):
+        return None if math.isfinite(obj) else (path or "<value>")
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            found = _non_finite_path(v, f"{path}.{k}" if path else str(k))
+            if found is not None:
+                return found
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            found = _non_finite_path(v, f"{path}[{i}]")
+            if found is not None:
+                return found
+    return None
+
+
+def json_ready(obj: Any) -> Any:
+    """A copy of a JSON-ready structure with every NaN/±inf replaced by None (null)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return json_ready(obj.item())
+    return obj
 
 
 def file_sha256(path: str | Path) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -19,8 +20,12 @@ class ErrorStats:
     rms_pct: float
     bias_pct: float  # mean signed error (prediction − truth)
 
-    def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+    def to_dict(self) -> dict[str, float | int | None]:
+        """JSON-ready: a figure that does not exist (no points) is None, never NaN."""
+        return {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in asdict(self).items()
+        }
 
 
 def error_stats(predicted_pct: FloatArray, actual_pct: FloatArray) -> ErrorStats:

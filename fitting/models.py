@@ -12,6 +12,17 @@ pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·�
 
 (c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
 with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+
+Identification. At one battery voltage B0, c and k0/B0 are one number, so the data alone cannot
+say how the map scales with B. Physics can: k0 is the resistive drop of the no-load current
+(R·I0, a few tenths of a volt against a duty × voltage of several volts), while c is the ESC's
+throttle offset (dead band / idle), which does not scale with voltage. ``motor`` therefore fits
+the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
+span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
+points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
+throttle, and enough data at several voltages measures that), and only if that fit can be a
+motor (offset within ±50 % of the range, throttle falling with voltage mid-range). The choice
+and its reason are reported (:class:`Identification`).
 """
 
 from __future__ import annotations
@@ -57,6 +68,8 @@ class Model:
 
     #: validation may reuse one conditioned design across folds (False for special fits)
     linear_least_squares = True
+    #: the model's voltage dependence comes from physics when the data has no voltage spread
+    voltage_from_physics = False
 
     def conditioned(
         self, thrust_n: FloatArray, voltage_v: FloatArray
@@ -68,14 +81,46 @@ class Model:
         norms[norms == 0] = 1.0
         return d / norms, lambda c: np.asarray(c, float) / norms
 
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        """Coefficients the data at these points determines (the others are held at 0)."""
+        return list(range(self.n_coefficients))
+
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
 
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
     ) -> FloatArray:
+        return self.identify(thrust_n, voltage_v, throttle_pct, loss)[0]
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        """Coefficients, and how the data identified them (None: every coefficient fitted)."""
         design, to_raw = self.conditioned(thrust_n, voltage_v)
-        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower()))
+        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower())), None
+
+
+@dataclass(frozen=True)
+class Identification:
+    """How a model's coefficients were identified, in one line a user can check."""
+
+    form: str  # which form was fitted, e.g. "k0 fixed (physics)" or "full"
+    reason: str  # one line: what the data showed and what was assumed
+    voltage_span_v: float
+    fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
+    evidence: dict[str, float] = field(default_factory=dict)  # figures behind the choice
+    limited_by: str = ""  # "voltage span", "points", "physical sense" (full fit rejected), ""
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "form": self.form,
+            "reason": self.reason,
+            "voltage_span_v": self.voltage_span_v,
+            "fixed": list(self.fixed),
+            "evidence": dict(self.evidence),
+            "limited_by": self.limited_by,
+        }
 
 
 def _term_name(i: int, j: int) -> str:
@@ -182,6 +227,103 @@ def _motor_features(t: FloatArray, b: FloatArray) -> FloatArray:
     return np.stack([np.ones_like(t), 1.0 / b, np.sqrt(tt) / b, tt / b], axis=1)
 
 
+#: relative voltage span (max − min over mean) below which k0 cannot be told from c
+MIN_RELATIVE_SPAN = 0.05
+#: points per coefficient needed before k0 is fitted (below, c and k0/B trade off freely)
+MIN_POINTS_PER_COEFFICIENT = 8
+
+
+@dataclass(frozen=True)
+class MotorModel(FeatureModel):
+    """``motor``, fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
+
+    voltage_from_physics = True
+
+    def _fit_form(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, full: bool
+    ) -> FloatArray:
+        design, to_raw = self.conditioned(t, b)
+        lower = self.lower()
+        assert lower is not None
+        if full:
+            return to_raw(solve(design, th, loss=loss, lower=lower))
+        keep = [0, 2, 3]
+        sub = solve(design[:, keep], th, loss=loss, lower=lower[keep])
+        coef = np.zeros(4)
+        coef[keep] = sub
+        return to_raw(coef)
+
+    def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
+        """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""
+        span = float(np.ptp(b)) if len(b) else 0.0
+        mean_b = float(np.mean(b)) if len(b) else 0.0
+        rel = span / mean_b if mean_b > 0 else 0.0
+        physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
+        if rel < MIN_RELATIVE_SPAN:
+            return "voltage span", (
+                f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
+                "not fitted"
+            )
+        need = MIN_POINTS_PER_COEFFICIENT * self.n_coefficients
+        if len(b) < need:
+            return "points", (
+                f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need {need}+ to "
+                f"be told apart): {physics}, not fitted"
+            )
+        return None
+
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        return [0, 2, 3] if self._physics_reason(voltage_v) is not None else [0, 1, 2, 3]
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        t, b, th = thrust_n, voltage_v, throttle_pct
+        span = float(np.ptp(b)) if len(b) else 0.0
+        lacking = self._physics_reason(b)
+        if lacking is not None:
+            limit, reason = lacking
+            coef = self._fit_form(t, b, th, loss, False)
+            evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit
+            )
+        mean_b = float(np.mean(b))
+        full = self._fit_form(t, b, th, loss, True)
+        unphysical = _unphysical(full, t)
+        if unphysical:
+            reason = (
+                f"voltage span {span:.2f} V over {len(b)} points, but fitting k0 gave {unphysical}:"
+                " 1/B scaling from motor physics (k0 = 0) kept"
+            )
+            coef = self._fit_form(t, b, th, loss, False)
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), {}, "physical sense"
+            )
+        reason = (
+            f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "
+            f"{len(b)} points: 1/B term fitted from the data"
+        )
+        return full, Identification("full", reason, span)
+
+
+#: where the ESC's duty reaches zero must lie near the bottom of the throttle range
+OFFSET_RANGE_PCT = (-50.0, 50.0)
+
+
+def _unphysical(coef: FloatArray, thrust_n: FloatArray) -> str:
+    """Why a full ``motor`` fit cannot be a motor ('' when it can): the throttle offset far
+    outside the range, or more voltage needing MORE throttle over the upper half of the thrust
+    range (where a multirotor hovers and manoeuvres; near idle a real ESC may be flat in B)."""
+    c, k0, k1, k2 = (float(x) for x in coef)
+    if not OFFSET_RANGE_PCT[0] <= c <= OFFSET_RANGE_PCT[1]:
+        return f"a throttle offset c = {c:.0f} %"
+    t_mid = 0.5 * (float(np.min(thrust_n)) + float(np.max(thrust_n)))
+    if k0 + k1 * np.sqrt(max(t_mid, 0.0)) + k2 * t_mid <= 0:
+        return f"throttle rising with voltage at {t_mid:.3g} N"
+    return ""
+
+
 def motor_forward(
     coefficients: npt.ArrayLike, throttle_pct: FloatArray, voltage_v: FloatArray
 ) -> FloatArray:
@@ -215,11 +357,11 @@ MODELS: dict[str, Model] = {
         _poly("poly4", _poly_powers(4), "full bivariate polynomial, degree 4"),
         _poly("poly2-trunc", _PAPER_TRUNC2, "seed paper's 2nd-degree truncated form"),
         _poly("poly3-trunc", _PAPER_TRUNC3, "seed paper's 3rd-degree truncated form"),
-        FeatureModel(
+        MotorModel(
             name="motor",
             formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k1, k2 >= 0",
             description="physics-informed: duty x voltage drives rotor speed, thrust ~ speed^2; "
-            "monotone in T, scales as 1/B",
+            "monotone in T, scales as 1/B; k0 = 0 unless the data spans enough voltage to fit it",
             term_names=("1", "1/B", "sqrt(T)/B", "T/B"),
             uses_voltage=True,
             lower_bounds=(-np.inf, -np.inf, 0.0, 0.0),

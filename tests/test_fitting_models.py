@@ -85,3 +85,27 @@ def test_map_forward_bisection_inverts_polynomial(name: str) -> None:
     tq = np.array([1.0, 4.0, 8.0])
     bq = np.array([21.0, 22.5, 24.0])
     np.testing.assert_allclose(tmap.thrust_n(tmap.throttle_pct(tq, bq), bq), tq, rtol=1e-9)
+
+
+def test_motor_validation_fast_path_matches_per_fold_fits() -> None:
+    """By-file validation reuses one design; with k0 fixed by physics in some folds and fitted
+    in others it must give exactly what fitting each fold separately gives."""
+    from thrustmap.fitting.fit import Pool, fit_coefficients, validate
+
+    rng = np.random.default_rng(2)
+    parts = []
+    for f, (b0, n) in enumerate(((22.0, 40), (24.5, 40), (7.4, 12))):
+        t = rng.uniform(0.3, 8.0, n)
+        b = b0 - 0.3 * rng.uniform(0, 1, n)
+        th = 4 + (30 + 60 * np.sqrt(t) + 25 * t) / b + rng.normal(0, 0.3, n)
+        parts.append((t, b, th, np.full(n, f, dtype=np.int64)))
+    t, b, th, fi = (np.concatenate(x) for x in zip(*parts, strict=True))
+    data = Pool(t, b, th, fi, (None, None, None), SCALES["pwm"])  # type: ignore[arg-type]
+    row = validate(data, "motor", "by-file")
+    m = MODELS["motor"]
+    errs = []
+    for f in range(3):
+        tr, te = fi != f, fi == f
+        coef = fit_coefficients(m, t[tr], b[tr], th[tr], "l2")
+        errs.append(np.abs(m.evaluate(coef, t[te], b[te]) - th[te]))
+    assert row.all.mean_pct == pytest.approx(float(np.concatenate(errs).mean()), rel=1e-6)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -101,17 +102,35 @@ def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
     )
 
 
+def _fmt(x: float, width: int) -> str:
+    return f"{x:>{width}.3f}" if np.isfinite(x) else f"{'-':>{width}}"
+
+
 def _rows_table(rows: list[Row]) -> str:
-    head = f"{'model':<12} {'validation':<22} {'n':>5} {'mean %':>8} {'std %':>7} {'p95 %':>7} {'max %':>8}  outside box"
+    """Every held-out point is the headline (n, mean, std, p95, max); the split into points
+    inside and outside the training box is the detail beside it."""
+    head = (
+        f"{'model':<12} {'validation':<22} {'n':>5} {'mean %':>8} {'std %':>7} {'p95 %':>7} "
+        f"{'max %':>8}  inside box | outside box"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
-        s, o = r.inside, r.outside
-        out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "-"
+        s, i, o = r.all, r.inside, r.outside
+        ins = f"n={i.n} mean {i.mean_pct:.3f} %" if i.n else "n=0"
+        out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "n=0"
         lines.append(
-            f"{r.model:<12} {r.validation:<22} {s.n:>5} {s.mean_pct:>8.3f} {s.std_pct:>7.3f} "
-            f"{s.p95_pct:>7.3f} {s.max_pct:>8.3f}  {out}"
+            f"{r.model:<12} {r.validation:<22} {s.n:>5} {_fmt(s.mean_pct, 8)} "
+            f"{_fmt(s.std_pct, 7)} {_fmt(s.p95_pct, 7)} {_fmt(s.max_pct, 8)}  {ins} | {out}"
         )
+    lines.append("(all held-out points; the split by the training box beside them)")
     return "\n".join(lines)
+
+
+def _json(obj: Any) -> str:
+    """JSON for --json output: NaN/inf become null, never bare NaN tokens."""
+    from thrustmap.fitting.mapfile import json_ready
+
+    return json.dumps(json_ready(obj), indent=2, allow_nan=False)
 
 
 @click.command("models")
@@ -191,6 +210,11 @@ def fit_cmd(
     click.echo(
         f"valid for T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V"
     )
+    ident = out.map.identification
+    if ident:
+        click.echo(f"identification: {ident['reason']}")
+    click.echo(out.trust)
+    click.echo(out.more_data)
     for w in out.warnings:
         click.echo(f"warning: {w}", err=True)
     click.echo(f"wrote {output}")
@@ -229,7 +253,7 @@ def compare_cmd(
     datasets = load_datasets(files, _column_map(kw))
     rows = compare(datasets, names, validation, loss=loss, selection=_selection(kw), folds=folds)  # type: ignore[arg-type]
     if as_json:
-        click.echo(json.dumps({"rows": [r.to_dict() for r in rows]}, indent=2))
+        click.echo(_json({"rows": [r.to_dict() for r in rows]}))
     else:
         click.echo(_rows_table(rows))
 
@@ -240,11 +264,11 @@ def compare_cmd(
 @click.option("--json", "as_json", is_flag=True, help='Print {"rows": [...]}.')
 @selection_options
 def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any) -> None:
-    """Score an existing map on stand logs (inside its validity box; outside reported apart)."""
+    """Score an existing map on stand logs: every point, and inside/outside its box beside it."""
     tmap = ThrustMap.load(map_file)
     rows = evaluate(tmap, load_datasets(files, _column_map(kw)), _selection(kw))
     if as_json:
-        click.echo(json.dumps({"rows": [r.to_dict() for r in rows]}, indent=2))
+        click.echo(_json({"rows": [r.to_dict() for r in rows]}))
     else:
         click.echo(_rows_table(rows))
 
@@ -276,6 +300,16 @@ def predict_cmd(
     given = [x is not None for x in (thrust_n, throttle_native, throttle_pct)]
     if sum(given) != 1:
         raise ConfigError("give exactly one of --thrust-n, --throttle, --throttle-pct")
+    for opt, value in (
+        ("--thrust-n", thrust_n),
+        ("--throttle", throttle_native),
+        ("--throttle-pct", throttle_pct),
+        ("--voltage-v", voltage_v),
+    ):
+        if value is not None and not math.isfinite(value):
+            raise ConfigError(f"{opt}: expected a finite number, got {value}")
+    if voltage_v <= 0:
+        raise ConfigError(f"--voltage-v: expected a positive battery voltage, got {voltage_v:g}")
     sc = tmap.throttle_scale
     corrected = not no_correction
     if thrust_n is not None:
@@ -286,6 +320,10 @@ def predict_cmd(
         t = float(tmap.thrust_n(pct, voltage_v, corrected=corrected))
     native = float(sc.from_pct(pct))
     inside = bool(tmap.in_box(t, voltage_v))
+    interval = tmap.prediction_interval()
+    half = None if interval is None else float(interval.half_width(t, voltage_v))
+    if not (math.isfinite(pct) and math.isfinite(t)):
+        raise ConfigError(f"the map gives no finite answer at T={t:g} N, B={voltage_v:g} V")
     result = {
         "thrust_n": t,
         "voltage_v": voltage_v,
@@ -294,20 +332,28 @@ def predict_cmd(
         "throttle_unit": sc.unit,
         "inside_validity_box": inside,
         "corrected": corrected and tmap.correction is not None,
+        # half-width of the map's prediction interval in throttle % (None: the map has none)
+        "interval_pct": half,
+        "interval_native": None if half is None else half * sc.span / 100.0,
+        "interval_level": None if interval is None else interval.level,
     }
     if not inside:
         v = tmap.validity
         click.echo(
             f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's validity box "
             f"(T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V): "
-            "extrapolated",
+            "extrapolated" + ("" if half is None else f", interval widened to ±{half:.2f} %"),
             err=True,
         )
     if as_json:
-        click.echo(json.dumps(result, indent=2))
+        click.echo(_json(result))
     else:
+        pm = "" if half is None else f" ± {half:.2f}"
+        pm_native = "" if half is None else f" ± {half * sc.span / 100.0:.2f}"
+        level = "" if interval is None else f" ({100 * interval.level:.0f} % prediction interval)"
         click.echo(
-            f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f} % = {native:.2f} {sc.unit}"
+            f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
+            f"{native:.2f}{pm_native} {sc.unit}{level}"
         )
 
 
