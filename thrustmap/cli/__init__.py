@@ -35,6 +35,8 @@ COMMANDS: dict[str, str] = {
     "flightlog": "flight:flightlog_group",
     "gamma": "flight:gamma_group",
     "export": "exportcmd:export_cmd",
+    "report": "report:report_cmd",
+    "plot": "report:plot_cmd",
 }
 
 
