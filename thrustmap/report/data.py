@@ -18,7 +18,7 @@ import numpy.typing as npt
 from thrustmap import __version__
 from thrustmap.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import Pool, Row, compare, pool
+from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 from thrustmap.fitting.models import DEFAULT_MODEL, PolyModel
 from thrustmap.fitting.selection import Selection, _settle_index, plateaus
@@ -179,7 +179,7 @@ def _design(tmap: ThrustMap, t: FloatArray, b: FloatArray, ref: Pool) -> FloatAr
     d_ref = m.design(ref.thrust_n, ref.voltage_v)
     norms = np.linalg.norm(d_ref, axis=0)
     norms[norms == 0] = 1.0
-    return m.design(t, b) / norms
+    return np.asarray(m.design(t, b) / norms, dtype=float)
 
 
 def prediction_interval(
@@ -187,7 +187,7 @@ def prediction_interval(
 ) -> FloatArray:
     """95 % prediction-interval half-width (% throttle) of an ordinary least-squares fit of the
     map's model to these points (linearised: active coefficient bounds are ignored)."""
-    from scipy import stats
+    from scipy.special import stdtrit  # Student-t quantile (scipy.stats imports slowly)
 
     x = _design(tmap, data.thrust_n, data.voltage_v, data)
     n, p = x.shape
@@ -196,8 +196,8 @@ def prediction_interval(
     xtx_inv = np.linalg.pinv(x.T @ x)
     x0 = _design(tmap, t.ravel(), b.ravel(), data)
     lever = np.einsum("ij,jk,ik->i", x0, xtx_inv, x0)
-    half = float(stats.t.ppf(0.975, dof)) * s * np.sqrt(1.0 + lever)
-    return np.asarray(half.reshape(t.shape), dtype=float)
+    half = float(stdtrit(dof, 0.975)) * s * np.sqrt(1.0 + lever)
+    return np.asarray(np.reshape(half, t.shape), dtype=float)
 
 
 # -- γ ------------------------------------------------------------------------------------------
@@ -232,7 +232,8 @@ def _gamma_data(tmap: ThrustMap, map_path: str) -> GammaData | None:
         from thrustmap.fitting.df import read_df
         from thrustmap.fitting.gamma import thrust_command_n
 
-        tables, side = [], {}
+        tables = []
+        side: dict[str, Any] = {}
         for p in paths:
             table, s = read_df(p)
             tables.append(table)
@@ -263,8 +264,13 @@ def _exports(tmap: ThrustMap, betaflight_firmware: str | None) -> list[ExportRow
         ("ardupilot", "ardupilot", ExportOptions()),
     ]
     if betaflight_firmware:
-        jobs.append((f"betaflight {betaflight_firmware} (the FC's)", "betaflight",
-                     ExportOptions(firmware=betaflight_firmware)))
+        jobs.append(
+            (
+                f"betaflight {betaflight_firmware} (the FC's)",
+                "betaflight",
+                ExportOptions(firmware=betaflight_firmware),
+            )
+        )
     else:
         for fw in ("4.5", "2026.6"):
             jobs.append((f"betaflight {fw} (assumed)", "betaflight", ExportOptions(firmware=fw)))
@@ -354,7 +360,8 @@ def build(
                 notes.append("by-file validation needs two or more files: column left out")
                 continue
             try:
-                validation[mode] = compare(datasets, TABLE_MODELS, mode, selection=sel)  # type: ignore[arg-type]
+                # compare() is pool() + validate() per model: the pool is selected once here.
+                validation[mode] = [validate(data, m, mode) for m in TABLE_MODELS]
             except ThrustmapError as exc:
                 notes.append(f"{mode} validation not computed: {exc}")
     return ReportData(
@@ -401,7 +408,9 @@ def source_files(rd: ReportData) -> list[dict[str, Any]]:
                 "samples": len(ds),
                 "stand": stand.get("kind") or ds.meta.get("stand") or "not recorded",
                 "fc": " ".join(
-                    str(x) for x in (fc.get("kind"), fc.get("board"), fc.get("firmware_version")) if x
+                    str(x)
+                    for x in (fc.get("kind"), fc.get("board"), fc.get("firmware_version"))
+                    if x
                 )
                 or "not recorded",
                 "motor_protocol": fc.get("motor_protocol") or "not recorded",
@@ -413,5 +422,7 @@ def source_files(rd: ReportData) -> list[dict[str, Any]]:
         )
     if rd.gamma is not None:
         for s in rd.gamma.sources:
-            rows.append({"role": "Df (γ)", "path": s.get("path", ""), "sha256": s.get("sha256", "")})
+            rows.append(
+                {"role": "Df (γ)", "path": s.get("path", ""), "sha256": s.get("sha256", "")}
+            )
     return rows

@@ -93,8 +93,9 @@ def _num(value: float | int | None, fmt: str = ".3f", key: str = "") -> str:
 
 
 def _table(head: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "") -> str:
-    h = "".join(f'<th class="l">{_e(x)}</th>' if i == 0 else f"<th>{_e(x)}</th>"
-                for i, x in enumerate(head))
+    h = "".join(
+        f'<th class="l">{_e(x)}</th>' if i == 0 else f"<th>{_e(x)}</th>" for i, x in enumerate(head)
+    )
     body = "".join("<tr>" + "".join(r) + "</tr>" for r in rows)
     return f'<table class="{cls}"><tr>{h}</tr>{body}</table>'
 
@@ -127,13 +128,42 @@ def _provenance(rd: ReportData) -> str:
     ]
     out = _table(("field", "value"), ([_td(k), _td(v)] for k, v in rows))
     files = source_files(rd)
-    cols = ("role", "path", "sha256", "format", "samples", "stand", "fc", "motor_protocol",
-            "battery_cells", "rotors_on_esc", "throttle_scale")
+    cols = (
+        "role",
+        "path",
+        "sha256",
+        "format",
+        "samples",
+        "stand",
+        "fc",
+        "motor_protocol",
+        "battery_cells",
+        "rotors_on_esc",
+        "throttle_scale",
+    )
     out += "<h3>Files</h3>" + _table(
-        ("role", "file", "sha256", "format", "samples", "stand", "FC / firmware",
-         "motor protocol", "battery cells", "rotors on ESC", "throttle scale"),
-        ([_td(f.get(c, "")) if c != "sha256" else f'<td class="l"><code>{_e(f.get(c, ""))}</code></td>'
-          for c in cols] for f in files),
+        (
+            "role",
+            "file",
+            "sha256",
+            "format",
+            "samples",
+            "stand",
+            "FC / firmware",
+            "motor protocol",
+            "battery cells",
+            "rotors on ESC",
+            "throttle scale",
+        ),
+        (
+            [
+                _td(f.get(c, ""))
+                if c != "sha256"
+                else f'<td class="l"><code>{_e(f.get(c, ""))}</code></td>'
+                for c in cols
+            ]
+            for f in files
+        ),
     )
     return out
 
@@ -142,49 +172,92 @@ def _sweeps(rd: ReportData) -> str:
     rows = []
     for p in rd.points.points:
         r = p.report
-        rows.append([
-            _td(r.get("file")), _num(r.get("samples"), "d"), _num(len(p), "d"),
-            _num(r.get("plateaus"), "d"), _num(r.get("settling_samples_dropped"), "d"),
-            _num(r.get("ramp_samples_kept"), "d"), _num(r.get("ramp_pair_points"), "d"),
-            _num(r.get("transient_samples_dropped"), "d"), _num(r.get("dropped_by_range"), "d"),
-        ])
-    method = ("every sample (the paper's method)" if rd.selection.all_samples
-              else "steady state: settled plateau means and quasi-static / paired ramp samples")
+        rows.append(
+            [
+                _td(r.get("file")),
+                _num(r.get("samples"), "d"),
+                _num(len(p), "d"),
+                _num(r.get("plateaus"), "d"),
+                _num(r.get("settling_samples_dropped"), "d"),
+                _num(r.get("ramp_samples_kept"), "d"),
+                _num(r.get("ramp_pair_points"), "d"),
+                _num(r.get("transient_samples_dropped"), "d"),
+                _num(r.get("dropped_by_range"), "d"),
+            ]
+        )
+    method = (
+        "every sample (the paper's method)"
+        if rd.selection.all_samples
+        else "steady state: settled plateau means and quasi-static / paired ramp samples"
+    )
     return (
         f"<p>Selection: {_e(method)}.</p>"
         + _img("sweep", rd, "raw sweeps over time")
-        + _table(("file", "samples", "points", "plateaus", "settling dropped", "ramp kept",
-                  "ramp-pair points", "transient dropped", "dropped by range"), rows)
+        + _table(
+            (
+                "file",
+                "samples",
+                "points",
+                "plateaus",
+                "settling dropped",
+                "ramp kept",
+                "ramp-pair points",
+                "transient dropped",
+                "dropped by range",
+            ),
+            rows,
+        )
     )
 
 
 def _surface_data(rd: ReportData) -> str:
     step = max(1, rd.grid_t.shape[0] // 20)
     gt, gb, gz = (a[::step, ::step] for a in (rd.grid_t, rd.grid_b, rd.grid_th))
-    grid = [[[round(float(gt[i, j]), 4), round(float(gb[i, j]), 3), round(float(gz[i, j]), 3)]
-             for j in range(gt.shape[1])] for i in range(gt.shape[0])]
+    grid = [
+        [
+            [round(float(gt[i, j]), 4), round(float(gb[i, j]), 3), round(float(gz[i, j]), 3)]
+            for j in range(gt.shape[1])
+        ]
+        for i in range(gt.shape[0])
+    ]
     p = rd.points
     idx = np.arange(len(p))
     if len(idx) > 1500:
         idx = np.linspace(0, len(p) - 1, 1500).astype(int)
-    pts = [[round(float(p.thrust_n[i]), 4), round(float(p.voltage_v[i]), 3),
-            round(float(p.throttle_pct[i]), 3)] for i in idx]
+    pts = [
+        [
+            round(float(p.thrust_n[i]), 4),
+            round(float(p.voltage_v[i]), 3),
+            round(float(p.throttle_pct[i]), 3),
+        ]
+        for i in idx
+    ]
     zs = np.concatenate([gz.ravel(), p.throttle_pct])
     v = rd.tmap.validity
-    doc = {"t": [v.thrust_n.lo, v.thrust_n.hi], "b": [v.voltage_v.lo, v.voltage_v.hi],
-           "z": [float(np.nanmin(zs)), float(np.nanmax(zs))], "grid": grid, "pts": pts}
+    doc = {
+        "t": [v.thrust_n.lo, v.thrust_n.hi],
+        "b": [v.voltage_v.lo, v.voltage_v.hi],
+        "z": [float(np.nanmin(zs)), float(np.nanmax(zs))],
+        "grid": grid,
+        "pts": pts,
+    }
     return json.dumps(doc).replace("</", "<\\/")
 
 
 def _surface(rd: ReportData) -> str:
     c = rd.tmap.coefficients
-    coef = _table(("term", "coefficient"),
-                  ([_td(n), _num(x, ".6g", f"coef:{n}")]
-                   for n, x in zip(rd.tmap.model_def.term_names, c, strict=True)))
+    coef = _table(
+        ("term", "coefficient"),
+        (
+            [_td(n), _num(x, ".6g", f"coef:{n}")]
+            for n, x in zip(rd.tmap.model_def.term_names, c, strict=True)
+        ),
+    )
     return (
-        '<div class="pair"><div>' + _img("surface", rd, "fitted surface with the data") +
-        '</div><div><canvas id="surface3d" width="520" height="420" style="display:none">'
-        "</canvas><p class=\"small\">Interactive: drag to rotate, wheel to zoom (needs "
+        '<div class="pair"><div>'
+        + _img("surface", rd, "fitted surface with the data")
+        + '</div><div><canvas id="surface3d" width="520" height="420" style="display:none">'
+        '</canvas><p class="small">Interactive: drag to rotate, wheel to zoom (needs '
         "JavaScript; the picture at left is the same surface).</p></div></div>"
         f'<script type="application/json" id="surface-data">{_surface_data(rd)}</script>'
         f"<h3>Coefficients ({_e(rd.tmap.model_def.formula)})</h3>{coef}"
@@ -193,19 +266,29 @@ def _surface(rd: ReportData) -> str:
 
 
 def _stats_cells(prefix: str, s: dict[str, Any]) -> list[str]:
-    return [_num(s.get(k), "d" if k == "n" else ".3f", f"{prefix}:{k}")
-            for k in ("n", "mean_pct", "std_pct", "p95_pct", "max_pct")]
+    return [
+        _num(s.get(k), "d" if k == "n" else ".3f", f"{prefix}:{k}")
+        for k in ("n", "mean_pct", "std_pct", "p95_pct", "max_pct")
+    ]
 
 
 def _residuals(rd: ReportData) -> str:
     s = rd.tmap.metrics.get("in_sample", {})
     r = rd.residual_pct
-    now = {"n": len(r), "mean_pct": float(np.mean(np.abs(r))), "std_pct": float(np.std(np.abs(r))),
-           "p95_pct": float(np.percentile(np.abs(r), 95)), "max_pct": float(np.max(np.abs(r)))}
-    rows = [[_td("as recorded in the map")] + _stats_cells("map-in-sample", s),
-            [_td("recomputed on these files")] + _stats_cells("report-in-sample", now)]
+    now = {
+        "n": len(r),
+        "mean_pct": float(np.mean(np.abs(r))),
+        "std_pct": float(np.std(np.abs(r))),
+        "p95_pct": float(np.percentile(np.abs(r), 95)),
+        "max_pct": float(np.max(np.abs(r))),
+    }
+    rows = [
+        [_td("as recorded in the map")] + _stats_cells("map-in-sample", s),
+        [_td("recomputed on these files")] + _stats_cells("report-in-sample", now),
+    ]
     return _img("residuals", rd, "residuals") + _table(
-        ("|residual| (% throttle)", "n", "mean", "std", "p95", "max"), rows)
+        ("|residual| (% throttle)", "n", "mean", "std", "p95", "max"), rows
+    )
 
 
 def _validation(rd: ReportData) -> str:
@@ -228,13 +311,21 @@ def _validation(rd: ReportData) -> str:
             r = per[m]
             k = f"{m}:{model}"
             s = r.inside
-            ms = (f'<td data-key="{k}:mean_pct" data-value="{s.mean_pct!r}" '
-                  f'data-std="{s.std_pct!r}">{s.mean_pct:.3f} ± {s.std_pct:.3f}</td>')
-            cells += [_num(s.n, "d", f"{k}:n"), ms, _num(s.p95_pct, ".3f", f"{k}:p95_pct"),
-                      _num(s.max_pct, ".3f", f"{k}:max_pct")]
+            ms = (
+                f'<td data-key="{k}:mean_pct" data-value="{s.mean_pct!r}" '
+                f'data-std="{s.std_pct!r}">{s.mean_pct:.3f} ± {s.std_pct:.3f}</td>'
+            )
+            cells += [
+                _num(s.n, "d", f"{k}:n"),
+                ms,
+                _num(s.p95_pct, ".3f", f"{k}:p95_pct"),
+                _num(s.max_pct, ".3f", f"{k}:max_pct"),
+            ]
             if m != "in-sample":
-                cells += [_num(r.outside.n, "d", f"{k}:outside_n"),
-                          _num(r.outside.mean_pct, ".3f", f"{k}:outside_mean_pct")]
+                cells += [
+                    _num(r.outside.n, "d", f"{k}:outside_n"),
+                    _num(r.outside.mean_pct, ".3f", f"{k}:outside_mean_pct"),
+                ]
         body.append(cells)
     return (
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
@@ -249,12 +340,16 @@ def _coverage(rd: ReportData) -> str:
     pi = rd.grid_pi_pct
     txt = ""
     if np.isfinite(pi).any():
-        txt = (f"<p>95 % prediction interval of the {_e(rd.tmap.model)} fit over the box: "
-               f"{np.nanmin(pi):.3f}..{np.nanmax(pi):.3f} % throttle (ordinary least squares, "
-               "linearised; coefficient bounds ignored).")
+        txt = (
+            f"<p>95 % prediction interval of the {_e(rd.tmap.model)} fit over the box: "
+            f"{np.nanmin(pi):.3f}..{np.nanmax(pi):.3f} % throttle (ordinary least squares, "
+            "linearised; coefficient bounds ignored)."
+        )
         if rd.suggestion:
-            txt += (f" Widest at T = {rd.suggestion[0]:.2f} N, B = {rd.suggestion[1]:.2f} V: "
-                    "one more test there would help most.")
+            txt += (
+                f" Widest at T = {rd.suggestion[0]:.2f} N, B = {rd.suggestion[1]:.2f} V: "
+                "one more test there would help most."
+            )
         txt += "</p>"
     return _img("coverage", rd, "coverage and prediction interval") + txt
 
@@ -262,12 +357,20 @@ def _coverage(rd: ReportData) -> str:
 def _gamma(rd: ReportData) -> str:
     g = rd.gamma
     if g is None:
-        return "<p>This map has no γ(B) flight correction (see <code>thrustmap gamma fit</code>).</p>"
+        return (
+            "<p>This map has no γ(B) flight correction (see <code>thrustmap gamma fit</code>).</p>"
+        )
     m = g.metrics
-    terms = " + ".join(f"{c:.6g}·B^{k}" if k else f"{c:.6g}" for k, c in enumerate(g.coefficients))
-    out = (f"<p>γ(B) = {_e(terms)} (degree {len(g.coefficients) - 1}, loss {_e(g.loss)}), "
-           f"flown {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V; {_e(m.get('validation', ''))}. "
-           f"T_c from: {_e(m.get('thrust_cmd_source', ''))}.</p>")
+    terms = f"{g.coefficients[0]:.6g}" + "".join(
+        f" {'−' if c < 0 else '+'} {abs(c):.6g}·B" + (f"^{k}" if k > 1 else "")
+        for k, c in enumerate(g.coefficients)
+        if k
+    )
+    out = (
+        f"<p>γ(B) = {_e(terms)} (degree {len(g.coefficients) - 1}, loss {_e(g.loss)}), "
+        f"flown {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V; {_e(m.get('validation', ''))}. "
+        f"T_c from: {_e(m.get('thrust_cmd_source', ''))}.</p>"
+    )
     if g.note:
         out += f'<p class="note">{_e(g.note)}</p>'
     out += _img("gamma", rd, "gamma fit")
@@ -276,26 +379,34 @@ def _gamma(rd: ReportData) -> str:
         v = m.get(key) or {}
         if not v:
             return "<td>–</td>"
-        return (f'<td data-key="{key}" data-value="{v["mean"]!r}" data-std="{v["std"]!r}">'
-                f'{v["mean"]:.3f} ± {v["std"]:.3f}</td>')
+        return (
+            f'<td data-key="{key}" data-value="{v["mean"]!r}" data-std="{v["std"]!r}">'
+            f"{v['mean']:.3f} ± {v['std']:.3f}</td>"
+        )
 
     label = rd.tmap.strategy
     out += "<h3>Table 4 layout</h3>" + _table(
         ("strategy", "e_Th (%)", "e_T (%)", "e_T (N)"),
-        [[_td(label), ms("e_Th_before_pct"), ms("e_T_before_pct"), ms("e_T_before_n")],
-         [_td(f"{label} + γ(B)"), ms("e_Th_after_pct"), ms("e_T_after_pct"), ms("e_T_after_n")]],
+        [
+            [_td(label), ms("e_Th_before_pct"), ms("e_T_before_pct"), ms("e_T_before_n")],
+            [_td(f"{label} + γ(B)"), ms("e_Th_after_pct"), ms("e_T_after_pct"), ms("e_T_after_n")],
+        ],
     )
     out += "<h3>Errors by voltage (Figs. 8–9)</h3>" + _img("errors-by-voltage", rd, "errors")
     rows = []
     for i, b in enumerate(m.get("by_voltage", [])):
-        cells = [_td(f"{b['voltage_v'][0]:.2f}..{b['voltage_v'][1]:.2f}"),
-                 _num(b["samples"], "d", f"bin{i}:samples"),
-                 _num(b["gamma"].get("mean"), ".4f", f"bin{i}:gamma")]
+        cells = [
+            _td(f"{b['voltage_v'][0]:.2f}..{b['voltage_v'][1]:.2f}"),
+            _num(b["samples"], "d", f"bin{i}:samples"),
+            _num(b["gamma"].get("mean"), ".4f", f"bin{i}:gamma"),
+        ]
         for k in ("e_Th_before_pct", "e_Th_after_pct", "e_T_before_pct", "e_T_after_pct"):
             cells.append(_num(b.get(k, {}).get("mean"), ".3f", f"bin{i}:{k}"))
         rows.append(cells)
-    out += _table(("voltage (V)", "n", "γ", "e_Th before %", "e_Th after %", "e_T before %",
-                   "e_T after %"), rows)
+    out += _table(
+        ("voltage (V)", "n", "γ", "e_Th before %", "e_Th after %", "e_T before %", "e_T after %"),
+        rows,
+    )
     return out
 
 
@@ -307,17 +418,24 @@ def _exports(rd: ReportData) -> str:
         params = ", ".join(f"{k} = {v}" for k, v in e.values.items()) or e.note
         resid = ", ".join(f"{k} {v:.3g}" for k, v in e.residual.items()) or "–"
         rows.append([_td(e.target), _td(params), _td(resid)])
-    return ("<p>Each firmware's own thrust-curve form fitted to this map (defaults of "
-            "<code>thrustmap export</code>), with the residual its curve leaves (% throttle).</p>"
-            + _table(("target", "parameters", "residual"), rows))
+    return (
+        "<p>Each firmware's own thrust-curve form fitted to this map (defaults of "
+        "<code>thrustmap export</code>), with the residual its curve leaves (% throttle).</p>"
+        + _table(("target", "parameters", "residual"), rows)
+    )
 
 
 def render_html(rd: ReportData) -> str:
     """The whole report as one HTML document (no external references)."""
     builders = {
-        "provenance": _provenance, "sweeps": _sweeps, "surface": _surface,
-        "residuals": _residuals, "validation": _validation, "coverage": _coverage,
-        "gamma": _gamma, "exports": _exports,
+        "provenance": _provenance,
+        "sweeps": _sweeps,
+        "surface": _surface,
+        "residuals": _residuals,
+        "validation": _validation,
+        "coverage": _coverage,
+        "gamma": _gamma,
+        "exports": _exports,
     }
     nav = "".join(f'<a href="#{k}">{_e(t)}</a>' for k, t in SECTIONS)
     body = []
