@@ -56,7 +56,11 @@ class LazyGroup(click.Group):
                 return None  # command not built yet
             raise
         command = getattr(module, attr, None)
-        return command if isinstance(command, click.Command) else None
+        if not isinstance(command, click.Command):
+            return None
+        from thrustmap.cli.pictures import attach
+
+        return attach(command, cmd_name)  # every --help says where the pictures are
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

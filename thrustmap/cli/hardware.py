@@ -275,6 +275,8 @@ def spin_cmd(
 
     The motor is stopped and the stop verified on every way out (the end, an error, Ctrl-C,
     SIGTERM). Exit codes: 0 done, 2 refused or error, 3 stop not verified, 130 interrupted."""
+    from thrustmap.cli.live import LiveView
+
     if motor < 1:
         raise ConfigError(f"--motor is 1-based, got {motor}")
     request = SpinRequest(motor - 1, throttle, seconds, ramp_s=ramp)
@@ -304,14 +306,20 @@ def spin_cmd(
         elif isinstance(output, connect.StandEscOutput):
             stand = output.stand
         handed_over = True
-        result = run_spin(
-            output,
-            clock,
-            request,
-            max_throttle_pct=max_throttle,
-            stand=stand,
-            on_report=lambda r: click.echo(_report_line(r, motor, output.throttle_scale.unit)),
-        )
+        unit = output.throttle_scale.unit
+        with LiveView(
+            f"spin motor {motor}", total_s=seconds, phase="spinning"
+        ) as view:  # panel on a terminal
+            result = run_spin(
+                output,
+                clock,
+                request,
+                max_throttle_pct=max_throttle,
+                stand=stand,
+                on_report=(lambda r: view.spin_report(r, motor, unit, seconds))
+                if view.live
+                else (lambda r: click.echo(_report_line(r, motor, unit))),
+            )
     finally:
         if stand is not None and stand_url is not None:
             stand.close()

@@ -12,10 +12,6 @@ import click
 
 from thrustmap.errors import ConfigError
 
-PICTURES = (
-    "Pictures: `thrustmap report MAP -o report.html` (every figure and table in one HTML file) "
-    "and `thrustmap plot FIGURE MAP -o fig.png|svg|pdf`."
-)
 FIGURE_NAMES = (
     "surface",
     "slices",
@@ -28,7 +24,7 @@ FIGURE_NAMES = (
 PLOT_FORMATS = ("png", "svg", "pdf")
 
 
-@click.command("report", epilog=PICTURES)
+@click.command("report")
 @click.argument("map_file", metavar="MAP", type=click.Path(dir_okay=False))
 @click.argument("data", nargs=-1, type=click.Path(dir_okay=False))
 @click.option(
@@ -62,7 +58,7 @@ def report_cmd(map_file: str, data: tuple[str, ...], output: str) -> None:
     )
 
 
-@click.command("plot", epilog=PICTURES)
+@click.command("plot")
 @click.argument("figure", type=click.Choice(FIGURE_NAMES))
 @click.argument("map_file", metavar="MAP", type=click.Path(dir_okay=False))
 @click.argument("data", nargs=-1, type=click.Path(dir_okay=False))
