@@ -136,7 +136,9 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def xnova(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    root = Path(__file__).resolve().parents[1].parent / "shared/data/xnova-thrust-stand/single_rotor"
+    root = (
+        Path(__file__).resolve().parents[1].parent / "shared/data/xnova-thrust-stand/single_rotor"
+    )
     files = [root / f for f in XNOVA_SR]
     if not all(f.is_file() for f in files):
         pytest.skip(f"xNova SR files not found in {root} (../shared is absent)")
@@ -204,7 +206,9 @@ def compare_json(files: list[str], mode: str, capsys: pytest.CaptureFixture[str]
     return list(json.loads(out)["rows"])
 
 
-def check_validation(cells: dict[str, tuple[str, str | None]], files: list[str], capsys: Any) -> int:
+def check_validation(
+    cells: dict[str, tuple[str, str | None]], files: list[str], capsys: Any
+) -> int:
     checked = 0
     for mode in ("in-sample", "by-file", "kfold"):
         for row in compare_json(files, mode, capsys):

@@ -13,6 +13,7 @@ rich is imported when the panel starts, never when the CLI starts.
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from collections import deque
@@ -98,6 +99,7 @@ class LiveView:
         self._console: Any = None
         self._last_draw = 0.0
         self._last_plain = -1e9
+        self._log_streams: list[tuple[logging.StreamHandler[Any], Any]] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
     def __enter__(self) -> LiveView:
@@ -115,6 +117,7 @@ class LiveView:
                 vertical_overflow="crop",
             )
             self._live.start()
+            self._route_logging()
             self._draw(force=True)
         elif not self.quiet:
             self._plain(f"{self.title}: {self.phase}")
@@ -129,6 +132,30 @@ class LiveView:
         if self._live is not None:
             self._live.stop()
             self._live = None
+        for handler, stream in self._log_streams:
+            handler.setStream(stream)
+        self._log_streams.clear()
+
+    def _route_logging(self) -> None:
+        """Log lines written to the terminal while the panel is up go above it (through the
+        panel's console), or they would land inside the panel and break its redraw."""
+        console = self._console
+        terminal = {id(sys.stdout), id(sys.stderr), id(sys.__stdout__), id(sys.__stderr__)}
+
+        class Above:
+            def write(self, text: str) -> int:
+                if text.strip():
+                    console.print(text.rstrip("\n"), markup=False, highlight=False, soft_wrap=True)
+                return len(text)
+
+            def flush(self) -> None:
+                pass
+
+        loggers = [logging.getLogger(), logging.getLogger("thrustmap")]
+        for handler in [h for lg in loggers for h in lg.handlers]:
+            if type(handler) is logging.StreamHandler and id(handler.stream) in terminal:
+                self._log_streams.append((handler, handler.stream))
+                handler.setStream(Above())
 
     # -- feeding --------------------------------------------------------------------------------
     def set_phase(self, phase: str) -> None:
@@ -302,6 +329,8 @@ class LiveView:
                 row.append((piece, style))
                 used += len(piece)
             line(*row)
+        # A short last line: the terminal's "^C" echo lands here without wrapping the panel.
+        line(("Ctrl-C stops the motor and keeps the log", "grey50"))
         return Group(*lines)
 
     @staticmethod
