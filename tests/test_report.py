@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-
 from support import simulate_flight as sim
+
 from thrustmap.cli import COMMANDS, main
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.report.html import SECTIONS
