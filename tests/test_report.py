@@ -385,3 +385,21 @@ def test_every_command_help_says_where_the_pictures_are(
         code, out, _ = run_cli([*path, "--help"], capsys)
         assert code == 0
         assert "Pictures:" in out, path
+
+
+def test_gamma_section_says_when_the_df_moved(
+    demo: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The γ numbers come from the map; the γ_j points need the Df, and the report says so."""
+    data = json.loads(demo["map"].read_text(encoding="utf-8"))
+    data["correction"]["sources"] = [{"path": "/gone/hover-df.csv", "sha256": "0" * 64}]
+    (tmp_path / "map.json").write_text(json.dumps(data), encoding="utf-8")
+    code, _, err = run_cli(
+        ["report", str(tmp_path / "map.json"), *demo["logs"], "-o", str(tmp_path / "r.html")],
+        capsys,
+    )
+    assert code == 0, err
+    text = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "Df &#x27;/gone/hover-df.csv&#x27; not found" in text
+    cells = parse(text).cells
+    assert float(cells["e_T_after_pct"][0]) == demo["gamma"]["metrics"]["e_T_after_pct"]["mean"]

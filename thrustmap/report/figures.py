@@ -13,6 +13,7 @@ from typing import Any
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from thrustmap.report.data import ReportData
 
@@ -112,6 +113,7 @@ def surface(rd: ReportData) -> Figure:
     ax.set_ylabel(B)
     ax.set_zlabel(TH)
     ax.set_title(f"{rd.tmap.strategy} map, model {rd.tmap.model}")
+    ax.yaxis.set_major_locator(MaxNLocator(5))
     ax.view_init(elev=22, azim=-130)
     ax.legend(loc="upper left")
     return fig
