@@ -95,11 +95,11 @@ def test_quiet_prints_nothing(capsys: pytest.CaptureFixture[str]) -> None:
 # -- a real sweep in a pseudo-terminal ------------------------------------------------------------
 
 
-def sweep_cmd(tmp_path: Path, *extra: str) -> list[str]:
+def sweep_cmd(tmp_path: Path, *extra: str, realtime: bool = True) -> list[str]:
     return [
         sys.executable, "-m", "thrustmap", "sweep", "stairs-up", "--stand",
-        "sim://tyto-1585", "--from", "10", "--to", "30", "--step", "10", "--dwell", "1.5",
-        "--realtime", "--yes", "-o", str(tmp_path / "run.csv"), *extra,
+        "sim://tyto-1585", "--from", "10", "--to", "20", "--step", "10", "--dwell", "1.2",
+        "--realtime" if realtime else "--fast", "--yes", "-o", str(tmp_path / "run.csv"), *extra,
     ]  # fmt: skip
 
 
@@ -199,15 +199,36 @@ def test_ctrl_c_leaves_a_clean_screen_with_the_summary(cols: int, tmp_path: Path
 
 
 def test_not_a_terminal_prints_plain_lines_and_quiet_only_the_summary(tmp_path: Path) -> None:
-    proc = subprocess.run(sweep_cmd(tmp_path), capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        sweep_cmd(tmp_path, realtime=False), capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr
     assert "\x1b" not in proc.stdout + proc.stderr and "\r" not in proc.stderr
     assert "sweep stairs-up: running" in proc.stderr
     assert proc.stdout.strip().startswith("completed:")
     quiet = subprocess.run(
-        sweep_cmd(tmp_path, "--quiet") + ["-o", str(tmp_path / "q.csv")],
+        sweep_cmd(tmp_path, "--quiet", realtime=False) + ["-o", str(tmp_path / "q.csv")],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert quiet.returncode == 0, quiet.stderr
     assert quiet.stderr == ""
     assert quiet.stdout.strip().startswith("completed:") and len(quiet.stdout.splitlines()) == 1
+
+
+def test_spin_panel_in_a_pty(tmp_path: Path) -> None:
+    from rich.cells import cell_len
+
+    args = [
+        sys.executable, "-m", "thrustmap", "spin", "sim://betaflight", "--motor", "1",
+        "--throttle", "10", "--seconds", "2", "--yes", "--clock", "real",
+        "--stand", "sim://tyto-1585",
+    ]  # fmt: skip
+    data, rc = run_in_pty(args, 80)
+    assert rc == 0, data[-2000:]
+    segs = printed_segments(data)
+    assert any("phase:" in s and "spinning" in s for s in segs)
+    assert any(s.startswith("thrust ") for s in segs)  # the live plot of thrust
+    assert [s for s in segs if cell_len(s) > 80] == []
+    screen = final_screen(data, 80)
+    assert screen[-1].startswith("motor 1 stopped (verified)"), screen
+    assert not any(m in ln for ln in screen for m in PANEL_MARKS), screen
