@@ -22,6 +22,7 @@ from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 from thrustmap.fitting.models import DEFAULT_MODEL, PolyModel
 from thrustmap.fitting.selection import Selection, _settle_index, plateaus
+from thrustmap.fitting.solve import Loss
 
 log = logging.getLogger(__name__)
 
@@ -361,7 +362,8 @@ def build(
                 continue
             try:
                 # compare() is pool() + validate() per model: the pool is selected once here.
-                validation[mode] = [validate(data, m, mode) for m in TABLE_MODELS]
+                loss: Loss = "l1" if tmap.loss == "l1" else "l2"  # the map's loss, as fitted
+                validation[mode] = [validate(data, m, mode, loss) for m in TABLE_MODELS]
             except ThrustmapError as exc:
                 notes.append(f"{mode} validation not computed: {exc}")
     return ReportData(

@@ -142,7 +142,7 @@ def slices(rd: ReportData, n_voltages: int = 4) -> Figure:
         ax.plot(p.thrust_n[near], p.throttle_pct[near], "o", ms=2.5, color=color, alpha=0.6)
     ax.set_xlabel(T)
     ax.set_ylabel(TH)
-    ax.set_title("throttle vs thrust at several voltages (points within ± half a step)")
+    ax.set_title("bench map (without γ) at several voltages; points within ± half a step")
     ax.legend()
     return fig
 

@@ -329,8 +329,8 @@ def _validation(rd: ReportData) -> str:
         body.append(cells)
     return (
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
-        "map's selection. Held out: <b>by-file</b> leaves each file out in turn, <b>kfold</b> "
-        "5 random folds; held-out points outside the training box are counted apart "
+        f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
+        "file out in turn, <b>kfold</b> 5 random folds; held-out points outside the training box are counted apart "
         "(extrapolation), never mixed in. Same numbers as <code>thrustmap compare --json</code>."
         "</p>" + _table(head, body, "validation")
     )
