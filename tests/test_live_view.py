@@ -232,3 +232,54 @@ def test_spin_panel_in_a_pty(tmp_path: Path) -> None:
     screen = final_screen(data, 80)
     assert screen[-1].startswith("motor 1 stopped (verified)"), screen
     assert not any(m in ln for ln in screen for m in PANEL_MARKS), screen
+
+
+def test_a_failing_panel_falls_back_to_lines(capsys: pytest.CaptureFixture[str]) -> None:
+    """A display fault never ends a run: the view drops the panel and prints lines."""
+    view = LiveView(
+        "sweep steps", live=True, stream=io.StringIO(), plain_period_s=0.0, refresh_s=0.0
+    )
+
+    def broken(width: int) -> None:
+        raise ValueError("render bug")
+
+    with view:
+        view.render = broken  # type: ignore[method-assign]
+        view.feed(Snapshot(elapsed_s=1.0, total_s=4.0, thrust_n=2.0))  # panel fails here
+        view.feed(Snapshot(elapsed_s=2.0, total_s=4.0, thrust_n=2.5))
+    assert view.live is False
+    assert "T 2.50 N" in capsys.readouterr().err
+
+
+def test_spin_closes_the_output_when_the_view_cannot_start(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The output is opened before the view: a view that fails to start still stops it."""
+    from click.testing import CliRunner
+
+    from thrustmap.cli import cli
+    from thrustmap.cli import live as live_mod
+    from thrustmap.rig import connect
+    from thrustmap.units import SCALES
+
+    class Output:
+        throttle_scale = SCALES["pwm"]
+        entered = exited = 0
+
+        def __enter__(self) -> Output:
+            Output.entered += 1
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            Output.exited += 1
+
+    def no_view(self: LiveView) -> LiveView:
+        raise RuntimeError("no terminal")
+
+    monkeypatch.setattr(connect, "open_throttle_output", lambda *a, **k: Output())
+    monkeypatch.setattr(live_mod.LiveView, "__enter__", no_view)
+    result = CliRunner().invoke(
+        cli, ["spin", "sim://betaflight", "--motor", "1", "--throttle", "10", "--yes"]
+    )
+    assert isinstance(result.exception, RuntimeError)
+    assert Output.exited == 1  # stopped, verified and closed by the output's own exit

@@ -305,11 +305,11 @@ def spin_cmd(
             stand = connect.open_stand(stand_url, clock)
         elif isinstance(output, connect.StandEscOutput):
             stand = output.stand
-        handed_over = True
         unit = output.throttle_scale.unit
         with LiveView(
             f"spin motor {motor}", total_s=seconds, phase="spinning"
         ) as view:  # panel on a terminal
+            handed_over = True
             result = run_spin(
                 output,
                 clock,

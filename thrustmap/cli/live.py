@@ -23,6 +23,7 @@ from typing import Any, TextIO
 
 import click
 
+log = logging.getLogger(__name__)
 SPARK = "▁▂▃▄▅▆▇█"
 #: units of the interlock margins the runner reports (name -> unit of its reading)
 MARGIN_ORDER = ("thrust", "current", "voltage", "rpm", "temperature", "vibration")
@@ -259,7 +260,13 @@ class LiveView:
         if not force and now - self._last_draw < self.refresh_s:
             return
         self._last_draw = now
-        self._live.update(self.render(self._console.size.width), refresh=True)
+        try:
+            self._live.update(self.render(self._console.size.width), refresh=True)
+        except Exception as exc:  # a display fault must never end a run: fall back to lines
+            log.warning("live panel failed (%s); printing progress lines instead", exc)
+            self._live.stop()
+            self._live = None
+            self.live = False
 
     def render(self, width: int) -> Any:
         """The panel as a rich renderable whose every line fits in ``width`` columns."""
