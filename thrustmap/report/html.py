@@ -37,7 +37,7 @@ background:#fff;line-height:1.45}
 header{background:#1d2330;color:#fff;padding:18px 28px}header h1{margin:0;font-size:22px}
 header p{margin:4px 0 0;opacity:.8}nav{padding:8px 28px;background:#eef1f6;font-size:14px}
 nav a{margin-right:14px;color:#1d4ed8;text-decoration:none}
-main{padding:0 28px 40px;max-width:1150px}section{border-bottom:1px solid #e3e6ec;padding:10px 0}
+main{padding:0 28px 40px;max-width:1400px}section{border-bottom:1px solid #e3e6ec;padding:10px 0}
 h2{font-size:18px;margin:18px 0 8px}h3{font-size:15px;margin:14px 0 6px}
 table{border-collapse:collapse;font-size:13px;margin:6px 0 10px}
 th,td{border:1px solid #d6dae2;padding:3px 7px;text-align:right}
@@ -45,7 +45,7 @@ th{background:#f3f5f9}td.l,th.l{text-align:left}code{font-size:11px;word-break:b
 img.fig{max-width:100%;height:auto;border:1px solid #eee}
 .note{color:#8a5300;background:#fff7e6;padding:4px 8px;border-left:3px solid #f0a020}
 .pair{display:flex;flex-wrap:wrap;gap:14px;align-items:flex-start}
-canvas{border:1px solid #d6dae2;cursor:grab;background:#fbfcfe}.small{font-size:12px;color:#555}
+.tw{overflow-x:auto}table.validation td{white-space:nowrap}th[colspan]{text-align:center}canvas{border:1px solid #d6dae2;cursor:grab;background:#fbfcfe}.small{font-size:12px;color:#555}
 """
 
 # Drag to rotate, wheel to zoom: a wireframe of the surface and the points, painter-sorted.
@@ -97,7 +97,7 @@ def _table(head: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "") ->
         f'<th class="l">{_e(x)}</th>' if i == 0 else f"<th>{_e(x)}</th>" for i, x in enumerate(head)
     )
     body = "".join("<tr>" + "".join(r) + "</tr>" for r in rows)
-    return f'<table class="{cls}"><tr>{h}</tr>{body}</table>'
+    return f'<div class="tw"><table class="{cls}"><tr>{h}</tr>{body}</table></div>'
 
 
 def _td(text: Any, left: bool = True) -> str:
@@ -295,11 +295,14 @@ def _validation(rd: ReportData) -> str:
     if not rd.validation:
         return "<p>No validation was computed.</p>"
     modes = list(rd.validation)
-    head = ["model"]
+    top = '<th class="l" rowspan="2">model</th>' + "".join(
+        f'<th colspan="{4 if m == "in-sample" else 6}">{_e(m)}</th>' for m in modes
+    )
+    sub = ""
     for m in modes:
-        head += [f"{m} n", f"{m} mean ± std %", f"{m} p95 %", f"{m} max %"]
+        sub += "<th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>"
         if m != "in-sample":
-            head += [f"{m} outside box n", f"{m} outside mean %"]
+            sub += "<th>outside box n</th><th>outside mean %</th>"
     by_model: dict[str, dict[str, Row]] = {}
     for m, rows in rd.validation.items():
         for row in rows:
@@ -332,7 +335,10 @@ def _validation(rd: ReportData) -> str:
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
         "file out in turn, <b>kfold</b> 5 random folds; held-out points outside the training box are counted apart "
         "(extrapolation), never mixed in. Same numbers as <code>thrustmap compare --json</code>."
-        "</p>" + _table(head, body, "validation")
+        "</p>"
+        + f'<div class="tw"><table class="validation"><tr>{top}</tr><tr>{sub}</tr>'
+        + "".join("<tr>" + "".join(r) + "</tr>" for r in body)
+        + "</table></div>"
     )
 
 
