@@ -178,3 +178,16 @@ def report(results: list[StrategyResult], out_dir: Path) -> str:
             f"Try: thrustmap predict {results[0].map_path} --thrust-n {t:g} --voltage-v {b:g}"
         )
     return "\n".join(lines)
+
+
+def write_reports(results: list[StrategyResult]) -> list[Path]:
+    """An HTML report next to each map (``thrustmap report``), returned in order."""
+    from thrustmap.report.data import build
+    from thrustmap.report.html import write_report
+
+    paths = []
+    for r in results:
+        out = r.map_path.with_name(r.map_path.stem + "-report.html")
+        write_report(build(r.map_path, [str(p) for p in r.logs]), str(out))
+        paths.append(out)
+    return paths

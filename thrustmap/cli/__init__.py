@@ -34,6 +34,8 @@ COMMANDS: dict[str, str] = {
     "flightlog": "flight:flightlog_group",
     "gamma": "flight:gamma_group",
     "export": "exportcmd:export_cmd",
+    "report": "report:report_cmd",
+    "plot": "report:plot_cmd",
 }
 
 
@@ -87,7 +89,11 @@ class LazyGroup(click.Group):
                 return None  # command not built yet
             raise
         command = getattr(module, attr, None)
-        return command if isinstance(command, click.Command) else None
+        if not isinstance(command, click.Command):
+            return None
+        from thrustmap.cli.pictures import attach
+
+        return attach(command, cmd_name)  # every --help says where the pictures are
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

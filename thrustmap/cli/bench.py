@@ -12,7 +12,7 @@ import click
 from thrustmap.clock import Clock, MonotonicClock, SimClock
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits, check_plan
-from thrustmap.rig.runner import RunConfig, Status, record_sweep
+from thrustmap.rig.runner import RunConfig, record_sweep
 from thrustmap.rig.safety import terminate_as_exception
 
 
@@ -35,13 +35,15 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
     real drivers and runner; the paper's four experiments are recorded, every model is fitted,
     and a Table-3-style comparison is printed (in-sample, held-out, and against the simulator's
     true map)."""
-    from thrustmap.demo import report, run_demo
+    from thrustmap.demo import report, run_demo, write_reports
 
     start = time.perf_counter()
     results = run_demo(
         Path(out_dir), seed=seed, progress=None if quiet else (lambda m: click.echo(m, err=True))
     )
     click.echo(report(results, Path(out_dir)))
+    for path in write_reports(results):
+        click.echo(f"Report: {path} (open it in a browser)")
     if not quiet:
         click.echo(f"({time.perf_counter() - start:.1f} s)", err=True)
 
@@ -75,38 +77,6 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
         return plans.ramp(kw["start"], kw["stop"], duration_s=kw["duration"], repeats=kw["repeats"])
     levels = [float(x) for x in (kw["levels"] or "").split(",") if x.strip()]
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
-
-
-class _Readout:
-    """The live line while the motor spins: throttle, thrust, V, A, rpm, tightest margin, ETA."""
-
-    def __init__(self, quiet: bool) -> None:
-        self.quiet = quiet
-        self.last = 0.0
-        self.tty = sys.stderr.isatty()
-
-    def __call__(self, st: Status) -> None:
-        if self.quiet:
-            return
-        now = time.monotonic()
-        if now - self.last < (0.2 if self.tty else 5.0):
-            return
-        self.last = now
-        r = st.reading
-        frac = min(st.elapsed_s / st.plan_duration_s, 1.0) if st.plan_duration_s else 0.0
-        bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
-        tight = min(st.margins.items(), key=lambda kv: kv[1], default=None)
-        margin = f" margin {tight[0]} {tight[1] * 100:.0f}%" if tight else ""
-
-        def f(x: float | None, fmt: str) -> str:
-            return "-" if x is None else format(x, fmt)
-
-        line = (
-            f"[{bar}] {st.elapsed_s:5.0f}/{st.plan_duration_s:.0f} s  seg {st.segment + 1}/{st.segments} "
-            f"{st.label:<12} thr {st.throttle_pct:5.1f}% ({st.throttle_native:.0f})  T {f(r.thrust_n, '.2f')} N  "
-            f"{f(r.voltage_v, '.2f')} V  {f(r.current_a, '.1f')} A  {f(r.rpm, '.0f')} rpm{margin}"
-        )
-        click.echo(("\r" + line) if self.tty else line, err=True, nl=not self.tty)
 
 
 @click.command("sweep")
@@ -228,7 +198,7 @@ class _Readout:
     is_flag=True,
     help="Do not ask whether the propellers are on and the area is clear.",
 )
-@click.option("-q", "--quiet", is_flag=True, help="No live readout (for scripts and CI).")
+@click.option("-q", "--quiet", is_flag=True, help="Only the summary (no live view).")
 def sweep_cmd(
     kind: str,
     stand_url: str,
@@ -282,7 +252,9 @@ def sweep_cmd(
             err=True,
         )
     # SIGTERM unwinds like Ctrl-C from the moment a device is open, so every exit stops motors.
-    with terminate_as_exception():
+    from thrustmap.cli.live import LiveView
+
+    with terminate_as_exception(), LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:
         stand = connect.open_stand(
             stand_url, clock, calibration=kw["tyto_calibration"], line_preset=kw["line_preset"]
         )
@@ -296,9 +268,8 @@ def sweep_cmd(
             with output_dev:
                 output_dev.identify()  # the FC's frame says what a test-order letter means
                 motor_index = resolve_motor(output_dev, motor)
-                click.echo(
-                    f"motor on the load cell: {motor_label(output_dev, motor_index)}", err=True
-                )
+                view.note(f"motor on the load cell: {motor_label(output_dev, motor_index)}")
+                view.set_phase("waiting for rest, taring")
                 result = record_sweep(
                     plan,
                     output_dev,
@@ -307,10 +278,8 @@ def sweep_cmd(
                     clock,
                     limits=limits,
                     config=RunConfig(motor=motor_index, rotors_on_esc=int(rotors_on_esc)),
-                    monitor=_Readout(kw["quiet"]),
+                    monitor=view.sweep_monitor,
                 )
-    if not kw["quiet"]:
-        click.echo("", err=True)
     verdict = (
         "stop verified" if result.stop_verified else "STOP NOT VERIFIED - disconnect the battery"
     )

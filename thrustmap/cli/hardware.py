@@ -279,6 +279,7 @@ def spin_cmd(
 
     The motor is stopped and the stop verified on every way out (the end, an error, Ctrl-C,
     SIGTERM). Exit codes: 0 done, 2 refused or error, 3 stop not verified, 130 interrupted."""
+    from thrustmap.cli.live import LiveView
     from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
 
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
@@ -312,17 +313,20 @@ def spin_cmd(
         request = dataclasses.replace(request, motor=resolve_motor(output, motor))
         label = motor_label(output, request.motor)
         click.echo(f"spinning {label}")
-        handed_over = True
-        result = run_spin(
-            output,
-            clock,
-            request,
-            max_throttle_pct=max_throttle,
-            stand=stand,
-            on_report=lambda r: click.echo(
-                _report_line(r, request.motor + 1, output.throttle_scale.unit)
-            ),
-        )
+        unit = output.throttle_scale.unit
+        number = request.motor + 1
+        with LiveView(f"spin {label}", total_s=seconds, phase="spinning") as view:
+            handed_over = True  # from here the output's own exit stops the motor
+            result = run_spin(
+                output,
+                clock,
+                request,
+                max_throttle_pct=max_throttle,
+                stand=stand,
+                on_report=(lambda r: view.spin_report(r, number, unit, seconds))
+                if view.live
+                else (lambda r: click.echo(_report_line(r, number, unit))),
+            )
     finally:
         if stand is not None and stand_url is not None:
             stand.close()

@@ -1,0 +1,430 @@
+"""Everything a report or a figure shows, computed once from a map and the files it came from.
+
+The numbers come from the same library functions the CLI uses (``compare`` for the validation
+table, the map's γ block as ``gamma fit`` wrote it, ``export_map`` for firmware parameters), so
+a report and the CLI can never disagree.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap import __version__
+from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.fitting.dataset import Dataset
+from thrustmap.fitting.fit import Pool, Row, pool, validate
+from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+from thrustmap.fitting.models import DEFAULT_MODEL, PolyModel
+from thrustmap.fitting.selection import Selection, _settle_index, plateaus
+from thrustmap.fitting.solve import Loss
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+#: the models of the validation table: the seed paper's four (Table 3) and the physics model
+TABLE_MODELS = ("poly2", "poly2-trunc", "poly3", "poly3-trunc", DEFAULT_MODEL)
+GRID_N = 40
+
+
+@dataclass
+class SweepMask:
+    """Per-sample role in steady-state selection, for the raw-sweep figure."""
+
+    kept: npt.NDArray[np.bool_]  # settled plateau samples (averaged into points) or all samples
+    settling: npt.NDArray[np.bool_]  # plateau samples dropped while the rotor settled
+    other: npt.NDArray[np.bool_]  # ramps and transitions (ramp pairs are used per the report)
+
+
+@dataclass
+class GammaData:
+    """The map's γ block and, when its Df files are found, the per-sample γ_j = T_c/F_m."""
+
+    coefficients: tuple[float, ...]
+    voltage_v: tuple[float, float]
+    loss: str
+    metrics: dict[str, Any]
+    sources: list[dict[str, Any]]
+    sample_voltage_v: FloatArray | None = None
+    sample_gamma: FloatArray | None = None
+    note: str = ""
+
+
+@dataclass
+class ExportRow:
+    target: str
+    values: dict[str, str]
+    residual: dict[str, float]
+    note: str = ""
+
+
+@dataclass
+class ReportData:
+    map_path: str
+    tmap: ThrustMap
+    datasets: list[Dataset]
+    sidecars: list[dict[str, Any]]
+    selection: Selection
+    points: Pool
+    residual_pct: FloatArray  # map prediction − measured throttle, per selected point
+    masks: list[SweepMask]
+    validation: dict[str, list[Row]]
+    grid_t: FloatArray
+    grid_b: FloatArray
+    grid_th: FloatArray
+    grid_pi_pct: FloatArray  # 95 % prediction-interval half-width, % throttle
+    grid_count: npt.NDArray[np.int64]  # selected points per grid cell
+    suggestion: tuple[float, float] | None
+    gamma: GammaData | None
+    exports: list[ExportRow]
+    notes: list[str] = field(default_factory=list)
+    tool_version: str = __version__
+
+
+# -- finding the data ----------------------------------------------------------------------------
+
+
+def resolve_sources(tmap: ThrustMap, map_path: str | Path) -> list[str]:
+    """The stand logs a map was fitted from, as recorded in it: the path as written, else the
+    same name next to the map. One clear error when they are not where the map says."""
+    if not tmap.sources:
+        raise ConfigError(
+            f"{map_path}: the map records no source files; give the stand logs after the map"
+        )
+    here = Path(map_path).resolve().parent
+    found: list[str] = []
+    for src in tmap.sources:
+        raw = str(src.get("path", ""))
+        candidates = [Path(raw), here / raw, here / Path(raw).name]
+        hit = next((c for c in candidates if raw and c.is_file()), None)
+        if hit is None:
+            raise ConfigError(
+                f"{map_path}: source '{raw}' is not where the map recorded it (moved?); "
+                "give the stand logs after the map: thrustmap report MAP FILE..."
+            )
+        found.append(str(hit))
+    return found
+
+
+def _sidecar(path: str) -> dict[str, Any]:
+    """A thrustmap Ds log's JSON sidecar (devices, plan), or {} for other formats."""
+    from thrustmap.jsonfile import load_json
+
+    p = Path(path)
+    side = p.with_name(p.stem + ".meta.json")
+    if not side.is_file():
+        return {}
+    try:
+        data = load_json(side, what="Ds sidecar")
+    except ThrustmapError as exc:
+        log.warning("%s", exc)
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def selection_of(tmap: ThrustMap) -> Selection:
+    """The selection the map was fitted with (ranges and method as recorded)."""
+    s = tmap.selection
+
+    def rng(key: str) -> tuple[float, float] | None:
+        v = s.get(key)
+        return None if v is None else (float(v[0]), float(v[1]))
+
+    kw: dict[str, Any] = {
+        "throttle_range": rng("throttle_range"),
+        "voltage_range": rng("voltage_range"),
+        "thrust_range": rng("thrust_range"),
+        "all_samples": bool(s.get("all_samples", False)),
+    }
+    for key in ("plateau_tolerance_pct", "settle_sigmas", "lag_budget_pct"):
+        if key in s:
+            kw[key] = float(s[key])
+    return Selection(**kw)
+
+
+def sweep_mask(ds: Dataset, sel: Selection) -> SweepMask:
+    """Which samples steady-state selection averaged, which it dropped while settling."""
+    n = len(ds)
+    kept = np.zeros(n, bool)
+    settling = np.zeros(n, bool)
+    if sel.all_samples:
+        return SweepMask(np.ones(n, bool), settling, np.zeros(n, bool))
+    tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
+    for a, b in plateaus(ds.throttle_native, tol):
+        if b - a < sel.min_plateau_samples:
+            continue
+        k = _settle_index(ds.thrust_n[a:b], sel.settle_sigmas)
+        if b - a - k < 2:
+            continue
+        settling[a : a + k] = True
+        kept[a + k : b] = True
+    return SweepMask(kept, settling, ~(kept | settling))
+
+
+# -- uncertainty ---------------------------------------------------------------------------------
+
+
+def _design(tmap: ThrustMap, t: FloatArray, b: FloatArray, ref: Pool) -> FloatArray:
+    """The map model's design in a basis conditioned on the fit points (same span as raw)."""
+    m = tmap.model_def
+    if isinstance(m, PolyModel):
+        ts = float(np.max(np.abs(ref.thrust_n))) or 1.0
+        bc = float(np.mean(ref.voltage_v)) if m.uses_voltage else 0.0
+        bs = (float(np.std(ref.voltage_v)) if m.uses_voltage else 1.0) or 1.0
+        return m.design(t / ts, (b - bc) / bs)
+    d_ref = m.design(ref.thrust_n, ref.voltage_v)
+    norms = np.linalg.norm(d_ref, axis=0)
+    norms[norms == 0] = 1.0
+    return np.asarray(m.design(t, b) / norms, dtype=float)
+
+
+def prediction_interval(
+    tmap: ThrustMap, data: Pool, residual: FloatArray, t: FloatArray, b: FloatArray
+) -> FloatArray:
+    """95 % prediction-interval half-width (% throttle) of an ordinary least-squares fit of the
+    map's model to these points (linearised: active coefficient bounds are ignored)."""
+    from scipy.special import stdtrit  # Student-t quantile (scipy.stats imports slowly)
+
+    x = _design(tmap, data.thrust_n, data.voltage_v, data)
+    n, p = x.shape
+    dof = max(n - p, 1)
+    s = float(np.sqrt(np.sum(residual**2) / dof))
+    xtx_inv = np.linalg.pinv(x.T @ x)
+    x0 = _design(tmap, t.ravel(), b.ravel(), data)
+    lever = np.einsum("ij,jk,ik->i", x0, xtx_inv, x0)
+    half = float(stdtrit(dof, 0.975)) * s * np.sqrt(1.0 + lever)
+    return np.asarray(np.reshape(half, t.shape), dtype=float)
+
+
+# -- γ ------------------------------------------------------------------------------------------
+
+
+def _gamma_data(tmap: ThrustMap, map_path: str) -> GammaData | None:
+    c = tmap.correction
+    if c is None:
+        return None
+    g = GammaData(
+        coefficients=c.coefficients,
+        voltage_v=(c.voltage_v.lo, c.voltage_v.hi),
+        loss=c.loss,
+        metrics=dict(c.metrics),
+        sources=[dict(s) for s in c.sources],
+    )
+    here = Path(map_path).resolve().parent
+    paths = []
+    for src in g.sources:
+        raw = str(src.get("path", ""))
+        hit = next((p for p in (Path(raw), here / raw, here / Path(raw).name) if p.is_file()), None)
+        if hit is None:
+            g.note = f"Df '{raw}' not found where the map recorded it: γ data points not shown"
+            return g
+        paths.append(hit)
+    if not paths:
+        g.note = "the γ block records no Df files: γ data points not shown"
+        return g
+    try:
+        import pandas as pd
+
+        from thrustmap.fitting.df import read_df
+        from thrustmap.fitting.gamma import thrust_command_n
+
+        tables = []
+        side: dict[str, Any] = {}
+        for p in paths:
+            table, s = read_df(p)
+            tables.append(table)
+            for k in ("columns", "flights"):
+                side.setdefault(k, {}).update(s.get(k, {}))
+        table = pd.concat(tables, ignore_index=True)
+        t_cmd, _ = thrust_command_n(table, side, tmap.with_correction(None))
+        force = table["force_n"].to_numpy(float)
+        volt = table["voltage_v"].to_numpy(float)
+        ok = np.isfinite(t_cmd) & np.isfinite(force) & np.isfinite(volt) & (force > 0) & (t_cmd > 0)
+        g.sample_voltage_v = volt[ok]
+        g.sample_gamma = t_cmd[ok] / force[ok]
+    except ThrustmapError as exc:
+        g.note = f"γ data points not shown: {exc}"
+    return g
+
+
+# -- exports -------------------------------------------------------------------------------------
+
+
+def _exports(tmap: ThrustMap, betaflight_firmware: str | None) -> list[ExportRow]:
+    """Each firmware target with ``thrustmap export``'s defaults. Betaflight's thrust_linear
+    changed formula in 2026.6: the FC's recorded firmware is used, else both generations."""
+    from thrustmap.fitting.export.encodings import ExportOptions, export_map
+
+    jobs: list[tuple[str, str, ExportOptions]] = [
+        ("px4", "px4", ExportOptions()),
+        ("ardupilot", "ardupilot", ExportOptions()),
+    ]
+    if betaflight_firmware:
+        jobs.append(
+            (
+                f"betaflight {betaflight_firmware} (the FC's)",
+                "betaflight",
+                ExportOptions(firmware=betaflight_firmware),
+            )
+        )
+    else:
+        for fw in ("4.5", "2026.6"):
+            jobs.append((f"betaflight {fw} (assumed)", "betaflight", ExportOptions(firmware=fw)))
+    jobs.append(("aerostack2", "aerostack2", ExportOptions()))
+    rows = []
+    for label, target, opts in jobs:
+        try:
+            res = export_map(tmap, target, opts)
+        except ThrustmapError as exc:
+            rows.append(ExportRow(label, {}, {}, note=str(exc)))
+            continue
+        values = {
+            k: (f"{v:.6g}" if isinstance(v, float) else str(v))
+            for k, v in res.values.items()
+            if isinstance(v, (int, float, str))
+        }
+        rows.append(ExportRow(label, values, dict(res.residual)))
+    return rows
+
+
+def _betaflight_firmware(sidecars: list[dict[str, Any]]) -> str | None:
+    for side in sidecars:
+        fc = (side.get("devices") or {}).get("throttle_output") or {}
+        if isinstance(fc, dict) and fc.get("kind") == "betaflight" and fc.get("firmware_version"):
+            return str(fc["firmware_version"])
+    return None
+
+
+# -- all of it ----------------------------------------------------------------------------------
+
+
+def build(
+    map_path: str | Path,
+    data_paths: list[str] | None = None,
+    *,
+    with_exports: bool = True,
+    with_validation: bool = True,
+) -> ReportData:
+    """Load the map and its data and compute every number a report or a figure shows."""
+    from thrustmap.fitting.loaders import load_datasets
+
+    map_path = str(map_path)
+    tmap = ThrustMap.load(map_path)
+    paths = list(data_paths) if data_paths else resolve_sources(tmap, map_path)
+    datasets = load_datasets(paths)
+    notes: list[str] = []
+    recorded = {Path(str(s.get("path", ""))).name: s.get("sha256") for s in tmap.sources}
+    for ds in datasets:
+        want = recorded.get(ds.name)
+        if want and ds.sha256 and want != ds.sha256:
+            notes.append(
+                f"{ds.name}: sha256 differs from the one the map recorded (the file changed "
+                "since the fit)"
+            )
+    sidecars = [_sidecar(p) for p in paths]
+    sel = selection_of(tmap)
+    data = pool(datasets, sel)
+    pred = tmap.throttle_pct(data.thrust_n, data.voltage_v, corrected=False)
+    residual = np.asarray(pred - data.throttle_pct, dtype=float)
+    v = tmap.validity
+    gt, gb = np.meshgrid(
+        np.linspace(v.thrust_n.lo, v.thrust_n.hi, GRID_N),
+        np.linspace(v.voltage_v.lo, v.voltage_v.hi, GRID_N),
+    )
+    gth = tmap.throttle_pct(gt, gb, corrected=False)
+    try:
+        pi = prediction_interval(tmap, data, residual, gt, gb)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        notes.append(f"prediction interval not computed: {exc}")
+        pi = np.full_like(gt, np.nan)
+    count, _, _ = np.histogram2d(
+        data.voltage_v,
+        data.thrust_n,
+        bins=[
+            np.linspace(v.voltage_v.lo, v.voltage_v.hi, 9),
+            np.linspace(v.thrust_n.lo, v.thrust_n.hi, 9),
+        ],
+    )
+    suggestion = None
+    if np.isfinite(pi).any():
+        i, j = np.unravel_index(int(np.nanargmax(pi)), pi.shape)
+        suggestion = (float(gt[i, j]), float(gb[i, j]))
+    validation: dict[str, list[Row]] = {}
+    if with_validation:
+        for mode in ("in-sample", "by-file", "kfold"):
+            if mode == "by-file" and len(datasets) < 2:
+                notes.append("by-file validation needs two or more files: column left out")
+                continue
+            try:
+                # compare() is pool() + validate() per model: the pool is selected once here.
+                loss: Loss = "l1" if tmap.loss == "l1" else "l2"  # the map's loss, as fitted
+                validation[mode] = [validate(data, m, mode, loss) for m in TABLE_MODELS]
+            except ThrustmapError as exc:
+                notes.append(f"{mode} validation not computed: {exc}")
+    return ReportData(
+        map_path=map_path,
+        tmap=tmap,
+        datasets=datasets,
+        sidecars=sidecars,
+        selection=sel,
+        points=data,
+        residual_pct=residual,
+        masks=[sweep_mask(d, sel) for d in datasets],
+        validation=validation,
+        grid_t=gt,
+        grid_b=gb,
+        grid_th=gth,
+        grid_pi_pct=pi,
+        grid_count=count.astype(np.int64),
+        suggestion=suggestion,
+        gamma=_gamma_data(tmap, map_path),
+        exports=_exports(tmap, _betaflight_firmware(sidecars)) if with_exports else [],
+        notes=notes,
+    )
+
+
+def source_files(rd: ReportData) -> list[dict[str, Any]]:
+    """Provenance rows: every input with its sha256 (computed now) and what it says it is."""
+    rows: list[dict[str, Any]] = [
+        {
+            "role": "map",
+            "path": rd.map_path,
+            "sha256": rd.tmap.file_sha256 or file_sha256(rd.map_path),
+        }
+    ]
+    for ds, side in zip(rd.datasets, rd.sidecars, strict=True):
+        devices = side.get("devices", {}) if isinstance(side.get("devices"), dict) else {}
+        fc = devices.get("throttle_output", {}) if isinstance(devices, dict) else {}
+        stand = devices.get("stand", {}) if isinstance(devices, dict) else {}
+        rows.append(
+            {
+                "role": "stand log",
+                "path": ds.path,
+                "sha256": ds.sha256 or file_sha256(ds.path),
+                "format": ds.format,
+                "samples": len(ds),
+                "stand": stand.get("kind") or ds.meta.get("stand") or "not recorded",
+                "fc": " ".join(
+                    str(x)
+                    for x in (fc.get("kind"), fc.get("board"), fc.get("firmware_version"))
+                    if x
+                )
+                or "not recorded",
+                "motor_protocol": fc.get("motor_protocol") or "not recorded",
+                "battery_cells": fc.get("battery_cells") or side.get("cells") or "not recorded",
+                "rotors_on_esc": ds.rotors_on_esc or side.get("rotors_on_esc") or "not recorded",
+                "throttle_scale": f"{ds.throttle_scale.name} {ds.throttle_scale.lo:g}.."
+                f"{ds.throttle_scale.hi:g} {ds.throttle_scale.unit}",
+            }
+        )
+    if rd.gamma is not None:
+        for s in rd.gamma.sources:
+            rows.append(
+                {"role": "Df (γ)", "path": s.get("path", ""), "sha256": s.get("sha256", "")}
+            )
+    return rows

@@ -1,0 +1,272 @@
+"""The report's figures (matplotlib, Agg): the seed paper's Figs. 5-9 and the map diagnostics.
+
+Every function takes a :class:`ReportData` and returns a matplotlib Figure; ``FIGURES`` names
+them for ``thrustmap plot``. matplotlib is imported here only, never by the CLI at start-up; figures are drawn
+without pyplot (Agg canvas, no global state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from thrustmap.report.data import ReportData
+
+STYLE: dict[str, Any] = {
+    "font.size": 9,
+    "axes.titlesize": 10,
+    "axes.labelsize": 9,
+    "legend.fontsize": 8,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "figure.dpi": 100,
+    "savefig.bbox": "tight",
+}
+
+TH = "throttle (% of scale)"
+T = "thrust per rotor (N)"
+B = "battery voltage (V)"
+
+
+def _fig(w: float = 7.0, h: float = 4.0, **kw: Any) -> Figure:
+    # No layout engine: constrained layout costs seconds on many-axes figures; savefig's
+    # bbox_inches="tight" (STYLE) trims the margins in one pass.
+    return Figure(figsize=(w, h), **kw)
+
+
+def render(name: str, rd: ReportData, fmt: str = "png", dpi: int = 100) -> bytes:
+    """Draw figure ``name`` (a key of FIGURES) in the report style and return the file bytes.
+    Figures are drawn without pyplot (no global state, no GUI backend)."""
+    import io
+
+    with matplotlib.rc_context(STYLE):  # type: ignore[arg-type]
+        fig = FIGURES[name](rd)
+        buf = io.BytesIO()
+        fig.savefig(buf, format=fmt, dpi=dpi)
+    return buf.getvalue()
+
+
+def sweep(rd: ReportData) -> Figure:
+    """Raw sweeps over time, with what steady-state selection kept and dropped (paper Fig. 5)."""
+    n = len(rd.datasets)
+    fig = _fig(7.5, 1.9 * n + 0.6)
+    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    fig.subplots_adjust(hspace=0.45)
+    for ax, ds, mask in zip(axes, rd.datasets, rd.masks, strict=True):
+        x = ds.time_s if ds.time_s is not None else np.arange(len(ds), dtype=float)
+
+        # Masked lines (NaN outside each role) draw thousands of samples fast and stay legible.
+        def part(m: Any, y: Any = ds.thrust_n) -> Any:
+            return np.where(m, y, np.nan)
+
+        ramp = mask.other & ~np.isclose(np.gradient(ds.throttle_pct), 0.0)
+        ax.plot(x, ds.thrust_n, color="0.8", lw=0.6, label="thrust, all samples")
+        ax.plot(
+            x,
+            part(ramp),
+            color="tab:green",
+            lw=1.0,
+            label="ramp / transition (ramp pairs: see counts)",
+        )
+        ax.plot(x, part(mask.settling), color="tab:red", lw=1.6, label="dropped: settling")
+        ax.plot(x, part(mask.kept), color="tab:blue", lw=1.6, label="kept: settled plateau")
+        ax.set_ylabel("T (N)")
+        ax.set_title(ds.name, loc="left")
+        tw = ax.twinx()
+        tw.plot(x, ds.throttle_pct, color="tab:orange", lw=0.8, alpha=0.8)
+        tw.set_ylabel("Th (%)", color="tab:orange")
+        tw.grid(False)
+    axes[-1].set_xlabel("time (s)" if rd.datasets[-1].time_s is not None else "sample")
+    fig.legend(
+        *axes[0].get_legend_handles_labels(),
+        loc="upper center",
+        ncol=4,
+        bbox_to_anchor=(0.5, 0.04),
+        frameon=False,
+    )
+    return fig
+
+
+def surface(rd: ReportData) -> Figure:
+    """The fitted surface Th(T, B) with the selected points on it (paper Fig. 6)."""
+    fig = _fig(6.5, 5.0)
+    ax: Any = fig.add_subplot(projection="3d")
+    ax.plot_surface(
+        rd.grid_t, rd.grid_b, rd.grid_th, cmap="viridis", alpha=0.6, lw=0, rcount=30, ccount=30
+    )
+    p = rd.points
+    ax.scatter(
+        p.thrust_n,
+        p.voltage_v,
+        p.throttle_pct,
+        s=4,
+        c="k",
+        depthshade=False,
+        label="selected points",
+    )
+    ax.set_xlabel(T)
+    ax.set_ylabel(B)
+    ax.set_zlabel(TH)
+    ax.set_title(f"{rd.tmap.strategy} map, model {rd.tmap.model}")
+    ax.yaxis.set_major_locator(MaxNLocator(5))
+    ax.view_init(elev=22, azim=-130)
+    ax.legend(loc="upper left")
+    return fig
+
+
+def slices(rd: ReportData, n_voltages: int = 4) -> Figure:
+    """Throttle against thrust at several voltages, with the points near each voltage."""
+    fig = _fig(6.5, 4.2)
+    ax = fig.subplots()
+    v = rd.tmap.validity
+    volts = np.linspace(v.voltage_v.lo, v.voltage_v.hi, n_voltages)
+    half = (volts[1] - volts[0]) / 2 if n_voltages > 1 else np.inf
+    t = np.linspace(v.thrust_n.lo, v.thrust_n.hi, 200)
+    p = rd.points
+    cmap = matplotlib.colormaps["plasma"]
+    for k, b in enumerate(volts):
+        color = cmap(k / max(n_voltages - 1, 1) * 0.85)
+        ax.plot(
+            t,
+            rd.tmap.throttle_pct(t, np.full_like(t, b), corrected=False),
+            color=color,
+            lw=1.5,
+            label=f"map at {b:.2f} V",
+        )
+        near = np.abs(p.voltage_v - b) <= half
+        ax.plot(p.thrust_n[near], p.throttle_pct[near], "o", ms=2.5, color=color, alpha=0.6)
+    ax.set_xlabel(T)
+    ax.set_ylabel(TH)
+    ax.set_title("bench map (without γ) at several voltages; points within ± half a step")
+    ax.legend()
+    return fig
+
+
+def residuals(rd: ReportData) -> Figure:
+    """Map residuals (prediction − measured throttle) against thrust and against voltage."""
+    fig = _fig(7.5, 3.2)
+    a1, a2 = fig.subplots(1, 2, sharey=True)
+    fig.subplots_adjust(wspace=0.08)
+    p, r = rd.points, rd.residual_pct
+    a1.plot(p.thrust_n, r, ".", ms=3, alpha=0.6)
+    a2.plot(p.voltage_v, r, ".", ms=3, alpha=0.6, color="tab:green")
+    for ax in (a1, a2):
+        ax.axhline(0, color="k", lw=0.8)
+    a1.set_xlabel(T)
+    a2.set_xlabel(B)
+    a1.set_ylabel("residual (% throttle)")
+    fig.suptitle(f"residuals of the {rd.tmap.model} map on its selected points")
+    return fig
+
+
+def coverage(rd: ReportData) -> Figure:
+    """Where the data is, and the 95 % prediction interval over the (T, B) box."""
+    fig = _fig(7.5, 3.6)
+    a1, a2 = fig.subplots(1, 2, sharey=True)
+    fig.subplots_adjust(wspace=0.08)
+    p = rd.points
+    v = rd.tmap.validity
+    a1.imshow(
+        rd.grid_count,
+        origin="lower",
+        aspect="auto",
+        cmap="Blues",
+        extent=(v.thrust_n.lo, v.thrust_n.hi, v.voltage_v.lo, v.voltage_v.hi),
+    )
+    a1.plot(p.thrust_n, p.voltage_v, ".", ms=2, color="k", alpha=0.5)
+    a1.set_title("selected points (cells: count)")
+    cs = a2.contourf(rd.grid_t, rd.grid_b, rd.grid_pi_pct, levels=12, cmap="magma_r")
+    fig.colorbar(cs, ax=a2, label="95 % PI half-width (% throttle)")
+    if rd.suggestion is not None:
+        a2.plot(
+            *rd.suggestion,
+            "*",
+            ms=14,
+            color="tab:cyan",
+            mec="k",
+            label="widest interval: test here next",
+            clip_on=False,
+            zorder=5,
+        )
+        a2.legend(loc="upper left")
+    a2.set_title("prediction interval")
+    for ax in (a1, a2):
+        ax.set_xlabel(T)
+    a1.set_ylabel(B)
+    return fig
+
+
+def gamma(rd: ReportData) -> Figure:
+    """γ(B) with the flight data it was fitted to (paper Fig. 7)."""
+    g = rd.gamma
+    if g is None:
+        raise ValueError("the map has no γ correction")
+    fig = _fig(6.0, 3.6)
+    ax = fig.subplots()
+    if g.sample_gamma is not None and g.sample_voltage_v is not None:
+        ax.plot(
+            g.sample_voltage_v,
+            g.sample_gamma,
+            ".",
+            ms=3,
+            alpha=0.4,
+            color="tab:blue",
+            label="γ_j = T_c / F_m (Df)",
+        )
+    b = np.linspace(g.voltage_v[0], g.voltage_v[1], 200)
+    curve = np.polynomial.polynomial.polyval(b, g.coefficients)
+    ax.plot(b, curve, color="tab:red", lw=2, label=f"γ(B), degree {len(g.coefficients) - 1}")
+    ax.set_xlabel(B)
+    ax.set_ylabel("γ")
+    ax.set_title("correction factor γ(B)")
+    ax.legend()
+    return fig
+
+
+def errors_by_voltage(rd: ReportData) -> Figure:
+    """e_Th and e_T by voltage bin, before and after γ (paper Figs. 8-9)."""
+    g = rd.gamma
+    if g is None:
+        raise ValueError("the map has no γ correction")
+    bins = g.metrics.get("by_voltage", [])
+    fig = _fig(7.5, 3.2)
+    a1, a2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.25)
+    mid = np.array([0.5 * (r["voltage_v"][0] + r["voltage_v"][1]) for r in bins])
+    for ax, key, title in ((a1, "e_Th", "e_Th (% throttle)"), (a2, "e_T", "e_T (% of F_m)")):
+        for when, color, off in (("before", "tab:orange", -0.02), ("after", "tab:blue", 0.02)):
+            k = f"{key}_{when}_pct"
+            if not bins or k not in bins[0]:
+                continue
+            m = np.array([r[k]["mean"] for r in bins])
+            s = np.array([r[k]["std"] for r in bins])
+            ax.errorbar(
+                mid + off,
+                m,
+                yerr=s,
+                fmt="o-",
+                ms=4,
+                capsize=3,
+                color=color,
+                label=f"{'map' if when == 'before' else 'map + γ(B)'}",
+            )
+        ax.set_xlabel(B)
+        ax.set_title(title)
+        ax.legend()
+    return fig
+
+
+FIGURES: dict[str, Callable[[ReportData], Figure]] = {
+    "surface": surface,
+    "slices": slices,
+    "residuals": residuals,
+    "coverage": coverage,
+    "sweep": sweep,
+    "gamma": gamma,
+    "errors-by-voltage": errors_by_voltage,
+}
