@@ -444,11 +444,12 @@ def open_throttle_output(
     """
     found = _resolve(url, clock, kind, baudrate)
     if found.kind == "msp":
-        from thrustmap.rig.fc.msp import MspThrottleOutput
+        from thrustmap.rig.fc.msp import MspThrottleOutput, msp_port_url
 
-        port = open_port(url, clock, baudrate=baudrate or DEFAULT_BAUD["msp"])
-        try:
-            return MspThrottleOutput(port, clock, **opts)
+        baud = baudrate or DEFAULT_BAUD["msp"]
+        port = open_port(msp_port_url(url), clock, baudrate=baud)
+        try:  # url and baud: the motor-stop watchdog reopens the same port
+            return MspThrottleOutput(port, clock, url=url, baudrate=baud, **opts)
         except BaseException:
             port.close()
             raise
