@@ -283,8 +283,11 @@ class MspThrottleOutput(ThrottleOutput):
                 self._enable_arming()
                 return True
             if self.stop_unverifiable is not None:
+                # The FC acknowledged the stop and reports driving nothing: arming goes back
+                # as Configurator leaves it, but the result stays "not verified".
                 log.warning("motor stop sent and acknowledged; %s", self.stop_unverifiable)
                 self._motors_may_run = False
+                self._enable_arming()
                 return False
             log.warning("stop not confirmed (attempt %d of %d)", attempt, attempts)
         log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
@@ -300,12 +303,12 @@ class MspThrottleOutput(ThrottleOutput):
             log.warning("could not re-enable arming: %s", exc)
 
     def watchdog_stop(self) -> StopCheck:
-        """The watchdog's stop: all motors to the stop value, MSP_MOTOR check, and (verified)
-        arming re-enabled as :meth:`stop_and_verify` does after the driver disabled it. Sends
+        """The watchdog's stop: all motors to the stop value, MSP_MOTOR check, and arming
+        re-enabled as :meth:`stop_and_verify` does after the driver disabled it. Sends
         nothing that can start a motor, and no identification or preflight."""
         self.stop()
         outcome = self.check_stopped()
-        if outcome == "verified":
+        if outcome != "running":
             self._arming_disabled = True  # the dead session left it disabled
             self._enable_arming()
         return outcome
