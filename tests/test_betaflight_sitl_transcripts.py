@@ -241,3 +241,45 @@ def test_zero_beyond_the_motor_count_is_an_absent_motor_not_a_blind_fc() -> None
     assert output.check_stopped() == "running"
     assert output.stop_and_verify() is True
     output.close()
+
+
+# --------------------------------------------------------------------------- the CLI
+
+BLIND_FC = "sim://betaflight?bench=blind&firmware=betaflight-2026-sitl"
+
+
+def test_cli_spin_on_a_blind_fc_says_not_verified_and_exits_3(
+    capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    from thrustmap.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["spin", BLIND_FC, "--motor", "1", "--throttle", "5", "--seconds", "1", "--yes"])
+    assert exc.value.code == 3
+    captured = capsys.readouterr()
+    assert "stopped (verified)" not in captured.out + captured.err
+    assert "NOT verified" in captured.err and "MSP_MOTOR reads 0" in captured.err
+    assert "disconnect the battery" not in captured.err  # nothing says a motor turns
+    assert not [r for r in caplog.records if r.levelname == "CRITICAL"]
+
+
+def test_cli_sweep_on_a_blind_fc_is_never_reported_verified(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    from thrustmap.cli import main
+    from thrustmap.fitting.dsformat import read_sidecar
+    from thrustmap.fitting.loaders import load_dataset
+
+    args = ["sweep", "stairs-up", "--stand", "sim://tyto-1585?bench=blind&drive_esc=0"]
+    args += ["--throttle", BLIND_FC, "--to", "20", "--step", "10", "--dwell", "1"]
+    args += ["-o", str(tmp_path / "run.csv"), "--yes", "--quiet"]
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 3
+    out = capsys.readouterr().out
+    assert "completed" in out and "NOT verified" in out and "stop verified" not in out
+    assert not [r for r in caplog.records if r.levelname == "CRITICAL"]
+    assert load_dataset(tmp_path / "run.csv").meta["outcome"]["status"] == "completed"
+    meta = read_sidecar(tmp_path / "run.csv")
+    assert meta is not None
+    assert meta["stop_verified"] is False and "MSP_MOTOR reads 0" in meta["stop_unverifiable"]

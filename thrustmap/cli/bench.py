@@ -308,6 +308,9 @@ def sweep_cmd(
     verdict = (
         "stop verified" if result.stop_verified else "STOP NOT VERIFIED - disconnect the battery"
     )
+    blind = getattr(output_dev, "stop_unverifiable", None)
+    if blind and not result.stop_verified:
+        verdict = f"stop sent and acknowledged, NOT verified ({blind})"
     click.echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
         + (f" - {result.reason}" if result.reason else "")

@@ -318,8 +318,11 @@ def spin_cmd(
         if not handed_over:
             with output:  # stop, verify and close: nothing was commanded, but be sure
                 pass
+    blind = getattr(output, "stop_unverifiable", None)
     if result.stop_verified:
         click.echo(f"motor {motor} stopped (verified) after {result.duration_s:.1f} s")
+    elif blind:
+        click.echo(f"motor {motor}: stop sent and acknowledged, NOT verified: {blind}", err=True)
     else:
         click.echo(f"STOP NOT VERIFIED on motor {motor} - disconnect the battery now", err=True)
     if result.status == "interrupted":
