@@ -106,6 +106,7 @@ class FirmwareProfile:
     sensors: int = 0x23  # STATUS sensor bits: ACC | BARO | GYRO
     #: ADVANCED_CONFIG bytes after the first 8 (gyro and calibration settings)
     advanced_tail: bytes = b""
+    use_unsynced_pwm: bool = False
     #: the motor protocol a fresh board of this kind is set to (None: DShot600)
     motor_protocol: MotorProtocol | None = None
 
@@ -149,6 +150,7 @@ FIRMWARE: dict[str, FirmwareProfile] = {
             honours_arming_disable=False,
             no_battery=True,
             advanced_tail=bytes.fromhex("00000000307d000000020062"),
+            use_unsynced_pwm=True,
             motor_protocol=MotorProtocol.PWM,
         ),
         FirmwareProfile(
@@ -167,6 +169,7 @@ FIRMWARE: dict[str, FirmwareProfile] = {
             no_battery=True,
             sensors=0x27,
             advanced_tail=bytes.fromhex("00000000307d000000020067"),
+            use_unsynced_pwm=True,
             motor_protocol=MotorProtocol.PWM,
         ),
         FirmwareProfile(
@@ -400,7 +403,13 @@ class MspPeer:
             return self._telemetry(state).encode()
         if cmd == MspCommand.ADVANCED_CONFIG:
             return AdvancedConfig(
-                int(self.motor_protocol), 480, 5.5, 1, True, 1, profile.advanced_tail
+                int(self.motor_protocol),
+                480,
+                5.5,
+                1,
+                profile.use_unsynced_pwm,
+                1,
+                profile.advanced_tail,
             ).encode()
         if cmd == MspCommand.BATTERY_CONFIG:
             return BatteryConfig(3.3, 4.3, 3.5, self.capacity_mah).encode()
