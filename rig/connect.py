@@ -867,6 +867,11 @@ def probe_device(
             if callable(motor_values):
                 try:
                     report.motor_values = tuple(int(v) for v in motor_values())
+                    if not any(report.motor_values):  # 0 = "no information", not "stopped"
+                        report.warnings.append(
+                            "MSP_MOTOR reads 0 for every motor: this FC reports no motor "
+                            "values, so a motor stop cannot be verified on it"
+                        )
                 except ThrustmapError as exc:
                     report.warnings.append(f"no motor values: {exc}")
         return report

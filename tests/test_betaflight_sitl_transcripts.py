@@ -191,6 +191,7 @@ def test_replaying_the_real_probe_reports_the_stop_as_unverifiable() -> None:
         "2026.12.0-alpha",
     )
     assert report.motor_values == (0,) * 8
+    assert any("cannot be verified" in w for w in report.warnings)
     port = open_transport(f"replay://{path}", clock=clock, timeout=0)
     output = MspThrottleOutput(port, clock, url=f"replay://{path}")
     assert output.watchdog_url is None  # a replay ends with this process
