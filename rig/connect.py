@@ -433,9 +433,12 @@ def open_throttle_output(
     calibration: str | None = None,
     line_preset: str | None = None,
     line_spec_file: str | None = None,
+    watchdog_log: str | None = None,
     **opts: Any,
 ) -> ThrottleOutput:
     """Open whatever commands motor throttle at ``url``.
+
+    ``watchdog_log``: where the MSP motor-stop watchdog logs (default: the user's state folder).
 
     ``kind`` (see module) is detected when None. ``opts`` go to the driver's constructor
     (``MspThrottleOutput(timeout_s=, retries=)``) or to ``open_mavlink_output``. For a stand's
@@ -449,7 +452,9 @@ def open_throttle_output(
         baud = baudrate or DEFAULT_BAUD["msp"]
         port = open_port(msp_port_url(url), clock, baudrate=baud)
         try:  # url and baud: the motor-stop watchdog reopens the same port
-            return MspThrottleOutput(port, clock, url=url, baudrate=baud, **opts)
+            return MspThrottleOutput(
+                port, clock, url=url, baudrate=baud, watchdog_log=watchdog_log, **opts
+            )
         except BaseException:
             port.close()
             raise

@@ -4,7 +4,7 @@ The SITL serves MSP on TCP 5761 (UART1), one connection at a time, and writes ``
 in its working folder (a fresh temporary folder here). Without a simulator feeding it sensor
 state over UDP 9003 its control loop does not run: MSP_MOTOR then reads 0 whatever SET_MOTOR
 said. So :class:`BetaflightSitl` also plays the simulator: it sends a level, still quad's state
-(fdm packets) at 200 Hz and listens to the raw PWM the firmware outputs on UDP 9001, which is
+(fdm packets) at 40 Hz and listens to the raw PWM the firmware outputs on UDP 9001, which is
 what a test checks the motor outputs against (an observer independent of MSP).
 
 Test support only: product code never imports this.
@@ -32,6 +32,7 @@ PWM_RAW_PORT = 9001  # the SITL sends: raw motor outputs (servo_packet_raw)
 _FDM = struct.Struct(
     "<d3d3d4d3d3dd"
 )  # timestamp, gyro, accel, quaternion, velocity, position, pressure
+FEED_PERIOD_S = 0.025  # 40 Hz sensor state
 _PWM_RAW = struct.Struct("<H2x16f")  # motor count, then 16 raw outputs (µs)
 
 
@@ -45,6 +46,14 @@ def sitl_binary() -> Path | None:
         if found:
             return found[-1]
     return None
+
+
+def _die_with_parent() -> None:
+    """In the SITL's process, before it runs: SIGTERM it when its parent dies (Linux)."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def port_in_use(port: int, kind: int = socket.SOCK_STREAM) -> bool:
@@ -75,6 +84,7 @@ class BetaflightSitl:
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self, ready_timeout_s: float = 30.0) -> BetaflightSitl:
+        self._stop.clear()
         self.workdir = Path(tempfile.mkdtemp(prefix="betaflight-sitl-"))
         log = open(self.workdir / "sitl.log", "wb")  # noqa: SIM115 - closed with the process
         try:
@@ -84,7 +94,7 @@ class BetaflightSitl:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
-                start_new_session=True,
+                preexec_fn=_die_with_parent,  # even a killed test run leaves no SITL behind
             )
         finally:
             log.close()
@@ -95,9 +105,10 @@ class BetaflightSitl:
         listener.start()
         self._threads = [listener]
         deadline = time.monotonic() + ready_timeout_s
-        # Sensor state must not arrive before the firmware finished its init (it crashes on
-        # state for a gyro it has not set up yet): feed once its MSP port is listening.
-        self._await("the MSP port listening", self._msp_listening, deadline)
+        # Sensor state must not arrive before the firmware finished its init: it binds its MSP
+        # port before it sets up its (virtual) gyro, and state arriving in between crashes it or
+        # stalls its control loop. So feed only once MSP answers (a task of the running loop).
+        self._await("answering MSP", self._msp_answers, deadline)
         feeder = threading.Thread(target=self._feed, name="sitl-feed", daemon=True)
         feeder.start()
         self._threads.append(feeder)
@@ -118,6 +129,7 @@ class BetaflightSitl:
                 self.process.wait(timeout=5)
         if self.workdir is not None:
             shutil.rmtree(self.workdir, ignore_errors=True)
+        self.process, self.workdir, self._threads = None, None, []
 
     def log_tail(self, lines: int = 20) -> str:
         if self.workdir is None or not (self.workdir / "sitl.log").exists():
@@ -125,9 +137,9 @@ class BetaflightSitl:
         text = (self.workdir / "sitl.log").read_text(errors="replace").splitlines()
         return "\n".join([ln for ln in text if "FLASH_ProgramWord" not in ln][-lines:])
 
-    def _msp_listening(self) -> bool:
-        with socket.create_connection(("127.0.0.1", MSP_PORT), timeout=1.0):
-            return True
+    def _msp_answers(self) -> bool:
+        """MSP is served by a scheduler task: an answer means the firmware's init is over."""
+        return self._ask(1, 3, 1.0) is not None  # API_VERSION
 
     def _motor_loop_running(self) -> bool:
         return self.motor_values()[:4] == (1000,) * 4
@@ -151,8 +163,16 @@ class BetaflightSitl:
     def motor_values(self, timeout_s: float = 3.0) -> tuple[int, ...]:
         """MSP_MOTOR over a connection of our own (the SITL serves one at a time: call it only
         while thrustmap is not connected)."""
-        request = b"$M<\x00\x68\x68"  # MSP v1 MOTOR (104), no payload
+        payload = self._ask(104, 16, timeout_s)
+        if payload is None:
+            raise RuntimeError("no MSP_MOTOR reply")
+        return struct.unpack("<8H", payload)
+
+    def _ask(self, cmd: int, size: int, timeout_s: float) -> bytes | None:
+        """One MSP v1 request without payload; the reply payload (of ``size`` bytes) or None."""
+        request = b"$M<\x00" + bytes((cmd, cmd))  # checksum: 0 ^ cmd
         with socket.create_connection(("127.0.0.1", MSP_PORT), timeout=timeout_s) as s:
+            s.settimeout(0.1)
             s.sendall(request)
             data = b""
             deadline = time.monotonic() + timeout_s
@@ -160,15 +180,15 @@ class BetaflightSitl:
                 with contextlib.suppress(TimeoutError):
                     chunk = s.recv(256)
                     if not chunk:
-                        break
+                        return None
                     data += chunk
                 start = data.find(b"$M>")
                 if start >= 0 and len(data) >= start + 6 + data[start + 3]:
-                    size, cmd = data[start + 3], data[start + 4]
-                    payload = data[start + 5 : start + 5 + size]
-                    if cmd == 104 and size == 16:
-                        return struct.unpack("<8H", payload)
-            raise RuntimeError(f"no MSP_MOTOR reply (got {data.hex()})")
+                    got, got_cmd = data[start + 3], data[start + 4]
+                    if got_cmd == cmd and got == size:
+                        return data[start + 5 : start + 5 + size]
+                    data = data[start + 3 :]
+        return None
 
     def pwm_since(self, t0: float) -> list[PwmSample]:
         with self._lock:
@@ -191,16 +211,23 @@ class BetaflightSitl:
     # -- the simulator side -----------------------------------------------------------------
     def _feed(self) -> None:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            t0 = time.monotonic()
             while not self._stop.is_set():
-                t = time.monotonic() - t0
+                # Timestamps on the machine's monotonic clock, never near 0: the SITL compares
+                # the first one with its own zero-initialised "last packet" and, for a first
+                # timestamp under 20 ms, derives a simulation rate near 0 (its clock, and so
+                # its control loop, then stand still).
+                t = time.monotonic()
                 # level and still: no rotation, 1 g (body frame), identity attitude, sea level
                 packet = _FDM.pack(
                     t, 0, 0, 0, 0, 0, -9.80665, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 101325.0
                 )
                 with contextlib.suppress(OSError):
                     s.sendto(packet, ("127.0.0.1", STATE_PORT))
-                time.sleep(0.005)
+                # Packets at least 20 ms apart (in their own timestamps): the SITL then keeps
+                # its clock at real time. Closer ones make it re-estimate a "simulation rate"
+                # from arrival times, which a busy machine turns into a clock that crawls (the
+                # control loop stalls and MSP_MOTOR reads 0) or races.
+                time.sleep(FEED_PERIOD_S)
 
     def _listen(self, s: socket.socket) -> None:
         with s:
@@ -215,4 +242,4 @@ class BetaflightSitl:
                 sample = PwmSample(time.monotonic(), tuple(raw[: min(count, 16)]))
                 with self._lock:
                     self.pwm.append(sample)
-                    del self.pwm[: max(0, len(self.pwm) - 20000)]  # bounded: ~100 s at 200 Hz
+                    del self.pwm[: max(0, len(self.pwm) - 20000)]  # bounded: ~8 min at 40 Hz

@@ -290,7 +290,10 @@ def sweep_cmd(
                 output_dev = connect.stand_esc_output(stand)
             else:
                 output_dev = connect.open_throttle_output(
-                    throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
+                    throttle_url,
+                    clock,
+                    kind=None if fc_kind == "auto" else fc_kind,
+                    watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the log
                 )
             with output_dev:
                 result = record_sweep(
