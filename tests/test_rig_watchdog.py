@@ -40,6 +40,10 @@ CHILD = textwrap.dedent(
         with out:
             pass
         print("done", flush=True)
+    elif mode == "close":  # the session ends without a stop the FC confirmed
+        print("spinning", out.watchdog.pid, flush=True)
+        out.close()
+        print("closed", flush=True)
     elif mode == "term":
         with terminate_as_exception(), out:
             print("spinning", out.watchdog.pid, flush=True)
@@ -181,3 +185,19 @@ def test_a_probe_starts_no_watchdog(server: MspTcpServer) -> None:
     report = connect.probe_device(server.url, MonotonicClock(), kind="msp")
     assert report.identity is not None and report.identity.kind == "betaflight"
     assert all(v <= 1000 for _, _, values in server.set_motors for v in values)
+
+
+def test_an_unconfirmed_stop_is_handed_to_the_watchdog(
+    server: MspTcpServer, tmp_path: Path
+) -> None:
+    """The session ended (the port closed) with a motor commanded and no confirmed stop: the
+    watchdog, not disarmed, reopens the port and stops it."""
+    log = tmp_path / "watchdog.log"
+    child, watchdog_pid = spawn(server, log, "close")
+    assert child.stdout is not None
+    assert child.stdout.readline().strip() == "closed"
+    assert wait_until(lambda: server.peer.motors_at_rest, 10.0), server.peer.motor_values
+    assert wait_until(lambda: gone(watchdog_pid), 10.0)
+    child.wait(timeout=10)
+    assert server.connections == 2
+    assert "verified by MSP_MOTOR" in log.read_text(encoding="utf-8")
