@@ -185,8 +185,26 @@ def test_spin(sitl: BetaflightSitl, env: dict[str, str]) -> None:
     code, out, err = finish(proc)
     assert code == 0, err
     assert held is not None and held.values[1:4] == (1000.0,) * 3  # only motor 1 moved
+    at_level = [s.time_s for s in sitl.pwm_since(held.time_s) if abs(s.values[0] - 1100.0) <= 3]
+    assert at_level[-1] - at_level[0] >= 1.3  # held for the 2 s less the 0.5 s ramp
     assert "stopped (verified)" in out
     assert "CRITICAL" not in err
+    assert_stopped(sitl)
+
+
+def test_sigint_mid_spin_stops_within_a_second(sitl: BetaflightSitl, env: dict[str, str]) -> None:
+    proc = start(
+        thrustmap("spin", sitl.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
+        env,
+    )
+    assert sitl.wait_pwm(motor1_at(1100.0), 20.0) is not None, "the spin never reached the output"
+    sent_at = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    code, out, err = finish(proc)
+    stopped = [s for s in sitl.pwm_since(sent_at) if tuple(s.values[:4]) == STOP]
+    assert stopped and stopped[0].time_s - sent_at < 1.0
+    assert code == 130, out + err
+    assert "stopped (verified)" in out and "CRITICAL" not in err
     assert_stopped(sitl)
 
 
