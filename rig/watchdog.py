@@ -49,6 +49,8 @@ DISARM = b"disarm\n"
 START_TIMEOUT_S = 15.0
 #: how long the watchdog keeps trying to reach the FC after its parent died
 GIVE_UP_S = 30.0
+#: a log file over this size is moved aside (``.old``) before the watchdog appends to it
+MAX_LOG_BYTES = 1_000_000
 
 
 def default_log_path() -> Path:
@@ -279,6 +281,9 @@ def _setup_logging(log_path: str | None) -> None:
     if log_path:
         try:
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+            path = Path(log_path)
+            if path.exists() and path.stat().st_size > MAX_LOG_BYTES:
+                os.replace(path, f"{path}.old")  # bounded: this file and the one before
             handler = logging.FileHandler(log_path, encoding="utf-8")
         except OSError as exc:
             log.warning("cannot write the watchdog log %s: %s", log_path, exc)

@@ -178,13 +178,30 @@ def test_no_watchdog_for_simulated_or_replayed_ports() -> None:
     out.close()
 
 
-def test_a_probe_starts_no_watchdog(server: MspTcpServer) -> None:
+def test_a_probe_sends_only_stops_and_disarms_its_watchdog(
+    server: MspTcpServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from thrustmap.clock import MonotonicClock
     from thrustmap.rig import connect
 
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))  # the default log goes here
+
+    log = tmp_path / "watchdog.log"
+    output = connect.open_throttle_output(
+        server.url, MonotonicClock(), kind="msp", watchdog_log=str(log)
+    )
+    with output:
+        output.identify()
+        watchdog = output.watchdog  # type: ignore[attr-defined]
+        assert watchdog is not None  # running before any motor command
+    assert watchdog.process.wait(timeout=5) == 0
+    assert "disarmed" in log.read_text(encoding="utf-8")
     report = connect.probe_device(server.url, MonotonicClock(), kind="msp")
     assert report.identity is not None and report.identity.kind == "betaflight"
     assert all(v <= 1000 for _, _, values in server.set_motors for v in values)
+    time.sleep(0.3)
+    assert server.connections == 2  # no watchdog ever reopened the port
+    assert "disarmed" in (tmp_path / "state" / "thrustmap" / "watchdog.log").read_text("utf-8")
 
 
 def test_an_unconfirmed_stop_is_handed_to_the_watchdog(

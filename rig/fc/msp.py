@@ -19,9 +19,10 @@ never reach ``motor[]``. 0 is "no information", never "stopped": such a stop is 
 acknowledged but cannot be verified (``verify_stopped()`` is False and ``stop_unverifiable``
 says why). Real motors read at least the stop value (1000) when the output is live.
 
-Because the firmware never times a motor value out, the first motor command starts a watchdog
-process (:mod:`thrustmap.rig.watchdog`) when the driver knows the port's URL: if this process
-dies without a clean stop, the watchdog reopens the port and stops the motors.
+Because the firmware never times a motor value out, the preflight (before arming is disabled
+and any motor command) starts a watchdog process (:mod:`thrustmap.rig.watchdog`) when the
+driver knows the port's URL: if this process dies without a clean stop, the watchdog reopens
+the port and stops the motors. A clean close disarms it.
 """
 
 from __future__ import annotations
@@ -89,8 +90,8 @@ class MspThrottleOutput(ThrottleOutput):
         watchdog_log: str | None = None,
     ) -> None:
         """``url``/``baudrate``: how ``port`` was opened. With them (and ``watchdog``), the
-        first motor command starts the motor-stop watchdog on the same port (not for
-        simulated or replayed ports, which end with this process)."""
+        preflight starts the motor-stop watchdog on the same port (not for simulated or
+        replayed ports, which end with this process)."""
         self.port = port
         self.clock = clock
         self.timeout_s = timeout_s
@@ -188,6 +189,8 @@ class MspThrottleOutput(ThrottleOutput):
         status = Status.decode(self.request(MspCommand.STATUS))
         if status.armed:
             raise SafetyError("the flight controller is ARMED: disarm it before a motor test")
+        # The watchdog is ready before the first motor command (and before a spin's ramp clock).
+        self._ensure_watchdog()
         self.request(MspCommand.SET_ARMING_DISABLED, SetArmingDisabled(True).encode())
         self._arming_disabled = True
 
