@@ -202,6 +202,7 @@ def test_replaying_the_real_probe_reports_the_stop_as_unverifiable() -> None:
     assert output.stop_unverifiable is not None and "0 for motor(s) 1, 2, 3, 4" in (
         output.stop_unverifiable
     )
+    port.assert_consumed()  # type: ignore[attr-defined]  # every byte, both ways, as recorded
     output.close()
 
 
