@@ -434,9 +434,12 @@ def open_throttle_output(
     calibration: str | None = None,
     line_preset: str | None = None,
     line_spec_file: str | None = None,
+    watchdog_log: str | None = None,
     **opts: Any,
 ) -> ThrottleOutput:
     """Open whatever commands motor throttle at ``url``.
+
+    ``watchdog_log``: where the MSP motor-stop watchdog logs (default: the user's state folder).
 
     ``kind`` (see module) is detected when None. ``opts`` go to the driver's constructor
     (``MspThrottleOutput(timeout_s=, retries=)``) or to ``open_mavlink_output``. For a stand's
@@ -445,11 +448,14 @@ def open_throttle_output(
     """
     found = _resolve(url, clock, kind, baudrate)
     if found.kind == "msp":
-        from thrustmap.rig.fc.msp import MspThrottleOutput
+        from thrustmap.rig.fc.msp import MspThrottleOutput, msp_port_url
 
-        port = open_port(url, clock, baudrate=baudrate or DEFAULT_BAUD["msp"])
-        try:
-            return MspThrottleOutput(port, clock, **opts)
+        baud = baudrate or DEFAULT_BAUD["msp"]
+        port = open_port(msp_port_url(url), clock, baudrate=baud)
+        try:  # url and baud: the motor-stop watchdog reopens the same port
+            return MspThrottleOutput(
+                port, clock, url=url, baudrate=baud, watchdog_log=watchdog_log, **opts
+            )
         except BaseException:
             port.close()
             raise
@@ -859,6 +865,11 @@ def probe_device(
             if callable(motor_values):
                 try:
                     report.motor_values = tuple(int(v) for v in motor_values())
+                    if not any(report.motor_values):  # 0 = "no information", not "stopped"
+                        report.warnings.append(
+                            "MSP_MOTOR reads 0 for every motor: this FC reports no motor "
+                            "values, so a motor stop cannot be verified on it"
+                        )
                 except ThrustmapError as exc:
                     report.warnings.append(f"no motor values: {exc}")
         return report

@@ -169,6 +169,7 @@ class Runner:
                     reason,
                     extra={
                         "stop_verified": verified,
+                        "stop_unverifiable": getattr(self.output, "stop_unverifiable", None),
                         "stop_latency_s": latency,
                         "trip": None if trip is None else trip.__dict__,
                     },
@@ -192,6 +193,8 @@ class Runner:
         while True:
             if self.output.stop_and_verify(attempts=1):
                 return True
+            if getattr(self.output, "stop_unverifiable", None):
+                return False  # acknowledged, but this FC cannot confirm a stop: no retry loop
             if self.clock.now_s() >= deadline:
                 log.critical(
                     "motor stop NOT verified after %.0f s: disconnect the battery",
@@ -216,7 +219,10 @@ class Runner:
         )
         self.output.stop()
         if not self.output.verify_stopped():
-            raise SafetyError("motors are not at rest before the run; refusing to start")
+            blind = getattr(self.output, "stop_unverifiable", None)
+            if not blind:
+                raise SafetyError("motors are not at rest before the run; refusing to start")
+            log.warning("cannot confirm the motors are at rest: %s", blind)
         if self.cfg.tare:
             self._wait_at_rest()
             self.stand.tare()

@@ -12,12 +12,24 @@ So this driver:
 
 The throttle scale it exposes is the ESC's own (DShot 48..2047, PWM 1000..2000 µs, Oneshot...),
 from ADVANCED_CONFIG's motor protocol; MSP's external units stay inside this driver.
+
+MSP_MOTOR reads 0 for a motor the FC reports nothing about: its motor output is off, or (a SITL
+with no simulator attached) its control loop is not running, so the values SET_MOTOR asked for
+never reach ``motor[]``. 0 is "no information", never "stopped": such a stop is sent and
+acknowledged but cannot be verified (``verify_stopped()`` is False and ``stop_unverifiable``
+says why). Real motors read at least the stop value (1000) when the output is live.
+
+Because the firmware never times a motor value out, the preflight (before arming is disabled
+and any motor command) starts a watchdog process (:mod:`thrustmap.rig.watchdog`) when the
+driver knows the port's URL: if this process dies without a clean stop, the watchdog reopens
+the port and stops the motors. A clean close disarms it.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from typing import TYPE_CHECKING, Literal
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError, ThrustmapError
@@ -44,9 +56,14 @@ from thrustmap.protocols.msp.messages import (
 from thrustmap.protocols.transport import SerialLike
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 
+if TYPE_CHECKING:
+    from thrustmap.rig.watchdog import Watchdog
+
 log = logging.getLogger(__name__)
 
 MSP_MOTOR_SLOTS = 8
+#: the outcome of reading MSP_MOTOR after a stop
+StopCheck = Literal["verified", "running", "unverifiable"]
 VARIANTS = {"BTFL": "betaflight", "INAV": "inav", "CLFL": "cleanflight", "EMUF": "emuflight"}
 
 
@@ -67,7 +84,14 @@ class MspThrottleOutput(ThrottleOutput):
         timeout_s: float = 0.1,
         retries: int = 2,
         version: MspVersion = MspVersion.V1,
+        url: str | None = None,
+        baudrate: int | None = None,
+        watchdog: bool = True,
+        watchdog_log: str | None = None,
     ) -> None:
+        """``url``/``baudrate``: how ``port`` was opened. With them (and ``watchdog``), the
+        preflight starts the motor-stop watchdog on the same port (not for simulated or
+        replayed ports, which end with this process)."""
         self.port = port
         self.clock = clock
         self.timeout_s = timeout_s
@@ -78,6 +102,14 @@ class MspThrottleOutput(ThrottleOutput):
         self.motor_protocol = MotorProtocol.DSHOT600
         self.throttle_scale = throttle_scale_for(self.motor_protocol)
         self._arming_disabled = False
+        self._motor_count: int | None = None
+        self._motors_may_run = False  # a motor command went out since the last confirmed stop
+        #: why the last stop could not be verified on this FC (None: verified, or not known yet)
+        self.stop_unverifiable: str | None = None
+        self.watchdog_url = watchdog_target(url) if (url is not None and watchdog) else None
+        self.baudrate = baudrate
+        self.watchdog_log = watchdog_log
+        self._watchdog: Watchdog | None = None
         self.port.timeout = 0.0  # we poll with our own clock-driven deadline
 
     # -- MSP request/response -------------------------------------------------------------
@@ -157,6 +189,8 @@ class MspThrottleOutput(ThrottleOutput):
         status = Status.decode(self.request(MspCommand.STATUS))
         if status.armed:
             raise SafetyError("the flight controller is ARMED: disarm it before a motor test")
+        # The watchdog is ready before the first motor command (and before a spin's ramp clock).
+        self._ensure_watchdog()
         self.request(MspCommand.SET_ARMING_DISABLED, SetArmingDisabled(True).encode())
         self._arming_disabled = True
 
@@ -171,6 +205,9 @@ class MspThrottleOutput(ThrottleOutput):
             if not 0 <= motor < MSP_MOTOR_SLOTS:
                 raise SafetyError(f"motor {motor} out of range 0..{MSP_MOTOR_SLOTS - 1}")
             ext[motor] = self._ext(native)
+        if any(v > MSP_MOTOR_STOP for v in ext):
+            self._ensure_watchdog()
+            self._motors_may_run = True
         self.request(MspCommand.SET_MOTOR, SetMotor(tuple(ext)).encode())
 
     def stop(self) -> None:
@@ -179,9 +216,44 @@ class MspThrottleOutput(ThrottleOutput):
     def motor_values(self) -> tuple[int, ...]:
         return Motor.decode(self.request(MspCommand.MOTOR)).values
 
-    def verify_stopped(self) -> bool:
+    def motor_count(self) -> int | None:
+        """Motors the FC drives (identity, else MOTOR_CONFIG); None when it will not say."""
+        if self._identity is not None and self._identity.motor_count:
+            return self._identity.motor_count
+        if self._motor_count is None:
+            try:
+                count = MotorConfig.decode(self.request(MspCommand.MOTOR_CONFIG)).motor_count
+            except MspRefused:
+                return None
+            self._motor_count = count or None
+        return self._motor_count
+
+    def check_stopped(self) -> StopCheck:
+        """Read MSP_MOTOR: ``verified`` (every motor at the stop value or below), ``running``
+        (some motor above it) or ``unverifiable`` (the FC reports 0 = nothing for a motor it
+        drives; ``stop_unverifiable`` says which)."""
+        self.stop_unverifiable = None
         values = self.motor_values()
-        return all(v <= MSP_MOTOR_STOP for v in values)
+        running = [i + 1 for i, v in enumerate(values) if v > MSP_MOTOR_STOP]
+        if running:
+            log.warning("MSP_MOTOR: motor(s) %s above the stop value: %s", running, values)
+            return "running"
+        count = self.motor_count()
+        driven = values[:count] if count is not None else values
+        blind = [i + 1 for i, v in enumerate(driven) if v == 0]
+        if count is None and len(blind) < len(driven):
+            blind = []  # unknown motor count: 0s beside real values are absent motors
+        if blind:
+            self.stop_unverifiable = (
+                f"MSP_MOTOR reads 0 for motor(s) {', '.join(map(str, blind))}: this FC reports "
+                "no motor values (its motor output or control loop is not running), so the "
+                "stop was sent but cannot be verified"
+            )
+            return "unverifiable"
+        return "verified"
+
+    def verify_stopped(self) -> bool:
+        return self.check_stopped() == "verified"
 
     def read_telemetry(self) -> Telemetry:
         now = self.clock.now_s()
@@ -196,14 +268,105 @@ class MspThrottleOutput(ThrottleOutput):
         return Telemetry(now, batt.voltage_v, batt.current_a, rpm, temp)
 
     def stop_and_verify(self, attempts: int = 3) -> bool:
-        ok = super().stop_and_verify(attempts)
-        if ok and self._arming_disabled:
+        """Send the stop and confirm it with MSP_MOTOR; retry. Never raises.
+
+        An FC that reports no motor values (see module) gets one acknowledged stop and a
+        warning, not retries and a CRITICAL alarm: nothing says a motor turns, and nothing can
+        say it stopped. The result is False all the same: such a stop is never "verified"."""
+        for attempt in range(1, attempts + 1):
             try:
-                self.request(MspCommand.SET_ARMING_DISABLED, SetArmingDisabled(False).encode())
-                self._arming_disabled = False
-            except ThrustmapError as exc:
-                log.warning("could not re-enable arming: %s", exc)
-        return ok
+                self.stop()
+                verified = self.verify_stopped()
+            except Exception as exc:  # the link may be gone; keep trying, then report
+                log.error("stop attempt %d failed: %s", attempt, exc)
+                continue
+            if verified:
+                log.info("motors stopped (verified, attempt %d)", attempt)
+                self._motors_may_run = False
+                self._enable_arming()
+                return True
+            if self.stop_unverifiable is not None:
+                # The FC acknowledged the stop and reports driving nothing: arming goes back
+                # as Configurator leaves it, but the result stays "not verified".
+                log.warning("motor stop sent and acknowledged; %s", self.stop_unverifiable)
+                self._motors_may_run = False
+                self._enable_arming()
+                return False
+            log.warning("stop not confirmed (attempt %d of %d)", attempt, attempts)
+        log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
+        return False
+
+    def _enable_arming(self) -> None:
+        if not self._arming_disabled:
+            return
+        try:
+            self.request(MspCommand.SET_ARMING_DISABLED, SetArmingDisabled(False).encode())
+            self._arming_disabled = False
+        except ThrustmapError as exc:
+            log.warning("could not re-enable arming: %s", exc)
+
+    def watchdog_stop(self) -> StopCheck:
+        """The watchdog's stop: all motors to the stop value, MSP_MOTOR check, and arming
+        re-enabled as :meth:`stop_and_verify` does after the driver disabled it. Sends
+        nothing that can start a motor, and no identification or preflight."""
+        self.stop()
+        outcome = self.check_stopped()
+        if outcome != "running":
+            self._arming_disabled = True  # the dead session left it disabled
+            self._enable_arming()
+        return outcome
+
+    # -- the watchdog ----------------------------------------------------------------------
+    def _ensure_watchdog(self) -> None:
+        if self._watchdog is not None or self.watchdog_url is None:
+            return
+        from thrustmap.rig.watchdog import start_watchdog
+
+        self._watchdog = start_watchdog(
+            self.watchdog_url, baudrate=self.baudrate, log_path=self.watchdog_log
+        )
+
+    @property
+    def watchdog(self) -> Watchdog | None:
+        return self._watchdog
 
     def close(self) -> None:
-        self.port.close()
+        try:
+            self.port.close()
+        finally:
+            watchdog, self._watchdog = self._watchdog, None
+            if watchdog is not None:
+                if self._motors_may_run:
+                    watchdog.hand_over()  # the port is free now: it retries the stop
+                else:
+                    watchdog.disarm()
+
+
+def watchdog_target(url: str) -> str | None:
+    """The URL a watchdog reopens for a driver opened on ``url``: the innermost real port of a
+    ``record://`` chain; None for ``sim://`` and ``replay://`` (they end with this process)."""
+    from thrustmap.protocols.urlhandlers.protocol_record import split_record_url
+
+    inner = url
+    for _ in range(8):
+        if not inner.lower().startswith("record://"):
+            break
+        try:
+            inner, _own = split_record_url(inner)
+        except Exception:
+            return None
+    scheme = inner.partition("://")[0].lower() if "://" in inner else ""
+    if scheme in ("sim", "replay", "record", "loop"):
+        return None
+    return msp_port_url(inner)
+
+
+def msp_port_url(url: str) -> str:
+    """The pyserial URL of an MSP port: ``tcp://host:port`` and ``tcp:host:port`` (the forms
+    SITL users type) are ``socket://host:port``; anything else is returned unchanged."""
+    lower = url.lower()
+    if lower.startswith("tcp://"):
+        return "socket://" + url[len("tcp://") :]
+    if lower.startswith("tcp:"):
+        return "socket://" + url[len("tcp:") :]
+    return url

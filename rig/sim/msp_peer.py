@@ -11,7 +11,12 @@ It answers the way real firmware does, quirks included:
   SET_MOTOR shorter than 8 values gets ``!`` on newer firmware (``reject_short_set_motor``),
   older firmware applies the values it got; values apply again after a disarm;
 - SET_ARMING_DISABLED is tracked (ARMING_DISABLED_MSP in STATUS/STATUS_EX; disabling disarms);
-- MOTOR returns the last values (external units; 0 for absent motors or a disabled protocol);
+- MOTOR returns the last values (external units; 0 for absent motors or a disabled protocol,
+  and 0 for every motor on a profile without read-back: a SITL whose motor loop is not running
+  answers so whatever SET_MOTOR said — "no information", not "stopped");
+- the SITL profiles (``betaflight-4.6-sitl``, ``betaflight-2026-sitl``) answer reply for reply
+  like the real SITL builds (identity, BOARD_INFO, STATUS layout, no battery, PWM output) and
+  acknowledge but ignore SET_ARMING_DISABLED 1, as SITL firmware does;
   real DShot firmware converts back from DShot values and may be 1 off — verify with a
   tolerance;
 - MOTOR_TELEMETRY, ANALOG, BATTERY_STATE (and INAV's MSP2_INAV_ANALOG) come from a
@@ -83,7 +88,34 @@ class FirmwareProfile:
     reject_short_set_motor: bool = True
     has_inav_analog: bool = False
     status_has_arming_flags: bool = True
+    #: ARMING_DISABLE_FLAGS_COUNT in STATUS (grows with firmware: 26 in 4.3, 29 in 4.6, 30 later)
+    arming_disable_count: int = 26
+    #: STATUS bytes after the arming-disable flags (config state, core temperature, ...)
+    status_tail: bytes = b"\x00"
+    #: BOARD_INFO bytes after board id and hardware revision
+    board_tail: bytes = b""
+    #: MOTOR_CONFIG minthrottle (newer firmware reports 0: the setting is gone)
+    min_throttle_ext: int = 1070
+    #: False: MSP_MOTOR reads 0 for every motor whatever SET_MOTOR said (a SITL whose motor
+    #: device or control loop is not running: "no information", not "stopped")
+    motor_readback: bool = True
+    #: False: SET_ARMING_DISABLED 1 is acknowledged and ignored (SITL builds: SIMULATOR_BUILD)
+    honours_arming_disable: bool = True
+    #: what a SITL reports instead of a battery: no cells, 0 V, state INIT
+    no_battery: bool = False
+    sensors: int = 0x23  # STATUS sensor bits: ACC | BARO | GYRO
+    #: ADVANCED_CONFIG bytes after the first 8 (gyro and calibration settings)
+    advanced_tail: bytes = b""
+    use_unsynced_pwm: bool = False
+    #: the motor protocol a fresh board of this kind is set to (None: DShot600)
+    motor_protocol: MotorProtocol | None = None
 
+
+#: BOARD_INFO after "SITL" + hardware revision (board type, capabilities, target name "SITL",
+#: empty board name and manufacturer id, empty signature, MCU type, configuration state, gyro
+#: sample rate, configuration problems...) as the two SITL builds send it
+_SITL_4_6_BOARD_TAIL = bytes.fromhex("0000045349544c" + "00" * 34 + "0001401f000000000000")
+_SITL_2026_BOARD_TAIL = bytes.fromhex("0000045349544c" + "00" * 34 + "fe01e803000000000000")
 
 FIRMWARE: dict[str, FirmwareProfile] = {
     p.name: p
@@ -100,6 +132,45 @@ FIRMWARE: dict[str, FirmwareProfile] = {
             "BTFL",
             ApiVersion(0, 1, 47),
             FcVersion(25, 12, 0, "2025.12.0"),
+        ),
+        # Real SITL builds, reply for reply as recorded (the tests compare them): Betaflight
+        # 4.6.0 SITL with a simulator feeding it (its control loop runs, MSP_MOTOR reads back)
+        # and 2026.12.0-alpha SITL as recorded without one (MSP_MOTOR reads 0).
+        FirmwareProfile(
+            "betaflight-4.6-sitl",
+            "BTFL",
+            ApiVersion(0, 1, 47),
+            FcVersion(4, 6, 0),
+            board_id="SITL",
+            reject_short_set_motor=False,
+            arming_disable_count=29,
+            status_tail=bytes(3) + b"\x04",
+            board_tail=_SITL_4_6_BOARD_TAIL,
+            min_throttle_ext=0,
+            honours_arming_disable=False,
+            no_battery=True,
+            advanced_tail=bytes.fromhex("00000000307d000000020062"),
+            use_unsynced_pwm=True,
+            motor_protocol=MotorProtocol.PWM,
+        ),
+        FirmwareProfile(
+            "betaflight-2026-sitl",
+            "BTFL",
+            ApiVersion(0, 1, 49),
+            FcVersion(26, 12, 0, "2026.12.0-alpha"),
+            board_id="SITL",
+            reject_short_set_motor=False,
+            arming_disable_count=30,
+            status_tail=bytes(3) + b"\x04\x03\x00",
+            board_tail=_SITL_2026_BOARD_TAIL,
+            min_throttle_ext=0,
+            motor_readback=False,
+            honours_arming_disable=False,
+            no_battery=True,
+            sensors=0x27,
+            advanced_tail=bytes.fromhex("00000000307d000000020067"),
+            use_unsynced_pwm=True,
+            motor_protocol=MotorProtocol.PWM,
         ),
         FirmwareProfile(
             "inav",
@@ -131,13 +202,14 @@ class MspPeer:
         plant: Plant,
         firmware: str | FirmwareProfile = "betaflight-4",
         *,
-        motor_protocol: MotorProtocol = MotorProtocol.DSHOT600,
+        motor_protocol: MotorProtocol | None = None,
         motor_count: int | None = None,
         bidir_dshot: bool = True,
         serial_rate_hz: float | None = 100.0,
         cell_count: int | None = None,
         capacity_mah: int = 1500,
         reject_short_set_motor: bool | None = None,
+        motor_readback: bool | None = None,
     ) -> None:
         self.plant = plant
         self.profile = firmware if isinstance(firmware, FirmwareProfile) else None
@@ -145,6 +217,12 @@ class MspPeer:
             self.profile = firmware_profile(str(firmware))
         if reject_short_set_motor is not None:
             self.profile = replace(self.profile, reject_short_set_motor=reject_short_set_motor)
+        if motor_readback is not None:
+            self.profile = replace(self.profile, motor_readback=motor_readback)
+        if motor_protocol is None:
+            motor_protocol = self.profile.motor_protocol
+        if motor_protocol is None:  # (PWM is 0: test for None, not falsiness)
+            motor_protocol = MotorProtocol.DSHOT600
         self.motor_protocol = motor_protocol
         self.motor_count = plant.motor_count if motor_count is None else motor_count
         if not 1 <= self.motor_count <= MSP_MOTOR_SLOTS:
@@ -294,7 +372,7 @@ class MspPeer:
         if cmd == MspCommand.FC_VERSION:
             return profile.version.encode()
         if cmd == MspCommand.BOARD_INFO:
-            return BoardInfo(profile.board_id, 0).encode()
+            return BoardInfo(profile.board_id, 0, profile.board_tail).encode()
         if cmd in (MspCommand.STATUS, MspCommand.STATUS_EX):
             return self._status(cmd == MspCommand.STATUS_EX).encode()
         if cmd == MspCommand.SET_ARMING_DISABLED:
@@ -303,6 +381,8 @@ class MspPeer:
             return self._motor().encode()
         if cmd == MspCommand.SET_MOTOR:
             return self._set_motor(SetMotor.decode(frame.payload))
+        if cmd == MspCommand.ANALOG and profile.no_battery:
+            return Analog(0.0, 0.0).encode()
         if cmd == MspCommand.ANALOG:
             return Analog(
                 state.voltage_v, state.current_a, int(self._consumed_mah), 0, None
@@ -311,7 +391,7 @@ class MspPeer:
             return self._battery_state(state).encode()
         if cmd == MspCommand.MOTOR_CONFIG:
             return MotorConfig(
-                1070,
+                profile.min_throttle_ext,
                 2000,
                 1000,
                 self.motor_count,
@@ -322,7 +402,15 @@ class MspPeer:
         if cmd == MspCommand.MOTOR_TELEMETRY:
             return self._telemetry(state).encode()
         if cmd == MspCommand.ADVANCED_CONFIG:
-            return AdvancedConfig(int(self.motor_protocol), 480, 5.5, 1).encode()
+            return AdvancedConfig(
+                int(self.motor_protocol),
+                480,
+                5.5,
+                1,
+                profile.use_unsynced_pwm,
+                1,
+                profile.advanced_tail,
+            ).encode()
         if cmd == MspCommand.BATTERY_CONFIG:
             return BatteryConfig(3.3, 4.3, 3.5, self.capacity_mah).encode()
         if cmd == MspCommand.INAV_ANALOG and profile.has_inav_analog:
@@ -347,16 +435,19 @@ class MspPeer:
             return kind(cycle_time_us=125, mode_flags=int(self.armed), cpu_load=10)
         return kind(
             cycle_time_us=125,
-            sensors=0x23,
+            sensors=profile.sensors,
             mode_flags=int(self.armed),
             cpu_load=10,
             profile_word=0x0003 if extended else 0,
-            arming_disable_count=26,
+            arming_disable_count=profile.arming_disable_count,
             arming_disable_flags=int(self.arming_disable_flags),
-            tail=b"\x00",
+            tail=profile.status_tail,
         )
 
     def _set_arming_disabled(self, request: SetArmingDisabled) -> bytes:
+        assert self.profile is not None
+        if not self.profile.honours_arming_disable:
+            return b""  # acknowledged, ignored (SITL: "we can safely arm with MSP link")
         if request.disable:
             self.arming_disable_flags |= ArmingDisable.MSP
             if self.armed:
@@ -368,7 +459,8 @@ class MspPeer:
 
     def _motor(self) -> Motor:
         values = [0] * MSP_MOTOR_SLOTS
-        if self.motor_protocol is not MotorProtocol.DISABLED:
+        assert self.profile is not None
+        if self.motor_protocol is not MotorProtocol.DISABLED and self.profile.motor_readback:
             values[: self.motor_count] = self.motor_values
         return Motor(tuple(values))
 
@@ -385,6 +477,9 @@ class MspPeer:
         return b""
 
     def _battery_state(self, state: PlantState) -> BatteryState:
+        assert self.profile is not None
+        if self.profile.no_battery:
+            return BatteryState(0, 0, 0.0, 0.0, 0, int(BatteryStateCode.INIT), 0.0)
         per_cell = state.voltage_v / self.cell_count
         code = BatteryStateCode.OK
         if per_cell < 3.3:
@@ -434,14 +529,16 @@ def constant_plant(options: Mapping[str, str]) -> Plant:
     return ConstantPlant(_opt_int(options, "motors", 4))
 
 
-MSP_OPTIONS = frozenset({"firmware", "motors", "protocol", "rate_hz"})
+MSP_OPTIONS = frozenset({"firmware", "motors", "protocol", "rate_hz", "motor_readback"})
 
 
 def msp_peer_from_options(
     options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
 ) -> MspPeer:
     """Build a peer from ``sim://`` URL options: ``firmware`` (betaflight-4, betaflight-2025,
-    inav), ``motors`` (default 4), ``protocol`` (DSHOT600, PWM, ...), ``rate_hz`` (100).
+    betaflight-4.6-sitl, betaflight-2026-sitl, inav), ``motors`` (default 4), ``protocol``
+    (DSHOT600, PWM, ...; default: the firmware's), ``rate_hz`` (100), ``motor_readback``
+    (0: MSP_MOTOR reads 0 whatever was commanded, as a SITL without its motor loop does).
     Keys in ``allow`` (a plant factory's options) are accepted and ignored here."""
     unknown = set(options) - MSP_OPTIONS - set(allow)
     if unknown:
@@ -449,19 +546,30 @@ def msp_peer_from_options(
             f"unknown MSP sim options {sorted(unknown)}; expected some of {sorted(MSP_OPTIONS)}"
         )
     motors = _opt_int(options, "motors", 4)
-    name = options.get("protocol", "DSHOT600").upper()
-    try:
-        protocol = MotorProtocol[name]
-    except KeyError:
-        known = ", ".join(MotorProtocol.__members__)
-        raise ConfigError(f"unknown motor protocol '{name}'; expected one of: {known}") from None
+    protocol: MotorProtocol | None = None
+    if "protocol" in options:
+        name = options["protocol"].upper()
+        try:
+            protocol = MotorProtocol[name]
+        except KeyError:
+            known = ", ".join(MotorProtocol.__members__)
+            raise ConfigError(
+                f"unknown motor protocol '{name}'; expected one of: {known}"
+            ) from None
     rate = _opt_int(options, "rate_hz", 100)
+    readback: bool | None = None
+    if "motor_readback" in options:
+        flag = _opt_int(options, "motor_readback", 1)
+        if flag not in (0, 1):
+            raise ConfigError(f"sim option motor_readback={flag}: expected 0 or 1")
+        readback = bool(flag)
     return MspPeer(
         plant if plant is not None else ConstantPlant(motors),
         options.get("firmware", "betaflight-4"),
         motor_protocol=protocol,
         motor_count=motors,
         serial_rate_hz=float(rate) if rate > 0 else None,
+        motor_readback=readback,
     )
 
 

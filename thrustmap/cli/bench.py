@@ -263,7 +263,10 @@ def sweep_cmd(
                 output_dev = connect.stand_esc_output(stand)
             else:
                 output_dev = connect.open_throttle_output(
-                    throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
+                    throttle_url,
+                    clock,
+                    kind=None if fc_kind == "auto" else fc_kind,
+                    watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the log
                 )
             with output_dev:
                 output_dev.identify()  # the FC's frame says what a test-order letter means
@@ -283,6 +286,9 @@ def sweep_cmd(
     verdict = (
         "stop verified" if result.stop_verified else "STOP NOT VERIFIED - disconnect the battery"
     )
+    blind = getattr(output_dev, "stop_unverifiable", None)
+    if blind and not result.stop_verified:
+        verdict = f"stop sent and acknowledged, NOT verified ({blind})"
     click.echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
         + (f" - {result.reason}" if result.reason else "")

@@ -333,8 +333,14 @@ def spin_cmd(
         if not handed_over:
             with output:  # stop, verify and close: nothing was commanded, but be sure
                 pass
+    blind = getattr(output, "stop_unverifiable", None)
     if result.stop_verified:
         click.echo(f"motor {request.motor + 1} stopped (verified) after {result.duration_s:.1f} s")
+    elif blind:
+        click.echo(
+            f"motor {request.motor + 1}: stop sent and acknowledged, NOT verified: {blind}",
+            err=True,
+        )
     else:
         click.echo(
             f"STOP NOT VERIFIED on motor {request.motor + 1} - disconnect the battery now", err=True
