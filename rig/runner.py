@@ -12,13 +12,11 @@ minute-long sweep in milliseconds and never sleeps for real.
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
 import numpy as np
-import numpy.typing as npt
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError
@@ -27,6 +25,7 @@ from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutp
 from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
 from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
+from thrustmap.rig.settle import RestDetector, SettleDetector
 
 log = logging.getLogger(__name__)
 
@@ -47,9 +46,17 @@ class RunConfig:
     spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
 
 
+#: the phases a run goes through, in order (``Status.phase``)
+PHASES = ("at-rest", "tare", "plan")
+
+
 @dataclass
 class Status:
-    """What the live readout shows (passed to the monitor callback every tick)."""
+    """What the live readout shows (passed to the monitor callback every tick).
+
+    ``phase`` is ``at-rest`` (waiting for the rotor to be still), ``tare`` or ``plan``;
+    ``elapsed_s`` counts the plan only (0 before it starts), so progress and ETA are the
+    plan's, and ``wait_s`` is the time spent before it."""
 
     time_s: float
     elapsed_s: float
@@ -61,6 +68,8 @@ class Status:
     throttle_native: float
     reading: Reading
     margins: dict[str, float]
+    phase: str = "plan"
+    wait_s: float = 0.0
 
 
 @dataclass
@@ -73,16 +82,15 @@ class RunResult:
     stop_latency_s: float | None  # from the abort decision to the stop command (sim-timed)
     trip: Trip | None = None
     log_path: str = ""
+    interrupted: bool = False  # aborted by Ctrl-C or SIGTERM
+    wait_s: float = 0.0  # before the plan: waiting for the rotor to rest, taring
 
-
-def steady(values: npt.NDArray[np.float64], floor: float) -> bool:
-    """No trend left: the means of the window's two halves agree within the window's own noise
-    (4 standard errors) or within ``floor``. A settling rotor trends; a settled one only wobbles."""
-    half = len(values) // 2
-    if half < 3:
-        return False
-    noise = float(np.std(values)) / np.sqrt(half)
-    return bool(abs(float(values[:half].mean() - values[half:].mean())) <= max(floor, 4.0 * noise))
+    @property
+    def outcome(self) -> str:
+        """``completed``, ``interrupted`` (Ctrl-C/SIGTERM) or ``aborted`` (anything else)."""
+        if self.status == "completed":
+            return "completed"
+        return "interrupted" if self.interrupted else "aborted"
 
 
 class Aborted(Exception):
@@ -127,12 +135,14 @@ class Runner:
         self._segment_index = 0
         self._label = ""
         self._target_pct_now = 0.0
+        self._start = 0.0
+        self._phase = "at-rest"
 
     # -- public ---------------------------------------------------------------------------------
     def run(self) -> RunResult:
         check_plan(self.plan, self.limits)  # refuse before anything spins
-        status, reason, trip = "aborted", "", None
-        self._t0 = self.clock.now_s()
+        status, reason, trip, interrupted = "aborted", "", None, False
+        self._t0 = self._start = self.clock.now_s()
         with terminate_as_exception():
             try:
                 try:
@@ -144,9 +154,9 @@ class Runner:
                 except Aborted as exc:
                     reason, trip = exc.reason, exc.trip
                 except Terminated as exc:
-                    reason = f"terminated ({exc})"
+                    reason, interrupted = f"terminated ({exc})", True
                 except KeyboardInterrupt:
-                    reason = "interrupted (Ctrl-C)"
+                    reason, interrupted = "interrupted (Ctrl-C)", True
                 except Exception as exc:  # a driver or plan failure: stop first, then report
                     reason = f"{type(exc).__name__}: {exc}"
                     raise
@@ -182,6 +192,8 @@ class Runner:
             latency,
             trip,
             str(self.writer.path),
+            interrupted,
+            self._t0 - self._start,
         )
 
     # -- internals -------------------------------------------------------------------------------
@@ -210,6 +222,11 @@ class Runner:
         raise Aborted(reason, trip)
 
     def _preflight(self) -> None:
+        """Before the plan: identify, confirm the motors at rest, wait for the rotor to be still
+        and tare. Every device's link is serviced all along (``_service_link``): FC telemetry and
+        heartbeats are read, a silent FC aborts the run, and Ctrl-C stops at once."""
+        self._phase = "at-rest"
+        self._last_link_ok = self._last_sample_at = self.clock.now_s()
         ident = self.output.identify()
         log.info(
             "throttle output: %s %s (%s)", ident.kind, ident.firmware_version, ident.motor_protocol
@@ -217,34 +234,50 @@ class Runner:
         self.output.stop()
         if not self.output.verify_stopped():
             raise SafetyError("motors are not at rest before the run; refusing to start")
+        self._last_link_ok = self.clock.now_s()
         if self.cfg.tare:
             self._wait_at_rest()
-            self.stand.tare()
+            self._phase = "tare"
+            self._report(self.clock.now_s())
+            self.stand.tare(service=lambda: self._service_link(self.clock.now_s()))
         now = self.clock.now_s()
         self._last_sample_at = now
-        self._last_link_ok = now
+        self._service_link(now)
+        self._phase = "plan"
+        self._t0 = now  # the plan's progress and ETA start here
+
+    def _service_link(self, now: float) -> None:
+        """Read the throttle output's link (telemetry; heartbeats for MAVLink) at the telemetry
+        period and abort when it has been silent longer than ``link_timeout_s``. Used in every
+        phase: before the plan nothing else would read the FC, and its stream would pile up."""
+        if now - self._telemetry_at >= self.cfg.telemetry_period_s:
+            self._telemetry_at = now
+            try:
+                self._telemetry = self.output.read_telemetry()
+                self._last_link_ok = self.clock.now_s()
+            except SafetyError:
+                raise
+            except Exception as exc:
+                self._link_failure(f"telemetry failed: {exc}")
+        if self.clock.now_s() - self._last_link_ok > self.limits.link_timeout_s:
+            self._abort(
+                f"lost link to the throttle output: no answer for "
+                f"{self.clock.now_s() - self._last_link_ok:.2f} s"
+            )
 
     def _wait_at_rest(self) -> None:
         """Tare only once the rotor has stopped: thrust steady (and rpm ~0 where measured) for
         ``spin_down_s``. A previous run's coasting rotor would otherwise become the zero."""
         start = self.clock.now_s()
-        window: deque[tuple[float, float]] = deque()
+        detector = RestDetector(self.cfg.spin_down_s)
         while self.clock.now_s() - start < self.cfg.spin_down_max_s:
             now = self.clock.now_s()
-            for s in self.stand.read_samples():
-                if s.rpm is not None and s.rpm > 100.0:
-                    window.clear()
-                    continue
-                window.append((s.time_s, s.thrust_n))
-            while window and window[0][0] < now - self.cfg.spin_down_s:
-                window.popleft()
-            long_enough = now - start >= self.cfg.spin_down_s and len(window) >= 6
-            if (
-                long_enough
-                and window[-1][0] - window[0][0] >= 0.8 * self.cfg.spin_down_s
-                and steady(np.array([v for _, v in window]), 0.005)
+            self._service_link(now)
+            if detector.update(now, self.stand.read_samples()) and now - start >= (
+                self.cfg.spin_down_s
             ):
                 return
+            self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
         raise SafetyError(
             f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before taring"
@@ -261,7 +294,9 @@ class Runner:
         self._label = seg.label
         length = seg.duration_s if isinstance(seg, Ramp) else seg.dwell_s
         settle = isinstance(seg, Hold) and seg.settle
-        window: deque[tuple[float, float]] = deque()
+        detector = SettleDetector(
+            self.cfg.settle_window_s, self.cfg.settle_band_n, self.cfg.settle_rel
+        )
         settled_at: float | None = None
         while True:
             now = self.clock.now_s()
@@ -275,25 +310,13 @@ class Runner:
             self._command(self._target_pct(seg, t_in), now)
             samples = self._poll(now)
             if settle and settled_at is None:
-                for s in samples:
-                    window.append((s.time_s, s.thrust_n))
-                while window and window[0][0] < now - self.cfg.settle_window_s:
-                    window.popleft()
-                if self._settled(window):
+                # still slewing toward the level: not settled whatever thrust does
+                slewing = abs(self._cmd_pct - self._target_pct_now) > 1e-9
+                if detector.update(now, samples) and not slewing:
                     settled_at = now
                     self._label = f"{seg.label}-settled"
             self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
-
-    def _settled(self, window: deque[tuple[float, float]]) -> bool:
-        if len(window) < 5 or window[-1][0] - window[0][0] < 0.8 * self.cfg.settle_window_s:
-            return False
-        if abs(self._cmd_pct - self._target_pct_now) > 1e-9:
-            return False  # still slewing toward the level
-        values = np.array([v for _, v in window])
-        return steady(
-            values, max(self.cfg.settle_band_n, self.cfg.settle_rel * abs(float(values.mean())))
-        )
 
     def _command(self, target_pct: float, now: float) -> None:
         self._target_pct_now = target_pct
@@ -336,20 +359,7 @@ class Runner:
                 f"stale stand data: no sample for {now - self._last_sample_at:.2f} s "
                 f"(limit {self.limits.stale_data_s:.2f} s)"
             )
-        if now - self._telemetry_at >= self.cfg.telemetry_period_s:
-            self._telemetry_at = now
-            try:
-                self._telemetry = self.output.read_telemetry()
-                self._last_link_ok = self.clock.now_s()
-            except SafetyError:
-                raise
-            except Exception as exc:
-                self._link_failure(f"telemetry failed: {exc}")
-        if self.clock.now_s() - self._last_link_ok > self.limits.link_timeout_s:
-            self._abort(
-                f"lost link to the throttle output: no answer for "
-                f"{self.clock.now_s() - self._last_link_ok:.2f} s"
-            )
+        self._service_link(now)
         for s in samples:
             self._record(s)
         return samples
@@ -418,10 +428,11 @@ class Runner:
     def _report(self, now: float) -> None:
         if self.monitor is None:
             return
+        in_plan = self._phase == "plan"
         self.monitor(
             Status(
                 time_s=now,
-                elapsed_s=now - self._t0,
+                elapsed_s=now - self._t0 if in_plan else 0.0,
                 plan_duration_s=self.plan.duration_s,
                 segment=self._segment_index,
                 segments=len(self.plan.segments),
@@ -430,6 +441,8 @@ class Runner:
                 throttle_native=float(self.scale.from_pct(self._cmd_pct)),
                 reading=self._reading,
                 margins=margins(self.limits, self._reading),
+                phase=self._phase,
+                wait_s=(self._t0 if in_plan else now) - self._start,
             )
         )
 

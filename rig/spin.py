@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
 
@@ -110,27 +110,48 @@ def run_spin(
 ) -> SpinResult:
     """Spin one motor once (see module). ``output`` is entered and closed here."""
     check_spin(request, max_throttle_pct)
+    with terminate_as_exception(), output:
+        return spin_on(
+            output,
+            clock,
+            request,
+            max_throttle_pct=max_throttle_pct,
+            stand=stand,
+            on_report=on_report,
+        )
+
+
+def spin_on(
+    output: ThrottleOutput,
+    clock: Clock,
+    request: SpinRequest,
+    *,
+    max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT,
+    stand: Stand | None = None,
+    on_report: Callable[[SpinReport], None] | None = None,
+) -> SpinResult:
+    """``run_spin`` on an output its caller owns and closes (``rig.session.BenchSession``):
+    the stop is commanded and verified here on every way out, and reported."""
+    check_spin(request, max_throttle_pct)
     result = SpinResult()
     start_s = clock.now_s()
-    with terminate_as_exception(), output:
-        try:
-            _spin(output, clock, request, stand, on_report, result)
-            result.status = "completed"
-        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as Terminated
-            result.status = "interrupted"
-            result.reason = (
-                f"interrupted ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
-            )
-            result.error = exc
-            log.warning("spin %s: stopping", result.reason)
-        except Exception as exc:
-            result.status = "failed"
-            result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)
-            result.error = exc
-            log.error("spin failed: %s; stopping", result.reason)
-        finally:
-            result.duration_s = clock.now_s() - start_s
-            # The context manager's exit stops and verifies again; this one is reported.
+    try:
+        _spin(output, clock, request, stand, on_report, result)
+        result.status = "completed"
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as Terminated
+        result.status = "interrupted"
+        result.reason = f"interrupted ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
+        result.error = exc
+        log.warning("spin %s: stopping", result.reason)
+    except Exception as exc:
+        result.status = "failed"
+        result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)
+        result.error = exc
+        log.error("spin failed: %s; stopping", result.reason)
+    finally:
+        result.duration_s = clock.now_s() - start_s
+        # The owner's context exit stops and verifies again; this one is reported.
+        with interrupts_deferred():
             result.stop_verified = output.stop_and_verify()
     return result
 

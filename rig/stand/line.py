@@ -35,7 +35,7 @@ import json
 import logging
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -297,8 +297,14 @@ class LineStand(Stand):
             why += " (wrong port or baud rate?)"
         return why
 
-    def tare(self, samples: int = 50, timeout_s: float = 3.0) -> None:
-        """Zero the thrust reading on the mean of ``samples`` readings at rest."""
+    def tare(
+        self,
+        service: Callable[[], None] | None = None,
+        samples: int = 50,
+        timeout_s: float = 3.0,
+    ) -> None:
+        """Zero the thrust reading on the mean of ``samples`` readings at rest (``service`` is
+        called while waiting for them)."""
         deadline = self.clock.now_s() + timeout_s
         raws: list[LineSample] = []
         while len(raws) < samples:
@@ -307,6 +313,8 @@ class LineStand(Stand):
             self._pending.clear()
             if len(raws) >= samples or self.clock.now_s() >= deadline:
                 break
+            if service is not None:
+                service()
             self.clock.sleep_s(0.005)
         if not raws:
             raise LineStandTimeout("cannot tare: " + self._silence_message(timeout_s))

@@ -10,7 +10,7 @@ stand keeps sending the stop pulse (1000 µs), which the ESC does not see.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -106,9 +106,14 @@ class TytoStand(Stand):
             )
         ]
 
-    def tare(self, polls: int = 20) -> None:
-        """Zero the load cells on the mean of ``polls`` readings at rest."""
-        readings = [self.poll() for _ in range(polls)]
+    def tare(self, service: Callable[[], None] | None = None, polls: int = 20) -> None:
+        """Zero the load cells on the mean of ``polls`` readings at rest (``service`` is called
+        between polls)."""
+        readings = []
+        for _ in range(polls):
+            readings.append(self.poll())
+            if service is not None:
+                service()
         mean = replace(
             readings[-1],
             load_thrust=float(np.mean([r.load_thrust for r in readings])),
