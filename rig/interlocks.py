@@ -151,7 +151,9 @@ class Limits:
     def from_options(cls, values: dict[str, Any]) -> Limits:
         """From a mapping keyed by field name (the CLI's parsed options); missing or None
         values keep the table's default."""
-        return cls(**{f.name: values[f.name] for f in fields(cls) if values.get(f.name) is not None})
+        return cls(
+            **{f.name: values[f.name] for f in fields(cls) if values.get(f.name) is not None}
+        )
 
     @property
     def min_voltage_v(self) -> float | None:

@@ -37,7 +37,7 @@ from thrustmap.rig.interfaces import Stand, ThrottleOutput
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.plans import Plan
 from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
 from thrustmap.rig.spin import (
     DEFAULT_MAX_THROTTLE_PCT,
     SpinReport,
@@ -157,6 +157,8 @@ class BenchSession:
         self._stack = contextlib.ExitStack()
         self._output: ThrottleOutput | None = None
         self._stand: Stand | None = None
+        #: the stop commanded when the session closed: verified? (None: no output was open)
+        self.stop_verified: bool | None = None
 
     @property
     def output(self) -> ThrottleOutput:
@@ -187,7 +189,8 @@ class BenchSession:
                         line_spec_file=rig.line_spec,
                     )
                 )
-            self._output = stack.enter_context(self._open_output())
+            self._output = self._open_output()
+            stack.callback(self._close_output, self._output)
             if self._stand is None and isinstance(self._output, connect.StandEscOutput):
                 self._stand = self._output.stand
         except BaseException:
@@ -213,6 +216,15 @@ class BenchSession:
             line_preset=rig.line_preset,
             line_spec_file=rig.line_spec,
         )
+
+    def _close_output(self, output: ThrottleOutput) -> None:
+        """THE place the throttle output is closed: stop, verify (a second Ctrl-C or SIGTERM
+        cannot cut it short), then close; the verdict is kept in ``stop_verified``."""
+        try:
+            with interrupts_deferred():
+                self.stop_verified = output.stop_and_verify()
+        finally:
+            output.close()
 
     def __exit__(
         self,

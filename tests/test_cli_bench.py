@@ -63,13 +63,13 @@ def test_sweep_records_a_loadable_log(tmp_path: Path, capsys: pytest.CaptureFixt
 def test_sigterm_before_the_run_still_stops(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    import thrustmap.cli.bench as bench
+    import thrustmap.rig.session as session
 
     def killed(*args: Any, **kwargs: Any) -> None:
         os.kill(os.getpid(), signal.SIGTERM)  # arrives after the devices are open
         raise AssertionError("SIGTERM did not unwind")
 
-    monkeypatch.setattr(bench, "record_sweep", killed)
+    monkeypatch.setattr(session, "record_sweep", killed)
     with pytest.raises(SystemExit) as exc:
         main(sweep_args(tmp_path))
     assert exc.value.code == 130

@@ -22,6 +22,7 @@ from thrustmap.errors import ConfigError, SafetyError
 from thrustmap.protocols.msp.messages import ArmingDisable, MotorProtocol, native_to_external
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.urlhandlers import protocol_sim
+from thrustmap.rig import session
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.safety import Terminated
 
@@ -110,7 +111,7 @@ class Trigger:
                     trigger.fired_at = self.now_s()
                     trigger.fire()
 
-        monkeypatch.setattr(hardware, "SimClock", TriggerClock)
+        monkeypatch.setattr(session, "SimClock", TriggerClock)  # the one clock rule
 
     def fire(self) -> None:
         if callable(self.action):

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from thrustmap.clock import Clock, MonotonicClock, SimClock
 from thrustmap.errors import ConfigError
 from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits, check_plan
-from thrustmap.rig.runner import RunConfig, Status, record_sweep
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
+
+if TYPE_CHECKING:
+    from thrustmap.rig.runner import Status
 
 
 @click.command("demo")
@@ -78,8 +79,31 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
 
 
+def limit_options(fn: Any) -> Any:
+    """One click option per row of the interlock table (``rig.interlocks.INTERLOCKS``): its
+    option name, its default and its unit come from the table, never from here."""
+    for row in reversed(INTERLOCKS):
+        unit = f" [{row.unit}]" if row.unit else ""
+        fn = click.option(
+            row.option,
+            row.field,
+            type=row.value_type,
+            default=row.default,
+            show_default=row.default is not None,
+            help=row.help + unit,
+        )(fn)
+    return fn
+
+
+def make_readout(quiet: bool) -> Callable[[Status], None]:
+    """The live readout the runner calls every tick (swap this one function for another
+    display)."""
+    return _Readout(quiet)
+
+
 class _Readout:
-    """The live line while the motor spins: throttle, thrust, V, A, rpm, tightest margin, ETA."""
+    """The live line: the phase before the plan (at rest, tare), then throttle, thrust, V, A,
+    rpm, tightest margin and the plan's progress."""
 
     def __init__(self, quiet: bool) -> None:
         self.quiet = quiet
@@ -94,6 +118,11 @@ class _Readout:
             return
         self.last = now
         r = st.reading
+        if st.phase != "plan":
+            what = {"at-rest": "waiting for the rotor to rest", "tare": "taring the stand"}
+            line = f"{what.get(st.phase, st.phase)} ({st.wait_s:.0f} s)"
+            click.echo(("\r" + line.ljust(60)) if self.tty else line, err=True, nl=not self.tty)
+            return
         frac = min(st.elapsed_s / st.plan_duration_s, 1.0) if st.plan_duration_s else 0.0
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         tight = min(st.margins.items(), key=lambda kv: kv[1], default=None)
@@ -181,29 +210,7 @@ class _Readout:
     "--duration", type=float, default=30.0, show_default=True, help="ramp: seconds per ramp."
 )
 @click.option("--repeats", type=int, default=1, show_default=True)
-@click.option("--max-throttle", type=float, default=80.0, show_default=True, help="Ceiling, %.")
-@click.option("--max-thrust", type=float, default=20.0, show_default=True, help="N.")
-@click.option("--max-current", type=float, default=60.0, show_default=True, help="A.")
-@click.option("--min-cell-voltage", type=float, default=3.3, show_default=True, help="V per cell.")
-@click.option("--cells", type=int, help="Battery cells (default: as the FC reports).")
-@click.option("--max-rpm", type=float, default=40000.0, show_default=True)
-@click.option("--max-temp", type=float, default=90.0, show_default=True, help="°C.")
-@click.option("--max-vibration", type=float, default=8.0, show_default=True, help="g.")
-@click.option("--max-slew", type=float, default=100.0, show_default=True, help="%/s.")
-@click.option(
-    "--stale-s",
-    type=float,
-    default=0.5,
-    show_default=True,
-    help="Stop when the stand is silent this long.",
-)
-@click.option(
-    "--link-timeout",
-    type=float,
-    default=1.0,
-    show_default=True,
-    help="Stop when the FC is silent this long.",
-)
+@limit_options
 @click.option(
     "--tyto-calibration",
     type=click.Path(dir_okay=False),
@@ -217,6 +224,7 @@ class _Readout:
     default=None,
     help="Simulated rigs run as fast as possible unless --realtime.",
 )
+@click.option("--line-spec", type=click.Path(dir_okay=False), help="Line stand spec (JSON).")
 @click.option(
     "--dry-run",
     is_flag=True,
@@ -242,21 +250,18 @@ def sweep_cmd(
     """Run a step/stairs/ramp sweep on a stand and record it as a Ds log.
 
     Every way out — completion, a tripped limit, an error, Ctrl-C, SIGTERM, a silent stand or
-    FC — stops the motor and verifies the stop; the log is kept and marked with the outcome."""
+    FC — stops the motor and verifies the stop; the log is kept and marked with the outcome.
+    Before the plan the rotor must be at rest and the stand is tared (shown as its own phase).
+
+    \b
+    Exit codes: 0 done (stop verified); 1 aborted by a limit or a device failure (stop
+    verified); 2 refused or bad input (nothing spun); 3 stop NOT verified (disconnect the
+    battery); 130 interrupted by Ctrl-C/SIGTERM (stop verified)."""
+    from thrustmap.rig.runner import RunConfig
+    from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
+
     plan = _plan(kind, kw)
-    limits = Limits(
-        max_thrust_n=kw["max_thrust"],
-        max_current_a=kw["max_current"],
-        min_cell_voltage_v=kw["min_cell_voltage"],
-        cells=kw["cells"],
-        max_rpm=kw["max_rpm"],
-        max_temperature_c=kw["max_temp"],
-        max_vibration_g=kw["max_vibration"],
-        max_throttle_pct=kw["max_throttle"],
-        max_slew_pct_s=kw["max_slew"],
-        stale_data_s=kw["stale_s"],
-        link_timeout_s=kw["link_timeout"],
-    )
+    limits = Limits.from_options(kw)
     check_plan(plan, limits)
     if motor < 1:
         raise ConfigError(f"--motor is 1-based, got {motor}")
@@ -267,51 +272,53 @@ def sweep_cmd(
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
         return
-    from thrustmap.rig import connect
-
-    simulated = connect.is_simulated(stand_url) and (
-        throttle_url is None or connect.is_simulated(throttle_url)
+    rig = Rig(
+        stand=stand_url,
+        throttle=throttle_url,
+        kind=None if fc_kind == "auto" else fc_kind,
+        calibration=kw["tyto_calibration"],
+        line_preset=kw["line_preset"],
+        line_spec=kw["line_spec"],
+        motor=motor - 1,
     )
-    realtime = kw["realtime"] if kw["realtime"] is not None else not simulated
-    clock: Clock = MonotonicClock() if realtime else SimClock()
+    realtime = kw["realtime"]
+    clock = choose_clock(
+        rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
+    )
+    for warning in pairing_warnings(rig):
+        click.echo(f"warning: {warning}", err=True)
     if not kw["yes"]:
         click.confirm(
             f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
             abort=True,
             err=True,
         )
-    # SIGTERM unwinds like Ctrl-C from the moment a device is open, so every exit stops motors.
-    with terminate_as_exception():
-        stand = connect.open_stand(
-            stand_url, clock, calibration=kw["tyto_calibration"], line_preset=kw["line_preset"]
+    session = BenchSession(rig, clock)
+    try:
+        with session:
+            result = session.sweep(
+                plan,
+                output,
+                limits=limits,
+                config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
+                monitor=make_readout(kw["quiet"]),
+            )
+    except KeyboardInterrupt:  # before the run started (the runner reports its own)
+        verified = session.stop_verified is not False
+        click.echo(
+            "interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True
         )
-        with stand:
-            if throttle_url is None:
-                output_dev = connect.stand_esc_output(stand)
-            else:
-                output_dev = connect.open_throttle_output(
-                    throttle_url, clock, kind=None if fc_kind == "auto" else fc_kind
-                )
-            with output_dev:
-                result = record_sweep(
-                    plan,
-                    output_dev,
-                    stand,
-                    output,
-                    clock,
-                    limits=limits,
-                    config=RunConfig(motor=motor - 1, rotors_on_esc=int(rotors_on_esc)),
-                    monitor=_Readout(kw["quiet"]),
-                )
+        sys.exit(exit_code("interrupted", verified))
     if not kw["quiet"]:
         click.echo("", err=True)
-    verdict = (
-        "stop verified" if result.stop_verified else "STOP NOT VERIFIED - disconnect the battery"
-    )
+    verified = result.stop_verified and session.stop_verified is not False
+    verdict = "stop verified" if verified else "STOP NOT VERIFIED - disconnect the battery"
     click.echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
+        + (f" (after {result.wait_s:.1f} s at rest and taring)" if result.wait_s >= 0.05 else "")
         + (f" - {result.reason}" if result.reason else "")
         + f"; {verdict}; log {output}"
     )
-    if result.status != "completed" or not result.stop_verified:
-        sys.exit(3)
+    code = exit_code(result.outcome, verified)
+    if code:
+        sys.exit(code)
