@@ -127,8 +127,23 @@ def _transport_kwargs(url: str, clock: Clock, baudrate: int | None) -> dict[str,
 
 
 def open_port(url: str, clock: Clock, *, baudrate: int | None = None) -> SerialLike:
-    """Open ``url`` as a non-blocking byte transport (the clock reaches sim/record/replay)."""
-    return open_transport(url, **_transport_kwargs(url, clock, baudrate))
+    """Open ``url`` as a non-blocking byte transport (the clock reaches sim/record/replay).
+    A port that cannot be opened (missing, busy, refused, unknown scheme) is a ``ConfigError``
+    naming the URL."""
+    if url_scheme(innermost_url(url)) == "sim":
+        load_sim_peers()
+    try:
+        return open_transport(url, **_transport_kwargs(url, clock, baudrate))
+    except ThrustmapError:
+        raise
+    except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
+        raise ConfigError(f"cannot open {url}: {exc}") from None
+
+
+def load_sim_peers() -> None:
+    """Register the built-in simulated peers (``sim://betaflight`` ...) with the transport; the
+    protocols layer does not know the simulator, the rig tells it (idempotent)."""
+    importlib.import_module("thrustmap.rig.sim.peers")
 
 
 # --------------------------------------------------------------------------- detection
@@ -341,10 +356,7 @@ def detect_kind(
         )
     bauds = (baudrate,) if baudrate is not None else PROBE_BAUDS
     for i, baud in enumerate(bauds):
-        try:
-            port = open_port(url, clock, baudrate=baud)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"cannot open {url}: {exc}") from None
+        port = open_port(url, clock, baudrate=baud)
         try:
             log.info("probing %s at %d baud", url, baud)
             # MSP is asked only on the first pass: FCs answer at any rate over USB.
@@ -497,16 +509,26 @@ def _open_mavlink(
     )
 
     link: Any
+    if url_scheme(innermost_url(url)) == "sim":
+        load_sim_peers()
     if MAVLINK_CONNECTION.match(url):
         # pymavlink's own UDP/TCP links run on real time (no record/replay on this path).
-        link = mavutil.mavlink_connection(
-            url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID
-        )
+        try:
+            link = mavutil.mavlink_connection(
+                url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID, retries=0
+            )
+        except (OSError, ValueError) as exc:  # refused, unreachable, bad host:port
+            raise ConfigError(f"cannot open {url}: {exc}") from None
     else:
         serial_kwargs: dict[str, Any] = {}
         if url_scheme(url) not in CLOCK_AWARE_SCHEMES:
             serial_kwargs["baudrate"] = baudrate or DEFAULT_BAUD["mavlink"]
-        link = open_mavlink(url, clock=clock, **serial_kwargs)
+        try:
+            link = open_mavlink(url, clock=clock, **serial_kwargs)
+        except ThrustmapError:
+            raise
+        except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
+            raise ConfigError(f"cannot open {url}: {exc}") from None
     try:
         output = factory(link, clock, autopilot=autopilot, **opts)
     except BaseException:

@@ -172,7 +172,7 @@ class BenchSession:
 
     def __enter__(self) -> BenchSession:
         for warning in pairing_warnings(self.rig):
-            log.warning("%s", warning)
+            log.info("%s", warning)  # the CLI and scripts show these before asking
         stack = self._stack
         # SIGTERM unwinds like Ctrl-C from here on, so every exit below stops the motors.
         stack.enter_context(terminate_as_exception())

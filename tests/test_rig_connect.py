@@ -492,4 +492,6 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
         out.set_throttle({0: 0.3})
         assert vehicle.running_motors() == {0: pytest.approx(0.3)}
     assert vehicle.running_motors() == {}
-    assert asked == [("udpin:127.0.0.1:14550", {"source_system": 255, "source_component": 190})]
+    assert asked == [
+        ("udpin:127.0.0.1:14550", {"source_system": 255, "source_component": 190, "retries": 0})
+    ]
