@@ -98,3 +98,147 @@ def test_dry_run_and_ceiling(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         )
     assert exc.value.code == 2
     assert "above the 80.0 % ceiling" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- exit codes
+
+
+def test_sweep_help_lists_the_exit_codes_and_every_interlock(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from thrustmap.rig.interlocks import INTERLOCKS
+
+    main(["sweep", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Exit codes: 0 done" in text and "130 interrupted" in text and "3 stop NOT" in text
+    for row in INTERLOCKS:
+        assert row.option in text
+        if row.default is not None:
+            assert f"{row.option} {'INTEGER' if row.value_type is int else 'FLOAT'}" in text
+            assert f"[default: {row.default}]" in text
+
+
+def test_changing_a_default_in_the_table_moves_the_cli_and_the_runner(tmp_path: Path) -> None:
+    """The interlock table is the one declaration: edit one default there (here in a copy of the
+    module loaded in a fresh interpreter) and both `sweep --help` and the runner's check follow."""
+    import subprocess
+    import sys
+
+    import thrustmap.rig.interlocks as interlocks
+
+    source = Path(interlocks.__file__).read_text(encoding="utf-8")
+    old = '"max_thrust_n", "--max-thrust", "N", 20.0,'
+    assert old in source
+    edited = tmp_path / "interlocks.py"
+    edited.write_text(source.replace(old, old.replace("20.0", "12.5")), encoding="utf-8")
+    program = f"""
+import sys, types
+import thrustmap.rig
+module = types.ModuleType("thrustmap.rig.interlocks")
+module.__file__ = {str(edited)!r}
+sys.modules[module.__name__] = module
+exec(compile(open(module.__file__).read(), module.__file__, "exec"), module.__dict__)
+from thrustmap.rig.interlocks import Limits, Reading, check
+from thrustmap.rig.runner import Runner  # the runner uses this table
+print("runner", Limits().max_thrust_n, check(Limits(), Reading(thrust_n=13.0)).limit)
+from thrustmap.cli import main
+main(["sweep", "--help"])
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", program], capture_output=True, text=True, timeout=60
+    )
+    out = " ".join(done.stdout.split())
+    assert "runner 12.5 thrust" in out, done.stderr
+    assert "--max-thrust FLOAT Stop above this thrust. [N] [default: 12.5]" in out
+
+
+def sweep_main(tmp_path: Path, *extra: str) -> int:
+    with pytest.raises(SystemExit) as exc:
+        main([*sweep_args(tmp_path), *extra])
+    return int(exc.value.code or 0)
+
+
+def test_sweep_exit_codes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from thrustmap.rig.fc.msp import MspThrottleOutput
+    from thrustmap.rig.sim import peers
+
+    peers.reset_benches()
+    # a tripped limit: aborted, the stop verified -> 1
+    assert sweep_main(tmp_path, "--max-thrust", "0.3") == 1
+    out = capsys.readouterr().out
+    assert "aborted" in out and "limit tripped: thrust" in out and "stop verified" in out
+    # the stop cannot be verified -> 3 (it is verified once before the run, then never)
+    calls: list[int] = []
+
+    def verify(self: MspThrottleOutput) -> bool:
+        calls.append(1)
+        return len(calls) == 1
+
+    monkeypatch.setattr(MspThrottleOutput, "verify_stopped", verify)
+    peers.reset_benches()  # a fresh simulated bench for a fresh simulated clock
+    assert sweep_main(tmp_path, "-o", str(tmp_path / "b.csv")) == 3
+    assert "STOP NOT VERIFIED" in capsys.readouterr().out
+
+
+def test_ctrl_c_while_the_stand_is_tared_exits_130_without_a_critical(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from thrustmap.clock import SimClock
+    from thrustmap.rig import session
+
+    fired: list[float] = []
+
+    class CtrlC(SimClock):
+        def sleep_s(self, duration_s: float) -> None:
+            super().sleep_s(duration_s)
+            if not fired and self.now_s() >= 2.0:  # the stand opens at 1.5 s; rest wait >= 1 s
+                fired.append(self.now_s())
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(session, "SimClock", CtrlC)
+    assert sweep_main(tmp_path) == 130
+    captured = capsys.readouterr()
+    assert fired and "CRITICAL" not in captured.err and "NOT VERIFIED" not in captured.out
+    assert "interrupted" in captured.out and "stop verified" in captured.out
+    payloads = set_motor_payloads(tmp_path)
+    assert payloads and all(p == STOP for p in payloads)  # nothing but stops was ever sent
+
+
+@pytest.mark.parametrize(
+    ("url", "message"),
+    [
+        ("tcp:127.0.0.1:9", "cannot open tcp:127.0.0.1:9"),
+        ("socket://127.0.0.1:9", "cannot open socket://127.0.0.1:9"),
+        ("/dev/ttyTHRUSTMAP-NONE", "cannot open /dev/ttyTHRUSTMAP-NONE"),
+        ("nosuch://x", "cannot open nosuch://x"),
+        ("sim://nosuch", "unknown simulated peer 'nosuch'"),
+    ],
+)
+@pytest.mark.parametrize("command", ["sweep", "spin"])
+def test_every_url_form_fails_in_one_line_with_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], url: str, message: str, command: str
+) -> None:
+    if command == "sweep":
+        argv = ["sweep", "steps", "--stand", STAND, "--throttle", url, "--yes", "-q"]
+        argv += ["-o", str(tmp_path / "x.csv")]
+    else:
+        argv = ["spin", url, "--motor", "1", "--throttle", "5", "--yes"]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: ") and message in err[-1]
+    assert "internal error" not in "\n".join(err) and "Traceback" not in "\n".join(err)
+
+
+def test_a_simulated_stand_with_a_real_fc_is_warned_before_anything(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", "steps", "--stand", STAND, "--throttle", "tcp:127.0.0.1:9", "--yes", "-q",
+              "-o", str(tmp_path / "x.csv")])  # fmt: skip
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "warning: the stand sim://" in err and "thrust will be noise" in err
