@@ -265,13 +265,6 @@ def sweep_cmd(
     check_plan(plan, limits)
     if motor < 1:
         raise ConfigError(f"--motor is 1-based, got {motor}")
-    if kw["dry_run"]:
-        click.echo(plan.describe())
-        click.echo(
-            f"limits ok: ceiling {plan.max_throttle_pct:.1f} % <= {limits.max_throttle_pct:.1f} %, "
-            f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
-        )
-        return
     rig = Rig(
         stand=stand_url,
         throttle=throttle_url,
@@ -281,6 +274,15 @@ def sweep_cmd(
         line_spec=kw["line_spec"],
         motor=motor - 1,
     )
+    for warning in pairing_warnings(rig):
+        click.echo(f"warning: {warning}", err=True)
+    if kw["dry_run"]:
+        click.echo(plan.describe())
+        click.echo(
+            f"limits ok: ceiling {plan.max_throttle_pct:.1f} % <= {limits.max_throttle_pct:.1f} %, "
+            f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
+        )
+        return
     realtime = kw["realtime"]
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
