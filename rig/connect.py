@@ -616,18 +616,18 @@ def open_stand(
 
 
 def _tyto_calibration(url: str, path: str | None) -> TytoCalibration:
+    from thrustmap.rig.stand.tyto import load_calibration, simulated_calibration
+
     if path is not None:
-        return TytoCalibration.load(path)
+        return load_calibration(path)
     peer = sim_peer(url)
     if peer is not None:
         if "calibration" in peer[1]:
-            return TytoCalibration.load(peer[1]["calibration"])
-        # rig.sim.peers first: it registers the peers with the shared bench plant, and
-        # importing stand_peers alone would put the plain stand-in plant back.
-        importlib.import_module("thrustmap.rig.sim.peers")
-        from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
-
-        return SIM_TYTO_CALIBRATION
+            return load_calibration(peer[1]["calibration"])
+        load_sim_peers()  # the simulator registers the calibration its peers were built with
+        cal = simulated_calibration(peer[0])
+        if cal is not None:
+            return cal
     raise ConfigError(
         f"the Tyto 1585 on {url} reports raw load-cell counts: pass --calibration cal.json "
         "(tare and N per count of each cell)"

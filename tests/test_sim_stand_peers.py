@@ -36,6 +36,7 @@ from thrustmap.rig.sim.stand_peers import (
     line_peer_from_options,
     tyto_peer_from_options,
 )
+from thrustmap.rig.stand.tyto import save_calibration
 
 # --------------------------------------------------------------------------- Tyto
 
@@ -86,7 +87,7 @@ def test_tyto_ignores_corrupt_and_unknown_requests() -> None:
 
 def test_tyto_over_sim_serial_with_custom_calibration(tmp_path: Path) -> None:
     cal_path = tmp_path / "cal.json"
-    SIM_TYTO_CALIBRATION.save(cal_path)
+    save_calibration(SIM_TYTO_CALIBRATION, cal_path)
     clock = SimClock()
     peer = tyto_peer_from_options({"calibration": str(cal_path), "boot_s": "0.5"})
     port = SimSerial(peer, clock, timeout=2.0)
