@@ -484,7 +484,9 @@ def test_ports_lists_guesses_without_opening(monkeypatch: pytest.MonkeyPatch) ->
 
     monkeypatch.setattr(list_ports, "comports", lambda: list(FAKE_PORTS))
     opened: list[str] = []
-    monkeypatch.setattr(hardware.connect, "open_port", lambda *a, **k: opened.append(a[0]))
+    from thrustmap.rig.devices import urls  # every device is opened through here
+
+    monkeypatch.setattr(urls, "open_transport", lambda *a, **k: opened.append(a[0]))
     result = run("ports")
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()

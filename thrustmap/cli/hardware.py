@@ -30,7 +30,7 @@ from thrustmap.rig.spin import (
 
 log = logging.getLogger(__name__)
 
-KIND_CHOICE = click.Choice(sorted(connect.KIND_ALIASES), case_sensitive=False)
+KIND_CHOICE = click.Choice(sorted(connect.kind_aliases()), case_sensitive=False)
 CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)  # rig.session
 
 
