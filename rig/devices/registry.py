@@ -95,6 +95,10 @@ def register(drv: Driver, *, replace: bool = False) -> None:
     _DRIVERS[drv.kind] = drv
 
 
+def unregister(kind: str) -> None:
+    _DRIVERS.pop(kind, None)
+
+
 def drivers() -> list[Driver]:
     """Every registered driver, in detection order."""
     _load_builtin()
