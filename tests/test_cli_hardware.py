@@ -526,3 +526,19 @@ def test_ports_none(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr(list_ports, "comports", lambda: [])
     assert run("ports").output.strip() == "no serial ports found"
+
+
+def test_spin_help_lists_the_exit_codes_and_refusals_exit_2(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from thrustmap.cli import main
+
+    main(["spin", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for code in ("0 done", "1 aborted", "2 refused", "3 stop NOT verified", "130 interrupted"):
+        assert code in text
+    with pytest.raises(SystemExit) as exc:
+        main(["spin", "sim://betaflight", "--motor", "1", "--throttle", "50", "--yes"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "above the 20 % cap" in err[0]

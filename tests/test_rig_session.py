@@ -227,3 +227,32 @@ def test_session_needs_a_device() -> None:
     with pytest.raises(ConfigError, match="stand URL, a throttle"):
         Rig()
     assert Rig(stand="sim://tyto-1585", throttle="stand").throttle is None
+
+
+def test_protocols_import_has_no_side_effects_and_no_upward_arrow() -> None:
+    """Importing protocols registers nothing with pyserial and loads nothing from rig/; the
+    handlers are registered where a transport is opened."""
+    import subprocess
+    import sys
+
+    program = """
+import sys, serial
+import thrustmap.protocols, thrustmap.protocols.peer, thrustmap.protocols.transport
+import thrustmap.protocols.urlhandlers.protocol_sim
+assert "thrustmap.protocols.urlhandlers" not in serial.protocol_handler_packages
+assert not [m for m in sys.modules if m.startswith("thrustmap.rig")], "protocols imported rig"
+from thrustmap.protocols.peer import UnknownPeerError, create_peer
+try:
+    create_peer("betaflight")
+except UnknownPeerError:
+    pass
+else:
+    raise AssertionError("protocols found a simulator by itself")
+assert not [m for m in sys.modules if m.startswith("thrustmap.rig")]
+from thrustmap.protocols.transport import open_transport
+open_transport("loop://", timeout=0).close()
+assert "thrustmap.protocols.urlhandlers" in serial.protocol_handler_packages
+print("ok")
+"""
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True)
+    assert done.stdout.strip() == "ok", done.stderr
