@@ -44,6 +44,8 @@ class RunConfig:
     stop_retry_s: float = 10.0  # keep re-sending the stop this long until it is verified
     spin_down_s: float = 1.0  # before taring: the load cell must be still this long ...
     spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
+    #: confirm the motors at rest before the run (stopping them if not)
+    check_at_rest: bool = True
 
 
 #: the phases a run goes through, in order (``Status.phase``)
@@ -70,6 +72,8 @@ class Status:
     margins: dict[str, float]
     phase: str = "plan"
     wait_s: float = 0.0
+    telemetry: Telemetry | None = None  # the output's latest (FC battery, ESC rpm)
+    sample: StandSample | None = None  # the stand's latest sample (None without a stand)
 
 
 @dataclass
@@ -105,14 +109,16 @@ class Runner:
         self,
         plan: Plan,
         output: ThrottleOutput,
-        stand: Stand,
-        writer: DsWriter,
+        stand: Stand | None,
+        writer: DsWriter | None,
         clock: Clock,
         *,
         limits: Limits | None = None,
         config: RunConfig | None = None,
         monitor: Callable[[Status], None] | None = None,
     ) -> None:
+        """``stand`` None: a run on the throttle output alone (``thrustmap spin``), its readings
+        (and interlocks) from the output's telemetry; ``writer`` None: nothing recorded."""
         self.plan = plan
         self.output = output
         self.stand = stand
@@ -137,6 +143,10 @@ class Runner:
         self._target_pct_now = 0.0
         self._start = 0.0
         self._phase = "at-rest"
+        self._last_sample: StandSample | None = None
+        self._failing_since: float | None = None  # when throttle commands started failing
+        #: the verdict of the final stop (also when ``run`` re-raises a driver's exception)
+        self.stop_verified: bool | None = None
 
     # -- public ---------------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -165,7 +175,7 @@ class Runner:
                     self._abort_at = self.clock.now_s()
                 stop_at = self.clock.now_s()
                 with interrupts_deferred():
-                    verified = self._stop_until_verified()
+                    verified = self.stop_verified = self._stop_until_verified()
                     latency = stop_at - self._abort_at
                     if status != "completed":
                         log.warning(
@@ -174,24 +184,25 @@ class Runner:
                             "stopped (verified)" if verified else "STOP NOT VERIFIED",
                         )
                     self._drain_after_stop()
-                self.writer.finish(
-                    status,
-                    reason,
-                    extra={
-                        "stop_verified": verified,
-                        "stop_latency_s": latency,
-                        "trip": None if trip is None else trip.__dict__,
-                    },
-                )
+                if self.writer is not None:
+                    self.writer.finish(
+                        status,
+                        reason,
+                        extra={
+                            "stop_verified": verified,
+                            "stop_latency_s": latency,
+                            "trip": None if trip is None else trip.__dict__,
+                        },
+                    )
         return RunResult(
             status,
             reason,
-            self.writer.rows,
+            0 if self.writer is None else self.writer.rows,
             self.clock.now_s() - self._t0,
             verified,
             latency,
             trip,
-            str(self.writer.path),
+            "" if self.writer is None else str(self.writer.path),
             interrupted,
             self._t0 - self._start,
         )
@@ -231,11 +242,13 @@ class Runner:
         log.info(
             "throttle output: %s %s (%s)", ident.kind, ident.firmware_version, ident.motor_protocol
         )
-        self.output.stop()
-        if not self.output.verify_stopped():
-            raise SafetyError("motors are not at rest before the run; refusing to start")
+        # Verify first; stop only when needed (a stop sent to an idle ArduPilot STARTS a test).
+        if self.cfg.check_at_rest and not self.output.verify_stopped():
+            self.output.stop()
+            if not self.output.verify_stopped():
+                raise SafetyError("motors are not at rest before the run; refusing to start")
         self._last_link_ok = self.clock.now_s()
-        if self.cfg.tare:
+        if self.cfg.tare and self.stand is not None:
             self._wait_at_rest()
             self._phase = "tare"
             self._report(self.clock.now_s())
@@ -268,6 +281,7 @@ class Runner:
     def _wait_at_rest(self) -> None:
         """Tare only once the rotor has stopped: thrust steady (and rpm ~0 where measured) for
         ``spin_down_s``. A previous run's coasting rotor would otherwise become the zero."""
+        assert self.stand is not None
         start = self.clock.now_s()
         detector = RestDetector(self.cfg.spin_down_s)
         while self.clock.now_s() - start < self.cfg.spin_down_max_s:
@@ -324,6 +338,8 @@ class Runner:
         max_step = self.limits.max_slew_pct_s * self.cfg.tick_s
         delta = float(np.clip(target_pct - self._cmd_pct, -max_step, max_step))
         self._cmd_pct = min(self._cmd_pct + delta, self.limits.max_throttle_pct)
+        if self._sent_pct is None and self._cmd_pct <= 0.0:
+            return  # nothing commanded yet and nothing to command: the motors are stopped
         changed = self._sent_pct is None or abs(self._cmd_pct - self._sent_pct) > 1e-9
         if changed or now - self._sent_at >= self.cfg.keepalive_s:
             native = float(self.scale.from_pct(self._cmd_pct))
@@ -336,7 +352,15 @@ class Runner:
             except SafetyError:
                 raise
             except Exception as exc:
+                # Not sent: retried next tick. Commands that keep failing end the run even
+                # while telemetry still answers (a run whose commands do not go out is a failure).
+                if self._failing_since is None:
+                    self._failing_since = now
+                if now - self._failing_since >= self.limits.link_timeout_s:
+                    self._abort(f"lost link to the throttle output: commands failing: {exc}")
                 self._link_failure(f"throttle output failed: {exc}")
+                return
+            self._failing_since = None
             self._sent_pct = self._cmd_pct
             self._sent_at = now
 
@@ -346,6 +370,12 @@ class Runner:
         log.warning("%s (retrying)", reason)
 
     def _poll(self, now: float) -> list[StandSample]:
+        if self.stand is None:
+            before = self._telemetry
+            self._service_link(now)
+            if self._telemetry is not before:
+                self._check_telemetry()
+            return []
         try:
             samples = self.stand.read_samples()
         except SafetyError:
@@ -364,6 +394,22 @@ class Runner:
             self._record(s)
         return samples
 
+    def _check_telemetry(self) -> None:
+        """Without a stand: the interlocks on what the output itself reports."""
+        tel = self._telemetry
+        if tel is None:
+            return
+        rpm = tel.rpm[self.cfg.motor] if tel.rpm and self.cfg.motor < len(tel.rpm) else None
+        self._reading = Reading(
+            current_a=tel.current_a,
+            voltage_v=tel.voltage_v,
+            rpm=rpm,
+            temperature_c=max(tel.temperature_c) if tel.temperature_c else None,
+        )
+        trip = check(self.limits, self._reading)
+        if trip is not None:
+            self._abort(f"limit tripped: {trip.message}", trip)
+
     def _record(self, s: StandSample) -> None:
         tel = self._telemetry
         rpm = s.rpm
@@ -381,11 +427,20 @@ class Runner:
             vibration_g=s.vibration_g,
         )
         self._reading = reading
+        self._last_sample = s
         throttle = (
             s.throttle_native
             if s.throttle_native is not None
             else float(self.scale.from_pct(self._cmd_pct))
         )
+        if self.writer is not None:
+            self._write(s, throttle, reading)
+        trip = check(self.limits, reading)
+        if trip is not None:
+            self._abort(f"limit tripped: {trip.message}", trip)
+
+    def _write(self, s: StandSample, throttle: float, reading: Reading) -> None:
+        assert self.writer is not None
         self.writer.write(
             s.time_s,
             throttle,
@@ -401,12 +456,11 @@ class Runner:
                 "phase": self._label,
             },
         )
-        trip = check(self.limits, reading)
-        if trip is not None:
-            self._abort(f"limit tripped: {trip.message}", trip)
 
     def _drain_after_stop(self) -> None:
         """Keep recording briefly after the stop (spin-down), never raising."""
+        if self.stand is None or self.writer is None:
+            return
         try:
             for s in self.stand.read_samples():
                 self.writer.write(
@@ -443,6 +497,8 @@ class Runner:
                 margins=margins(self.limits, self._reading),
                 phase=self._phase,
                 wait_s=(self._t0 if in_plan else now) - self._start,
+                telemetry=self._telemetry,
+                sample=self._last_sample,
             )
         )
 
