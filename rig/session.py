@@ -267,6 +267,7 @@ class BenchSession:
         request: SpinRequest,
         *,
         max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT,
+        limits: Limits | None = None,
         on_report: Callable[[SpinReport], None] | None = None,
     ) -> SpinResult:
         """One short capped spin of one motor (``rig.spin``)."""
@@ -275,6 +276,7 @@ class BenchSession:
             self.clock,
             request,
             max_throttle_pct=max_throttle_pct,
+            limits=limits,
             stand=self._stand,
             on_report=on_report,
         )

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
@@ -144,6 +144,7 @@ def spin_on(
     max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT,
     stand: Stand | None = None,
     on_report: Callable[[SpinReport], None] | None = None,
+    limits: Limits | None = None,
 ) -> SpinResult:
     """``run_spin`` on an output its caller owns and closes (``rig.session.BenchSession``).
 
@@ -166,7 +167,8 @@ def spin_on(
             result.stop_verified = output.stop_and_verify()
         return result
     plan = spin_plan(request)
-    limits = Limits(
+    limits = replace(
+        limits or Limits(),
         max_throttle_pct=max_throttle_pct,
         max_slew_pct_s=max(Limits().max_slew_pct_s, plan.max_ramp_slew_pct_s()),
     )

@@ -542,3 +542,16 @@ def test_spin_help_lists_the_exit_codes_and_refusals_exit_2(
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "above the 20 % cap" in err[0]
+
+
+def test_spin_runs_the_interlocks_of_the_table(peers: list[Spy]) -> None:
+    """spin is a plan on the sweep's runner: the table's limits (here the current, read from the
+    FC's telemetry) end it, stopped and verified, exit 1."""
+    result = run(
+        "spin", "sim://betaflight", "--motor", "1", "--throttle", "15", "--seconds", "3",
+        "--max-current", "0.2", "--yes",
+    )  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert "limit tripped: current" in result.output
+    assert "motor 1 stopped (verified)" in result.output
+    assert peers[0].inner.motor_values == [1000] * 4

@@ -6,13 +6,15 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
 from thrustmap.errors import ConfigError
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
+
+FC = TypeVar("FC", bound=Callable[..., Any])
 
 if TYPE_CHECKING:
     from thrustmap.rig.runner import Status
@@ -79,20 +81,32 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
 
 
-def limit_options(fn: Any) -> Any:
+def limit_options(fn: FC) -> FC:
     """One click option per row of the interlock table (``rig.interlocks.INTERLOCKS``): its
     option name, its default and its unit come from the table, never from here."""
-    for row in reversed(INTERLOCKS):
-        unit = f" [{row.unit}]" if row.unit else ""
-        fn = click.option(
-            row.option,
-            row.field,
-            type=row.value_type,
-            default=row.default,
-            show_default=row.default is not None,
-            help=row.help + unit,
-        )(fn)
-    return fn
+    return limit_options_except()(fn)
+
+
+def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
+    """``limit_options`` without the rows named in ``exclude`` (``spin`` sets its own, lower
+    throttle cap)."""
+
+    def decorate(fn: FC) -> FC:
+        for row in reversed(INTERLOCKS):
+            if row.field in exclude:
+                continue
+            unit = f" [{row.unit}]" if row.unit else ""
+            fn = click.option(
+                row.option,
+                row.field,
+                type=row.value_type,
+                default=row.default,
+                show_default=row.default is not None,
+                help=row.help + unit,
+            )(fn)
+        return fn
+
+    return decorate
 
 
 def make_readout(quiet: bool) -> Callable[[Status], None]:

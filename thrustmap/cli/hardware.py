@@ -14,12 +14,15 @@ from __future__ import annotations
 import json
 import logging
 import sys
+from typing import Any
 
 import click
 
+from thrustmap.cli.bench import limit_options_except
 from thrustmap.clock import Clock, MonotonicClock
 from thrustmap.errors import ConfigError, ThrustmapError
 from thrustmap.rig import connect
+from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.spin import (
     DEFAULT_MAX_THROTTLE_PCT,
     MAX_SECONDS,
@@ -31,6 +34,8 @@ from thrustmap.rig.spin import (
 log = logging.getLogger(__name__)
 
 KIND_CHOICE = click.Choice(sorted(connect.kind_aliases()), case_sensitive=False)
+#: the interlocks spin sets its own way (a 20 % cap by default; one level, no ramp to check)
+SPIN_OWN_LIMITS = ("max_throttle_pct", "max_slew_pct_s")
 CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)  # rig.session
 
 
@@ -246,6 +251,7 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 @click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
 @click.option("--stand", "stand_url", default=None, help="Also show thrust from this stand.")
 @_device_options
+@limit_options_except(*SPIN_OWN_LIMITS)
 def spin_cmd(
     url: str,
     motor: int,
@@ -261,6 +267,7 @@ def spin_cmd(
     line_preset: str | None,
     line_spec: str | None,
     clock_choice: str,
+    **limit_values: Any,
 ) -> None:
     """Spin ONE motor briefly at a low throttle: a capped, confirmed motor test.
 
@@ -304,6 +311,7 @@ def spin_cmd(
             result = session.spin(
                 request,
                 max_throttle_pct=max_throttle,
+                limits=Limits.from_options(limit_values),
                 on_report=lambda r: click.echo(_report_line(r, motor, unit)),
             )
     except KeyboardInterrupt:  # while opening the devices (a spin reports its own)
