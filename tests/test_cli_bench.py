@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -182,28 +184,51 @@ def test_sweep_exit_codes(
     assert "STOP NOT VERIFIED" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("fc", ["betaflight", "px4", "ardupilot"])
 def test_ctrl_c_while_the_stand_is_tared_exits_130_without_a_critical(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    fc: str,
 ) -> None:
-    from thrustmap.clock import SimClock
-    from thrustmap.rig import session
+    """Issue 11 item 7: Ctrl-C while the stand is tared (the FC link serviced meanwhile) stops
+    at once: exit 130, the stop verified, no CRITICAL, nothing but stops ever sent."""
+    from thrustmap.rig.sim import peers
+    from thrustmap.rig.stand.tyto import TytoStand
 
-    fired: list[float] = []
+    peers.reset_benches()
+    serviced: list[int] = []
+    tare = TytoStand.tare
 
-    class CtrlC(SimClock):
-        def sleep_s(self, duration_s: float) -> None:
-            super().sleep_s(duration_s)
-            if not fired and self.now_s() >= 2.0:  # the stand opens at 1.5 s; rest wait >= 1 s
-                fired.append(self.now_s())
-                raise KeyboardInterrupt
+    def interrupted_tare(
+        self: TytoStand, service: Callable[[], None] | None = None, polls: int = 20
+    ) -> None:
+        def ctrl_c() -> None:
+            if service is not None:
+                service()  # the runner reads the FC between the stand's polls ...
+            serviced.append(1)
+            if len(serviced) == 10:
+                raise KeyboardInterrupt  # ... and the operator presses Ctrl-C half-way
 
-    monkeypatch.setattr(session, "SimClock", CtrlC)
-    assert sweep_main(tmp_path) == 130
+        tare(self, ctrl_c, polls)
+
+    monkeypatch.setattr(TytoStand, "tare", interrupted_tare)
+    url = f"record://sim://{fc}?bench=cli&file={tmp_path / 'fc.jsonl'}"
+    argv = sweep_args(tmp_path)
+    argv[argv.index("--throttle") + 1] = url
+    with caplog.at_level(logging.WARNING), pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 130
     captured = capsys.readouterr()
-    assert fired and "CRITICAL" not in captured.err and "NOT VERIFIED" not in captured.out
-    assert "interrupted" in captured.out and "stop verified" in captured.out
-    payloads = set_motor_payloads(tmp_path)
-    assert payloads and all(p == STOP for p in payloads)  # nothing but stops was ever sent
+    assert len(serviced) == 10
+    assert captured.out.startswith("aborted: ") and "interrupted (Ctrl-C)" in captured.out
+    assert "stop verified" in captured.out and "NOT VERIFIED" not in captured.out
+    assert not [r for r in caplog.records if r.levelno >= logging.CRITICAL]
+    assert "CRITICAL" not in captured.err
+    if fc == "betaflight":
+        payloads = set_motor_payloads(tmp_path)
+        assert payloads and all(p == STOP for p in payloads)  # nothing but stops was sent
 
 
 @pytest.mark.parametrize(
