@@ -32,6 +32,7 @@ def plan() -> plans.Plan:
     return plans.ramp(FROM_PCT, TO_PCT, duration_s=DURATION_S, repeats=REPEATS, hold_s=HOLD_S)
 
 
+# The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
 def main(argv: list[str] | None = None) -> RunResult | None:
     return run_script(
         plan(),

@@ -40,6 +40,7 @@ def plan() -> plans.Plan:
     )
 
 
+# The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
 def main(argv: list[str] | None = None) -> RunResult | None:
     return run_script(
         plan(),
