@@ -4,14 +4,13 @@ A peer speaks the real wire protocol: it receives exactly the bytes a host write
 the bytes a real device would have sent by ``now_s``. It owns no clock; the transport passes the
 current time on every call (``thrustmap.protocols.urlhandlers.protocol_sim.SimSerial``).
 
-Peers are registered by ``thrustmap.rig.sim`` modules with ``register_peer``; when an unknown
-name is requested, ``create_peer`` imports ``thrustmap.rig.sim.peers`` once (the module that
-registers every built-in peer) before giving up with the list of known names.
+Peers are registered with ``register_peer`` by whoever provides them (the simulator in
+``thrustmap.rig.sim`` registers its built-in peers when the rig opens a ``sim://`` URL); this
+layer knows nothing above it. An unknown name raises ``UnknownPeerError`` listing the known ones.
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 from collections.abc import Callable, Mapping
 from typing import Protocol, runtime_checkable
@@ -19,8 +18,6 @@ from typing import Protocol, runtime_checkable
 from thrustmap.errors import ConfigError
 
 log = logging.getLogger(__name__)
-
-PEERS_MODULE = "thrustmap.rig.sim.peers"
 
 
 @runtime_checkable
@@ -40,7 +37,6 @@ PeerFactory = Callable[[Mapping[str, str]], BytePeer]
 """Builds a peer from the URL options (``sim://px4?motors=4`` -> ``{"motors": "4"}``)."""
 
 _REGISTRY: dict[str, PeerFactory] = {}
-_peers_module_tried = False
 
 
 class UnknownPeerError(ConfigError):
@@ -65,28 +61,8 @@ def known_peers() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def _load_builtin_peers() -> str | None:
-    """Import the module that registers the built-in peers; return why it failed, if it did."""
-    global _peers_module_tried
-    if _peers_module_tried:
-        return None
-    _peers_module_tried = True
-    try:
-        importlib.import_module(PEERS_MODULE)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and PEERS_MODULE.startswith(exc.name):
-            return f"{PEERS_MODULE} is not available"
-        raise
-    return None
-
-
 def create_peer(name: str, options: Mapping[str, str] | None = None) -> BytePeer:
-    key = name.lower()
-    if key not in _REGISTRY:
-        why = _load_builtin_peers()
-        if why:
-            log.debug("%s", why)
-    factory = _REGISTRY.get(key)
+    factory = _REGISTRY.get(name.lower())
     if factory is None:
         known = ", ".join(known_peers()) or "none registered"
         raise UnknownPeerError(

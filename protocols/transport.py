@@ -1,7 +1,8 @@
 """Byte transports for drivers: pyserial ports and thrustmap's own URL schemes.
 
-Importing ``thrustmap.protocols`` (or this module) registers ``thrustmap.protocols.urlhandlers``
-with pyserial, so ``serial.serial_for_url`` understands, besides pyserial's own ``loop://``,
+``open_transport`` registers ``thrustmap.protocols.urlhandlers`` with pyserial (explicitly and
+idempotently, where a transport is opened: importing this package changes nothing), so it
+understands, besides pyserial's own ``loop://``,
 ``socket://host:port``, ``rfc2217://`` and device paths:
 
 - ``sim://<peer>?key=value`` — an in-process simulated device (``protocol_sim``),
@@ -26,9 +27,6 @@ def register_url_handlers() -> None:
     """Idempotently put thrustmap's URL handlers on pyserial's search list."""
     if HANDLER_PACKAGE not in serial.protocol_handler_packages:
         serial.protocol_handler_packages.append(HANDLER_PACKAGE)
-
-
-register_url_handlers()
 
 
 class SerialLike(Protocol):

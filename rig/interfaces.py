@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
 
@@ -148,8 +148,9 @@ class Stand(ABC):
         """Poll the stand and return the samples received since the last call (maybe none)."""
 
     @abstractmethod
-    def tare(self) -> None:
-        """Zero the load cells with the motor at rest."""
+    def tare(self, service: Callable[[], None] | None = None) -> None:
+        """Zero the load cells with the motor at rest. ``service`` is called between readings
+        so the caller keeps its other links alive while the stand is tared."""
 
     @abstractmethod
     def close(self) -> None: ...

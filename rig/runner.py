@@ -12,13 +12,11 @@ minute-long sweep in milliseconds and never sleeps for real.
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
 import numpy as np
-import numpy.typing as npt
 
 from thrustmap.clock import Clock
 from thrustmap.dslog import DsWriter
@@ -27,6 +25,7 @@ from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutp
 from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
 from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
+from thrustmap.rig.settle import RestDetector, SettleDetector
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +44,21 @@ class RunConfig:
     stop_retry_s: float = 10.0  # keep re-sending the stop this long until it is verified
     spin_down_s: float = 1.0  # before taring: the load cell must be still this long ...
     spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
+    #: confirm the motors at rest before the run (stopping them if not)
+    check_at_rest: bool = True
+
+
+#: the phases a run goes through, in order (``Status.phase``)
+PHASES = ("at-rest", "tare", "plan")
 
 
 @dataclass
 class Status:
-    """What the live readout shows (passed to the monitor callback every tick)."""
+    """What the live readout shows (passed to the monitor callback every tick).
+
+    ``phase`` is ``at-rest`` (waiting for the rotor to be still), ``tare`` or ``plan``;
+    ``elapsed_s`` counts the plan only (0 before it starts), so progress and ETA are the
+    plan's, and ``wait_s`` is the time spent before it."""
 
     time_s: float
     elapsed_s: float
@@ -61,6 +70,10 @@ class Status:
     throttle_native: float
     reading: Reading
     margins: dict[str, float]
+    phase: str = "plan"
+    wait_s: float = 0.0
+    telemetry: Telemetry | None = None  # the output's latest (FC battery, ESC rpm)
+    sample: StandSample | None = None  # the stand's latest sample (None without a stand)
 
 
 @dataclass
@@ -73,16 +86,15 @@ class RunResult:
     stop_latency_s: float | None  # from the abort decision to the stop command (sim-timed)
     trip: Trip | None = None
     log_path: str = ""
+    interrupted: bool = False  # aborted by Ctrl-C or SIGTERM
+    wait_s: float = 0.0  # before the plan: waiting for the rotor to rest, taring
 
-
-def steady(values: npt.NDArray[np.float64], floor: float) -> bool:
-    """No trend left: the means of the window's two halves agree within the window's own noise
-    (4 standard errors) or within ``floor``. A settling rotor trends; a settled one only wobbles."""
-    half = len(values) // 2
-    if half < 3:
-        return False
-    noise = float(np.std(values)) / np.sqrt(half)
-    return bool(abs(float(values[:half].mean() - values[half:].mean())) <= max(floor, 4.0 * noise))
+    @property
+    def outcome(self) -> str:
+        """``completed``, ``interrupted`` (Ctrl-C/SIGTERM) or ``aborted`` (anything else)."""
+        if self.status == "completed":
+            return "completed"
+        return "interrupted" if self.interrupted else "aborted"
 
 
 class Aborted(Exception):
@@ -97,14 +109,16 @@ class Runner:
         self,
         plan: Plan,
         output: ThrottleOutput,
-        stand: Stand,
-        writer: DsWriter,
+        stand: Stand | None,
+        writer: DsWriter | None,
         clock: Clock,
         *,
         limits: Limits | None = None,
         config: RunConfig | None = None,
         monitor: Callable[[Status], None] | None = None,
     ) -> None:
+        """``stand`` None: a run on the throttle output alone (``thrustmap spin``), its readings
+        (and interlocks) from the output's telemetry; ``writer`` None: nothing recorded."""
         self.plan = plan
         self.output = output
         self.stand = stand
@@ -127,12 +141,18 @@ class Runner:
         self._segment_index = 0
         self._label = ""
         self._target_pct_now = 0.0
+        self._start = 0.0
+        self._phase = "at-rest"
+        self._last_sample: StandSample | None = None
+        self._failing_since: float | None = None  # when throttle commands started failing
+        #: the verdict of the final stop (also when ``run`` re-raises a driver's exception)
+        self.stop_verified: bool | None = None
 
     # -- public ---------------------------------------------------------------------------------
     def run(self) -> RunResult:
         check_plan(self.plan, self.limits)  # refuse before anything spins
-        status, reason, trip = "aborted", "", None
-        self._t0 = self.clock.now_s()
+        status, reason, trip, interrupted = "aborted", "", None, False
+        self._t0 = self._start = self.clock.now_s()
         with terminate_as_exception():
             try:
                 try:
@@ -144,9 +164,9 @@ class Runner:
                 except Aborted as exc:
                     reason, trip = exc.reason, exc.trip
                 except Terminated as exc:
-                    reason = f"terminated ({exc})"
+                    reason, interrupted = f"terminated ({exc})", True
                 except KeyboardInterrupt:
-                    reason = "interrupted (Ctrl-C)"
+                    reason, interrupted = "interrupted (Ctrl-C)", True
                 except Exception as exc:  # a driver or plan failure: stop first, then report
                     reason = f"{type(exc).__name__}: {exc}"
                     raise
@@ -155,7 +175,7 @@ class Runner:
                     self._abort_at = self.clock.now_s()
                 stop_at = self.clock.now_s()
                 with interrupts_deferred():
-                    verified = self._stop_until_verified()
+                    verified = self.stop_verified = self._stop_until_verified()
                     latency = stop_at - self._abort_at
                     if status != "completed":
                         log.warning(
@@ -164,25 +184,28 @@ class Runner:
                             "stopped (verified)" if verified else "STOP NOT VERIFIED",
                         )
                     self._drain_after_stop()
-                self.writer.finish(
-                    status,
-                    reason,
-                    extra={
-                        "stop_verified": verified,
-                        "stop_unverifiable": getattr(self.output, "stop_unverifiable", None),
-                        "stop_latency_s": latency,
-                        "trip": None if trip is None else trip.__dict__,
-                    },
-                )
+                if self.writer is not None:
+                    self.writer.finish(
+                        status,
+                        reason,
+                        extra={
+                            "stop_verified": verified,
+                            "stop_unverifiable": getattr(self.output, "stop_unverifiable", None),
+                            "stop_latency_s": latency,
+                            "trip": None if trip is None else trip.__dict__,
+                        },
+                    )
         return RunResult(
             status,
             reason,
-            self.writer.rows,
+            0 if self.writer is None else self.writer.rows,
             self.clock.now_s() - self._t0,
             verified,
             latency,
             trip,
-            str(self.writer.path),
+            "" if self.writer is None else str(self.writer.path),
+            interrupted,
+            self._t0 - self._start,
         )
 
     # -- internals -------------------------------------------------------------------------------
@@ -213,44 +236,68 @@ class Runner:
         raise Aborted(reason, trip)
 
     def _preflight(self) -> None:
+        """Before the plan: identify, confirm the motors at rest, wait for the rotor to be still
+        and tare. Every device's link is serviced all along (``_service_link``): FC telemetry and
+        heartbeats are read, a silent FC aborts the run, and Ctrl-C stops at once."""
+        self._phase = "at-rest"
+        self._last_link_ok = self._last_sample_at = self.clock.now_s()
         ident = self.output.identify()
         log.info(
             "throttle output: %s %s (%s)", ident.kind, ident.firmware_version, ident.motor_protocol
         )
-        self.output.stop()
-        if not self.output.verify_stopped():
-            blind = getattr(self.output, "stop_unverifiable", None)
-            if not blind:
-                raise SafetyError("motors are not at rest before the run; refusing to start")
-            log.warning("cannot confirm the motors are at rest: %s", blind)
-        if self.cfg.tare:
+        # Verify first; stop only when needed (a stop sent to an idle ArduPilot STARTS a test).
+        if self.cfg.check_at_rest and not self.output.verify_stopped():
+            self.output.stop()
+            if not self.output.verify_stopped():
+                blind = getattr(self.output, "stop_unverifiable", None)
+                if not blind:
+                    raise SafetyError("motors are not at rest before the run; refusing to start")
+                log.warning("cannot confirm the motors are at rest: %s", blind)
+        self._last_link_ok = self.clock.now_s()
+        if self.cfg.tare and self.stand is not None:
             self._wait_at_rest()
-            self.stand.tare()
+            self._phase = "tare"
+            self._report(self.clock.now_s())
+            self.stand.tare(service=lambda: self._service_link(self.clock.now_s()))
         now = self.clock.now_s()
         self._last_sample_at = now
-        self._last_link_ok = now
+        self._service_link(now)
+        self._phase = "plan"
+        self._t0 = now  # the plan's progress and ETA start here
+
+    def _service_link(self, now: float) -> None:
+        """Read the throttle output's link (telemetry; heartbeats for MAVLink) at the telemetry
+        period and abort when it has been silent longer than ``link_timeout_s``. Used in every
+        phase: before the plan nothing else would read the FC, and its stream would pile up."""
+        if now - self._telemetry_at >= self.cfg.telemetry_period_s:
+            self._telemetry_at = now
+            try:
+                self._telemetry = self.output.read_telemetry()
+                self._last_link_ok = self.clock.now_s()
+            except SafetyError:
+                raise
+            except Exception as exc:
+                self._link_failure(f"telemetry failed: {exc}")
+        if self.clock.now_s() - self._last_link_ok > self.limits.link_timeout_s:
+            self._abort(
+                f"lost link to the throttle output: no answer for "
+                f"{self.clock.now_s() - self._last_link_ok:.2f} s"
+            )
 
     def _wait_at_rest(self) -> None:
         """Tare only once the rotor has stopped: thrust steady (and rpm ~0 where measured) for
         ``spin_down_s``. A previous run's coasting rotor would otherwise become the zero."""
+        assert self.stand is not None
         start = self.clock.now_s()
-        window: deque[tuple[float, float]] = deque()
+        detector = RestDetector(self.cfg.spin_down_s)
         while self.clock.now_s() - start < self.cfg.spin_down_max_s:
             now = self.clock.now_s()
-            for s in self.stand.read_samples():
-                if s.rpm is not None and s.rpm > 100.0:
-                    window.clear()
-                    continue
-                window.append((s.time_s, s.thrust_n))
-            while window and window[0][0] < now - self.cfg.spin_down_s:
-                window.popleft()
-            long_enough = now - start >= self.cfg.spin_down_s and len(window) >= 6
-            if (
-                long_enough
-                and window[-1][0] - window[0][0] >= 0.8 * self.cfg.spin_down_s
-                and steady(np.array([v for _, v in window]), 0.005)
+            self._service_link(now)
+            if detector.update(now, self.stand.read_samples()) and now - start >= (
+                self.cfg.spin_down_s
             ):
                 return
+            self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
         raise SafetyError(
             f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before taring"
@@ -267,7 +314,9 @@ class Runner:
         self._label = seg.label
         length = seg.duration_s if isinstance(seg, Ramp) else seg.dwell_s
         settle = isinstance(seg, Hold) and seg.settle
-        window: deque[tuple[float, float]] = deque()
+        detector = SettleDetector(
+            self.cfg.settle_window_s, self.cfg.settle_band_n, self.cfg.settle_rel
+        )
         settled_at: float | None = None
         while True:
             now = self.clock.now_s()
@@ -281,25 +330,13 @@ class Runner:
             self._command(self._target_pct(seg, t_in), now)
             samples = self._poll(now)
             if settle and settled_at is None:
-                for s in samples:
-                    window.append((s.time_s, s.thrust_n))
-                while window and window[0][0] < now - self.cfg.settle_window_s:
-                    window.popleft()
-                if self._settled(window):
+                # still slewing toward the level: not settled whatever thrust does
+                slewing = abs(self._cmd_pct - self._target_pct_now) > 1e-9
+                if detector.update(now, samples) and not slewing:
                     settled_at = now
                     self._label = f"{seg.label}-settled"
             self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
-
-    def _settled(self, window: deque[tuple[float, float]]) -> bool:
-        if len(window) < 5 or window[-1][0] - window[0][0] < 0.8 * self.cfg.settle_window_s:
-            return False
-        if abs(self._cmd_pct - self._target_pct_now) > 1e-9:
-            return False  # still slewing toward the level
-        values = np.array([v for _, v in window])
-        return steady(
-            values, max(self.cfg.settle_band_n, self.cfg.settle_rel * abs(float(values.mean())))
-        )
 
     def _command(self, target_pct: float, now: float) -> None:
         self._target_pct_now = target_pct
@@ -307,6 +344,8 @@ class Runner:
         max_step = self.limits.max_slew_pct_s * self.cfg.tick_s
         delta = float(np.clip(target_pct - self._cmd_pct, -max_step, max_step))
         self._cmd_pct = min(self._cmd_pct + delta, self.limits.max_throttle_pct)
+        if self._sent_pct is None and self._cmd_pct <= 0.0:
+            return  # nothing commanded yet and nothing to command: the motors are stopped
         changed = self._sent_pct is None or abs(self._cmd_pct - self._sent_pct) > 1e-9
         if changed or now - self._sent_at >= self.cfg.keepalive_s:
             native = float(self.scale.from_pct(self._cmd_pct))
@@ -319,7 +358,15 @@ class Runner:
             except SafetyError:
                 raise
             except Exception as exc:
+                # Not sent: retried next tick. Commands that keep failing end the run even
+                # while telemetry still answers (a run whose commands do not go out is a failure).
+                if self._failing_since is None:
+                    self._failing_since = now
+                if now - self._failing_since >= self.limits.link_timeout_s:
+                    self._abort(f"lost link to the throttle output: commands failing: {exc}")
                 self._link_failure(f"throttle output failed: {exc}")
+                return
+            self._failing_since = None
             self._sent_pct = self._cmd_pct
             self._sent_at = now
 
@@ -329,6 +376,12 @@ class Runner:
         log.warning("%s (retrying)", reason)
 
     def _poll(self, now: float) -> list[StandSample]:
+        if self.stand is None:
+            before = self._telemetry
+            self._service_link(now)
+            if self._telemetry is not before:
+                self._check_telemetry()
+            return []
         try:
             samples = self.stand.read_samples()
         except SafetyError:
@@ -342,23 +395,26 @@ class Runner:
                 f"stale stand data: no sample for {now - self._last_sample_at:.2f} s "
                 f"(limit {self.limits.stale_data_s:.2f} s)"
             )
-        if now - self._telemetry_at >= self.cfg.telemetry_period_s:
-            self._telemetry_at = now
-            try:
-                self._telemetry = self.output.read_telemetry()
-                self._last_link_ok = self.clock.now_s()
-            except SafetyError:
-                raise
-            except Exception as exc:
-                self._link_failure(f"telemetry failed: {exc}")
-        if self.clock.now_s() - self._last_link_ok > self.limits.link_timeout_s:
-            self._abort(
-                f"lost link to the throttle output: no answer for "
-                f"{self.clock.now_s() - self._last_link_ok:.2f} s"
-            )
+        self._service_link(now)
         for s in samples:
             self._record(s)
         return samples
+
+    def _check_telemetry(self) -> None:
+        """Without a stand: the interlocks on what the output itself reports."""
+        tel = self._telemetry
+        if tel is None:
+            return
+        rpm = tel.rpm[self.cfg.motor] if tel.rpm and self.cfg.motor < len(tel.rpm) else None
+        self._reading = Reading(
+            current_a=tel.current_a,
+            voltage_v=tel.voltage_v,
+            rpm=rpm,
+            temperature_c=max(tel.temperature_c) if tel.temperature_c else None,
+        )
+        trip = check(self.limits, self._reading)
+        if trip is not None:
+            self._abort(f"limit tripped: {trip.message}", trip)
 
     def _record(self, s: StandSample) -> None:
         tel = self._telemetry
@@ -377,11 +433,20 @@ class Runner:
             vibration_g=s.vibration_g,
         )
         self._reading = reading
+        self._last_sample = s
         throttle = (
             s.throttle_native
             if s.throttle_native is not None
             else float(self.scale.from_pct(self._cmd_pct))
         )
+        if self.writer is not None:
+            self._write(s, throttle, reading)
+        trip = check(self.limits, reading)
+        if trip is not None:
+            self._abort(f"limit tripped: {trip.message}", trip)
+
+    def _write(self, s: StandSample, throttle: float, reading: Reading) -> None:
+        assert self.writer is not None
         self.writer.write(
             s.time_s,
             throttle,
@@ -397,12 +462,11 @@ class Runner:
                 "phase": self._label,
             },
         )
-        trip = check(self.limits, reading)
-        if trip is not None:
-            self._abort(f"limit tripped: {trip.message}", trip)
 
     def _drain_after_stop(self) -> None:
         """Keep recording briefly after the stop (spin-down), never raising."""
+        if self.stand is None or self.writer is None:
+            return
         try:
             for s in self.stand.read_samples():
                 self.writer.write(
@@ -424,10 +488,11 @@ class Runner:
     def _report(self, now: float) -> None:
         if self.monitor is None:
             return
+        in_plan = self._phase == "plan"
         self.monitor(
             Status(
                 time_s=now,
-                elapsed_s=now - self._t0,
+                elapsed_s=now - self._t0 if in_plan else 0.0,
                 plan_duration_s=self.plan.duration_s,
                 segment=self._segment_index,
                 segments=len(self.plan.segments),
@@ -436,6 +501,10 @@ class Runner:
                 throttle_native=float(self.scale.from_pct(self._cmd_pct)),
                 reading=self._reading,
                 margins=margins(self.limits, self._reading),
+                phase=self._phase,
+                wait_s=(self._t0 if in_plan else now) - self._start,
+                telemetry=self._telemetry,
+                sample=self._last_sample,
             )
         )
 

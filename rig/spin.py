@@ -18,12 +18,15 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.interlocks import Limits
+from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
+from thrustmap.rig.runner import RunConfig, Runner, Status
+from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
 
@@ -110,83 +113,126 @@ def run_spin(
 ) -> SpinResult:
     """Spin one motor once (see module). ``output`` is entered and closed here."""
     check_spin(request, max_throttle_pct)
-    result = SpinResult()
-    start_s = clock.now_s()
     with terminate_as_exception(), output:
-        try:
-            _spin(output, clock, request, stand, on_report, result)
-            result.status = "completed"
-        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as Terminated
-            result.status = "interrupted"
-            result.reason = (
-                f"interrupted ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
-            )
-            result.error = exc
-            log.warning("spin %s: stopping", result.reason)
-        except Exception as exc:
-            result.status = "failed"
-            result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)
-            result.error = exc
-            log.error("spin failed: %s; stopping", result.reason)
-        finally:
-            result.duration_s = clock.now_s() - start_s
-            # The context manager's exit stops and verifies again; this one is reported.
-            result.stop_verified = output.stop_and_verify()
-    return result
+        return spin_on(
+            output,
+            clock,
+            request,
+            max_throttle_pct=max_throttle_pct,
+            stand=stand,
+            on_report=on_report,
+        )
 
 
-def _spin(
+def spin_plan(request: SpinRequest) -> Plan:
+    """The spin as a plan: a ramp from 0 to the throttle over ``ramp_s``, then a hold."""
+    pct, ramp_s = request.throttle_pct, min(request.ramp_s, request.seconds)
+    segments: list[Segment] = []
+    if ramp_s > 0:
+        end = pct * ramp_s / request.ramp_s  # (cut short when the spin is shorter than the ramp)
+        segments.append(Ramp(0.0, end, ramp_s, label="ramp"))
+    if request.seconds - ramp_s > 1e-9:
+        segments.append(Hold(pct, request.seconds - ramp_s, label="hold"))
+    return Plan("spin", tuple(segments), {"motor": request.motor + 1, "throttle_pct": pct})
+
+
+def spin_on(
     output: ThrottleOutput,
     clock: Clock,
     request: SpinRequest,
-    stand: Stand | None,
-    on_report: Callable[[SpinReport], None] | None,
-    result: SpinResult,
-) -> None:
-    identity = output.identify()
-    if identity.motor_count and request.motor >= identity.motor_count:
-        raise ConfigError(
-            f"motor {request.motor + 1} does not exist: {identity.kind} reports "
-            f"{identity.motor_count} motor(s)"
+    *,
+    max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT,
+    stand: Stand | None = None,
+    on_report: Callable[[SpinReport], None] | None = None,
+    limits: Limits | None = None,
+) -> SpinResult:
+    """``run_spin`` on an output its caller owns and closes (``rig.session.BenchSession``).
+
+    The spin is a plan run by the sweep's runner (``rig.runner.Runner``: the same control loop,
+    link watchdog, interlocks and verified stop), without recording and without taring; a stand,
+    when given, adds thrust to the reports and its interlocks."""
+    check_spin(request, max_throttle_pct)
+    result = SpinResult()
+    try:
+        identity = output.identify()
+        if identity.motor_count and request.motor >= identity.motor_count:
+            raise ConfigError(
+                f"motor {request.motor + 1} does not exist: {identity.kind} reports "
+                f"{identity.motor_count} motor(s)"
+            )
+    except Exception as exc:
+        result.status, result.error = "failed", exc
+        result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)
+        with interrupts_deferred():
+            result.stop_verified = output.stop_and_verify()
+        return result
+    plan = spin_plan(request)
+    limits = replace(
+        limits or Limits(),
+        max_throttle_pct=max_throttle_pct,
+        max_slew_pct_s=max(Limits().max_slew_pct_s, plan.max_ramp_slew_pct_s()),
+    )
+    config = RunConfig(
+        motor=request.motor,
+        tick_s=request.tick_s,
+        keepalive_s=request.resend_s,
+        tare=False,
+        # nothing to confirm before ONE capped spin: a stop sent to an idle ArduPilot STARTS a
+        # motor test (and its verification waits for the acknowledgement)
+        check_at_rest=False,
+    )
+    reporter = _Reporter(request, result, on_report)
+    runner = Runner(
+        plan, output, stand, None, clock, limits=limits, config=config, monitor=reporter
+    )
+    try:
+        run = runner.run()
+    except Exception as exc:  # a driver failed: the runner has stopped the motor first
+        result.status, result.error = "failed", exc
+        result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)
+        result.stop_verified = bool(runner.stop_verified)
+        log.error("spin failed: %s", result.reason)
+        return result
+    result.duration_s = run.duration_s
+    result.stop_verified = run.stop_verified
+    result.reason = run.reason
+    if run.outcome == "completed":
+        result.status = "completed"
+    elif run.outcome == "interrupted":
+        result.status = "interrupted"
+        result.error = KeyboardInterrupt(run.reason)
+    else:
+        result.status = "failed"
+        result.error = SafetyError(run.reason)
+    return result
+
+
+class _Reporter:
+    """Turns the runner's per-tick status into a ``SpinReport`` every ``report_period_s``."""
+
+    def __init__(
+        self,
+        request: SpinRequest,
+        result: SpinResult,
+        on_report: Callable[[SpinReport], None] | None,
+    ) -> None:
+        self.request = request
+        self.result = result
+        self.on_report = on_report
+        self.next_report_s = 0.0
+
+    def __call__(self, st: Status) -> None:
+        if st.phase != "plan":
+            return
+        self.result.max_commanded_pct = max(self.result.max_commanded_pct, st.throttle_pct)
+        if st.elapsed_s + 1e-9 < self.next_report_s:
+            return
+        if st.elapsed_s >= self.request.seconds - self.request.tick_s / 2:
+            return  # the last tick of the plan (float time): the spin is over
+        report = SpinReport(
+            st.elapsed_s, st.throttle_pct, st.throttle_native, st.telemetry, st.sample
         )
-    scale = output.throttle_scale
-    t0 = clock.now_s()
-    next_report_s = t0
-    sent_pct: float | None = None
-    sent_at_s = t0
-    last_stand: StandSample | None = None
-    while True:
-        now = clock.now_s()
-        elapsed = now - t0
-        if elapsed >= request.seconds - 1e-9:  # (float ticks)
-            break
-        pct = request.throttle_pct
-        if request.ramp_s > 0:
-            pct = min(pct, pct * (elapsed + request.tick_s) / request.ramp_s)
-        native = float(scale.from_pct(pct))
-        if (
-            sent_pct is None
-            or abs(pct - sent_pct) > 1e-9
-            or now - sent_at_s >= request.resend_s - 1e-9
-        ):
-            output.set_throttle({request.motor: native})
-            sent_pct, sent_at_s = pct, now
-            result.max_commanded_pct = max(result.max_commanded_pct, pct)
-        else:
-            output.keepalive()
-        if stand is not None:
-            samples = stand.read_samples()
-            if samples:
-                last_stand = samples[-1]
-        if now >= next_report_s:
-            telemetry: Telemetry | None = None
-            try:
-                telemetry = output.read_telemetry()
-            except ThrustmapError as exc:
-                log.warning("no telemetry: %s", exc)
-            report = SpinReport(elapsed, pct, native, telemetry, last_stand)
-            result.reports.append(report)
-            if on_report is not None:
-                on_report(report)
-            next_report_s += request.report_period_s
-        clock.sleep_s(request.tick_s)
+        self.result.reports.append(report)
+        if self.on_report is not None:
+            self.on_report(report)
+        self.next_report_s += self.request.report_period_s

@@ -10,11 +10,10 @@ Up and down ramps in pairs cancel most of the rotor's lag; slower ramps leave le
 
 from __future__ import annotations
 
-from _common import exit_code, run_script, sim_urls
-
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunResult
+from thrustmap.rig.script import run_script, script_exit_code
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 70 % = 1700 µs).
 FROM_PCT, TO_PCT = 0.0, 70.0  # bottom and top of the ramp
@@ -23,13 +22,17 @@ HOLD_S = 1.0  # seconds at the bottom before and at the top between the ramps
 REPEATS = 1  # up/down pairs
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
 LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
-STAND, THROTTLE = sim_urls(rotors_on_esc=ROTORS_ON_ESC)  # or "/dev/ttyUSB0", "/dev/ttyACM0"
+# The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
+# and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
+STAND = "sim://tyto-1585?bench=script&drive_esc=0"
+THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
 def plan() -> plans.Plan:
     return plans.ramp(FROM_PCT, TO_PCT, duration_s=DURATION_S, repeats=REPEATS, hold_s=HOLD_S)
 
 
+# The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
 def main(argv: list[str] | None = None) -> RunResult | None:
     return run_script(
         plan(),
@@ -40,8 +43,10 @@ def main(argv: list[str] | None = None) -> RunResult | None:
         motor=MOTOR,
         rotors_on_esc=ROTORS_ON_ESC,
         description=__doc__.splitlines()[0],
+        emit=print,
+        ask=input,
     )
 
 
 if __name__ == "__main__":
-    raise SystemExit(exit_code(main()))
+    raise SystemExit(script_exit_code(main()))

@@ -9,11 +9,10 @@ stops the motor and verifies the stop; the log is kept and marked with the outco
 
 from __future__ import annotations
 
-from _common import exit_code, run_script, sim_urls
-
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunResult
+from thrustmap.rig.script import run_script, script_exit_code
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 10 % = 1100 µs).
 FROM_PCT, TO_PCT, STEP_PCT = 10.0, 60.0, 5.0  # the levels
@@ -22,7 +21,10 @@ REPEATS = 1  # run the whole staircase this many times
 SETTLE, RECORD_S = False, 1.0  # True: a hold ends RECORD_S after thrust settles (dwell = max)
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
 LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
-STAND, THROTTLE = sim_urls(rotors_on_esc=ROTORS_ON_ESC)  # or "/dev/ttyUSB0", "/dev/ttyACM0"
+# The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
+# and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
+STAND = "sim://tyto-1585?bench=script&drive_esc=0"
+THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
 def plan() -> plans.Plan:
@@ -38,6 +40,7 @@ def plan() -> plans.Plan:
     )
 
 
+# The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
 def main(argv: list[str] | None = None) -> RunResult | None:
     return run_script(
         plan(),
@@ -48,8 +51,10 @@ def main(argv: list[str] | None = None) -> RunResult | None:
         motor=MOTOR,
         rotors_on_esc=ROTORS_ON_ESC,
         description=__doc__.splitlines()[0],
+        emit=print,
+        ask=input,
     )
 
 
 if __name__ == "__main__":
-    raise SystemExit(exit_code(main()))
+    raise SystemExit(script_exit_code(main()))

@@ -44,7 +44,10 @@ from thrustmap.rig import connect
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.plant import ConstantPlant
+
 from thrustmap.rig.spin import SpinRequest, run_spin
+
+connect.load_sim_peers()  # this file opens sim:// ports directly (the rig registers them)
 
 TRANSCRIPTS = (
     Path(__file__).resolve().parents[1].parent / "shared" / "data" / "firmware-transcripts"
@@ -269,8 +272,9 @@ def test_cli_sweep_on_a_blind_fc_is_never_reported_verified(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     from thrustmap.cli import main
-    from thrustmap.fitting.dsformat import read_sidecar
+    from thrustmap.dslog import sidecar_path
     from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.jsonfile import load_json
 
     args = ["sweep", "stairs-up", "--stand", "sim://tyto-1585?bench=blind&drive_esc=0"]
     args += ["--throttle", BLIND_FC, "--to", "20", "--step", "10", "--dwell", "1"]
@@ -282,6 +286,5 @@ def test_cli_sweep_on_a_blind_fc_is_never_reported_verified(
     assert "completed" in out and "NOT verified" in out and "stop verified" not in out
     assert not [r for r in caplog.records if r.levelname == "CRITICAL"]
     assert load_dataset(tmp_path / "run.csv").meta["outcome"]["status"] == "completed"
-    meta = read_sidecar(tmp_path / "run.csv")
-    assert meta is not None
+    meta = load_json(sidecar_path(tmp_path / "run.csv"))
     assert meta["stop_verified"] is False and "MSP_MOTOR reads 0" in meta["stop_unverifiable"]

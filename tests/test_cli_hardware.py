@@ -22,6 +22,7 @@ from thrustmap.errors import ConfigError, SafetyError
 from thrustmap.protocols.msp.messages import ArmingDisable, MotorProtocol, native_to_external
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.urlhandlers import protocol_sim
+from thrustmap.rig import session
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.safety import Terminated
 
@@ -110,7 +111,7 @@ class Trigger:
                     trigger.fired_at = self.now_s()
                     trigger.fire()
 
-        monkeypatch.setattr(hardware, "SimClock", TriggerClock)
+        monkeypatch.setattr(session, "SimClock", TriggerClock)  # the one clock rule
 
     def fire(self) -> None:
         if callable(self.action):
@@ -170,8 +171,8 @@ def test_spin_betaflight_normal_end(peers: list[Spy]) -> None:
     ("action", "exit_code", "message"),
     [
         ("exception", 1, "driver blew up"),
-        ("ctrl-c", 130, "interrupted (KeyboardInterrupt)"),
-        ("sigterm", 130, "interrupted (Terminated: signal 15)"),
+        ("ctrl-c", 130, "interrupted (Ctrl-C)"),
+        ("sigterm", 130, "terminated (signal 15)"),
     ],
 )
 def test_spin_betaflight_every_way_out_stops_and_verifies(
@@ -483,7 +484,9 @@ def test_ports_lists_guesses_without_opening(monkeypatch: pytest.MonkeyPatch) ->
 
     monkeypatch.setattr(list_ports, "comports", lambda: list(FAKE_PORTS))
     opened: list[str] = []
-    monkeypatch.setattr(hardware.connect, "open_port", lambda *a, **k: opened.append(a[0]))
+    from thrustmap.rig.devices import urls  # every device is opened through here
+
+    monkeypatch.setattr(urls, "open_transport", lambda *a, **k: opened.append(a[0]))
     result = run("ports")
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
@@ -523,3 +526,32 @@ def test_ports_none(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr(list_ports, "comports", lambda: [])
     assert run("ports").output.strip() == "no serial ports found"
+
+
+def test_spin_help_lists_the_exit_codes_and_refusals_exit_2(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from thrustmap.cli import main
+
+    main(["spin", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for code in ("0 done", "1 aborted", "2 refused", "3 stop NOT verified", "130 interrupted"):
+        assert code in text
+    with pytest.raises(SystemExit) as exc:
+        main(["spin", "sim://betaflight", "--motor", "1", "--throttle", "50", "--yes"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "above the 20 % cap" in err[0]
+
+
+def test_spin_runs_the_interlocks_of_the_table(peers: list[Spy]) -> None:
+    """spin is a plan on the sweep's runner: the table's limits (here the current, read from the
+    FC's telemetry) end it, stopped and verified, exit 1."""
+    result = run(
+        "spin", "sim://betaflight", "--motor", "1", "--throttle", "15", "--seconds", "3",
+        "--max-current", "0.2", "--yes",
+    )  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert "limit tripped: current" in result.output
+    assert "motor 1 stopped (verified)" in result.output
+    assert peers[0].inner.motor_values == [1000] * 4

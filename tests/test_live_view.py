@@ -264,7 +264,7 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
 
     class Output:
         throttle_scale = SCALES["pwm"]
-        entered = exited = 0
+        entered = exited = stops = closed = 0
 
         def __enter__(self) -> Output:
             Output.entered += 1
@@ -276,6 +276,13 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
         def identify(self) -> None:
             pass
 
+        def stop_and_verify(self) -> bool:
+            Output.stops += 1
+            return True
+
+        def close(self) -> None:
+            Output.closed += 1
+
     def no_view(self: LiveView) -> LiveView:
         raise RuntimeError("no terminal")
 
@@ -285,4 +292,5 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
         cli, ["spin", "sim://betaflight", "--motor", "1", "--throttle", "10", "--yes"]
     )
     assert isinstance(result.exception, RuntimeError)
-    assert Output.exited == 1  # stopped, verified and closed by the output's own exit
+    # the session's one closing place stopped, verified and closed the output
+    assert Output.stops == 1 and Output.closed == 1

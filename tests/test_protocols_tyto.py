@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import struct
-from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrustmap.errors import ConfigError
 from thrustmap.protocols.stands.tyto import (
     TYTO_POLL_CODE,
     LoadCell,
@@ -214,38 +211,3 @@ def test_tare_and_two_point() -> None:
     assert cell.force_n(-900.0) == pytest.approx(9.80665)
     with pytest.raises(TytoCalibrationError):
         LoadCell.from_two_points(5.0, 5.0, 1.0)
-
-
-def test_calibration_file_round_trip(tmp_path: Path) -> None:
-    path = tmp_path / "cal.json"
-    CAL.save(path)
-    assert TytoCalibration.load(path) == CAL
-
-
-def test_calibration_errors_name_file_and_key(tmp_path: Path) -> None:
-    path = tmp_path / "cal.json"
-    data = CAL.to_dict()
-    data["torque"]["left"]["n_per_count"] = 0
-    path.write_text(json.dumps(data))
-    with pytest.raises(TytoCalibrationError) as err:
-        TytoCalibration.load(path)
-    assert err.value.column == "torque.left.n_per_count" and str(path) in str(err.value)
-    assert isinstance(err.value, ConfigError)
-
-    del data["torque"]["arm_length_m"]
-    data["torque"]["left"]["n_per_count"] = 1e-3
-    path.write_text(json.dumps(data))
-    with pytest.raises(TytoCalibrationError, match="missing"):
-        TytoCalibration.load(path)
-
-    path.write_text('{"format": "thrustmap.tyto-calibration",\n "version": 1,,}')
-    with pytest.raises(TytoCalibrationError) as err:
-        TytoCalibration.load(path)
-    assert err.value.line == 2
-
-    path.write_text(json.dumps({"format": "something-else"}))
-    with pytest.raises(TytoCalibrationError, match="format"):
-        TytoCalibration.load(path)
-
-    with pytest.raises(TytoCalibrationError, match="cannot read"):
-        TytoCalibration.load(tmp_path / "absent.json")

@@ -70,7 +70,7 @@ def test_record_then_replay_a_sim_session_strictly(tmp_path: Path, counter_peer:
     path = tmp_path / "sim.jsonl"
     clock = SimClock(50.0)
     url = record_url("sim://counter?prefix=ACK", str(path))
-    port = serial.serial_for_url(url, timeout=0.2, clock=clock)
+    port = open_transport(url, timeout=0.2, clock=clock)
     assert ping_client(port, 3) == ["ACK 1", "ACK 2", "ACK 3"]
     port.close()
 
@@ -82,7 +82,7 @@ def test_record_then_replay_a_sim_session_strictly(tmp_path: Path, counter_peer:
     assert first_read.time_s == pytest.approx(0.05, abs=0.0015)  # peer latency, on the sim clock
 
     replay_clock = SimClock()
-    replay = serial.serial_for_url(f"replay://{path}", timeout=0.2, clock=replay_clock)
+    replay = open_transport(f"replay://{path}", timeout=0.2, clock=replay_clock)
     assert ping_client(replay, 3) == ["ACK 1", "ACK 2", "ACK 3"]
     report = replay.assert_consumed()
     assert report.read_bytes_served == len(b"ACK 1\nACK 2\nACK 3\n")
@@ -93,7 +93,7 @@ def test_record_then_replay_a_sim_session_strictly(tmp_path: Path, counter_peer:
 
 def test_record_then_replay_loop(tmp_path: Path) -> None:
     path = tmp_path / "loop.jsonl"
-    port = serial.serial_for_url(f"record://loop://?file={path}", timeout=0, clock=SimClock())
+    port = open_transport(f"record://loop://?file={path}", timeout=0, clock=SimClock())
     port.write(b"\x01\x02\x03")
     assert port.read(8) == b"\x01\x02\x03"
     port.note("marker")
@@ -108,7 +108,7 @@ def test_record_then_replay_loop(tmp_path: Path) -> None:
         ("w", b"\xfe", None),
         ("r", b"\xfe", None),
     ]
-    replay = serial.serial_for_url(f"replay://{path}", timeout=0)
+    replay = open_transport(f"replay://{path}", timeout=0)
     assert replay.read(8) == b""  # nothing was read before the first write
     replay.write(b"\x01\x02")  # chunking may differ from the recording
     assert replay.read(8) == b""
@@ -147,12 +147,12 @@ def test_replay_non_strict_counts_and_reports_extra_writes(
     port = open_transport(record_url("sim://counter", str(path)), timeout=0.1, clock=SimClock())
     ping_client(port, 1)
     port.close()
-    replay = serial.serial_for_url(f"replay://{path}?strict=0", timeout=0.1)
+    replay = open_transport(f"replay://{path}?strict=0", timeout=0.1)
     replay.write(b"PONG\n")  # one differing byte, tolerated
     assert replay.read(7) == b"PONG 1\n"
     replay.write(b"more")  # past the end of the recording
     assert replay.report().mismatches == 2  # one per write that differed
-    strict = serial.serial_for_url(f"replay://{path}", timeout=0.1)
+    strict = open_transport(f"replay://{path}", timeout=0.1)
     strict.write(b"PING\n")
     strict.read(7)
     with pytest.raises(ReplayMismatchError, match="end of recording"):
@@ -175,17 +175,20 @@ def test_replay_reports_unconsumed_transcript(tmp_path: Path, counter_peer: None
 
 def test_replay_short_read_advances_the_given_clock_by_the_timeout(tmp_path: Path) -> None:
     path = tmp_path / "c.jsonl"
-    port = serial.serial_for_url(f"record://loop://?file={path}", timeout=0, clock=SimClock())
+    port = open_transport(f"record://loop://?file={path}", timeout=0, clock=SimClock())
     port.write(b"a")
     port.close()
     clock = SimClock()
-    replay = serial.serial_for_url(f"replay://{path}", timeout=0.25, clock=clock)
+    replay = open_transport(f"replay://{path}", timeout=0.25, clock=clock)
     assert replay.read(1) == b""
     assert clock.now_s() == pytest.approx(0.25)
 
 
 def test_mavlink_session_recorded_from_sim_replays_through_the_same_link(tmp_path: Path) -> None:
     """A MAVLink 'driver' against sim://px4, recorded, then replayed strictly: same values."""
+    from thrustmap.rig.connect import load_sim_peers
+
+    load_sim_peers()  # the simulator registers sim://px4 (protocols/ does not know it)
 
     def driver(link: MavlinkSerialLink) -> tuple[Any, ...]:
         hb = mav.decode(link.wait_heartbeat(timeout=2.0))
@@ -219,10 +222,10 @@ def test_mavlink_session_recorded_from_sim_replays_through_the_same_link(tmp_pat
 
 
 def test_sim_url_options_unknown_peer_and_blocking_read(counter_peer: None) -> None:
-    port = serial.serial_for_url("sim://counter?prefix=HI%20THERE", timeout=0.1, clock=SimClock())
+    port = open_transport("sim://counter?prefix=HI%20THERE", timeout=0.1, clock=SimClock())
     assert ping_client(port, 1) == ["HI THERE 1"]
     with pytest.raises(ConfigError, match="known peers: .*counter"):
-        serial.serial_for_url("sim://no-such-peer")
+        open_transport("sim://no-such-peer")
     clock = SimClock()
     blocking = SimSerial(CounterPeer({}), clock, timeout=None, max_block_s=2.0)
     with pytest.raises(SimPeerSilentError):

@@ -221,6 +221,7 @@ def check_validation(
             assert float(cells[f"{k}:max_pct"][0]) == row["max_pct"]
             if mode != "in-sample":
                 assert int(cells[f"{k}:outside_n"][0]) == row["outside_box"]["n"]
+                assert int(cells[f"{k}:inside_n"][0]) == row["inside_box"]["n"]
             checked += 1
     return checked
 

@@ -191,12 +191,11 @@ def test_sniff_of_a_silent_port_gives_up() -> None:
 
 
 def test_classify_bytes_is_strict_about_text() -> None:
-    codec = connect.MavlinkCodec()
-    assert connect.classify_bytes(b"hello world\nthis is text\nmore\nlines\n", codec) is None
-    assert connect.classify_bytes(b"1,2,3\n4,5\n6,7,8\n9,1,2\n", codec) is None  # ragged
-    found = connect.classify_bytes(b"1 2.5 -3e2 4\n" * 4, codec)
+    assert connect.classify_bytes(b"hello world\nthis is text\nmore\nlines\n") is None
+    assert connect.classify_bytes(b"1,2,3\n4,5\n6,7,8\n9,1,2\n") is None  # ragged
+    found = connect.classify_bytes(b"1 2.5 -3e2 4\n" * 4)
     assert found is not None and found.kind == "line-stand" and found.line_preset is None
-    assert connect.classify_bytes(b"Read", codec) is None  # an unfinished line
+    assert connect.classify_bytes(b"Read") is None  # an unfinished line
 
 
 # --------------------------------------------------------------------------- opening
@@ -324,10 +323,11 @@ def test_real_line_stand_needs_a_preset() -> None:
 def test_silent_line_stand_fails_to_open(monkeypatch: pytest.MonkeyPatch) -> None:
     clock = SimClock()
     silent = Silent()
-    monkeypatch.setattr(
-        connect, "open_port", lambda url, clock, baudrate=None: SimSerial(silent, clock)
-    )
-    with pytest.raises(connect.ThrustmapError, match="no data from line stand"):
+    from thrustmap.errors import ThrustmapError
+    from thrustmap.rig.devices import urls
+
+    monkeypatch.setattr(urls, "open_transport", lambda url, **kwargs: SimSerial(silent, clock))
+    with pytest.raises(ThrustmapError, match="no data from line stand"):
         connect.open_stand("/dev/fake", clock, line_preset="stm32-hx711", wait_s=0.5)
     assert b"1000\n" in bytes(silent.written)  # closing sent the stop command
 
@@ -452,7 +452,7 @@ class FakePort:
         ),
         (FakePort("/dev/ttyACM5", 0x2E8A, 0x000A, "Pico"), "RP2040", ("line-stand",), True),
         (FakePort("/dev/ttyACM6", 0x16C0, 0x0483, "USB Serial"), "Teensy", ("line-stand",), True),
-        (FakePort("/dev/ttyACM7", 0xABCD, 0x1234, "Widget"), "unknown", connect.KINDS, True),
+        (FakePort("/dev/ttyACM7", 0xABCD, 0x1234, "Widget"), "unknown", connect.kinds(), True),
         (FakePort("/dev/ttyS0"), "no USB IDs", (), True),
     ],
 )
@@ -505,4 +505,6 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
     monkeypatch.setattr(mavutil, "mavlink_connection", connection)
     with connect.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out2:
         assert out2.identify().kind == "px4"
-    assert stock == [("tcpin:127.0.0.1:5760", {"source_system": 255, "source_component": 190})]
+    assert stock == [
+        ("tcpin:127.0.0.1:5760", {"source_system": 255, "source_component": 190, "retries": 0})
+    ]

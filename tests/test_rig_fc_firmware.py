@@ -674,7 +674,7 @@ class StallingStand(Stand):
         s = self.plant.state(self.clock.now_s())
         return [StandSample(s.time_s, s.thrust_n, s.torque_nm, s.voltage_v, s.current_a)]
 
-    def tare(self) -> None:
+    def tare(self, service: object = None) -> None:
         pass
 
     def close(self) -> None:

@@ -253,8 +253,8 @@ class FrozenStand(Stand):
         samples = self.inner.read_samples()
         return [] if self.clock.now_s() >= self.freeze_at_s else samples
 
-    def tare(self) -> None:
-        self.inner.tare()
+    def tare(self, service: Callable[[], None] | None = None) -> None:
+        self.inner.tare(service)
 
     def close(self) -> None:
         self.inner.close()

@@ -475,3 +475,12 @@ def test_spec_missing_file() -> None:
 def test_spec_from_dict_needs_an_object() -> None:
     with pytest.raises(ConfigError, match="JSON object"):
         line_spec_from_dict([1, 2])
+
+
+def test_spec_json_is_read_strictly(tmp_path: Path) -> None:
+    """Through thrustmap.jsonfile: NaN/Infinity are not JSON, and the error names file and line."""
+    path = tmp_path / "nan.json"
+    path.write_text('{"extends": "thrustmap-line",\n "watchdog_s": NaN}', encoding="utf-8")
+    with pytest.raises(ConfigError, match="not valid JSON") as info:
+        load_line_spec(path)
+    assert info.value.file == str(path)

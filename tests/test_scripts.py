@@ -19,8 +19,7 @@ SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"
 
 
 @pytest.fixture(autouse=True)
-def fresh_bench(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.syspath_prepend(str(SCRIPTS))  # what `python scripts/x.py` does for _common
+def fresh_bench() -> Iterator[None]:
     peers.reset_benches()
     yield
     peers.reset_benches()

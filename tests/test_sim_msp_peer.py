@@ -34,6 +34,7 @@ from thrustmap.protocols.msp.messages import (
     decode_reply,
 )
 from thrustmap.protocols.peer import BytePeer
+from thrustmap.protocols.transport import open_transport
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.msp_peer import MspPeer, msp_peer_from_options
 from thrustmap.rig.sim.plant import ConstantPlant
@@ -243,16 +244,15 @@ def test_random_input_never_crashes_and_output_is_valid(chunks: list[bytes]) -> 
 
 
 def test_sim_url_builds_the_registered_peer() -> None:
-    import serial
 
     import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
     import thrustmap.rig.sim.msp_peer  # noqa: F401 - registers betaflight/inav
 
     clock = SimClock()
-    port = serial.serial_for_url("sim://inav?motors=2&rate_hz=0", timeout=0.1, clock=clock)
+    port = open_transport("sim://inav?motors=2&rate_hz=0", timeout=0.1, clock=clock)
     port.write(encode_request(2))
     (frame,) = MspDecoder().feed(port.read(16))
     assert FcVariant.decode(frame.payload).identifier == "INAV"
     port.close()
     with pytest.raises(ConfigError):
-        serial.serial_for_url("sim://betaflight?firmware=kiss", clock=clock)
+        open_transport("sim://betaflight?firmware=kiss", clock=clock)

@@ -26,6 +26,7 @@ from thrustmap.protocols.stands.tyto import (
     TytoReading,
     TytoReady,
 )
+from thrustmap.protocols.transport import open_transport
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import (
@@ -35,6 +36,7 @@ from thrustmap.rig.sim.stand_peers import (
     line_peer_from_options,
     tyto_peer_from_options,
 )
+from thrustmap.rig.stand.tyto import save_calibration
 
 # --------------------------------------------------------------------------- Tyto
 
@@ -85,7 +87,7 @@ def test_tyto_ignores_corrupt_and_unknown_requests() -> None:
 
 def test_tyto_over_sim_serial_with_custom_calibration(tmp_path: Path) -> None:
     cal_path = tmp_path / "cal.json"
-    SIM_TYTO_CALIBRATION.save(cal_path)
+    save_calibration(SIM_TYTO_CALIBRATION, cal_path)
     clock = SimClock()
     peer = tyto_peer_from_options({"calibration": str(cal_path), "boot_s": "0.5"})
     port = SimSerial(peer, clock, timeout=2.0)
@@ -215,15 +217,14 @@ def test_line_peer_survives_random_input(chunks: list[tuple[bytes, float]]) -> N
 
 
 def test_sim_urls_build_the_registered_stands() -> None:
-    import serial
 
     import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
     import thrustmap.rig.sim.stand_peers  # noqa: F401 - registers tyto-1585 and line-stand
 
     clock = SimClock()
-    port = serial.serial_for_url("sim://tyto-1585?boot_s=0.2", timeout=1.0, clock=clock)
+    port = open_transport("sim://tyto-1585?boot_s=0.2", timeout=1.0, clock=clock)
     assert port.read(7) == b"Ready\r\n"
-    line = serial.serial_for_url("sim://line-stand?rate_hz=10", timeout=0.5, clock=clock)
+    line = open_transport("sim://line-stand?rate_hz=10", timeout=0.5, clock=clock)
     decoder = LineStandDecoder(REFERENCE)
     events = decoder.feed_events(line.read(10_000))
     assert any(isinstance(e, LineSample) for e in events) and decoder.error_count == 0

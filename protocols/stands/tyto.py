@@ -42,12 +42,9 @@ never raises; ``feed`` returns only frames.
 
 from __future__ import annotations
 
-import json
-import math
 import struct
 from collections import deque
 from dataclasses import dataclass, fields, replace
-from pathlib import Path
 from typing import Any
 
 from thrustmap.errors import ConfigError, ThrustmapError
@@ -57,7 +54,6 @@ TYTO_READY_LINE = "Ready"
 TYTO_POLL_CODE = 3
 TYTO_REQUEST = "<"
 TYTO_REPLY = ">"
-CALIBRATION_FORMAT = "thrustmap.tyto-calibration"
 
 _READING = struct.Struct("<ffffffffffchhhhhhfc")  # 58 bytes
 _POLL = struct.Struct("<HHHH")
@@ -341,127 +337,4 @@ class TytoCalibration:
             thrust=replace(self.thrust, tare=at_rest.load_thrust),
             torque_left=replace(self.torque_left, tare=at_rest.load_left),
             torque_right=replace(self.torque_right, tare=at_rest.load_right),
-        )
-
-    # -- JSON ---------------------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
-        def cell(c: LoadCell) -> dict[str, float]:
-            return {"tare": c.tare, "n_per_count": c.n_per_count}
-
-        out: dict[str, Any] = {
-            "format": CALIBRATION_FORMAT,
-            "version": 1,
-            "serial": self.serial,
-            "thrust": cell(self.thrust),
-            "torque": {
-                "arm_length_m": self.arm_length_m,
-                "left": cell(self.torque_left),
-                "right": cell(self.torque_right),
-            },
-            "rpm": {
-                "electrical_factor": self.electrical_rpm_factor,
-                "optical_factor": self.optical_rpm_factor,
-            },
-        }
-        if self.vibration_g_per_count is not None:
-            out["vibration_g_per_count"] = self.vibration_g_per_count
-        return out
-
-    def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
-
-    @classmethod
-    def from_dict(cls, data: Any, source: str | None = None) -> TytoCalibration:
-        reader = _Reader(source)
-        if not isinstance(data, dict):
-            raise reader.error("", "expected a JSON object at the top level")
-        fmt = data.get("format")
-        if fmt != CALIBRATION_FORMAT:
-            raise reader.error("format", f'expected "{CALIBRATION_FORMAT}", got {fmt!r}')
-        if data.get("version") != 1:
-            raise reader.error("version", f"expected 1, got {data.get('version')!r}")
-        torque = reader.section(data, "torque")
-        rpm = data.get("rpm", {})
-        if not isinstance(rpm, dict):
-            raise reader.error("rpm", "expected an object")
-        vib = data.get("vibration_g_per_count")
-        serial = data.get("serial", "")
-        return cls(
-            thrust=reader.cell(data, "thrust"),
-            torque_left=reader.cell(torque, "left", "torque."),
-            torque_right=reader.cell(torque, "right", "torque."),
-            arm_length_m=reader.number(torque, "arm_length_m", "torque.", positive=True),
-            electrical_rpm_factor=reader.number(rpm, "electrical_factor", "rpm.", default=1.0),
-            optical_rpm_factor=reader.number(rpm, "optical_factor", "rpm.", default=1.0),
-            vibration_g_per_count=None
-            if vib is None
-            else reader.number(data, "vibration_g_per_count"),
-            serial=str(serial),
-        )
-
-    @classmethod
-    def load(cls, path: str | Path) -> TytoCalibration:
-        source = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise TytoCalibrationError(
-                f"cannot read calibration file: {exc.strerror}", file=source
-            ) from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise TytoCalibrationError(
-                f"not valid JSON: {exc.msg} (column {exc.colno})", file=source, line=exc.lineno
-            ) from None
-        return cls.from_dict(data, source)
-
-
-class _Reader:
-    """Field access with errors that name the file and the key path."""
-
-    def __init__(self, source: str | None) -> None:
-        self.source = source
-
-    def error(self, key: str, message: str) -> TytoCalibrationError:
-        return TytoCalibrationError(
-            f"Tyto calibration: {message}", file=self.source, column=key or None
-        )
-
-    def section(self, data: dict[str, Any], key: str, prefix: str = "") -> dict[str, Any]:
-        value = data.get(key)
-        if not isinstance(value, dict):
-            raise self.error(prefix + key, "missing; expected an object")
-        return value
-
-    def number(
-        self,
-        data: dict[str, Any],
-        key: str,
-        prefix: str = "",
-        *,
-        default: float | None = None,
-        positive: bool = False,
-        nonzero: bool = False,
-    ) -> float:
-        value = data.get(key, default)
-        if value is None:
-            raise self.error(prefix + key, "missing; expected a number")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(prefix + key, f"expected a number, got {value!r}")
-        number = float(value)
-        if not math.isfinite(number):
-            raise self.error(prefix + key, f"expected a finite number, got {value!r}")
-        if positive and number <= 0:
-            raise self.error(prefix + key, f"expected a number > 0, got {value!r}")
-        if nonzero and number == 0:
-            raise self.error(prefix + key, "expected a non-zero number (newtons per count)")
-        return number
-
-    def cell(self, data: dict[str, Any], key: str, prefix: str = "") -> LoadCell:
-        section = self.section(data, key, prefix)
-        path = f"{prefix}{key}."
-        return LoadCell(
-            self.number(section, "tare", path),
-            self.number(section, "n_per_count", path, nonzero=True),
         )

@@ -285,9 +285,11 @@ def tyto_peer_from_options(
 ) -> TytoStandPeer:
     """``sim://tyto-1585?calibration=cal.json&boot_s=1.5&noise_counts=2``."""
     _check(options, {"calibration", "boot_s", "noise_counts", "drive_esc"}, "Tyto", allow)
+    from thrustmap.rig.stand.tyto import load_calibration
+
     cal = SIM_TYTO_CALIBRATION
     if "calibration" in options:
-        cal = TytoCalibration.load(options["calibration"])
+        cal = load_calibration(options["calibration"])
     return TytoStandPeer(
         plant if plant is not None else ConstantPlant(1),
         cal,
@@ -323,5 +325,9 @@ def register_stand_peers(
     def line(options: Mapping[str, str]) -> BytePeer:
         return line_peer_from_options(options, plant_factory(options), allow=plant_options)
 
+    from thrustmap.rig.stand.tyto import register_simulated_calibration
+
     register_peer("tyto-1585", tyto, replace=replace)
     register_peer("line-stand", line, replace=replace)
+    # what a driver opening sim://tyto-1585 without ?calibration= reads the raw counts with
+    register_simulated_calibration("tyto-1585", SIM_TYTO_CALIBRATION)

@@ -31,17 +31,17 @@ does not answer ``#ERR`` to the stop command).
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from thrustmap.clock import Clock
-from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
+from thrustmap.errors import ConfigError, DataFormatError, SafetyError, ThrustmapError
+from thrustmap.jsonfile import load_json
 from thrustmap.protocols.stands.line import (
     FIELDS,
     Column,
@@ -297,8 +297,14 @@ class LineStand(Stand):
             why += " (wrong port or baud rate?)"
         return why
 
-    def tare(self, samples: int = 50, timeout_s: float = 3.0) -> None:
-        """Zero the thrust reading on the mean of ``samples`` readings at rest."""
+    def tare(
+        self,
+        service: Callable[[], None] | None = None,
+        samples: int = 50,
+        timeout_s: float = 3.0,
+    ) -> None:
+        """Zero the thrust reading on the mean of ``samples`` readings at rest (``service`` is
+        called while waiting for them)."""
         deadline = self.clock.now_s() + timeout_s
         raws: list[LineSample] = []
         while len(raws) < samples:
@@ -307,6 +313,8 @@ class LineStand(Stand):
             self._pending.clear()
             if len(raws) >= samples or self.clock.now_s() >= deadline:
                 break
+            if service is not None:
+                service()
             self.clock.sleep_s(0.005)
         if not raws:
             raise LineStandTimeout("cannot tare: " + self._silence_message(timeout_s))
@@ -659,18 +667,14 @@ def line_spec_from_dict(
 
 
 def load_line_spec(path: str | Path) -> LineStandSpec:
-    """Read a line-stand description from a JSON file (see ``line_spec_from_dict``)."""
+    """Read a line-stand description from a JSON file (see ``line_spec_from_dict``): bounded and
+    strict (``thrustmap.jsonfile``); errors name the file, the key and its line."""
     source = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot read line stand spec: {exc.strerror}", file=source) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(
-            f"not valid JSON: {exc.msg} (column {exc.colno})", file=source, line=exc.lineno
-        ) from None
+        data = load_json(path, what="line stand spec")
+    except DataFormatError as exc:
+        raise ConfigError(exc.message, file=source, line=exc.line) from None
+    text = Path(path).read_text(encoding="utf-8-sig", errors="replace")  # for the keys' lines
     return line_spec_from_dict(data, source, text=text)
 
 

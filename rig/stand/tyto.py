@@ -9,15 +9,21 @@ stand keeps sending the stop pulse (1000 µs), which the ESC does not see.
 
 from __future__ import annotations
 
+import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from thrustmap.clock import Clock
 from thrustmap.errors import SafetyError, ThrustmapError
+from thrustmap.files import atomic_write_text
+from thrustmap.jsonfile import Fields, load_json
 from thrustmap.protocols.stands.tyto import (
+    LoadCell,
     TytoCalibration,
     TytoDecoder,
     TytoPoll,
@@ -106,9 +112,14 @@ class TytoStand(Stand):
             )
         ]
 
-    def tare(self, polls: int = 20) -> None:
-        """Zero the load cells on the mean of ``polls`` readings at rest."""
-        readings = [self.poll() for _ in range(polls)]
+    def tare(self, service: Callable[[], None] | None = None, polls: int = 20) -> None:
+        """Zero the load cells on the mean of ``polls`` readings at rest (``service`` is called
+        between polls)."""
+        readings = []
+        for _ in range(polls):
+            readings.append(self.poll())
+            if service is not None:
+                service()
         mean = replace(
             readings[-1],
             load_thrust=float(np.mean([r.load_thrust for r in readings])),
@@ -162,3 +173,86 @@ class TytoEscOutput(ThrottleOutput):
 
     def close(self) -> None:
         pass  # the stand owns the port
+
+
+# --------------------------------------------------------------------------- calibration file
+
+CALIBRATION_FORMAT = "thrustmap.tyto-calibration"
+
+
+def calibration_to_dict(cal: TytoCalibration) -> dict[str, Any]:
+    """The JSON form of a unit's calibration (``load_calibration`` reads it back)."""
+
+    def cell(c: LoadCell) -> dict[str, float]:
+        return {"tare": c.tare, "n_per_count": c.n_per_count}
+
+    out: dict[str, Any] = {
+        "format": CALIBRATION_FORMAT,
+        "version": 1,
+        "serial": cal.serial,
+        "thrust": cell(cal.thrust),
+        "torque": {
+            "arm_length_m": cal.arm_length_m,
+            "left": cell(cal.torque_left),
+            "right": cell(cal.torque_right),
+        },
+        "rpm": {
+            "electrical_factor": cal.electrical_rpm_factor,
+            "optical_factor": cal.optical_rpm_factor,
+        },
+    }
+    if cal.vibration_g_per_count is not None:
+        out["vibration_g_per_count"] = cal.vibration_g_per_count
+    return out
+
+
+def _cell(fields: Fields) -> LoadCell:
+    n_per_count = fields.number("n_per_count")
+    if n_per_count == 0:
+        raise fields.error("expected a non-zero number (newtons per count)", "n_per_count")
+    return LoadCell(fields.number("tare"), n_per_count)
+
+
+def calibration_from_dict(data: Any, source: str) -> TytoCalibration:
+    """A calibration from its JSON form; errors name ``source`` and the field path."""
+    top = Fields(data, source=source)
+    top.string("format", choices=(CALIBRATION_FORMAT,))
+    top.integer("version", minimum=1, maximum=1)
+    torque = top.sub("torque")
+    rpm = top.sub("rpm") if top.has("rpm") else Fields({}, source=source, path="rpm")
+    return TytoCalibration(
+        thrust=_cell(top.sub("thrust")),
+        torque_left=_cell(torque.sub("left")),
+        torque_right=_cell(torque.sub("right")),
+        arm_length_m=torque.number("arm_length_m", minimum=1e-6),
+        electrical_rpm_factor=rpm.number("electrical_factor", 1.0),
+        optical_rpm_factor=rpm.number("optical_factor", 1.0),
+        vibration_g_per_count=top.number("vibration_g_per_count")
+        if top.has("vibration_g_per_count")
+        else None,
+        serial=top.string("serial", ""),
+    )
+
+
+_SIMULATED: dict[str, TytoCalibration] = {}
+
+
+def register_simulated_calibration(peer: str, cal: TytoCalibration) -> None:
+    """The calibration a simulated peer (``sim://<peer>``) was built with: a simulator
+    registers it, so opening its URL needs no calibration file (and the rig never imports the
+    simulator for it)."""
+    _SIMULATED[peer.lower()] = cal
+
+
+def simulated_calibration(peer: str) -> TytoCalibration | None:
+    return _SIMULATED.get(peer.lower())
+
+
+def load_calibration(path: str | Path) -> TytoCalibration:
+    """Read a unit's calibration file (``thrustmap.tyto-calibration`` JSON)."""
+    return calibration_from_dict(load_json(path, what="Tyto calibration"), str(path))
+
+
+def save_calibration(cal: TytoCalibration, path: str | Path) -> None:
+    """Write a unit's calibration file atomically."""
+    atomic_write_text(path, json.dumps(calibration_to_dict(cal), indent=2) + "\n")

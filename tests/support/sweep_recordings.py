@@ -23,6 +23,7 @@ from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunConfig, RunResult, record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
+from thrustmap.rig.stand.tyto import save_calibration
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +92,9 @@ def record(flavour: str, out_dir: Path) -> RunResult:
     # Regenerating replaces the fixtures on purpose (the Ds writer never overwrites a recording).
     for old in (fc_log, stand_log, run_csv, run_csv.with_suffix(".meta.json")):
         old.unlink(missing_ok=True)
-    SIM_TYTO_CALIBRATION.save(calibration_path(out_dir))  # what a real unit's file would say
+    save_calibration(
+        SIM_TYTO_CALIBRATION, calibration_path(out_dir)
+    )  # what a real unit's file would say
     peers.reset_benches()
     result, _ = _run(
         record_url(fc_sim, str(fc_log)),

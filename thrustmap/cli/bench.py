@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from thrustmap.clock import Clock, MonotonicClock, SimClock
 from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits, check_plan
-from thrustmap.rig.runner import RunConfig, record_sweep
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
+
+FC = TypeVar("FC", bound=Callable[..., Any])
+
+if TYPE_CHECKING:
+    pass
 
 
 @click.command("demo")
@@ -77,6 +80,34 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
         return plans.ramp(kw["start"], kw["stop"], duration_s=kw["duration"], repeats=kw["repeats"])
     levels = [float(x) for x in (kw["levels"] or "").split(",") if x.strip()]
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
+
+
+def limit_options(fn: FC) -> FC:
+    """One click option per row of the interlock table (``rig.interlocks.INTERLOCKS``): its
+    option name, its default and its unit come from the table, never from here."""
+    return limit_options_except()(fn)
+
+
+def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
+    """``limit_options`` without the rows named in ``exclude`` (``spin`` sets its own, lower
+    throttle cap)."""
+
+    def decorate(fn: FC) -> FC:
+        for row in reversed(INTERLOCKS):
+            if row.field in exclude:
+                continue
+            unit = f" [{row.unit}]" if row.unit else ""
+            fn = click.option(
+                row.option,
+                row.field,
+                type=row.value_type,
+                default=row.default,
+                show_default=row.default is not None,
+                help=row.help + unit,
+            )(fn)
+        return fn
+
+    return decorate
 
 
 @click.command("sweep")
@@ -151,29 +182,7 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     "--duration", type=float, default=30.0, show_default=True, help="ramp: seconds per ramp."
 )
 @click.option("--repeats", type=int, default=1, show_default=True)
-@click.option("--max-throttle", type=float, default=80.0, show_default=True, help="Ceiling, %.")
-@click.option("--max-thrust", type=float, default=20.0, show_default=True, help="N.")
-@click.option("--max-current", type=float, default=60.0, show_default=True, help="A.")
-@click.option("--min-cell-voltage", type=float, default=3.3, show_default=True, help="V per cell.")
-@click.option("--cells", type=int, help="Battery cells (default: as the FC reports).")
-@click.option("--max-rpm", type=float, default=40000.0, show_default=True)
-@click.option("--max-temp", type=float, default=90.0, show_default=True, help="°C.")
-@click.option("--max-vibration", type=float, default=8.0, show_default=True, help="g.")
-@click.option("--max-slew", type=float, default=100.0, show_default=True, help="%/s.")
-@click.option(
-    "--stale-s",
-    type=float,
-    default=0.5,
-    show_default=True,
-    help="Stop when the stand is silent this long.",
-)
-@click.option(
-    "--link-timeout",
-    type=float,
-    default=1.0,
-    show_default=True,
-    help="Stop when the FC is silent this long.",
-)
+@limit_options
 @click.option(
     "--tyto-calibration",
     type=click.Path(dir_okay=False),
@@ -187,6 +196,7 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     default=None,
     help="Simulated rigs run as fast as possible unless --realtime.",
 )
+@click.option("--line-spec", type=click.Path(dir_okay=False), help="Line stand spec (JSON).")
 @click.option(
     "--dry-run",
     is_flag=True,
@@ -212,25 +222,35 @@ def sweep_cmd(
     """Run a step/stairs/ramp sweep on a stand and record it as a Ds log.
 
     Every way out — completion, a tripped limit, an error, Ctrl-C, SIGTERM, a silent stand or
-    FC — stops the motor and verifies the stop; the log is kept and marked with the outcome."""
-    plan = _plan(kind, kw)
-    limits = Limits(
-        max_thrust_n=kw["max_thrust"],
-        max_current_a=kw["max_current"],
-        min_cell_voltage_v=kw["min_cell_voltage"],
-        cells=kw["cells"],
-        max_rpm=kw["max_rpm"],
-        max_temperature_c=kw["max_temp"],
-        max_vibration_g=kw["max_vibration"],
-        max_throttle_pct=kw["max_throttle"],
-        max_slew_pct_s=kw["max_slew"],
-        stale_data_s=kw["stale_s"],
-        link_timeout_s=kw["link_timeout"],
-    )
-    check_plan(plan, limits)
-    from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
+    FC — stops the motor and verifies the stop; the log is kept and marked with the outcome.
+    Before the plan the rotor must be at rest and the stand is tared (shown as its own phase).
 
-    parse_motor(motor)  # refuse a bad --motor before anything is opened
+    \b
+    Exit codes: 0 done (stop verified); 1 aborted by a limit or a device failure (stop
+    verified); 2 refused or bad input (nothing spun); 3 stop NOT verified (disconnect the
+    battery); 130 interrupted by Ctrl-C/SIGTERM (stop verified)."""
+    from thrustmap.rig.runner import RunConfig
+    from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
+
+    plan = _plan(kind, kw)
+    limits = Limits.from_options(kw)
+    check_plan(plan, limits)
+    from thrustmap.cli.live import LiveView
+    from thrustmap.rig.fc.motor_numbers import parse_motor
+
+    motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
+    rig = Rig(
+        stand=stand_url,
+        throttle=throttle_url,
+        kind=None if fc_kind == "auto" else fc_kind,
+        calibration=kw["tyto_calibration"],
+        line_preset=kw["line_preset"],
+        line_spec=kw["line_spec"],
+        motor=(motor_number or 1) - 1,
+        watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the recording
+    )
+    for warning in pairing_warnings(rig):
+        click.echo(f"warning: {warning}", err=True)
     if kw["dry_run"]:
         click.echo(plan.describe())
         click.echo(
@@ -238,61 +258,45 @@ def sweep_cmd(
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
         return
-    from thrustmap.rig import connect
-
-    simulated = connect.is_simulated(stand_url) and (
-        throttle_url is None or connect.is_simulated(throttle_url)
+    realtime = kw["realtime"]
+    clock = choose_clock(
+        rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
     )
-    realtime = kw["realtime"] if kw["realtime"] is not None else not simulated
-    clock: Clock = MonotonicClock() if realtime else SimClock()
     if not kw["yes"]:
         click.confirm(
             f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
             abort=True,
             err=True,
         )
-    # SIGTERM unwinds like Ctrl-C from the moment a device is open, so every exit stops motors.
-    from thrustmap.cli.live import LiveView
-
-    with terminate_as_exception(), LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:
-        stand = connect.open_stand(
-            stand_url, clock, calibration=kw["tyto_calibration"], line_preset=kw["line_preset"]
+    session = BenchSession(rig, clock)
+    try:
+        with session, LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:
+            motor_index, label = session.resolve_motor(motor)
+            view.note(f"motor on the load cell: {label}")
+            result = session.sweep(
+                plan,
+                output,
+                limits=limits,
+                config=RunConfig(motor=motor_index, rotors_on_esc=int(rotors_on_esc)),
+                monitor=view.sweep_monitor,
+            )
+    except KeyboardInterrupt:  # before the run started (the runner reports its own)
+        verified = session.stop_verified is not False
+        click.echo(
+            "interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True
         )
-        with stand:
-            if throttle_url is None:
-                output_dev = connect.stand_esc_output(stand)
-            else:
-                output_dev = connect.open_throttle_output(
-                    throttle_url,
-                    clock,
-                    kind=None if fc_kind == "auto" else fc_kind,
-                    watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the log
-                )
-            with output_dev:
-                output_dev.identify()  # the FC's frame says what a test-order letter means
-                motor_index = resolve_motor(output_dev, motor)
-                view.note(f"motor on the load cell: {motor_label(output_dev, motor_index)}")
-                view.set_phase("waiting for rest, taring")
-                result = record_sweep(
-                    plan,
-                    output_dev,
-                    stand,
-                    output,
-                    clock,
-                    limits=limits,
-                    config=RunConfig(motor=motor_index, rotors_on_esc=int(rotors_on_esc)),
-                    monitor=view.sweep_monitor,
-                )
-    verdict = (
-        "stop verified" if result.stop_verified else "STOP NOT VERIFIED - disconnect the battery"
-    )
-    blind = getattr(output_dev, "stop_unverifiable", None)
-    if blind and not result.stop_verified:
+        sys.exit(exit_code("interrupted", verified))
+    verified = result.stop_verified and session.stop_verified is not False
+    verdict = "stop verified" if verified else "STOP NOT VERIFIED - disconnect the battery"
+    blind = session.stop_unverifiable
+    if blind and not verified:
         verdict = f"stop sent and acknowledged, NOT verified ({blind})"
     click.echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
+        + (f" (after {result.wait_s:.1f} s at rest and taring)" if result.wait_s >= 0.05 else "")
         + (f" - {result.reason}" if result.reason else "")
         + f"; {verdict}; log {output}"
     )
-    if result.status != "completed" or not result.stop_verified:
-        sys.exit(3)
+    code = exit_code(result.outcome, verified)
+    if code:
+        sys.exit(code)

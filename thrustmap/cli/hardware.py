@@ -15,40 +15,36 @@ import dataclasses
 import json
 import logging
 import sys
+from typing import Any
 
 import click
 
-from thrustmap.clock import Clock, MonotonicClock, SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.cli.bench import limit_options_except
+from thrustmap.clock import Clock, MonotonicClock
+from thrustmap.errors import ConfigError, ThrustmapError
 from thrustmap.rig import connect
+from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.spin import (
     DEFAULT_MAX_THROTTLE_PCT,
     MAX_SECONDS,
     SpinReport,
     SpinRequest,
     check_spin,
-    run_spin,
 )
 
 log = logging.getLogger(__name__)
 
-KIND_CHOICE = click.Choice(sorted(connect.KIND_ALIASES), case_sensitive=False)
-CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)
+KIND_CHOICE = click.Choice(sorted(connect.kind_aliases()), case_sensitive=False)
+#: the interlocks spin sets its own way (a 20 % cap by default; one level, no ramp to check)
+SPIN_OWN_LIMITS = ("max_throttle_pct", "max_slew_pct_s")
+CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)  # rig.session
 
 
 def make_clock(choice: str, urls: list[str]) -> Clock:
-    """The clock for a command on ``urls`` (see the module docstring)."""
-    simulated = all(connect.is_simulated(u) for u in urls)
-    choice = choice.lower()
-    if choice == "sim" and not simulated:
-        real = [u for u in urls if not connect.is_simulated(u)]
-        raise ConfigError(
-            f"--clock sim needs simulated devices only; {', '.join(real)} is real "
-            "(its timeouts and the spin duration would be meaningless)"
-        )
-    if choice == "sim" or (choice == "auto" and simulated):
-        return SimClock()
-    return MonotonicClock()
+    """The clock for a command on ``urls`` (the rule: ``thrustmap.rig.session.choose_clock``)."""
+    from thrustmap.rig.session import choose_clock
+
+    return choose_clock(urls, choice)
 
 
 def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
@@ -259,6 +255,7 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 @click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
 @click.option("--stand", "stand_url", default=None, help="Also show thrust from this stand.")
 @_device_options
+@limit_options_except(*SPIN_OWN_LIMITS)
 def spin_cmd(
     url: str,
     motor: str,
@@ -274,18 +271,37 @@ def spin_cmd(
     line_preset: str | None,
     line_spec: str | None,
     clock_choice: str,
+    **limit_values: Any,
 ) -> None:
     """Spin ONE motor briefly at a low throttle: a capped, confirmed motor test.
 
     The motor is stopped and the stop verified on every way out (the end, an error, Ctrl-C,
-    SIGTERM). Exit codes: 0 done, 2 refused or error, 3 stop not verified, 130 interrupted."""
+    SIGTERM).
+
+    \b
+    Exit codes: 0 done (stop verified); 1 aborted by a device failure (stop verified); 2
+    refused or bad input (nothing spun); 3 stop NOT verified (disconnect the battery); 130
+    interrupted by Ctrl-C/SIGTERM (stop verified)."""
     from thrustmap.cli.live import LiveView
-    from thrustmap.rig.fc.motor_numbers import motor_label, parse_motor, resolve_motor
+    from thrustmap.rig.fc.motor_numbers import parse_motor
+    from thrustmap.rig.session import BenchSession, Rig, exit_code, pairing_warnings
 
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)
     check_spin(request, max_throttle)  # refuse before anything is opened
-    clock = make_clock(clock_choice, [url] + ([stand_url] if stand_url else []))
+    rig = Rig(
+        stand=stand_url,
+        throttle=url,
+        kind=kind,
+        baudrate=baud,
+        calibration=calibration,
+        line_preset=line_preset,
+        line_spec=line_spec,
+        motor=request.motor,
+    )
+    clock = make_clock(clock_choice, rig.urls())
+    for warning in pairing_warnings(rig):
+        click.echo(f"warning: {warning}", err=True)
     if not yes:
         click.confirm(
             f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
@@ -293,66 +309,50 @@ def spin_cmd(
             abort=True,
             err=True,
         )
-    output = connect.open_throttle_output(
-        url,
-        clock,
-        kind=kind,
-        baudrate=baud,
-        calibration=calibration,
-        line_preset=line_preset,
-        line_spec_file=line_spec,
-    )
-    stand = None
-    handed_over = False  # run_spin enters (and so closes) the output
+    session = BenchSession(rig, clock)
     try:
-        if stand_url is not None:
-            stand = connect.open_stand(stand_url, clock)
-        elif isinstance(output, connect.StandEscOutput):
-            stand = output.stand
-        output.identify()  # the FC's frame says which motor a test-order letter means
-        request = dataclasses.replace(request, motor=resolve_motor(output, motor))
-        label = motor_label(output, request.motor)
-        click.echo(f"spinning {label}")
-        unit = output.throttle_scale.unit
-        number = request.motor + 1
-        with LiveView(f"spin {label}", total_s=seconds, phase="spinning") as view:
-            handed_over = True  # from here the output's own exit stops the motor
-            result = run_spin(
-                output,
-                clock,
-                request,
-                max_throttle_pct=max_throttle,
-                stand=stand,
-                on_report=(lambda r: view.spin_report(r, number, unit, seconds))
-                if view.live
-                else (lambda r: click.echo(_report_line(r, number, unit))),
-            )
-    finally:
-        if stand is not None and stand_url is not None:
-            stand.close()
-        if not handed_over:
-            with output:  # stop, verify and close: nothing was commanded, but be sure
-                pass
-    blind = getattr(output, "stop_unverifiable", None)
-    if result.stop_verified:
-        click.echo(f"motor {request.motor + 1} stopped (verified) after {result.duration_s:.1f} s")
-    elif blind:
+        with session:
+            index, label = session.resolve_motor(motor)
+            request = dataclasses.replace(request, motor=index)
+            click.echo(f"spinning {label}")
+            unit = session.output.throttle_scale.unit
+            number = index + 1
+            with LiveView(f"spin {label}", total_s=seconds, phase="spinning") as view:
+                result = session.spin(
+                    request,
+                    max_throttle_pct=max_throttle,
+                    limits=Limits.from_options(limit_values),
+                    on_report=(lambda r: view.spin_report(r, number, unit, seconds))
+                    if view.live
+                    else (lambda r: click.echo(_report_line(r, number, unit))),
+                )
+    except KeyboardInterrupt:  # while opening the devices (a spin reports its own)
+        verified = session.stop_verified is not False
+        click.echo("interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"))
+        sys.exit(exit_code("interrupted", verified))
+    verified = result.stop_verified and session.stop_verified is not False
+    number = request.motor + 1
+    if verified:
+        click.echo(f"motor {number} stopped (verified) after {result.duration_s:.1f} s")
+    elif session.stop_unverifiable:
         click.echo(
-            f"motor {request.motor + 1}: stop sent and acknowledged, NOT verified: {blind}",
+            f"motor {number}: stop sent and acknowledged, NOT verified: "
+            f"{session.stop_unverifiable}",
             err=True,
         )
     else:
-        click.echo(
-            f"STOP NOT VERIFIED on motor {request.motor + 1} - disconnect the battery now", err=True
-        )
+        click.echo(f"STOP NOT VERIFIED on motor {number} - disconnect the battery now", err=True)
     if result.status == "interrupted":
         click.echo(f"spin {result.reason}", err=True)
-        sys.exit(130)
-    if not result.stop_verified:
-        if result.error is not None:
-            click.echo(f"error: {result.reason}", err=True)
-        sys.exit(3)
-    result.raise_error()
+    elif result.status == "failed" and (not verified or result.max_commanded_pct > 0):
+        click.echo(f"error: {result.reason}", err=True)
+        if verified and not isinstance(result.error, ThrustmapError):
+            result.raise_error()  # a bug in a driver: the CLI reports it as an internal error
+    else:
+        result.raise_error()  # refused before anything was commanded: exit 2
+    code = exit_code("aborted" if result.status == "failed" else result.status, verified)
+    if code:
+        sys.exit(code)
 
 
 def _report_line(report: SpinReport, motor: int, unit: str) -> str:

@@ -191,7 +191,9 @@ class LiveView:
     def sweep_monitor(self, st: Any) -> None:
         """The runner's monitor callback (``thrustmap.rig.runner.Status``)."""
         r = st.reading
-        self.set_phase("running")
+        # the runner's phases: at rest and tare before the plan (their own phase, not progress)
+        phase = getattr(st, "phase", "plan")
+        self.set_phase("running" if phase == "plan" else "waiting for rest, taring")
         self.feed(
             Snapshot(
                 elapsed_s=st.elapsed_s,

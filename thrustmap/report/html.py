@@ -296,12 +296,13 @@ def _validation(rd: ReportData) -> str:
         return "<p>No validation was computed.</p>"
     modes = list(rd.validation)
     top = '<th class="l" rowspan="2">model</th>' + "".join(
-        f'<th colspan="{4 if m == "in-sample" else 6}">{_e(m)}</th>' for m in modes
+        f'<th colspan="{4 if m == "in-sample" else 8}">{_e(m)}</th>' for m in modes
     )
     sub = ""
     for m in modes:
         sub += "<th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>"
         if m != "in-sample":
+            sub += "<th>inside box n</th><th>inside mean %</th>"
             sub += "<th>outside box n</th><th>outside mean %</th>"
     by_model: dict[str, dict[str, Row]] = {}
     for m, rows in rd.validation.items():
@@ -313,7 +314,7 @@ def _validation(rd: ReportData) -> str:
         for m in modes:
             r = per[m]
             k = f"{m}:{model}"
-            s = r.inside
+            s = r.all  # the headline counts every held-out point
             ms = (
                 f'<td data-key="{k}:mean_pct" data-value="{s.mean_pct!r}" '
                 f'data-std="{s.std_pct!r}">{s.mean_pct:.3f} ± {s.std_pct:.3f}</td>'
@@ -326,6 +327,8 @@ def _validation(rd: ReportData) -> str:
             ]
             if m != "in-sample":
                 cells += [
+                    _num(r.inside.n, "d", f"{k}:inside_n"),
+                    _num(r.inside.mean_pct, ".3f", f"{k}:inside_mean_pct"),
                     _num(r.outside.n, "d", f"{k}:outside_n"),
                     _num(r.outside.mean_pct, ".3f", f"{k}:outside_mean_pct"),
                 ]
@@ -333,8 +336,9 @@ def _validation(rd: ReportData) -> str:
     return (
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
-        "file out in turn, <b>kfold</b> 5 random folds; held-out points outside the training box are counted apart "
-        "(extrapolation), never mixed in. Same numbers as <code>thrustmap compare --json</code>."
+        "file out in turn, <b>kfold</b> 5 random folds. The held-out figures count every held-out point; "
+        "those inside and outside the training box (extrapolation) are shown beside them. "
+        "Same numbers as <code>thrustmap compare --json</code>."
         "</p>"
         + f'<div class="tw"><table class="validation"><tr>{top}</tr><tr>{sub}</tr>'
         + "".join("<tr>" + "".join(r) + "</tr>" for r in body)

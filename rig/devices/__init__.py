@@ -1,0 +1,15 @@
+"""Devices by URL: a registry of drivers (python-can style), and what iterates it.
+
+- ``registry``: each driver declares its kind, aliases, role (flight controller or stand), how
+  to recognise it (simulated peer names, bytes it sends unasked, what a host writes to it) and
+  how to open it. The built-in drivers are declared in ``builtin`` and loaded lazily.
+- ``urls``: URL forms (device paths, ``sim://``, ``record://``, ``replay://``, ``socket://``,
+  pymavlink ``udpin:``/``tcp:``) and opening a byte transport.
+- ``detect``: what is on the other end of a URL (no I/O for sim/replay; a safe listen-then-ask
+  probe for a real port), iterating the registry.
+- ``ports``: serial ports described from their USB IDs (nothing opened).
+- ``probe``: identity plus a short live reading (``thrustmap probe``).
+
+``thrustmap.rig.connect`` opens throttle outputs and stands through the registry.
+Adding a device: declare a ``Driver`` in ``builtin`` (or ``registry.register`` one).
+"""

@@ -1,0 +1,89 @@
+"""The driver registry: one declaration makes a new device detectable, probe-able and openable
+(detection, --kind, open_stand, stand_esc_output all iterate the registry)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+
+import pytest
+
+from thrustmap.clock import SimClock
+from thrustmap.errors import ConfigError
+from thrustmap.rig import connect
+from thrustmap.rig.devices import registry
+from thrustmap.rig.devices.registry import Detection, Driver, OpenRequest
+from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
+
+
+class FakeStand(Stand):
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.closed = False
+
+    def identify(self) -> DeviceIdentity:
+        return DeviceIdentity(kind="acme-stand", details={"url": self.url})
+
+    def read_samples(self) -> list[StandSample]:
+        return [StandSample(0.0, 1.25)]
+
+    def tare(self, service: Callable[[], None] | None = None) -> None:
+        pass
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def _sim(name: str, options: Mapping[str, str]) -> Detection | None:
+    return Detection("acme-stand", evidence="sim") if name == "acme" else None
+
+
+def _classify(data: bytes, lines: list[str]) -> Detection | None:
+    return Detection("acme-stand", evidence="ACME banner") if "ACME v1" in lines else None
+
+
+ACME = Driver(
+    kind="acme-stand",
+    role="stand",
+    description="ACME stand",
+    default_baud=9600,
+    aliases={"acme": None, "acme-stand": None},
+    sim_detect=_sim,
+    classify=_classify,
+    open_stand=lambda req: FakeStand(req.url),
+)
+
+
+@pytest.fixture
+def acme() -> Iterator[Driver]:
+    registry.register(ACME)
+    yield ACME
+    registry.unregister(ACME.kind)
+
+
+def test_one_declaration_makes_a_stand_known_everywhere(acme: Driver) -> None:
+    assert registry.normalize_kind("ACME") == ("acme-stand", None)
+    assert "acme-stand" in connect.kinds("stand") and "acme" in connect.kind_aliases()
+    found = connect.detect_from_url("sim://acme")
+    assert found is not None and found.kind == "acme-stand"
+    found = connect.classify_bytes(b"noise\r\nACME v1\r\n")
+    assert found is not None and found.evidence == "ACME banner"
+    stand = connect.open_stand("/dev/ttyACME", SimClock(), kind="acme")
+    assert isinstance(stand, FakeStand) and stand.identify().details["url"] == "/dev/ttyACME"
+    with pytest.raises(ConfigError, match="cannot drive an ESC"):
+        connect.stand_esc_output(stand)
+
+
+def test_registry_refuses_a_duplicate_and_unknown_kinds(acme: Driver) -> None:
+    with pytest.raises(ValueError, match="acme-stand"):
+        registry.register(ACME)
+    with pytest.raises(ConfigError, match="unknown device kind 'nope'"):
+        registry.normalize_kind("nope")
+    with pytest.raises(ConfigError, match="no driver"):
+        registry.driver("nope")
+
+
+def test_builtin_drivers_in_detection_order() -> None:
+    assert connect.kinds() == ("msp", "mavlink", "tyto-1585", "line-stand")
+    assert connect.kinds("fc") == ("msp", "mavlink")
+    req = OpenRequest("x", SimClock())
+    assert req.wait_s == 3.0 and dict(req.opts) == {}
