@@ -44,7 +44,6 @@ from thrustmap.rig import connect
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.plant import ConstantPlant
-
 from thrustmap.rig.spin import SpinRequest, run_spin
 
 connect.load_sim_peers()  # this file opens sim:// ports directly (the rig registers them)
