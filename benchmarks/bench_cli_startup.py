@@ -21,6 +21,7 @@ COMMANDS = [
     ["models"], ["fit"], ["compare"], ["evaluate"], ["predict"], ["inspect"],
     ["ports"], ["probe"], ["spin"], ["sweep"], ["demo"],
     ["flightlog"], ["flightlog", "extract"], ["gamma"], ["gamma", "fit"], ["export"],
+    ["report"], ["plot"],
 ]  # fmt: skip
 
 

@@ -26,7 +26,7 @@ from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.metrics import ErrorStats
-from thrustmap.fitting.models import DEFAULT_MODEL
+from thrustmap.fitting.names import DEFAULT_MODEL
 from thrustmap.fitting.selection import Selection, select
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -20,15 +20,14 @@ from thrustmap.fitting.dataset import Dataset, FloatArray
 from thrustmap.fitting.interval import advice, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import ErrorStats, error_stats
-from thrustmap.fitting.models import DEFAULT_MODEL, Identification, Model, get_model
+from thrustmap.fitting.models import Identification, Model, get_model
+from thrustmap.fitting.names import DEFAULT_MODEL, VALIDATIONS, Loss, Validation
 from thrustmap.fitting.selection import Points, Selection, select
-from thrustmap.fitting.solve import Loss, condition_number, solve_gram
+from thrustmap.fitting.solve import condition_number, solve_gram
 from thrustmap.units import ThrottleScale
 
 log = logging.getLogger(__name__)
 
-Validation = Literal["in-sample", "by-file", "kfold"]
-VALIDATIONS: tuple[Validation, ...] = ("in-sample", "by-file", "kfold")
 ILL_CONDITIONED = 1e8
 
 

@@ -31,7 +31,8 @@ import pandas as pd
 from thrustmap.errors import ConfigError, DataFormatError, FitError
 from thrustmap.fitting.df import map_extrapolation, motor_pct_in_map_scale, thrust_from_motors
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap
-from thrustmap.fitting.solve import Loss, solve
+from thrustmap.fitting.names import Loss
+from thrustmap.fitting.solve import solve
 from thrustmap.units import ThrottleScale
 
 log = logging.getLogger(__name__)

@@ -35,7 +35,8 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.errors import ConfigError, FitError
-from thrustmap.fitting.solve import Loss, solve
+from thrustmap.fitting.names import MODEL_NAMES, Loss
+from thrustmap.fitting.solve import solve
 
 FloatArray = npt.NDArray[np.float64]
 Features = Callable[[FloatArray, FloatArray], FloatArray]
@@ -370,7 +371,8 @@ MODELS: dict[str, Model] = {
     )
 }
 
-DEFAULT_MODEL = "motor"
+if tuple(MODELS) != MODEL_NAMES:  # the names the CLI offers must be the ones implemented
+    raise ImportError(f"fitting.names.MODEL_NAMES {MODEL_NAMES} != MODELS {tuple(MODELS)}")
 
 
 def get_model(name: str) -> Model:

@@ -6,18 +6,15 @@ is the seed paper's eq. (8) solved exactly as a linear program (HiGHS), not appr
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 import numpy.typing as npt
 import scipy.optimize as opt
 import scipy.sparse as sp
 
 from thrustmap.errors import FitError
+from thrustmap.fitting.names import LOSSES, Loss
 
 FloatArray = npt.NDArray[np.float64]
-Loss = Literal["l2", "l1"]
-LOSSES: tuple[Loss, ...] = ("l2", "l1")
 
 
 def solve(

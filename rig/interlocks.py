@@ -23,6 +23,10 @@ from typing import Any, Literal
 from thrustmap.errors import SafetyError
 from thrustmap.rig.plans import Plan
 
+#: ``spin``: one short, capped motor test (the CLI's defaults; a sweep uses the table below)
+SPIN_MAX_THROTTLE_PCT = 20.0
+SPIN_MAX_SECONDS = 10.0
+
 
 @dataclass(frozen=True)
 class Reading:

@@ -34,17 +34,11 @@ from thrustmap.clock import Clock, MonotonicClock, SimClock
 from thrustmap.errors import ConfigError
 from thrustmap.rig import connect
 from thrustmap.rig.interfaces import Stand, ThrottleOutput
-from thrustmap.rig.interlocks import Limits
+from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT, Limits
 from thrustmap.rig.plans import Plan
 from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
 from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
-from thrustmap.rig.spin import (
-    DEFAULT_MAX_THROTTLE_PCT,
-    SpinReport,
-    SpinRequest,
-    SpinResult,
-    spin_on,
-)
+from thrustmap.rig.spin import SpinReport, SpinRequest, SpinResult, spin_on
 
 log = logging.getLogger(__name__)
 
@@ -281,7 +275,7 @@ class BenchSession:
         self,
         request: SpinRequest,
         *,
-        max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT,
+        max_throttle_pct: float = SPIN_MAX_THROTTLE_PCT,
         limits: Limits | None = None,
         on_report: Callable[[SpinReport], None] | None = None,
     ) -> SpinResult:

@@ -23,15 +23,14 @@ from dataclasses import dataclass, field, replace
 from thrustmap.clock import Clock
 from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
+from thrustmap.rig.interlocks import SPIN_MAX_SECONDS as MAX_SECONDS
+from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT as DEFAULT_MAX_THROTTLE_PCT
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
 from thrustmap.rig.runner import RunConfig, Runner, Status
 from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
-
-DEFAULT_MAX_THROTTLE_PCT = 20.0
-MAX_SECONDS = 10.0
 
 
 @dataclass(frozen=True)

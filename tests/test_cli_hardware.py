@@ -502,6 +502,8 @@ def test_ports_lists_guesses_without_opening(monkeypatch: pytest.MonkeyPatch) ->
 def test_ports_probe_skips_bootloaders(monkeypatch: pytest.MonkeyPatch) -> None:
     from serial.tools import list_ports
 
+    from thrustmap.rig import connect
+
     monkeypatch.setattr(list_ports, "comports", lambda: list(FAKE_PORTS))
     probed: list[str] = []
 
@@ -509,9 +511,9 @@ def test_ports_probe_skips_bootloaders(monkeypatch: pytest.MonkeyPatch) -> None:
         probed.append(url)
         if url == "/dev/ttyUSB0":
             raise ConfigError("could not tell")
-        return hardware.connect.Detection("msp", "betaflight", evidence="MSP API 1.46")
+        return connect.Detection("msp", "betaflight", evidence="MSP API 1.46")
 
-    monkeypatch.setattr(hardware.connect, "detect_kind", fake_detect)
+    monkeypatch.setattr(connect, "detect_kind", fake_detect)
     result = run("ports", "--probe", "--json")
     assert result.exit_code == 0, result.output
     data = json.loads(result.output)

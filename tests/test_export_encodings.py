@@ -13,7 +13,6 @@ from click.testing import CliRunner
 from thrustmap.cli import cli
 from thrustmap.errors import ConfigError
 from thrustmap.fitting.export.encodings import (
-    ENCODINGS,
     ExportOptions,
     export_map,
     rescale,
@@ -22,6 +21,7 @@ from thrustmap.fitting.export.encodings import (
 )
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
+from thrustmap.fitting.names import ENCODINGS
 from thrustmap.units import SCALES
 
 

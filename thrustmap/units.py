@@ -8,14 +8,15 @@ percent of that scale, as the seed paper does; exports convert back exactly (aff
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING, Any
 
 from thrustmap.errors import ConfigError
 
-FloatArray = npt.NDArray[np.float64]
+if TYPE_CHECKING:  # numpy is imported where arrays are converted: the CLI starts without it
+    import numpy as np
+    import numpy.typing as npt
+
+    FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -38,10 +39,16 @@ class ThrottleScale:
         return self.hi - self.lo
 
     def to_pct(self, native: npt.ArrayLike) -> FloatArray:
-        return (np.asarray(native, dtype=float) - self.lo) / self.span * 100.0
+        import numpy as np
+
+        out: FloatArray = (np.asarray(native, dtype=float) - self.lo) / self.span * 100.0
+        return out
 
     def from_pct(self, pct: npt.ArrayLike) -> FloatArray:
-        return self.lo + np.asarray(pct, dtype=float) / 100.0 * self.span
+        import numpy as np
+
+        out: FloatArray = self.lo + np.asarray(pct, dtype=float) / 100.0 * self.span
+        return out
 
     def with_range(self, lo: float, hi: float) -> ThrottleScale:
         return ThrottleScale(self.name, lo, hi, self.unit)

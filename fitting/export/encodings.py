@@ -28,6 +28,7 @@ from thrustmap import __version__
 from thrustmap.errors import ConfigError
 from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
 from thrustmap.fitting.models import PolyModel
+from thrustmap.fitting.names import TARGETS
 from thrustmap.units import SCALES, ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -36,16 +37,6 @@ FloatArray = npt.NDArray[np.float64]
 
 #: Standard gravity, for kg -> N and N -> gram-force.
 G0_MPS2 = 9.80665
-
-ENCODINGS: tuple[str, ...] = tuple(SCALES)
-FIRMWARE_TARGETS: tuple[str, ...] = (
-    "c-header",
-    "aerostack2",
-    "px4",
-    "ardupilot",
-    "betaflight",
-)
-TARGETS: tuple[str, ...] = ENCODINGS + FIRMWARE_TARGETS
 
 
 # -- encodings ----------------------------------------------------------------------------------

@@ -56,6 +56,8 @@ SUMMARIES: dict[str, str] = {
     "flightlog": "Flight logs: inspect them and extract Df.",
     "gamma": "Fit the flight correction factor gamma(B).",
     "export": "Export a map for a throttle encoding or a firmware.",
+    "report": "A self-contained HTML report of a map and its data.",
+    "plot": "Publication figures of a map: surface, slices, residuals, coverage, gamma...",
 }
 
 

@@ -8,8 +8,7 @@ from pathlib import Path
 import click
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.export.encodings import TARGETS, ExportOptions, export_map
-from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.names import TARGETS
 from thrustmap.units import SCALES, parse_range
 
 log = logging.getLogger(__name__)
@@ -84,6 +83,9 @@ def export_cmd(
     if not 0.0 < spin_max <= 1.0:
         raise ConfigError(f"--spin-max: expected a value in (0, 1], got {spin_max:g}")
     range_ = parse_range(range_text, "--range") if range_text is not None else None
+    from thrustmap.fitting.export.encodings import ExportOptions, export_map
+    from thrustmap.fitting.mapfile import ThrustMap
+
     tmap = ThrustMap.load(map_file)
     result = export_map(
         tmap,

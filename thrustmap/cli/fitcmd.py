@@ -5,19 +5,18 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
-import numpy as np
 
 from thrustmap.errors import ConfigError
-from thrustmap.fitting.fit import VALIDATIONS, Row, compare, evaluate, fit_map
-from thrustmap.fitting.loaders import ColumnMap, load_datasets
-from thrustmap.fitting.mapfile import ThrustMap
-from thrustmap.fitting.models import DEFAULT_MODEL, MODELS
-from thrustmap.fitting.selection import Selection, select
-from thrustmap.fitting.solve import LOSSES
+from thrustmap.fitting.names import DEFAULT_MODEL, LOSSES, MODEL_NAMES, VALIDATIONS
 from thrustmap.units import SCALES, ThrottleScale, parse_range, scale
+
+if TYPE_CHECKING:  # the fitting machinery (numpy, scipy) is imported by the command that runs
+    from thrustmap.fitting.fit import Row
+    from thrustmap.fitting.loaders import ColumnMap
+    from thrustmap.fitting.selection import Selection
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -66,6 +65,8 @@ def selection_options(f: F) -> F:
 
 
 def _selection(kw: dict[str, Any]) -> Selection:
+    from thrustmap.fitting.selection import Selection
+
     def rng(key: str, what: str) -> tuple[float, float] | None:
         v = kw.get(key)
         return None if v is None else parse_range(v, what)
@@ -79,6 +80,8 @@ def _selection(kw: dict[str, Any]) -> Selection:
 
 
 def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
+    from thrustmap.fitting.loaders import ColumnMap
+
     cols = [kw.get("col_throttle"), kw.get("col_thrust"), kw.get("col_voltage")]
     if not any(cols):
         return None
@@ -103,7 +106,7 @@ def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
 
 
 def _fmt(x: float, width: int) -> str:
-    return f"{x:>{width}.3f}" if np.isfinite(x) else f"{'-':>{width}}"
+    return f"{x:>{width}.3f}" if math.isfinite(x) else f"{'-':>{width}}"
 
 
 def _rows_table(rows: list[Row]) -> str:
@@ -137,6 +140,8 @@ def _json(obj: Any) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def models_cmd(as_json: bool) -> None:
     """List every thrust-map model with its formula."""
+    from thrustmap.fitting.models import MODELS
+
     if as_json:
         click.echo(
             json.dumps(
@@ -168,7 +173,7 @@ def models_cmd(as_json: bool) -> None:
     type=click.Path(dir_okay=False),
     help="Map file to write (JSON).",
 )
-@click.option("--model", default=DEFAULT_MODEL, show_default=True, type=click.Choice(list(MODELS)))
+@click.option("--model", default=DEFAULT_MODEL, show_default=True, type=click.Choice(MODEL_NAMES))
 @click.option(
     "--loss",
     default="l2",
@@ -186,6 +191,9 @@ def fit_cmd(
     files: tuple[str, ...], output: str, model: str, loss: str, strategy: str | None, **kw: Any
 ) -> None:
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
+    from thrustmap.fitting.fit import fit_map
+    from thrustmap.fitting.loaders import load_datasets
+
     datasets = load_datasets(files, _column_map(kw))
     out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
     out.map.save(output)
@@ -249,6 +257,9 @@ def compare_cmd(
     **kw: Any,
 ) -> None:
     """Compare models on stand logs under one validation mode."""
+    from thrustmap.fitting.fit import compare
+    from thrustmap.fitting.loaders import load_datasets
+
     names = [m.strip() for m in models.split(",") if m.strip()]
     datasets = load_datasets(files, _column_map(kw))
     rows = compare(datasets, names, validation, loss=loss, selection=_selection(kw), folds=folds)  # type: ignore[arg-type]
@@ -265,6 +276,10 @@ def compare_cmd(
 @selection_options
 def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any) -> None:
     """Score an existing map on stand logs: every point, and inside/outside its box beside it."""
+    from thrustmap.fitting.fit import evaluate
+    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.mapfile import ThrustMap
+
     tmap = ThrustMap.load(map_file)
     rows = evaluate(tmap, load_datasets(files, _column_map(kw)), _selection(kw))
     if as_json:
@@ -296,6 +311,8 @@ def predict_cmd(
     as_json: bool,
 ) -> None:
     """Throttle for a thrust (the map), or thrust for a throttle (forward)."""
+    from thrustmap.fitting.mapfile import ThrustMap
+
     tmap = ThrustMap.load(map_file)
     given = [x is not None for x in (thrust_n, throttle_native, throttle_pct)]
     if sum(given) != 1:
@@ -362,7 +379,11 @@ def predict_cmd(
 @selection_options
 def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
     """Show how stand logs load: format, scale, ranges, and what selection keeps."""
+    import numpy as np
+
     from thrustmap.fitting.dataset import LAYOUTS
+    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.selection import select
 
     sel = _selection(kw)
     for ds in load_datasets(files, _column_map(kw)):

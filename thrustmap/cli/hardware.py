@@ -15,26 +15,23 @@ import dataclasses
 import json
 import logging
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from thrustmap.cli.bench import limit_options_except
 from thrustmap.clock import Clock, MonotonicClock
 from thrustmap.errors import ConfigError, ThrustmapError
-from thrustmap.rig import connect
+from thrustmap.rig.interlocks import SPIN_MAX_SECONDS as MAX_SECONDS
+from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT as DEFAULT_MAX_THROTTLE_PCT
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.spin import (
-    DEFAULT_MAX_THROTTLE_PCT,
-    MAX_SECONDS,
-    SpinReport,
-    SpinRequest,
-    check_spin,
-)
+
+if TYPE_CHECKING:  # drivers (pyserial, numpy, pymavlink) load when a command runs
+    from thrustmap.rig.devices.ports import PortDescription
+    from thrustmap.rig.spin import SpinReport
 
 log = logging.getLogger(__name__)
 
-KIND_CHOICE = click.Choice(sorted(connect.kind_aliases()), case_sensitive=False)
 #: the interlocks spin sets its own way (a 20 % cap by default; one level, no ramp to check)
 SPIN_OWN_LIMITS = ("max_throttle_pct", "max_slew_pct_s")
 CLOCK_CHOICE = click.Choice(["auto", "real", "sim"], case_sensitive=False)  # rig.session
@@ -51,9 +48,9 @@ def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
     options = [
         click.option(
             "--kind",
-            type=KIND_CHOICE,
             default=None,
-            help="What is connected (default: detected by a safe probe).",
+            help="What is connected: msp (betaflight, inav), mavlink (px4, ardupilot), "
+            "tyto-1585 or line-stand (default: detected by a safe probe).",
         ),
         click.option("--baud", type=int, default=None, help="Serial baud rate (default by kind)."),
         click.option(
@@ -97,6 +94,8 @@ def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
 def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
     """List serial ports with a guess at what each is (from USB IDs; nothing is opened
     unless --probe)."""
+    from thrustmap.rig import connect
+
     ports = connect.list_ports()
     rows: list[dict[str, object]] = []
     for port in ports:
@@ -121,7 +120,9 @@ def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
             click.echo(f"{'':<{width}}             probe: {row['probe']}")
 
 
-def _probe_port(port: connect.PortDescription, listen_s: float) -> str:
+def _probe_port(port: PortDescription, listen_s: float) -> str:
+    from thrustmap.rig import connect
+
     if not port.probe_safe:
         return "skipped (bootloader)"
     try:
@@ -157,6 +158,8 @@ def probe_cmd(
     if not 0 < seconds <= 60:
         raise ConfigError(f"--seconds must be in (0, 60], got {seconds:g}")
     clock = make_clock(clock_choice, [url])
+    from thrustmap.rig import connect
+
     report = connect.probe_device(
         url,
         clock,
@@ -285,6 +288,7 @@ def spin_cmd(
     from thrustmap.cli.live import LiveView
     from thrustmap.rig.fc.motor_numbers import parse_motor
     from thrustmap.rig.session import BenchSession, Rig, exit_code, pairing_warnings
+    from thrustmap.rig.spin import SpinRequest, check_spin
 
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)

@@ -20,9 +20,9 @@ from thrustmap.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
-from thrustmap.fitting.models import DEFAULT_MODEL, PolyModel
+from thrustmap.fitting.models import PolyModel
+from thrustmap.fitting.names import DEFAULT_MODEL, Loss
 from thrustmap.fitting.selection import Selection, _settle_index, plateaus
-from thrustmap.fitting.solve import Loss
 
 log = logging.getLogger(__name__)
 
