@@ -267,8 +267,15 @@ def sweep_cmd(
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
         return
+    from thrustmap.files import check_output_path, new_recording_path
     from thrustmap.rig import connect
 
+    chosen = new_recording_path(
+        check_output_path(output, what="Ds log").path, siblings=(".meta.json",)
+    )
+    if str(chosen) != output:  # a sweep never overwrites a recording
+        click.echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
+        output = str(chosen)
     simulated = connect.is_simulated(stand_url) and (
         throttle_url is None or connect.is_simulated(throttle_url)
     )
