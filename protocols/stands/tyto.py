@@ -50,7 +50,8 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.errors import ConfigError, DataFormatError, ThrustmapError
+from thrustmap.jsonfile import loads_json
 
 TYTO_BAUDRATE = 250_000
 TYTO_READY_LINE = "Ready"
@@ -404,13 +405,19 @@ class TytoCalibration:
         source = str(path)
         try:
             text = Path(path).read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise TytoCalibrationError(
+                f"not UTF-8 text (byte {exc.start}); expected a JSON calibration", file=source
+            ) from None
         except OSError as exc:
             raise TytoCalibrationError(
                 f"cannot read calibration file: {exc.strerror}", file=source
             ) from None
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
+            data = loads_json(text, source=source)
+        except DataFormatError as exc:
+            raise TytoCalibrationError(exc.message, file=source, line=exc.line) from None
+        except json.JSONDecodeError as exc:  # pragma: no cover - loads_json maps these
             raise TytoCalibrationError(
                 f"not valid JSON: {exc.msg} (column {exc.colno})", file=source, line=exc.lineno
             ) from None

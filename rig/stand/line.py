@@ -41,7 +41,8 @@ from pathlib import Path
 from typing import Any
 
 from thrustmap.clock import Clock
-from thrustmap.errors import ConfigError, SafetyError, ThrustmapError
+from thrustmap.errors import ConfigError, DataFormatError, SafetyError, ThrustmapError
+from thrustmap.jsonfile import loads_json
 from thrustmap.protocols.stands.line import (
     FIELDS,
     Column,
@@ -663,11 +664,17 @@ def load_line_spec(path: str | Path) -> LineStandSpec:
     source = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"not UTF-8 text (byte {exc.start}); expected a JSON stand spec", file=source
+        ) from None
     except OSError as exc:
         raise ConfigError(f"cannot read line stand spec: {exc.strerror}", file=source) from None
     try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
+        data = loads_json(text, source=source)
+    except DataFormatError as exc:
+        raise ConfigError(exc.message, file=source, line=exc.line) from None
+    except json.JSONDecodeError as exc:  # pragma: no cover - loads_json maps these
         raise ConfigError(
             f"not valid JSON: {exc.msg} (column {exc.colno})", file=source, line=exc.lineno
         ) from None
