@@ -116,8 +116,11 @@ def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: flo
         fin = np.isfinite(v)
         if fin.sum() >= 1:
             ts, vs = sig.time_s[fin], v[fin]
-            idx = np.clip(np.searchsorted(ts, centres), 1, max(len(ts) - 1, 1))
-            near = np.minimum(np.abs(ts[idx] - centres), np.abs(ts[idx - 1] - centres))
+            if len(ts) == 1:  # one sample: its distance to every bin centre
+                near = np.abs(ts[0] - centres)
+            else:
+                idx = np.clip(np.searchsorted(ts, centres), 1, len(ts) - 1)
+                near = np.minimum(np.abs(ts[idx] - centres), np.abs(ts[idx - 1] - centres))
             interp = np.interp(centres, ts, vs)
             col = np.where(np.isnan(col) & (near <= max_gap_s), interp, col)
         out[:, k] = col

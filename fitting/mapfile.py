@@ -23,6 +23,7 @@ import numpy.typing as npt
 from thrustmap import __version__
 from thrustmap.errors import DataFormatError
 from thrustmap.fitting.models import Model, get_model, motor_forward
+from thrustmap.jsonfile import loads_json
 from thrustmap.units import ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -215,7 +216,7 @@ class ThrustMap:
         except OSError as exc:
             raise DataFormatError(f"cannot read map file: {exc.strerror}", file=str(p)) from None
         try:
-            data = json.loads(raw.decode("utf-8"))
+            data = loads_json(raw.decode("utf-8"), source=str(p))  # bounded depth, strict numbers
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             line = getattr(exc, "lineno", None)
             raise DataFormatError(f"not a JSON map file ({exc})", file=str(p), line=line) from None

@@ -88,6 +88,22 @@ def _make_format(type_id: int, length: int, name: str, fmt: str, cols: str) -> M
     )
 
 
+class _Columns(dict[str, npt.NDArray[Any]]):
+    """A message's columns; a missing one is a DataFormatError naming the message and field."""
+
+    def __init__(self, path: str, fmt: MessageFormat) -> None:
+        super().__init__()
+        self.path = path
+        self.fmt = fmt
+
+    def __missing__(self, key: str) -> npt.NDArray[Any]:
+        raise DataFormatError(
+            f"{self.fmt.name} messages have no field '{key}' (their FMT defines "
+            f"{', '.join(self.fmt.columns) or 'none'}); expected ArduPilot's {self.fmt.name} layout",
+            file=self.path,
+        )
+
+
 @dataclass
 class DataFlashLog:
     """A decoded DataFlash file: formats, message start offsets per type, warnings."""
@@ -133,7 +149,7 @@ class DataFlashLog:
         if f is None:
             return {}
         rec = self.records(name)
-        out: dict[str, npt.NDArray[Any]] = {}
+        out: dict[str, npt.NDArray[Any]] = _Columns(self.path, f)
         for col, mult in zip(f.columns, f.multipliers, strict=True):
             values = rec[col]
             out[col] = values * mult if mult is not None else values
