@@ -8,6 +8,7 @@ bounded child process and accepts only exit 0, or exit 2 with exactly one stderr
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pickle
@@ -399,10 +400,8 @@ def warm() -> None:
     for target in set(COMMANDS.values()):
         importlib.import_module("thrustmap.cli." + target.split(":")[0])
     for name in ("pandas", "scipy.optimize", "pyulog", "pymavlink.mavutil"):
-        try:
+        with contextlib.suppress(ImportError):
             importlib.import_module(name)
-        except ImportError:
-            pass
 
 
 def _run_one(case: Case, folder: Path, timeout_s: float, memory_bytes: int) -> CliResult:
