@@ -20,7 +20,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, cast
 
-from thrustmap.errors import DataFormatError
+from thrustmap.errors import DataFormatError, ThrustmapError
 from thrustmap.fitting.flightlogs.series import FlightLog
 
 log = logging.getLogger(__name__)
@@ -80,7 +80,9 @@ class Reader:
             )
         try:
             flights = getattr(module, self.read_fn)(path, **options)
-        except DataFormatError:
+        except ThrustmapError as exc:
+            if exc.file is None:  # a reader's check deep inside (acc_1G, a scale): name the file
+                exc.file = str(path)
             raise
         except _DECODE_ERRORS as exc:
             # A reader meeting bytes it cannot decode (a corrupt or crafted file) says so in one
