@@ -27,8 +27,10 @@ import numpy.typing as npt
 import pandas as pd
 
 from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.files import atomic_write_text
 from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.jsonfile import load_json
 from thrustmap.units import ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -125,8 +127,11 @@ def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: flo
         fin = np.isfinite(v)
         if fin.sum() >= 1:
             ts, vs = sig.time_s[fin], v[fin]
-            idx = np.clip(np.searchsorted(ts, centres), 1, max(len(ts) - 1, 1))
-            near = np.minimum(np.abs(ts[idx] - centres), np.abs(ts[idx - 1] - centres))
+            if len(ts) == 1:  # one sample: its distance to every bin centre
+                near = np.abs(ts[0] - centres)
+            else:
+                idx = np.clip(np.searchsorted(ts, centres), 1, len(ts) - 1)
+                near = np.minimum(np.abs(ts[idx] - centres), np.abs(ts[idx - 1] - centres))
             interp = np.interp(centres, ts, vs)
             col = np.where(np.isnan(col) & (near <= max_gap_s), interp, col)
         out[:, k] = col
@@ -167,6 +172,65 @@ def airborne_windows(flight: FlightLog) -> list[tuple[float, float]]:
     if flight.landed is not None:
         air &= flight.landed.hold(t) < 0.5
     return [(float(t[a]), float(t[b - 1])) for a, b in _runs(air)]
+
+
+# -- time sanity ---------------------------------------------------------------------------------
+
+#: a pause in the log longer than this splits it into stretches (logging stopped, a new flight)
+TIME_JUMP_S = 60.0
+#: the resampled timeline may hold at most this many bins per accelerometer sample (plus a
+#: constant): a span the samples cannot fill is a corrupt or mistyped time, not a flight
+BINS_PER_SAMPLE = 4
+BINS_SLACK = 36_000
+
+
+def plausible_timeline(acc: Signal, rate_hz: float, path: str) -> tuple[Signal, list[str]]:
+    """The accelerometer samples whose times are plausible, and warnings for those dropped.
+
+    One mistyped or bit-flipped time (``3005000`` among 0..300 s) would otherwise make the
+    resampled timeline span weeks: gigabytes of empty bins. Samples with non-finite times, and
+    stretches (separated by more than TIME_JUMP_S) too small to be flying (fewer than 5 samples
+    or 0.1 % of the log), are dropped with a warning; if the remaining span still needs far more
+    bins than there are samples, the log's times are refused. Memory stays bounded by the input.
+    """
+    t = acc.time_s
+    warnings: list[str] = []
+    keep = np.isfinite(t)
+    if not keep.all():
+        warnings.append(f"{int((~keep).sum())} accelerometer samples without a valid time dropped")
+    t_ok = t[keep]
+    if not len(t_ok):
+        raise DataFormatError("no accelerometer sample has a valid time", file=path)
+    order_ok = bool(np.all(np.diff(t_ok) >= 0))
+    if not order_ok:
+        raise DataFormatError(
+            "accelerometer times go backwards; expected increasing timestamps", file=path
+        )
+    breaks = np.flatnonzero(np.diff(t_ok) > TIME_JUMP_S) + 1
+    bounds = [0, *breaks.tolist(), len(t_ok)]
+    minimum = max(5, len(t_ok) // 1000)
+    idx_ok = np.flatnonzero(keep)
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b - a < minimum and len(bounds) > 2:
+            keep[idx_ok[a:b]] = False
+            warnings.append(
+                f"{b - a} sample(s) at t = {t_ok[a]:.6g} s dropped: isolated by a time jump of "
+                f"more than {TIME_JUMP_S:g} s from the rest of the log (a corrupt or mistyped time?)"
+            )
+    if not keep.any():
+        raise DataFormatError("no accelerometer samples left after dropping time jumps", file=path)
+    kept_t = t[keep]
+    span_s = float(kept_t[-1] - kept_t[0])
+    max_bins = BINS_PER_SAMPLE * len(kept_t) + BINS_SLACK
+    if span_s * rate_hz > max_bins:
+        raise DataFormatError(
+            f"the log's times span {span_s:.6g} s for only {len(kept_t)} accelerometer samples; "
+            "expected a flight's timestamps (a corrupt or mistyped time?)",
+            file=path,
+        )
+    if keep.all():
+        return acc, warnings
+    return Signal(t[keep], acc.values[keep], acc.unit, acc.origin), warnings
 
 
 # -- thrust command from motor outputs -----------------------------------------------------------
@@ -404,7 +468,7 @@ def extract_flight(
     mass = opts.mass_kg if opts.mass_kg is not None else flight.metadata.get("mass_kg")
     if mass is None:
         raise ConfigError("give the vehicle mass (--mass-kg): the log does not record it")
-    acc = flight.accel_up_mps2
+    acc, time_warnings = plausible_timeline(flight.accel_up_mps2, opts.rate_hz, flight.path)
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
     dt = 1.0 / opts.rate_hz
@@ -438,7 +502,7 @@ def extract_flight(
             FilterStep(name, reason, float((before - keep.sum()) * dt), float(keep.sum() * dt))
         )
 
-    warnings = list(flight.warnings)
+    warnings = list(flight.warnings) + time_warnings
     span_s = float(acc.time_s[-1] - acc.time_s[0]) if len(acc) > 1 else 0.0
     acc_rate_hz = (len(acc) - 1) / span_s if span_s > 0 else 0.0
     if 0 < acc_rate_hz < MIN_ACCEL_RATE_HZ:
@@ -671,10 +735,16 @@ def sidecar_path(csv_path: str | Path) -> Path:
 
 
 def write_df(df: Df, path: str | Path) -> Path:
+    """Write the Df CSV and its sidecar, each atomically; the sidecar is never the CSV itself."""
     p = Path(path)
-    df.table.to_csv(p, index=False, float_format="%.6g")
     side = sidecar_path(p)
-    side.write_text(json.dumps(df.sources, indent=2, default=str) + "\n", encoding="utf-8")
+    if side.resolve() == p.resolve():
+        raise ConfigError(
+            f"the Df output needs a name its sidecar ({side.name}) does not share; use .csv",
+            file=str(p),
+        )
+    atomic_write_text(p, df.table.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(side, json.dumps(df.sources, indent=2, default=str) + "\n")
     return side
 
 
@@ -682,11 +752,14 @@ def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
     p = Path(path)
     try:
-        table = pd.read_csv(p)
+        table = pd.read_csv(p, dtype=str, keep_default_na=False, engine="c")
     except FileNotFoundError:
         raise DataFormatError("Df file not found", file=str(p)) from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise DataFormatError(f"not a Df CSV: {exc}", file=str(p)) from None
+    except OSError as exc:
+        raise DataFormatError(f"cannot read Df file: {exc.strerror}", file=str(p)) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise DataFormatError(f"not a Df CSV: {reason}", file=str(p)) from None
     for need in ("voltage_v", "force_n"):
         if need not in table.columns:
             raise DataFormatError(
@@ -695,13 +768,29 @@ def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                 file=str(p),
                 column=need,
             )
+    for col in table.columns:
+        if col == "flight":
+            continue
+        text = table[col].str.strip()
+        num = pd.to_numeric(text.where(text != "", "nan"), errors="coerce")
+        bad = num.isna().to_numpy() & ~text.str.lower().isin(["", "nan"]).to_numpy()
+        with np.errstate(invalid="ignore"):
+            bad |= np.isinf(num.to_numpy(dtype=float))
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            cell = str(table[col].iloc[row])
+            shown = cell if len(cell) <= 40 else f"{cell[:40]}... ({len(cell)} characters)"
+            raise DataFormatError(
+                f"expected a finite number, got {shown!r}", file=str(p), line=row + 2, column=col
+            )
+        table[col] = num.astype(float)
     side: dict[str, Any] = {}
     sp = sidecar_path(p)
-    if sp.exists():
-        try:
-            side = json.loads(sp.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise DataFormatError(f"sidecar is not JSON ({exc})", file=str(sp)) from None
+    if sp.exists() and sp.resolve() != p.resolve():
+        loaded = load_json(sp, what="Df sidecar")
+        if not isinstance(loaded, dict):
+            raise DataFormatError("Df sidecar: expected a JSON object", file=str(sp))
+        side = loaded
     if "flight" not in table.columns:
         table.insert(0, "flight", p.name)
     return table, side

@@ -24,12 +24,14 @@ import json
 import logging
 import math
 import os
+import stat
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Literal
 
 from thrustmap.errors import DataFormatError, ThrustmapError
+from thrustmap.jsonfile import loads_json
 
 log = logging.getLogger(__name__)
 
@@ -156,9 +158,9 @@ def _fail(path: str, line: int, message: str) -> TranscriptFormatError:
 
 def _parse_header(path: str, text: str) -> TranscriptHeader:
     try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise _fail(path, 1, f"expected a JSON header line, got invalid JSON ({exc.msg})") from None
+        obj = loads_json(text, source=path)
+    except DataFormatError as exc:
+        raise _fail(path, 1, f"expected a JSON header line, got {exc.message}") from None
     if not isinstance(obj, dict) or obj.get("format") != FORMAT_NAME:
         raise _fail(path, 1, f'expected a header object with "format": "{FORMAT_NAME}"')
     version = obj.get("version")
@@ -179,6 +181,8 @@ def _parse_header(path: str, text: str) -> TranscriptHeader:
 
 
 def _parse_event(path: str, lineno: int, text: str, last_t: float) -> TranscriptEvent:
+    if text.count("{") + text.count("[") > 8:  # events are flat objects: no deep nesting
+        raise _fail(path, lineno, "expected one flat JSON event object, got nested JSON")
     try:
         obj = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -220,32 +224,68 @@ def iter_transcript(
     process died mid-write) is dropped with a warning instead of raising.
     """
     name = str(path)
-    try:
-        with open(name, encoding="utf-8") as fh:
-            lines = fh.read().split("\n")
-    except FileNotFoundError:
-        raise TranscriptFormatError("transcript file not found", file=name) from None
-    except UnicodeDecodeError as exc:
-        raise TranscriptFormatError(f"not UTF-8 text ({exc.reason})", file=name) from None
-    ends_with_newline = lines[-1] == ""
-    if ends_with_newline:
-        lines.pop()
-    if not lines or not lines[0].strip():
-        raise _fail(name, 1, "empty transcript: expected a header line")
-    yield _parse_header(name, lines[0])
-    last_t = 0.0
-    for index, text in enumerate(lines[1:], start=2):
+    for number, text, is_last, complete in _bounded_lines(name):
+        if number == 1:
+            if not text.strip():
+                raise _fail(name, 1, "empty transcript: expected a header line")
+            yield _parse_header(name, text)
+            last_t = 0.0
+            continue
         if not text.strip():
             continue
         try:
-            event = _parse_event(name, index, text, last_t)
+            event = _parse_event(name, number, text, last_t)
         except TranscriptFormatError:
-            if drop_truncated_tail and index == len(lines) and not ends_with_newline:
-                log.warning("%s:%d: dropped a truncated last line", name, index)
+            if drop_truncated_tail and is_last and not complete:
+                log.warning("%s:%d: dropped a truncated last line", name, number)
                 return
             raise
         last_t = event.time_s
         yield event
+
+
+#: a transcript is read only from a regular file, at most this large; a line at most this long
+#: (a day of a 115200-baud link is ~2 GB of hex, but a sweep's transcript is a few MB)
+MAX_TRANSCRIPT_BYTES = 256 * 1024 * 1024
+MAX_LINE_CHARS = 1024 * 1024
+
+
+def _bounded_lines(name: str) -> Iterator[tuple[int, str, bool, bool]]:
+    """(line number, text, is it the last line, did it end with a newline), streamed.
+
+    Only a regular file is read (never a device, FIFO or socket a path may name), its size is
+    checked first and every line is read with a length limit, so no transcript can make the
+    reader take unbounded time or memory."""
+    try:
+        st = os.stat(name)
+    except FileNotFoundError:
+        raise TranscriptFormatError("transcript file not found", file=name) from None
+    except OSError as exc:
+        raise TranscriptFormatError(f"cannot read transcript: {exc.strerror}", file=name) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise TranscriptFormatError("expected a transcript file, not a device or folder", file=name)
+    if st.st_size > MAX_TRANSCRIPT_BYTES:
+        raise TranscriptFormatError(
+            f"transcript is {st.st_size} bytes; expected at most {MAX_TRANSCRIPT_BYTES}", file=name
+        )
+    try:
+        with open(name, encoding="utf-8", newline="\n") as fh:
+            number = 0
+            current = fh.readline(MAX_LINE_CHARS + 1)
+            if not current:
+                raise _fail(name, 1, "empty transcript: expected a header line")
+            while current:
+                number += 1
+                complete = current.endswith("\n")
+                if not complete and len(current) > MAX_LINE_CHARS:
+                    raise _fail(name, number, f"line longer than {MAX_LINE_CHARS} characters")
+                nxt = fh.readline(MAX_LINE_CHARS + 1)
+                yield number, current.rstrip("\n").rstrip("\r"), not nxt, complete
+                current = nxt
+    except UnicodeDecodeError as exc:
+        raise TranscriptFormatError(f"not UTF-8 text ({exc.reason})", file=name) from None
+    except OSError as exc:
+        raise TranscriptFormatError(f"cannot read transcript: {exc.strerror}", file=name) from None
 
 
 def read_transcript(

@@ -36,6 +36,13 @@ log = logging.getLogger(__name__)
 LOG_START_MARKER = b"H Product:Blackbox flight data recorder by Nicholas Sherlock"
 FRAME_MARKERS = b"IPEGHS"
 MAX_FRAME_BYTES = 256
+#: plausible header ranges (Betaflight/INAV/Cleanflight logs stay far inside them): a header
+#: claiming more is corrupt, and must not drive the decoder's loops or tables
+MAX_FIELDS = 256  # per frame type; real main frames have 30..110
+MAX_INTERVAL = 0xFFFF  # 'I interval' and the 'P interval' numerator/denominator are 16-bit
+#: decoding work budget per input byte (field evaluations, counting failed resync attempts),
+#: so a damaged log decodes in time linear in its size whatever its header claims
+WORK_PER_BYTE = 64
 MAX_ITERATION_JUMP = 5000
 MAX_TIME_JUMP_US = 10_000_000
 
@@ -161,6 +168,13 @@ def parse_headers(data: bytes) -> tuple[dict[str, str], dict[str, FrameDef], int
                     fd.encoding = _ints(value)
             except ValueError:
                 raise CorruptFrame(f"header line '{key}' has non-integer values") from None
+    for marker, fd in defs.items():
+        widest = max(len(fd.names), len(fd.signed), len(fd.predictor), len(fd.encoding))
+        if widest > MAX_FIELDS:
+            raise CorruptFrame(
+                f"header defines {widest} fields for '{marker}' frames; expected at most "
+                f"{MAX_FIELDS}"
+            )
     return headers, defs, pos
 
 
@@ -546,11 +560,17 @@ def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
     text = headers.get("P interval", "1/1").strip()
     try:
         if "/" in text:
-            num, den = text.split("/", 1)
-            return max(int(num), 1), max(int(den), 1)
-        return 1, max(int(text), 1)
+            num_text, den_text = text.split("/", 1)
+            num, den = max(int(num_text), 1), max(int(den_text), 1)
+        else:
+            num, den = 1, max(int(text), 1)
     except ValueError:
         return 1, 1
+    if num > MAX_INTERVAL or den > MAX_INTERVAL:
+        raise CorruptFrame(
+            f"header 'P interval: {text[:20]}' is out of range; expected values up to {MAX_INTERVAL}"
+        )
+    return num, den
 
 
 def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
@@ -559,13 +579,14 @@ def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
     def logged(idx: int) -> bool:
         return (idx % i_interval + p_num - 1) % p_den < p_num
 
-    table = []
-    for r in range(i_interval):
-        k = 1
-        while not logged(r + k) and k <= i_interval + p_den:
-            k += 1
-        table.append(k - 1)
-    return table
+    # One backward pass over two periods (logged() repeats every I interval): the distance from
+    # each iteration to the next logged one, capped as before at I interval + P denominator.
+    cap = i_interval + p_den
+    span = 2 * i_interval + 1
+    next_gap = [cap + 1] * (span + 1)
+    for idx in range(span - 1, -1, -1):
+        next_gap[idx] = 0 if logged(idx) else min(next_gap[idx + 1] + 1, cap + 1)
+    return [min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval)]
 
 
 def decode_log(section: bytes, index: int = 0, offset: int = 0) -> DecodedLog:
@@ -634,6 +655,10 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
                 defs[marker], constants=constants, data_version=version
             )
     i_interval = max(header_int(headers, "I interval", 32), 1)
+    if i_interval > MAX_INTERVAL:
+        raise CorruptFrame(
+            f"header 'I interval: {i_interval}' is out of range; expected 1..{MAX_INTERVAL}"
+        )
     p_num, p_den = _p_interval(headers)
     skip_table = _skip_table(i_interval, p_num, p_den)
     home_idx = [
@@ -663,6 +688,10 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
     garbage_run = False
     mark_i, mark_p, mark_e = ord("I"), ord("P"), ord("E")
     mark_s, mark_g, mark_h = ord("S"), ord("G"), ord("H")
+    widths = {ord(k): max(len(fd.names), 1) for k, fd in defs.items()}
+    widths[mark_i] = widths[mark_p] = max(nfields, 1)
+    budget = WORK_PER_BYTE * n + 100_000
+    out_of_budget = -1
 
     while pos < n:
         m = d[pos]
@@ -674,6 +703,10 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
             pos += 1
             continue
         start = pos
+        budget -= widths.get(m, 1)
+        if budget < 0:
+            out_of_budget = start
+            break
         event: tuple[int, tuple[float, ...]] | None = None
         try:
             if m == mark_p:
@@ -763,6 +796,11 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
         warnings.append(
             f"log {index + 1}: truncated or corrupt tail at byte {offset + tail_start} "
             f"({n - tail_start} bytes ignored); the data before it is used"
+        )
+    if out_of_budget >= 0:
+        warnings.append(
+            f"log {index + 1}: too corrupt to resynchronise economically; decoding stopped at "
+            f"byte {offset + out_of_budget} ({n - out_of_budget} bytes ignored)"
         )
     if stats["corrupt"] or stats["invalid_main"]:
         warnings.append(

@@ -91,6 +91,22 @@ def _make_format(type_id: int, length: int, name: str, fmt: str, cols: str) -> M
     )
 
 
+class _Columns(dict[str, npt.NDArray[Any]]):
+    """A message's columns; a missing one is a DataFormatError naming the message and field."""
+
+    def __init__(self, path: str, fmt: MessageFormat) -> None:
+        super().__init__()
+        self.path = path
+        self.fmt = fmt
+
+    def __missing__(self, key: str) -> npt.NDArray[Any]:
+        raise DataFormatError(
+            f"{self.fmt.name} messages have no field '{key}' (their FMT defines "
+            f"{', '.join(self.fmt.columns) or 'none'}); expected ArduPilot's {self.fmt.name} layout",
+            file=self.path,
+        )
+
+
 @dataclass
 class DataFlashLog:
     """A decoded DataFlash file: formats, message start offsets per type, warnings."""
@@ -136,7 +152,7 @@ class DataFlashLog:
         if f is None:
             return {}
         rec = self.records(name)
-        out: dict[str, npt.NDArray[Any]] = {}
+        out: dict[str, npt.NDArray[Any]] = _Columns(self.path, f)
         for col, mult in zip(f.columns, f.multipliers, strict=True):
             values = rec[col]
             out[col] = values * mult if mult is not None else values
@@ -223,6 +239,22 @@ def _read_formats(
     return formats, warnings
 
 
+#: chain breaks listed one by one; beyond this they are summarised in one line
+MAX_LISTED_GAPS = 5
+
+
+def _gap_warnings(gaps: list[tuple[int, int]]) -> list[str]:
+    """One line per corrupt stretch, at most MAX_LISTED_GAPS, then one summary line."""
+    out = [f"skipped {size} corrupt bytes at byte {at}" for at, size in gaps[:MAX_LISTED_GAPS]]
+    rest = gaps[MAX_LISTED_GAPS:]
+    if rest:
+        out.append(
+            f"... and {len(rest)} more corrupt stretches ({sum(s for _, s in rest)} bytes, "
+            f"from byte {rest[0][0]} to {rest[-1][0]}) skipped"
+        )
+    return out
+
+
 def parse(path: str | Path) -> DataFlashLog:
     """Decode the message layout of a DataFlash file (messages are decoded on demand)."""
     p = Path(path)
@@ -255,10 +287,12 @@ def parse(path: str | Path) -> DataFlashLog:
     # -1: chain breaks; -2: this message ends exactly at end of file; -3: it runs past the end
     next_idx = np.where(chained, j, np.where(nxt == n, -2, np.where(nxt > n, -3, -1)))
     good_start = next_idx != -1
+    good_idx = np.flatnonzero(good_start)
     nxt_list = next_idx.tolist()
     on_chain = np.zeros(len(cand), dtype=bool)
     i, skipped = 0, 0
     end_pos = 0
+    gaps: list[tuple[int, int]] = []  # (byte, bytes skipped) per chain break
     while True:
         k = nxt_list[i]
         if k >= 0:
@@ -277,19 +311,22 @@ def parse(path: str | Path) -> DataFlashLog:
                 f"({n - pos} of {int(lengths[buf[pos + 2]])} bytes); ignored"
             )
             break
-        # The chain breaks after this message: keep it, resync on the next start that chains.
+        # The chain breaks after this message: keep it, resync on the next start that chains
+        # (binary search over the chaining starts: linear overall however often it breaks).
         on_chain[i] = True
         after = pos + int(lengths[buf[pos + 2]])
-        later = np.flatnonzero(good_start[i + 1 :] & (cand[i + 1 :] >= after))
-        if not len(later):
+        first = max(i + 1, int(np.searchsorted(cand, after)))
+        g = int(np.searchsorted(good_idx, first))
+        if g >= len(good_idx):
             end_pos = after
             warnings.append(
                 f"corrupt tail: {n - after} bytes from byte {after} are not decodable; ignored"
             )
             break
-        i = i + 1 + int(later[0])
+        i = int(good_idx[g])
         skipped += int(cand[i]) - after
-        warnings.append(f"skipped {int(cand[i]) - after} corrupt bytes at byte {after}")
+        gaps.append((after, int(cand[i]) - after))
+    warnings[len(warnings) : len(warnings)] = _gap_warnings(gaps)
     starts_all = cand[on_chain]
     types = buf[starts_all + 2]
     order = np.argsort(types, kind="stable")

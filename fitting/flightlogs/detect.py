@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import importlib
 import logging
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any, cast
 
-from thrustmap.errors import DataFormatError
+from thrustmap.errors import DataFormatError, ThrustmapError
 from thrustmap.fitting.flightlogs.series import FlightLog
 
 log = logging.getLogger(__name__)
@@ -77,8 +78,39 @@ class Reader:
             raise DataFormatError(
                 f"cannot read {self.description}: {self.unavailable_reason()}", file=str(path)
             )
-        flights = getattr(module, self.read_fn)(path, **options)
+        try:
+            flights = getattr(module, self.read_fn)(path, **options)
+        except ThrustmapError as exc:
+            if exc.file is None:  # a reader's check deep inside (acc_1G, a scale): name the file
+                exc.file = str(path)
+            raise
+        except _DECODE_ERRORS as exc:
+            # A reader meeting bytes it cannot decode (a corrupt or crafted file) says so in one
+            # line naming the file, never as an internal error.
+            raise DataFormatError(
+                f"corrupt or unreadable {self.description}: {_one_line(exc)}", file=str(path)
+            ) from None
         return list(cast("list[FlightLog]", flights))
+
+
+#: what decoding a malformed file raises inside a reader or its third-party parser
+_DECODE_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError,  # includes UnicodeDecodeError, pandas ParserError, numpy shape errors
+    IndexError,
+    KeyError,
+    struct.error,
+    OverflowError,
+    RecursionError,
+    ZeroDivisionError,
+    EOFError,
+)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if len(text) > 200:
+        text = text[:200] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 _PKG = "thrustmap.fitting.flightlogs"

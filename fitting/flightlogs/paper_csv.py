@@ -96,7 +96,9 @@ def _load_table(path: Path) -> tuple[pd.DataFrame, list[str]]:
     header = _split_header(lines[0])
     sep = ";" if lines[0].count(";") > lines[0].count(",") else ","
     warnings: list[str] = []
-    body = [ln for ln in lines[1:] if ln.strip()]
+    numbered = [(k + 1, ln) for k, ln in enumerate(lines) if k and ln.strip()]
+    body = [ln for _, ln in numbered]
+    line_no = [k for k, _ in numbered]  # file line of each body row (blank lines skipped)
     if not body:
         raise DataFormatError("flight CSV has a header but no data rows", file=str(path), line=2)
 
@@ -123,7 +125,7 @@ def _load_table(path: Path) -> tuple[pd.DataFrame, list[str]]:
     if tail:
         warnings.append(
             f"corrupt tail: last {tail} row(s) are short or not numeric (from line "
-            f"{len(lines) - tail + 1}); ignored"
+            f"{line_no[len(body) - tail]}); ignored"
         )
         body = body[: len(body) - tail]
     for i, line in enumerate(body):
@@ -131,7 +133,7 @@ def _load_table(path: Path) -> tuple[pd.DataFrame, list[str]]:
             raise DataFormatError(
                 f"row has {len(line.split(sep))} fields, the header names {len(header)}",
                 file=str(path),
-                line=i + 2,
+                line=line_no[i],
             )
     try:
         df = pd.read_csv(io.StringIO("\n".join(body)), sep=sep, header=None, names=header)
@@ -144,15 +146,20 @@ def _load_table(path: Path) -> tuple[pd.DataFrame, list[str]]:
             if len(bad_rows):
                 row = int(bad_rows[0])
                 raise DataFormatError(
-                    f"expected a number, got {df[col].iloc[row]!r}",
+                    f"expected a number, got {_short(df[col].iloc[row])}",
                     file=str(path),
-                    line=row + 2,
+                    line=line_no[row],
                     column=str(col),
                 )
             df[col] = num
     if not len(df):
         raise DataFormatError("flight CSV holds no complete data row", file=str(path))
     return df, warnings
+
+
+def _short(value: Any, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _column(df: pd.DataFrame, name: str, path: Path) -> FloatArray:

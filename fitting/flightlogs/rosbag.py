@@ -163,7 +163,11 @@ def read(
         reader = rb.highlevel.AnyReader([p], default_typestore=as2_typestore())
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
-        raise DataFormatError(f"cannot open ROS 2 bag: {exc}", file=str(p)) from None
+        reason = " ".join(str(exc).split())  # rosbags' messages run to 30 lines (YAML dumps)
+        reason = reason if len(reason) <= 160 else reason[:160] + "..."
+        raise DataFormatError(
+            f"cannot open ROS 2 bag: {type(exc).__name__}: {reason}", file=str(p)
+        ) from None
     try:
         conns = reader.connections
         by_ns = _topics_by_namespace(sorted({c.topic for c in conns}))

@@ -12,9 +12,11 @@ Armed: vehicle_status.arming_state == 2; landed: vehicle_land_detected.landed.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -191,27 +193,126 @@ def legacy_pwm_range(params: dict[str, Any], n: int) -> tuple[ThrottleScale, str
 
 
 _ULOG_TYPES = frozenset(b"BFIMPQARDLCSO")
+_DEFINITION_TYPES = frozenset(b"BFIMPQ")
+_BASE_SIZES = {
+    "int8_t": 1, "uint8_t": 1, "char": 1, "bool": 1, "int16_t": 2, "uint16_t": 2,
+    "int32_t": 4, "uint32_t": 4, "float": 4, "int64_t": 8, "uint64_t": 8, "double": 8,
+}  # fmt: skip
+#: a ULog message payload is at most 65535 bytes, so no format can describe more
+MAX_FORMAT_BYTES = 0xFFFF
+#: budget of flattened fields pyulog expands over all subscriptions, per byte of file
+FIELDS_PER_BYTE = 8
+
+
+@dataclass
+class _Walk:
+    good_end: int  # bytes that form an intact chain of messages (pyulog gets only these)
+    problem: str | None  # why the rest is not used (None when the whole file is intact)
+
+
+def _format_sizes(formats: dict[str, list[tuple[str, int]]]) -> dict[str, int]:
+    """Flattened payload size of every format; -1 for a cyclic, unknown or oversized one."""
+    sizes: dict[str, int] = {}
+
+    def size_of(name: str, stack: tuple[str, ...]) -> int:
+        if name in _BASE_SIZES:
+            return _BASE_SIZES[name]
+        if name in sizes:
+            return sizes[name]
+        if name in stack or name not in formats or len(stack) > 32:
+            return -1
+        total = 0
+        for type_name, count in formats[name]:
+            one = size_of(type_name, (*stack, name))
+            if one < 0:
+                total = -1
+                break
+            total += one * max(count, 1)
+            if total > MAX_FORMAT_BYTES:
+                total = -1
+                break
+        sizes[name] = total
+        return total
+
+    for name in formats:
+        size_of(name, ())
+    return sizes
+
+
+def _parse_format(payload: bytes) -> tuple[str, list[tuple[str, int]]] | None:
+    text = payload.decode("utf-8", "replace")
+    name, sep, body = text.partition(":")
+    if not sep or not name:
+        return None
+    fields: list[tuple[str, int]] = []
+    for item in body.split(";"):
+        item = item.strip()
+        if not item:
+            continue
+        type_part, _, _field = item.partition(" ")
+        count = 0
+        if "[" in type_part:
+            type_part, _, rest = type_part.partition("[")
+            digits = rest.rstrip("]")
+            if not digits.isdigit() or len(digits) > 5:
+                return None
+            count = int(digits)
+        fields.append((type_part, count))
+    return name, fields
+
+
+def walk(raw: bytes) -> _Walk:
+    """Check a ULog's message chain before pyulog sees it (pyulog can loop forever or expand
+    crafted formats without bound on corrupt input): every header must have a known type and fit
+    in the file, definitions must come before data, and the formats the log subscribes to must
+    be finite and no larger than a ULog message can be. The intact prefix is what gets parsed."""
+    import struct
+
+    n, pos = len(raw), 16
+    unpack = struct.Struct("<HB").unpack_from
+    formats: dict[str, list[tuple[str, int]]] = {}
+    sizes: dict[str, int] | None = None
+    in_data = False
+    field_budget = max(200_000, FIELDS_PER_BYTE * n)
+    while pos + 3 <= n:
+        size, kind = unpack(raw, pos)
+        if kind not in _ULOG_TYPES or (in_data and kind == ord("F")):
+            return _Walk(
+                pos,
+                f"corrupt data at byte {pos} (message type {kind:#04x}); "
+                f"the {n - pos} bytes after it are not used",
+            )
+        if pos + 3 + size > n:
+            return _Walk(pos, f"corrupt tail: last message truncated at byte {n}; ignored")
+        payload = raw[pos + 3 : pos + 3 + size]
+        if kind == ord("F") and not in_data:
+            parsed = _parse_format(payload)
+            if parsed is None:
+                return _Walk(pos, f"corrupt format definition at byte {pos}; the rest is not used")
+            formats[parsed[0]] = parsed[1]
+        elif kind == ord("A"):
+            if sizes is None:
+                sizes = _format_sizes(formats)
+            name = payload[3:].decode("utf-8", "replace")
+            cost = sizes.get(name, -1)
+            if cost < 0 or cost > field_budget:
+                return _Walk(
+                    pos,
+                    f"corrupt subscription at byte {pos} (format '{name[:40]}' is undefined, "
+                    f"cyclic or too large); the {n - pos} bytes after it are not used",
+                )
+            field_budget -= cost
+        if kind not in _DEFINITION_TYPES:
+            in_data = True
+        pos += 3 + size
+    if pos < n:
+        return _Walk(pos, f"corrupt tail: {n - pos} stray bytes at the end; ignored")
+    return _Walk(n, None)
 
 
 def check_integrity(path: Path, raw: bytes | None = None) -> str | None:
     """Walk the ULog message headers; describe a truncated or corrupt tail (None when intact)."""
-    if raw is None:
-        raw = path.read_bytes()
-    n, pos = len(raw), 16
-    types = _ULOG_TYPES
-    while pos + 3 <= n:  # byte indexing: twice as fast as struct.unpack_from per header
-        kind = raw[pos + 2]
-        if kind not in types:
-            return (
-                f"corrupt data at byte {pos} (message type {kind:#04x}); "
-                f"the {n - pos} bytes after it are not used"
-            )
-        pos += 3 + (raw[pos] | (raw[pos + 1] << 8))
-    if pos > n:
-        return f"corrupt tail: last message truncated at byte {n}; ignored"
-    if pos < n:
-        return f"corrupt tail: {n - pos} stray bytes at the end; ignored"
-    return None
+    return walk(raw if raw is not None else path.read_bytes()).problem
 
 
 def _release(code: Any) -> str | None:
@@ -230,14 +331,26 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         ) from None
     warnings: list[str] = []
     try:
-        raw = path.read_bytes()  # read once: pyulog parses it from memory, the walk reuses it
+        raw = path.read_bytes()
     except OSError as exc:
         raise DataFormatError(f"cannot read ULog: {exc.strerror}", file=str(path)) from None
-    try:
-        ulog = ULog(io.BytesIO(raw), message_name_filter_list=TOPICS, disable_str_exceptions=True)
+    if not raw.startswith(MAGIC) or len(raw) < 16:
+        raise DataFormatError("not a ULog file (expected the 'ULog' header)", file=str(path))
+    intact = walk(raw)
+    problem = intact.problem
+    chatter = io.StringIO()
+    try:  # pyulog prints its diagnostics: keep them off stdout (it carries --json output)
+        with contextlib.redirect_stdout(chatter):
+            ulog = ULog(
+                io.BytesIO(raw[: intact.good_end]),
+                message_name_filter_list=TOPICS,
+                disable_str_exceptions=True,
+            )
     except Exception as exc:  # pyulog raises bare exceptions on malformed headers
         raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
-    problem = check_integrity(path, raw)
+    finally:
+        for line in chatter.getvalue().splitlines()[:5]:
+            log.debug("%s: pyulog: %s", path, line)
     if problem is not None:
         warnings.append(problem)
     elif getattr(ulog, "file_corruption", False):

@@ -154,7 +154,10 @@ class ReplaySerial(SerialBase):
             if key == "strict":
                 self.strict = _truthy(unquote(value))
             else:
-                raise SerialException(f"replay://: unknown option {key!r} (known: strict)")
+                raise TransportError(
+                    f"unknown replay:// option {key!r}; expected strict=0 or strict=1",
+                    file=self._port,
+                )
         self._load(read_transcript(path))
         self.is_open = True
 

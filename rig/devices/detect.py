@@ -65,7 +65,8 @@ def _detect_from_transcript(url: str) -> Detection | None:
         log.debug("cannot read transcript %s for detection: %s", path, exc)
         return None
     recorded = transcript.header.inner
-    if recorded and url_scheme(recorded) in ("sim", "record", "replay"):
+    # the header's URL only describes what was recorded: never open what a file names
+    if recorded and url_scheme(innermost_url(recorded)) == "sim":
         found = detect_from_url(recorded)
         if found is not None:
             return Detection(

@@ -10,7 +10,8 @@ from __future__ import annotations
 import importlib
 import logging
 import sys
-from typing import Any
+import warnings
+from typing import Any, TextIO
 
 import click
 
@@ -106,37 +107,148 @@ class LazyGroup(click.Group):
 def cli(ctx: click.Context, verbose: int, debug: bool) -> None:
     """Calibrate multirotor thrust maps on a thrust stand and correct them from flight logs."""
     level = logging.WARNING - 10 * min(verbose, 2)
-    logging.basicConfig(
-        level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
-    )
+    logging.getLogger().setLevel(level)
+    handler = _CliLogHandler.current
+    if handler is not None:
+        handler.verbose = verbose
+    else:  # cli() called directly (tests, embedding): plain stderr logging
+        logging.basicConfig(level=level, format=_LOG_FORMAT, stream=sys.stderr)
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
 
 
+_LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
+
+#: commands that drive hardware or run for minutes: their warnings are shown as they happen
+LIVE_COMMANDS = frozenset({"sweep", "spin", "probe", "demo", "ports", "live"})
+
+
+class _CliLogHandler(logging.Handler):
+    """stderr logging for one command run.
+
+    Warnings of a file command are held until it ends: shown when it succeeds, replaced by the
+    count when it fails (so a refused input gives exactly one line; ``-v`` shows them all).
+    Commands in LIVE_COMMANDS (hardware) show every record at once.
+    """
+
+    current: _CliLogHandler | None = None
+
+    def __init__(self, stream: TextIO, *, live: bool) -> None:
+        super().__init__(logging.DEBUG)
+        self.stream = stream
+        self.live = live
+        self.verbose = 0
+        self.held: list[str] = []
+        self.setFormatter(logging.Formatter(_LOG_FORMAT))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            line = " ".join(self.format(record).splitlines())
+        except Exception:  # pragma: no cover - a broken record must not take the command down
+            self.handleError(record)
+            return
+        if self.live or self.verbose:
+            self._write(line)
+        else:
+            self.held.append(line)
+
+    def _write(self, line: str) -> None:
+        try:
+            self.stream.write(line + "\n")
+            self.stream.flush()
+        except (OSError, ValueError):  # pragma: no cover - stderr closed
+            pass
+
+    def flush_held(self) -> None:
+        for line in self.held:
+            self._write(line)
+        self.held.clear()
+
+    def summary(self) -> str:
+        n = len(self.held)
+        self.held.clear()
+        return f" ({n} warning{'s' if n != 1 else ''} before it; -v shows them)" if n else ""
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """Python warnings (numpy, pandas) go through logging, on one line, never raw to stderr."""
+    level = logging.DEBUG if issubclass(category, RuntimeWarning) else logging.WARNING
+    logging.getLogger("thrustmap.warnings").log(
+        level, "%s: %s", category.__name__, " ".join(str(message).splitlines())
+    )
+
+
+def _command_name(args: list[str]) -> str | None:
+    return next((a for a in args if not a.startswith("-")), None)
+
+
 def main(argv: list[str] | None = None) -> Any:
-    """Console entry point: maps errors to one-line messages and exit codes."""
-    debug = "--debug" in (argv if argv is not None else sys.argv[1:])
+    """Console entry point: maps errors to one-line messages and exit codes.
+
+    stdout carries only the command's output; logging and Python warnings go to stderr through
+    one handler (see :class:`_CliLogHandler`); a ``ThrustmapError`` is one line and exit 2.
+    """
+    args = list(argv if argv is not None else sys.argv[1:])
+    handler = _CliLogHandler(sys.stderr, live=_command_name(args) in LIVE_COMMANDS)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    previous, _CliLogHandler.current = _CliLogHandler.current, handler
     try:
-        return cli.main(args=argv, prog_name="thrustmap", standalone_mode=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            warnings.showwarning = _show_warning
+            code = _run(args, handler)
+    finally:
+        root.removeHandler(handler)
+        _CliLogHandler.current = previous
+    if code:
+        sys.exit(code)
+    return None
+
+
+def _run(args: list[str], handler: _CliLogHandler) -> int:
+    code = _run_inner(args, handler)
+    if code == 0:
+        handler.flush_held()
+    return code
+
+
+def _run_inner(args: list[str], handler: _CliLogHandler) -> int:
+    debug = "--debug" in args
+    try:
+        cli.main(args=args, prog_name="thrustmap", standalone_mode=False)
+        return 0
     except click.exceptions.Abort:
+        handler.flush_held()
         click.echo("aborted", err=True)
-        sys.exit(130)
+        return 130
     except click.ClickException as exc:
-        exc.show()
-        sys.exit(exc.exit_code)
+        message = " ".join(exc.format_message().splitlines())
+        click.echo(f"error: {message}{handler.summary()}", err=True)
+        return exc.exit_code
     except click.exceptions.Exit as exc:
-        sys.exit(exc.exit_code)
+        handler.flush_held()
+        return exc.exit_code
     except ThrustmapError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(2)
+        click.echo(f"error: {' '.join(str(exc).splitlines())}{handler.summary()}", err=True)
+        return 2
     except KeyboardInterrupt:
+        handler.flush_held()
         click.echo("interrupted", err=True)
-        sys.exit(130)
+        return 130
     except Exception as exc:  # a bug: say so in one line, traceback only on request
+        handler.flush_held()
         if debug:
             raise
         click.echo(
             f"internal error: {type(exc).__name__}: {exc} (run with --debug for a traceback)",
             err=True,
         )
-        sys.exit(1)
+        return 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Callable
@@ -258,6 +259,15 @@ def sweep_cmd(
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
         return
+    from thrustmap.files import check_output_path, new_recording_path
+
+    chosen = new_recording_path(
+        check_output_path(output, what="Ds log").path, siblings=(".meta.json",)
+    )
+    if str(chosen) != output:  # a sweep never overwrites a recording
+        click.echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
+        output = str(chosen)
+        rig = dataclasses.replace(rig, watchdog_log=str(chosen.with_suffix(".watchdog.log")))
     realtime = kw["realtime"]
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")

@@ -86,6 +86,11 @@ def export_cmd(
     from thrustmap.fitting.export.encodings import ExportOptions, export_map
     from thrustmap.fitting.mapfile import ThrustMap
 
+    plan = None
+    if output is not None:
+        from thrustmap.files import check_output_path
+
+        plan = check_output_path(output, inputs=[map_file], what="export output")
     tmap = ThrustMap.load(map_file)
     result = export_map(
         tmap,
@@ -100,12 +105,12 @@ def export_cmd(
             spin_max=spin_max,
         ),
     )
-    if output is None:
+    if output is None or plan is None:
         click.echo(result.text, nl=False)
         return
-    try:
-        output.write_text(result.text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot write {output}: {exc.strerror}") from None
+    from thrustmap.files import atomic_write_text
+
+    atomic_write_text(output, result.text)
     summary = ", ".join(f"{k} {v:.3g}" for k, v in result.residual.items())
-    click.echo(f"wrote {output} ({target}; residual {summary or 'n/a'})", err=True)
+    replaced = "; replaced the previous file" if plan.replaced else ""
+    click.echo(f"wrote {output} ({target}; residual {summary or 'n/a'}{replaced})", err=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
@@ -191,12 +192,16 @@ def fit_cmd(
     files: tuple[str, ...], output: str, model: str, loss: str, strategy: str | None, **kw: Any
 ) -> None:
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
+    from thrustmap.files import atomic_write_text, check_output_path
     from thrustmap.fitting.fit import fit_map
     from thrustmap.fitting.loaders import load_datasets
 
+    # a Ds log's sidecar (run.meta.json) is an input too; run.json is a free name for the map
+    sidecars = [s for f in files if (s := Path(f).with_suffix(".meta.json")).exists()]
+    plan = check_output_path(output, inputs=[*files, *sidecars], what="map output")
     datasets = load_datasets(files, _column_map(kw))
     out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
-    out.map.save(output)
+    atomic_write_text(output, out.map.dumps())
     s = out.map.metrics["in_sample"]
     v = out.map.validity
     for p in out.pool.points:
@@ -225,7 +230,7 @@ def fit_cmd(
     click.echo(out.more_data)
     for w in out.warnings:
         click.echo(f"warning: {w}", err=True)
-    click.echo(f"wrote {output}")
+    click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
 
 
 @click.command("compare")
@@ -243,7 +248,13 @@ def fit_cmd(
     show_default=True,
     type=click.Choice(VALIDATIONS),
 )
-@click.option("--folds", default=5, show_default=True, help="Folds for --validate kfold.")
+@click.option(
+    "--folds",
+    default=5,
+    show_default=True,
+    type=click.IntRange(min=2),
+    help="Folds for --validate kfold.",
+)
 @click.option("--loss", default="l2", show_default=True, type=click.Choice(LOSSES))
 @click.option("--json", "as_json", is_flag=True, help='Print {"rows": [...]}.')
 @selection_options

@@ -179,10 +179,20 @@ def extract_cmd(
     as_json: bool,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
-    from thrustmap.fitting.df import DfOptions, extract, write_df
+    from thrustmap.files import check_output_path
+    from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
     from thrustmap.fitting.flightlogs.detect import read_log
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
+    inputs = [*logs, *([map_path] if map_path else [])]
+    plan = check_output_path(output, inputs=inputs, what="Df output")
+    side_plan = check_output_path(sidecar_path(output), inputs=inputs, what="Df sidecar")
+    if side_plan.path.resolve() == plan.path.resolve():
+        raise ConfigError(
+            f"the Df output needs a name its sidecar ({side_plan.path.name}) does not share; "
+            "use .csv",
+            file=str(output),
+        )
     opts = DfOptions(
         mass_kg=mass_kg,
         rotors=rotors,
@@ -213,7 +223,11 @@ def extract_cmd(
         click.echo(_summary(r))
         for w in r.warnings:
             click.echo(f"  warning: {w}")
-    click.echo(f"wrote {len(df.table)} samples to {output} (sources in {side})")
+    replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
+    click.echo(
+        f"wrote {len(df.table)} samples to {output} (sources in {side})"
+        + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
+    )
 
 
 def _summary(r: Any) -> str:
@@ -260,10 +274,13 @@ def gamma_fit_cmd(
     """Fit γ(B) on DF... and write the map with its correction block."""
     import pandas as pd
 
-    from thrustmap.fitting.df import read_df
+    from thrustmap.files import atomic_write_text, check_output_path
+    from thrustmap.fitting.df import read_df, sidecar_path
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
+    inputs = [*dfs, *(sidecar_path(p) for p in dfs), map_path]
+    plan = check_output_path(output, inputs=inputs, what="map output")
     tmap = ThrustMap.load(map_path)
     tables: list[pd.DataFrame] = []
     side: dict[str, Any] = {}
@@ -283,7 +300,7 @@ def gamma_fit_cmd(
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
     out_map = corrected_map(tmap, fit, sources)
-    out_map.save(output)
+    atomic_write_text(output, out_map.dumps())
     if as_json:
         click.echo(json.dumps(fit.to_dict(), indent=2, default=float))
         return
@@ -321,4 +338,4 @@ def gamma_fit_cmd(
             f"  {lo:6.2f}..{hi:6.2f} {row['samples']:6d} {row['gamma']['mean']:6.4f}  {eth}"
             f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
         )
-    click.echo(f"wrote {output}")
+    click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))

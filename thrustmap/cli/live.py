@@ -100,7 +100,7 @@ class LiveView:
         self._console: Any = None
         self._last_draw = 0.0
         self._last_plain = -1e9
-        self._log_streams: list[tuple[logging.StreamHandler[Any], Any]] = []
+        self._log_streams: list[tuple[logging.Handler, Any]] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
     def __enter__(self) -> LiveView:
@@ -134,7 +134,7 @@ class LiveView:
             self._live.stop()
             self._live = None
         for handler, stream in self._log_streams:
-            handler.setStream(stream)
+            handler.stream = stream  # type: ignore[attr-defined]
         self._log_streams.clear()
 
     def _route_logging(self) -> None:
@@ -154,9 +154,10 @@ class LiveView:
 
         loggers = [logging.getLogger(), logging.getLogger("thrustmap")]
         for handler in [h for lg in loggers for h in lg.handlers]:
-            if type(handler) is logging.StreamHandler and id(handler.stream) in terminal:
-                self._log_streams.append((handler, handler.stream))
-                handler.setStream(Above())
+            stream = getattr(handler, "stream", None)  # StreamHandler or the CLI's own handler
+            if stream is not None and id(stream) in terminal:
+                self._log_streams.append((handler, stream))
+                handler.stream = Above()  # type: ignore[attr-defined]
 
     # -- feeding --------------------------------------------------------------------------------
     def note(self, text: str) -> None:
