@@ -11,7 +11,8 @@ import pytest
 from test_export_encodings import synthetic_map
 
 from thrustmap.fitting.export.c_header import reference_throttle
-from thrustmap.fitting.export.encodings import ExportOptions, export_map, target_scale
+from thrustmap.fitting.export.encodings import ExportOptions, target_scale
+from thrustmap.fitting.export.targets import export_map
 
 CC = shutil.which("gcc") or shutil.which("cc")
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (gcc/cc) on PATH")

@@ -14,11 +14,11 @@ from thrustmap.cli import cli
 from thrustmap.errors import ConfigError
 from thrustmap.fitting.export.encodings import (
     ExportOptions,
-    export_map,
     rescale,
     target_scale,
     to_percent,
 )
+from thrustmap.fitting.export.targets import export_map
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
 from thrustmap.fitting.names import ENCODINGS

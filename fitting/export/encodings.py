@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,7 +28,6 @@ from thrustmap import __version__
 from thrustmap.errors import ConfigError
 from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
 from thrustmap.fitting.models import PolyModel
-from thrustmap.fitting.names import TARGETS
 from thrustmap.units import SCALES, ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -303,38 +302,6 @@ def export_encoding(
         residual={"max_dev_of_range": dev},
         suffix=".yaml",
     )
-
-
-# -- dispatcher ----------------------------------------------------------------------------------
-def export_map(tmap: ThrustMap, target: str, options: ExportOptions | None = None) -> ExportResult:
-    """Export ``tmap`` to ``target`` (an encoding name or a firmware target)."""
-    opts = options or ExportOptions()
-    if opts.rotors is not None and opts.rotors < 1:
-        raise ConfigError(f"--rotors must be at least 1, got {opts.rotors}")
-    if opts.mass_kg is not None and not opts.mass_kg > 0:
-        raise ConfigError(f"--mass-kg must be positive, got {opts.mass_kg:g}")
-    if target in SCALES:
-        if opts.encoding is not None and opts.encoding != target:
-            raise ConfigError(
-                f"--encoding {opts.encoding} conflicts with --to {target}; give one of them"
-            )
-        return export_encoding(tmap, target_scale(target, opts.range_), opts)
-    handlers: dict[str, Callable[[ThrustMap, ExportOptions], ExportResult]]
-    from thrustmap.fitting.export import c_header, firmware, platforms
-
-    handlers = {
-        "c-header": c_header.export_c_header,
-        "aerostack2": platforms.export_aerostack2,
-        "px4": firmware.export_px4,
-        "ardupilot": firmware.export_ardupilot,
-        "betaflight": firmware.export_betaflight,
-    }
-    handler = handlers.get(target)
-    if handler is None:
-        raise ConfigError(
-            f"unknown export target '{target}'; expected one of: {', '.join(TARGETS)}"
-        )
-    return handler(tmap, opts)
 
 
 def is_poly(tmap: ThrustMap) -> bool:

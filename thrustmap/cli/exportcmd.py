@@ -83,7 +83,8 @@ def export_cmd(
     if not 0.0 < spin_max <= 1.0:
         raise ConfigError(f"--spin-max: expected a value in (0, 1], got {spin_max:g}")
     range_ = parse_range(range_text, "--range") if range_text is not None else None
-    from thrustmap.fitting.export.encodings import ExportOptions, export_map
+    from thrustmap.fitting.export.encodings import ExportOptions
+    from thrustmap.fitting.export.targets import export_map
     from thrustmap.fitting.mapfile import ThrustMap
 
     plan = None

@@ -258,7 +258,8 @@ def _gamma_data(tmap: ThrustMap, map_path: str) -> GammaData | None:
 def _exports(tmap: ThrustMap, betaflight_firmware: str | None) -> list[ExportRow]:
     """Each firmware target with ``thrustmap export``'s defaults. Betaflight's thrust_linear
     changed formula in 2026.6: the FC's recorded firmware is used, else both generations."""
-    from thrustmap.fitting.export.encodings import ExportOptions, export_map
+    from thrustmap.fitting.export.encodings import ExportOptions
+    from thrustmap.fitting.export.targets import export_map
 
     jobs: list[tuple[str, str, ExportOptions]] = [
         ("px4", "px4", ExportOptions()),
