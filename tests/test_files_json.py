@@ -111,3 +111,16 @@ def test_fields_name_the_path() -> None:
     with pytest.raises(DataFormatError, match=r"expected one of a, b"):
         Fields({"k": "c"}, source="c.json").string("k", choices=("a", "b"))
     assert Fields({"v": 2}, source="c.json").number("v", minimum=0) == 2.0
+
+
+def test_atomic_write_gives_an_ordinary_file_mode(tmp_path: Path) -> None:
+    """mkstemp files are private (0600): a written map or report must not stay so."""
+    umask = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "map.json", "{}")
+        assert (tmp_path / "map.json").stat().st_mode & 0o777 == 0o644
+        os.chmod(tmp_path / "map.json", 0o640)
+        atomic_write_text(tmp_path / "map.json", "{ }")  # a replaced file keeps its mode
+        assert (tmp_path / "map.json").stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(umask)

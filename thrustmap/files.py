@@ -107,6 +107,9 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     except OSError as exc:
         raise ConfigError(f"cannot write here: {_os_reason(exc)}", file=str(p)) from None
     try:
+        # mkstemp makes the file private (0600); a map or report is meant to be shared, so give it
+        # the mode an ordinary write would (the old file's, else 0666 less the umask)
+        os.fchmod(fd, _file_mode(p))
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -120,6 +123,17 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _file_mode(path: Path) -> int:
+    try:
+        if path.is_file() and not path.is_symlink():
+            return path.stat().st_mode & 0o777
+    except OSError:
+        pass
+    umask = os.umask(0o022)  # read the umask (there is no getter) and put it back
+    os.umask(umask)
+    return 0o666 & ~umask
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
