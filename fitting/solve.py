@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-import scipy.optimize as opt
-import scipy.sparse as sp
 
 from thrustmap.errors import FitError
 from thrustmap.fitting.names import LOSSES, Loss
@@ -29,6 +27,8 @@ def solve(
     ``lower`` gives per-coefficient lower bounds (-inf for none); used to keep physics models
     monotone. Column scaling is applied internally so the bounds are in the caller's units.
     """
+    import scipy.optimize as opt  # scipy loads when a fit runs (~1.5 s of imports)
+
     n, k = design.shape
     if n < k:
         raise FitError(f"{n} samples cannot determine {k} coefficients; need at least {k}")
@@ -60,6 +60,9 @@ def solve(
 
 def _lad(a: FloatArray, y: FloatArray, lower: FloatArray | None) -> FloatArray:
     """Least absolute deviations as an LP: min sum(u+v) s.t. A c + u - v = y, u, v >= 0."""
+    import scipy.optimize as opt
+    import scipy.sparse as sp
+
     n, k = a.shape
     cost = np.concatenate([np.zeros(k), np.ones(2 * n)])
     eye = sp.identity(n, format="csr")
@@ -91,6 +94,8 @@ def solve_gram(gram: FloatArray, rhs: FloatArray, lower: FloatArray | None = Non
 
     Lets validation fit many folds from per-file sums without touching the samples again.
     """
+    import scipy.optimize as opt
+
     k = len(rhs)
     d = np.sqrt(np.diag(gram))
     d[d == 0] = 1.0
