@@ -210,5 +210,7 @@ def test_no_steady_flight_writes_an_empty_df_and_gamma_refuses_it(tmp_path: Path
     )
     assert res.exit_code == 2
     line = res.output.strip()
-    assert len(line.splitlines()) == 1 and "no samples in df.csv" in line and "not near hover" in line
+    assert (
+        len(line.splitlines()) == 1 and "no samples in df.csv" in line and "not near hover" in line
+    )
     assert not (tmp_path / "m.json").exists()
