@@ -96,6 +96,7 @@ class FlightReport:
     samples: int
     steps: list[FilterStep] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    voltage_unknown: str | None = None  # why the Df has no battery voltage (None: it has one)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -448,23 +449,35 @@ def select_motors(flight: FlightLog, rotors: int | None) -> FlightLog:
     return replace(flight, motor_outputs=new, warnings=[*flight.warnings, note])
 
 
+def _voltage_missing(flight: FlightLog) -> str | None:
+    """Why the flight has no usable battery voltage (None when it has one). The reader already
+    questions voltages that cannot be physical (0 V throughout) and leaves them out."""
+    if flight.voltage_v is not None and len(flight.voltage_v):
+        return None
+    why = [w for w in flight.warnings if "voltage" in w or "Volt" in w]
+    return "; ".join(why) if why else "not in the log"
+
+
 def extract_flight(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
     flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
-    missing = [
-        n for n, s in (("voltage", flight.voltage_v), ("upward acceleration", flight.accel_up_mps2))
-        if s is None or not len(s)
-    ]  # fmt: skip
-    if missing:
-        why = [w for w in flight.warnings if "voltage" in w or "acceler" in w or "IMU" in w]
+    if flight.accel_up_mps2 is None or not len(flight.accel_up_mps2):
+        why = [w for w in flight.warnings if "acceler" in w or "IMU" in w]
         raise DataFormatError(
-            f"flight log has no {' and no '.join(missing)}: a Df needs the battery voltage and the "
-            "upward acceleration" + (f" ({'; '.join(why)})" if why else ""),
+            "flight log has no upward acceleration: a Df needs it for F_m"
+            + (f" ({'; '.join(why)})" if why else ""),
             file=flight.path,
         )
-    assert flight.accel_up_mps2 is not None and flight.voltage_v is not None
+    voltage_missing = _voltage_missing(flight)
+    voltage_unknown = (
+        None
+        if voltage_missing is None
+        else f"battery voltage unknown ({voltage_missing}): the Df's voltage_v column is empty, "
+        "so γ can only be fitted as a constant and the stand map's forward direction (which "
+        "needs B) cannot give T_c from the motor outputs"
+    )
     mass = opts.mass_kg if opts.mass_kg is not None else flight.metadata.get("mass_kg")
     if mass is None:
         raise ConfigError("give the vehicle mass (--mass-kg): the log does not record it")
@@ -484,7 +497,7 @@ def extract_flight(
         return binned[id(sig)]
 
     a_up = rs(acc)
-    volt = rs(flight.voltage_v)
+    volt = rs(flight.voltage_v) if voltage_unknown is None else np.full(nbins, np.nan)
     assert a_up is not None and volt is not None
     has_data = np.isfinite(a_up)  # a sample in the bin, or one within max_gap_s
     if opts.accel_smooth_s > 0:
@@ -502,7 +515,10 @@ def extract_flight(
             FilterStep(name, reason, float((before - keep.sum()) * dt), float(keep.sum() * dt))
         )
 
-    warnings = list(flight.warnings) + time_warnings
+    warnings = [w for w in flight.warnings if voltage_unknown is None or w not in voltage_unknown]
+    warnings += time_warnings
+    if voltage_unknown is not None:
+        warnings.append(voltage_unknown)
     span_s = float(acc.time_s[-1] - acc.time_s[0]) if len(acc) > 1 else 0.0
     acc_rate_hz = (len(acc) - 1) / span_s if span_s > 0 else 0.0
     if 0 < acc_rate_hz < MIN_ACCEL_RATE_HZ:
@@ -586,7 +602,7 @@ def extract_flight(
 
     sources: dict[str, Any] = {
         "time_s": f"bin centres at {opts.rate_hz:g} Hz, from the first accelerometer sample",
-        "voltage_v": flight.voltage_v.origin,
+        "voltage_v": None if flight.voltage_v is None else flight.voltage_v.origin,
         "accel_up_mps2": acc.origin
         + f" (bin mean at {opts.rate_hz:g} Hz, centred {opts.accel_smooth_s:g} s running mean)",
         "force_n": f"mass_kg × accel_up_mps2, collective (mass {mass:g} kg)",
@@ -624,6 +640,16 @@ def extract_flight(
         sources["thrust_cmd_n"] = flight.thrust_cmd_n.origin + " (collective, from the log)"
     elif src == "log":
         raise DataFormatError("the log has no thrust command in newtons", file=flight.path)
+    needs_b = tmap is not None and (
+        (src in ("auto", "motors") and motors is not None) or (src == "norm" and norm is not None)
+    )
+    if t_cmd is None and needs_b and voltage_unknown is not None:
+        raise DataFormatError(
+            "T_c must come from the motor outputs through the stand map, whose forward direction "
+            f"needs the battery voltage, and the log has none ({voltage_missing}); extract "
+            "without --map",
+            file=flight.path,
+        )
     if t_cmd is None and tmap is not None and src in ("auto", "motors") and motors is not None:
         assert flight.motor_output_scale is not None
         if rotors is None:
@@ -665,7 +691,9 @@ def extract_flight(
     if hover is not None:
         cols["hover_thrust_est"] = _bin_mean(hover, t0, opts.rate_hz, nbins, opts.max_gap_s)
         sources["hover_thrust_est"] = hover.origin
-    valid = np.isfinite(volt) & (volt > 0) & np.isfinite(a_up) & (a_up > 0)
+    valid = np.isfinite(a_up) & (a_up > 0)
+    if voltage_unknown is None:
+        valid &= np.isfinite(volt) & (volt > 0)
     cmd = cols.get("thrust_cmd_n", cols.get("thrust_cmd_norm", cols.get("throttle_pct")))
     if cmd is not None:
         valid &= np.isfinite(cmd) & (cmd > 0)
@@ -699,8 +727,12 @@ def extract_flight(
         samples=int(keep.sum()),
         steps=steps,
         warnings=warnings,
+        voltage_unknown=voltage_unknown,
     )
-    meta = {"mass_kg": mass, "rotors": rotors, "sources": sources}
+    meta: dict[str, Any] = {"mass_kg": mass, "rotors": rotors, "sources": sources}
+    if voltage_unknown is not None:
+        meta["voltage_source"] = None
+        meta["voltage_unknown"] = voltage_missing
     return table, meta, report
 
 

@@ -193,12 +193,22 @@ def fit_gamma(
         raise ConfigError(f"γ degree must be one of {DEGREES}, got {degree}")
     warnings: list[str] = []
     _check_pooling(side, allow_mixed, warnings)
+    table, no_voltage = _voltage_rows(table, warnings)
+    if no_voltage and not ("thrust_cmd_n" in table.columns and table["thrust_cmd_n"].notna().all()):
+        raise FitError(
+            "the Df has no battery voltage and no thrust_cmd_n: T_c would have to come through "
+            "the stand map's forward direction, which needs B"
+        )
+    if no_voltage and degree is not None and degree > 0:
+        raise ConfigError(f"the Df has no battery voltage: a degree-{degree} γ(B) needs B")
     t_cmd, t_src = thrust_command_n(table, side, tmap, rotors)
     if tmap is not None:
         rotors = _rotors(table, side, rotors)
     force = table["force_n"].to_numpy(float)
     volt = table["voltage_v"].to_numpy(float)
-    ok = np.isfinite(t_cmd) & np.isfinite(force) & np.isfinite(volt) & (force > 0) & (t_cmd > 0)
+    ok = np.isfinite(t_cmd) & np.isfinite(force) & (force > 0) & (t_cmd > 0)
+    if not no_voltage:
+        ok &= np.isfinite(volt)
     if ok.sum() < 10:
         raise FitError(f"only {int(ok.sum())} usable Df samples; need at least 10")
     b, gam = volt[ok], t_cmd[ok] / force[ok]
@@ -210,7 +220,10 @@ def fit_gamma(
     span = float(np.ptp(b))
     n = len(b)
     candidates = [degree] if degree is not None else list(degrees)
-    if degree is None:
+    if no_voltage:
+        candidates = [0]
+        b = np.zeros(n)  # a constant γ does not depend on B; the zeros only feed the solver
+    elif degree is None:
         few = [d for d in candidates if n < MIN_SAMPLES_PER_COEF * (d + 1)]
         if few and len(few) < len(candidates):
             warnings.append(
@@ -256,18 +269,28 @@ def fit_gamma(
     for w in warnings:
         log.warning("γ fit: %s", w)
     coef = _fit_poly(b, gam, chosen, loss)
-    correction = GammaCorrection(
-        coefficients=coef, voltage_v=Box(float(b.min()), float(b.max())), loss=loss
-    )
+    vbox = Box(float(b.min()), float(b.max()))
+    if no_voltage:  # γ is constant: its voltage box only records where it may be applied
+        vbox = tmap.validity.voltage_v if tmap is not None else Box(0.0, 0.0)
+    correction = GammaCorrection(coefficients=coef, voltage_v=vbox, loss=loss)
     if tmap is not None and rotors:
-        outside = map_extrapolation(tmap, b, force[ok] / rotors, "per-rotor thrust (F_m / rotors)")
+        outside = map_extrapolation(
+            tmap, volt[ok], force[ok] / rotors, "per-rotor thrust (F_m / rotors)"
+        )
         for w in outside:
             log.warning("γ fit: %s", w)
         warnings.extend(outside)
     fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
     fit.heldout_se = heldout_se
     fit.warnings = warnings
-    fit.metrics = flight_metrics(table[ok], side, tmap, correction, t_cmd[ok], voltage_bins, rotors)
+    fit.metrics = flight_metrics(
+        table[ok], side, None if no_voltage else tmap, correction, t_cmd[ok], voltage_bins, rotors
+    )
+    if no_voltage:
+        fit.metrics["voltage_unknown"] = (
+            "no battery voltage in the Df: γ fitted as a constant; e_Th (which needs B) not "
+            "computed, no voltage bins"
+        )
     fit.metrics["thrust_cmd_source"] = t_src
     fit.correction = GammaCorrection(
         coefficients=coef,
@@ -276,6 +299,25 @@ def fit_gamma(
         metrics={"degree": chosen, "heldout_error": heldout, "validation": how, **fit.metrics},
     )
     return fit
+
+
+def _voltage_rows(table: pd.DataFrame, warnings: list[str]) -> tuple[pd.DataFrame, bool]:
+    """The Df rows with a battery voltage, and whether the Df has none at all (then every row is
+    kept and γ can only be a constant). Rows lacking a voltage among others are dropped."""
+    volt = pd.to_numeric(table["voltage_v"], errors="coerce").to_numpy(float)
+    known = np.isfinite(volt) & (volt > 0)
+    if len(table) and not known.any():
+        text = (
+            "the Df has no battery voltage (the log had none): γ fitted as a constant (degree 0); "
+            "a slope of γ in B cannot be fitted without B"
+        )
+        warnings.append(text)
+        return table, True
+    if not known.all():
+        text = f"{int((~known).sum())} of {len(table)} Df samples have no battery voltage: dropped"
+        warnings.append(text)
+        return table[known].reset_index(drop=True), False
+    return table, False
 
 
 # -- Table-4 metrics -----------------------------------------------------------------------------
@@ -297,7 +339,10 @@ def flight_metrics(
     """e_Th and e_T before/after γ, mean ± std, overall and per voltage bin."""
     force = table["force_n"].to_numpy(float)
     volt = table["voltage_v"].to_numpy(float)
-    g = correction.gamma(volt)
+    if len(correction.coefficients) == 1:  # a constant γ needs no B (a Df may have none)
+        g = np.full(len(volt), correction.coefficients[0])
+    else:
+        g = correction.gamma(volt)
     per: dict[str, FloatArray] = {
         "e_T_before_n": np.abs(t_cmd - force),
         "e_T_after_n": np.abs(t_cmd / g - force),
@@ -323,6 +368,9 @@ def flight_metrics(
     out: dict[str, Any] = {k: _ms(v) for k, v in per.items()}
     out["throttle_sent"] = th_src
     out["e_T_pct_of"] = "F_m (measured collective force)"
+    if not np.isfinite(volt).all():  # no battery voltage: no voltage bins
+        out["by_voltage"] = []
+        return out
     edges = np.linspace(float(volt.min()), float(volt.max()), voltage_bins + 1)
     bins = []
     idx = np.clip(np.digitize(volt, edges[1:-1]), 0, voltage_bins - 1)

@@ -179,7 +179,6 @@ def test_rotors_option_changes_what_is_summed() -> None:
 def test_ulog_with_appended_data_inspects(shared_data: Path) -> None:
     """vehicle_land_detected's only sample is stamped before the first data: it still holds."""
     from thrustmap.cli.flight import inspect_flight
-    from thrustmap.errors import DataFormatError
 
     path = shared_data / "flightlogs/px4/pyulog_sample_appended_multiple.ulg"
     (fl,) = read_log(path)
@@ -188,9 +187,12 @@ def test_ulog_with_appended_data_inspects(shared_data: Path) -> None:
     info = inspect_flight(fl)
     assert info["airborne_windows_s"] == []
     assert info["fields"]["landed"]["samples"] == 1
-    # no battery_status in this log: extraction names what is missing
-    with pytest.raises(DataFormatError, match="no voltage"):
-        extract([fl], DfOptions(mass_kg=1.0))
+    # no battery_status in this log: the Df has an empty voltage column and the report says why
+    df = extract([fl], DfOptions(mass_kg=1.0))
+    (report,) = df.reports
+    assert report.voltage_unknown is not None and "no battery_status" in report.voltage_unknown
+    assert df.table["voltage_v"].isna().all()
+    assert df.sources["columns"]["voltage_v"] is None
 
 
 # -- 4. throttle scale from the log's own parameters ---------------------------------------------

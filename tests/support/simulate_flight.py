@@ -272,8 +272,11 @@ def write_dataflash(flight: SimFlight, path: str | Path, *, old_firmware: bool =
             ev_k += 1
 
 
-def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> None:
-    """PX4-style ULog; ``legacy`` uses actuator_controls_0 / actuator_outputs (before v1.14)."""
+def write_ulog(
+    flight: SimFlight, path: str | Path, *, legacy: bool = False, battery: bool = True
+) -> None:
+    """PX4-style ULog; ``legacy`` uses actuator_controls_0 / actuator_outputs (before v1.14);
+    ``battery=False`` leaves battery_status out (a vehicle without a voltage sensor)."""
     us = (flight.time_s * 1e6).astype(np.int64) + 1_000_000
     n = len(us)
     rot = flight.sim.rotors
@@ -332,7 +335,7 @@ def write_ulog(flight: SimFlight, path: str | Path, *, legacy: bool = False) -> 
     release = (1 << 24) | ((9 if legacy else 15) << 16) | 0xFF
     writers.write_ulog(
         path,
-        topics,
+        topics if battery else [t for t in topics if t is not batt],
         info={"sys_name": "PX4", "ver_hw": "SITL_SIM", "ver_sw_release": release},
         params=params,
     )

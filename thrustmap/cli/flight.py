@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from thrustmap.errors import ConfigError
+from thrustmap.errors import ConfigError, DataFormatError
 
 if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
     from thrustmap.fitting.flightlogs.series import FlightLog, Signal
@@ -210,19 +210,24 @@ def extract_cmd(
         flights.extend(read_log(path, format=fmt))
     df = extract(flights, opts, tmap)
     df.sources["logs"] = [{"path": str(p), "sha256": file_sha256(p)} for p in logs if p.is_file()]
-    if not len(df.table):
-        raise ConfigError(
-            "no steady flight to extract (0 samples; too short for a Df): "
-            + "; ".join(_summary(r) for r in df.reports)
-        )
     side = write_df(df, output)
+    for r in df.reports:
+        if r.voltage_unknown is not None:
+            click.echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
+    if not len(df.table):
+        click.echo(
+            "warning: no steady flight to extract (0 samples; too short for a Df), wrote an "
+            "empty Df: " + "; ".join(_summary(r) for r in df.reports),
+            err=True,
+        )
     if as_json:
         click.echo(json.dumps([r.to_dict() for r in df.reports], indent=2))
         return
     for r in df.reports:
         click.echo(_summary(r))
         for w in r.warnings:
-            click.echo(f"  warning: {w}")
+            if w != r.voltage_unknown:
+                click.echo(f"  warning: {w}")
     replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
     click.echo(
         f"wrote {len(df.table)} samples to {output} (sources in {side})"
@@ -233,6 +238,17 @@ def extract_cmd(
 def _summary(r: Any) -> str:
     parts = [f"{s.name} −{s.dropped_s:.1f} s ({s.reason})" for s in r.steps if s.dropped_s > 0]
     return f"{r.flight}: kept {r.kept_s:.1f} of {r.duration_s:.1f} s" + (
+        ": " + ", ".join(parts) if parts else ""
+    )
+
+
+def _summary_dict(r: dict[str, Any]) -> str:
+    """One flight's filter accounting, from a Df sidecar's report."""
+    steps = [s for s in r.get("steps", []) if isinstance(s, dict) and s.get("dropped_s", 0) > 0]
+    parts = [
+        f"{s.get('name')} −{float(s.get('dropped_s', 0)):.1f} s ({s.get('reason')})" for s in steps
+    ]
+    return f"{r.get('flight')}: kept {float(r.get('kept_s', 0)):.1f} s" + (
         ": " + ", ".join(parts) if parts else ""
     )
 
@@ -286,6 +302,15 @@ def gamma_fit_cmd(
     side: dict[str, Any] = {}
     for p in dfs:
         table, s = read_df(p)
+        if not len(table):
+            raise DataFormatError(
+                f"no samples in {p.name}: "
+                + (
+                    "; ".join(_summary_dict(r) for r in s.get("reports", []))
+                    or "the Df is empty (no steady flight in its log)"
+                ),
+                file=str(p),
+            )
         tables.append(table)
         for k in ("columns", "flights"):
             side.setdefault(k, {}).update(s.get(k, {}))
@@ -307,7 +332,12 @@ def gamma_fit_cmd(
     c = fit.correction
     terms = " + ".join(f"{v:.6g}·B^{k}" if k else f"{v:.6g}" for k, v in enumerate(c.coefficients))
     click.echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
-    click.echo(f"flown voltage {c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V; {fit.validation}")
+    flown = (
+        "unknown (no battery voltage in the Df)"
+        if fit.metrics.get("voltage_unknown")
+        else f"{c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V"
+    )
+    click.echo(f"flown voltage {flown}; {fit.validation}")
     click.echo(
         "held-out error by degree (± standard error; the simplest within one SE of the best "
         "wins): "
@@ -316,8 +346,7 @@ def gamma_fit_cmd(
             for d, e in sorted(fit.heldout.items())
         )
     )
-    for w in fit.warnings:
-        click.echo(f"warning: {w}")
+    # fit.warnings were logged by the library (the CLI shows them on stderr): not echoed twice
     m = fit.metrics
     for key in ("e_Th", "e_T"):
         b, a = m.get(f"{key}_before_pct"), m.get(f"{key}_after_pct")
