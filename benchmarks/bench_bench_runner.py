@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.demo import experiments, truth_error_pct
 from thrustmap.fitting.fit import fit_map, validate
 from thrustmap.fitting.loaders import load_datasets

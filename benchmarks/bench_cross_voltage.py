@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thrustmap.errors import FitError, ThrustmapError
+from thrustmap.core.errors import FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets

@@ -13,10 +13,10 @@ import time
 import numpy as np
 from scipy.optimize import curve_fit
 
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import fit_map, validate
 from thrustmap.fitting.selection import Selection
-from thrustmap.units import SCALES
 
 
 def synthetic(n_total: int, files: int = 10, seed: int = 0) -> list[Dataset]:

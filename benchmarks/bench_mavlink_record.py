@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, open_mavlink
 from thrustmap.protocols.transcript import Transcript, TranscriptWriter, read_transcript

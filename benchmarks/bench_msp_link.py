@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap.clock import MonotonicClock
+from thrustmap.core.clock import MonotonicClock
 from thrustmap.protocols.msp.framing import MspDecoder, encode_request
 from thrustmap.protocols.msp.messages import MSP_MOTOR_STOP, MspCommand, SetMotor
 from thrustmap.protocols.transport import open_transport

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.protocols.msp.framing import (
     MspDecoder,
     MspDirection,
@@ -271,9 +271,9 @@ def test_cli_sweep_on_a_blind_fc_is_never_reported_verified(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     from thrustmap.cli import main
-    from thrustmap.dslog import sidecar_path
+    from thrustmap.core.dslog import sidecar_path
+    from thrustmap.core.jsonfile import load_json
     from thrustmap.fitting.loaders import load_dataset
-    from thrustmap.jsonfile import load_json
 
     args = ["sweep", "stairs-up", "--stand", "sim://tyto-1585?bench=blind&drive_esc=0"]
     args += ["--throttle", BLIND_FC, "--to", "20", "--step", "10", "--dwell", "1"]

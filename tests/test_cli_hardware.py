@@ -17,8 +17,8 @@ import pytest
 from click.testing import CliRunner, Result
 
 from thrustmap.cli import cli, hardware
-from thrustmap.clock import MonotonicClock, SimClock
-from thrustmap.errors import ConfigError, SafetyError
+from thrustmap.core.clock import MonotonicClock, SimClock
+from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.protocols.msp.messages import ArmingDisable, MotorProtocol, native_to_external
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.urlhandlers import protocol_sim

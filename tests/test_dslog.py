@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thrustmap import dslog
-from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.core import dslog
+from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.selection import Selection, select
-from thrustmap.units import SCALES
 
 PROJECT = Path(__file__).resolve().parent.parent
 
@@ -125,14 +125,14 @@ def test_loader_uses_recorded_steps_and_settled_marks(tmp_path: Path) -> None:
 
 
 def test_no_private_imports_between_loader_and_format() -> None:
-    for rel in ("fitting/loaders.py", "thrustmap/dslog.py"):
+    for rel in ("thrustmap/fitting/loaders.py", "thrustmap/core/dslog.py"):
         tree = ast.parse((PROJECT / rel).read_text())
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module:
                 private = [a.name for a in node.names if a.name.startswith("_")]
                 assert not private, (rel, node.module, private)
-    runner = (PROJECT / "rig" / "runner.py").read_text()
-    assert "from thrustmap.dslog import DsWriter" in runner and "fitting" not in runner
+    runner = (PROJECT / "thrustmap" / "rig" / "runner.py").read_text()
+    assert "from thrustmap.core.dslog import DsWriter" in runner and "fitting" not in runner
 
 
 def test_sidecar_fields_are_typed(tmp_path: Path) -> None:
@@ -166,7 +166,7 @@ class _DiskFillsUp(dslog.DsWriter):
 def test_sweep_on_a_full_disk_stops_and_records_the_outcome(tmp_path: Path) -> None:
     """The run's Ds log hits a full disk mid-sweep: the motor is stopped and verified, the run
     ends in a one-line error (not an internal one), and the sidecar says how and why."""
-    from thrustmap.clock import SimClock
+    from thrustmap.core.clock import SimClock
     from thrustmap.rig import connect, plans
     from thrustmap.rig.interlocks import Limits
     from thrustmap.rig.runner import Runner
@@ -207,7 +207,7 @@ def test_step_index_must_be_a_plan_index(tmp_path: Path) -> None:
 def test_settled_marks_from_a_real_runner_are_used(tmp_path: Path) -> None:
     """A settling sweep on the simulated bench: the runner marks where each hold settled, and
     selection averages exactly those samples (no second guess)."""
-    from thrustmap.clock import SimClock
+    from thrustmap.core.clock import SimClock
     from thrustmap.rig import connect, plans
     from thrustmap.rig.interlocks import Limits
     from thrustmap.rig.runner import record_sweep

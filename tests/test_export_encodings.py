@@ -11,7 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from thrustmap.cli import cli
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.export.encodings import (
     ExportOptions,
     rescale,
@@ -22,7 +23,6 @@ from thrustmap.fitting.export.targets import export_map
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
 from thrustmap.fitting.names import ENCODINGS
-from thrustmap.units import SCALES
 
 
 def synthetic_map(model: str = "poly2", gamma: bool = False, native: str = "pwm") -> ThrustMap:

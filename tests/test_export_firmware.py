@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from test_export_encodings import synthetic_map
 
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.export import firmware as fw
 from thrustmap.fitting.export import platforms as plat
 from thrustmap.fitting.export.encodings import ExportOptions
 from thrustmap.fitting.export.targets import export_map
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
-from thrustmap.units import SCALES
 
 
 def _map_from(

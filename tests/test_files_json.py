@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.errors import ConfigError, DataFormatError
-from thrustmap.files import atomic_write_text, check_output_path, new_recording_path
-from thrustmap.jsonfile import Fields, load_json, loads_json
+from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.core.files import atomic_write_text, check_output_path, new_recording_path
+from thrustmap.core.jsonfile import Fields, load_json, loads_json
 
 
 def test_atomic_write_does_not_follow_planted_symlink(tmp_path: Path) -> None:

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.dslog import DsWriter
+from thrustmap.core.dslog import DsWriter
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.loaders import load_dataset
-from thrustmap.units import SCALES
 
 RCB_HEADER = (
     "Time (s),ESC signal (µs),Servo 1 (µs),Thrust (N),Voltage (V),Current (A),"

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.errors import FitError
+from thrustmap.core.errors import FitError
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import compare, evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.selection import Selection
-from thrustmap.units import SCALES
 
 
 def bldc_throttle_pct(

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.errors import DataFormatError, FitError
+from thrustmap.core.errors import DataFormatError, FitError
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS
-from thrustmap.units import SCALES
 
 
 def good_map(gamma: bool = True) -> ThrustMap:

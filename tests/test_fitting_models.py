@@ -7,10 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.models import MODELS, PolyModel, motor_forward
 from thrustmap.fitting.solve import solve
-from thrustmap.units import SCALES
 
 
 def grid(n: int = 400, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
+from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
 from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.selection import Selection, plateaus, select
-from thrustmap.units import SCALES
 
 
 def lagged(throttle_us: np.ndarray, dt_s: float, tau_s: float) -> tuple[np.ndarray, np.ndarray]:

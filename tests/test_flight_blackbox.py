@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from support import blackbox_encode as be
 
-from thrustmap.errors import DataFormatError
+from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.flightlogs import blackbox, blackbox_csv
 from thrustmap.fitting.flightlogs import blackbox_decode as bd
 from thrustmap.fitting.flightlogs.series import FlightLog

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support import simulate_flight as sim
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
 from thrustmap.fitting.df import G0, DfOptions, extract, hover_throttle, read_df, write_df
 from thrustmap.fitting.flightlogs.detect import read_log
 from thrustmap.fitting.mapfile import ThrustMap

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.fitting.flightlogs import dataflash
 from thrustmap.fitting.flightlogs.detect import detect, read_log
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from support import simulate_flight as sim
 
 from thrustmap.cli.flight import flightlog_group, gamma_group
-from thrustmap.errors import ConfigError, FitError
+from thrustmap.core.errors import ConfigError, FitError
 from thrustmap.fitting.df import DfOptions, extract
 from thrustmap.fitting.flightlogs.detect import read_log
 from thrustmap.fitting.gamma import corrected_map, fit_gamma

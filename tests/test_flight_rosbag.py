@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thrustmap.errors import DataFormatError
+from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.flightlogs import rosbag
 from thrustmap.fitting.flightlogs.detect import detect, read_head
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support import simulate_flight as sim
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
 from thrustmap.fitting.df import G0, DfOptions, extract
 from thrustmap.fitting.flightlogs import dataflash
 from thrustmap.fitting.flightlogs.detect import read_log

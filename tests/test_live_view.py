@@ -259,8 +259,8 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
 
     from thrustmap.cli import cli
     from thrustmap.cli import live as live_mod
+    from thrustmap.core.units import SCALES
     from thrustmap.rig import connect
-    from thrustmap.units import SCALES
 
     class Output:
         throttle_scale = SCALES["pwm"]

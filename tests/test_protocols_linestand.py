@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.protocols.stands.line import (
     PRESETS,
     REFERENCE,

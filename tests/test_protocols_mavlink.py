@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.generator import mavparse
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.mavlink.ext import ESC_STATUS_XML, MAVLink_esc_status_message

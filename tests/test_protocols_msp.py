@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.protocols.msp.framing import (
     MSP_MAX_REQUEST_PAYLOAD,
     MspChecksumError,

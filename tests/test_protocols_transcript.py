@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.errors import DataFormatError
+from thrustmap.core.errors import DataFormatError
 from thrustmap.protocols.transcript import (
     FORMAT_NAME,
     TranscriptFormatError,

@@ -10,8 +10,8 @@ import pytest
 import serial
 
 import thrustmap.protocols  # noqa: F401 - registers the URL handlers
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, open_mavlink
 from thrustmap.protocols.peer import register_peer, unregister_peer

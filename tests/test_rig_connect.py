@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import encode_request
 from thrustmap.protocols.msp.messages import ArmingDisable, MspCommand
 from thrustmap.protocols.peer import BytePeer
@@ -323,7 +323,7 @@ def test_real_line_stand_needs_a_preset() -> None:
 def test_silent_line_stand_fails_to_open(monkeypatch: pytest.MonkeyPatch) -> None:
     clock = SimClock()
     silent = Silent()
-    from thrustmap.errors import ThrustmapError
+    from thrustmap.core.errors import ThrustmapError
     from thrustmap.rig.devices import urls
 
     monkeypatch.setattr(urls, "open_transport", lambda url, **kwargs: SimSerial(silent, clock))

@@ -7,8 +7,8 @@ from collections.abc import Callable, Iterator, Mapping
 
 import pytest
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
 from thrustmap.rig import connect
 from thrustmap.rig.devices import registry
 from thrustmap.rig.devices.registry import Detection, Driver, OpenRequest

@@ -20,9 +20,10 @@ from support.mavlink_transcripts import (
     replay_scenario,
 )
 
-from thrustmap.clock import MonotonicClock, SimClock
-from thrustmap.dslog import DsWriter
-from thrustmap.errors import ConfigError, SafetyError
+from thrustmap.core.clock import MonotonicClock, SimClock
+from thrustmap.core.dslog import DsWriter
+from thrustmap.core.errors import ConfigError, SafetyError
+from thrustmap.core.units import SCALES
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 from thrustmap.protocols.transcript import read_transcript
@@ -47,7 +48,6 @@ from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.physics import make_plant
 from thrustmap.rig.sim.plant import ConstantPlant, Plant
-from thrustmap.units import SCALES
 
 R = mav.MavResult
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "transcripts"

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import SafetyError
 from thrustmap.demo import truth_error_pct
-from thrustmap.errors import SafetyError
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_dataset
 from thrustmap.protocols.msp.framing import encode_request

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from test_rig_runner import make_rig, sweep
 
-from thrustmap.clock import MonotonicClock, SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.core.clock import MonotonicClock, SimClock
+from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import MspDecoder
 from thrustmap.protocols.msp.messages import MspCommand, SetMotor
 from thrustmap.rig import plans

@@ -6,11 +6,11 @@ from collections.abc import Mapping
 
 import pytest
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError, SafetyError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError, SafetyError
+from thrustmap.core.units import SCALES
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 from thrustmap.rig.spin import SpinRequest, check_spin, run_spin
-from thrustmap.units import SCALES
 
 
 class FakeOutput(ThrottleOutput):

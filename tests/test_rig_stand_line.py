@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError, SafetyError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.protocols.stands.line import REFERENCE, STM32_HX711, Column, LineStandSpec, preset
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
@@ -478,7 +478,7 @@ def test_spec_from_dict_needs_an_object() -> None:
 
 
 def test_spec_json_is_read_strictly(tmp_path: Path) -> None:
-    """Through thrustmap.jsonfile: NaN/Infinity are not JSON, and the error names file and line."""
+    """Through thrustmap.core.jsonfile: NaN/Infinity are not JSON, and the error names file and line."""
     path = tmp_path / "nan.json"
     path.write_text('{"extends": "thrustmap-line",\n "watchdog_s": NaN}', encoding="utf-8")
     with pytest.raises(ConfigError, match="not valid JSON") as info:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from thrustmap.errors import DataFormatError, ThrustmapError
+from thrustmap.core.errors import DataFormatError, ThrustmapError
 from thrustmap.protocols.stands.tyto import LoadCell, TytoCalibration
 from thrustmap.rig.stand.tyto import (
     calibration_to_dict,

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from support.msp_tcp import MspTcpServer
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.protocols.transport import open_transport
 from thrustmap.rig.fc.msp import MspThrottleOutput, msp_port_url, watchdog_target
 from thrustmap.rig.sim.msp_peer import MspPeer
@@ -27,7 +27,7 @@ PROJECT = Path(__file__).resolve().parents[1]
 CHILD = textwrap.dedent(
     """
     import sys, time
-    from thrustmap.clock import MonotonicClock
+    from thrustmap.core.clock import MonotonicClock
     from thrustmap.rig import connect
     from thrustmap.rig.safety import terminate_as_exception
 
@@ -181,7 +181,7 @@ def test_no_watchdog_for_simulated_or_replayed_ports() -> None:
 def test_a_probe_sends_only_stops_and_disarms_its_watchdog(
     server: MspTcpServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from thrustmap.clock import MonotonicClock
+    from thrustmap.core.clock import MonotonicClock
     from thrustmap.rig import connect
 
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))  # the default log goes here

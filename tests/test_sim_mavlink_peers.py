@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil, open_mavlink
 from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
@@ -325,7 +325,7 @@ def test_loopback_udp_with_stock_mavutil_connection() -> None:
 
 
 def test_loopback_refuses_non_loopback_hosts() -> None:
-    from thrustmap.errors import ConfigError
+    from thrustmap.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="loopback"):
         UdpVehicleLink(PX4Vehicle(ConstantPlant()), 14550, SimClock(), host="192.168.1.10")

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import (
     MspDecoder,
     MspDirection,

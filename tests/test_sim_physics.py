@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
 from thrustmap.rig.sim.physics import (
     PRESETS,
     PhysicsPlant,

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrustmap.clock import SimClock
-from thrustmap.errors import ConfigError
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.stands.line import (
     REFERENCE,

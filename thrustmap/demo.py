@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.fitting.fit import compare, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap

@@ -3,7 +3,7 @@
 Every input runs in a forked child with an address-space limit (``resource.setrlimit``) and a
 per-input alarm, so a reader that hangs or allocates without bound is caught as a failure instead
 of taking the test run down. The only acceptable outcomes are a normal return or a
-:class:`~thrustmap.errors.ThrustmapError`; anything else (another exception, a timeout, running
+:class:`~thrustmap.core.errors.ThrustmapError`; anything else (another exception, a timeout, running
 out of the memory limit, a crash) is reported with the mutation that caused it.
 """
 
@@ -145,7 +145,7 @@ def _on_alarm(signum: int, frame: Any) -> None:
 
 
 def _classify(exc: BaseException) -> tuple[str, str]:
-    from thrustmap.errors import ThrustmapError
+    from thrustmap.core.errors import ThrustmapError
 
     if isinstance(exc, ThrustmapError):
         text = str(exc)

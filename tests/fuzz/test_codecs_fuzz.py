@@ -15,7 +15,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from thrustmap.errors import ThrustmapError
+from thrustmap.core.errors import ThrustmapError
 
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -137,7 +137,7 @@ json_values = st.recursive(
 @FAST
 @given(st.text(max_size=300))
 def test_loads_json_takes_any_text(text: str) -> None:
-    from thrustmap.jsonfile import loads_json
+    from thrustmap.core.jsonfile import loads_json
 
     try:
         loads_json(text, source="x.json")
@@ -148,8 +148,8 @@ def test_loads_json_takes_any_text(text: str) -> None:
 @FAST
 @given(json_values, st.integers(1, 400))
 def test_loads_json_depth_is_bounded(value: object, depth: int) -> None:
-    from thrustmap.errors import DataFormatError
-    from thrustmap.jsonfile import MAX_JSON_DEPTH, loads_json
+    from thrustmap.core.errors import DataFormatError
+    from thrustmap.core.jsonfile import MAX_JSON_DEPTH, loads_json
 
     text = "[" * depth + json.dumps(value) + "]" * depth
     try:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from fuzz.cli_cases import LOGS, dataflash_many_breaks, ulog_hang
-from thrustmap.errors import ConfigError, DataFormatError, ThrustmapError
+from thrustmap.core.errors import ConfigError, DataFormatError, ThrustmapError
 
 # -- 1. hangs -------------------------------------------------------------------------------------
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from thrustmap.clock import Clock, SimClock
-from thrustmap.errors import ThrustmapError
+from thrustmap.core.clock import Clock, SimClock
+from thrustmap.core.errors import ThrustmapError
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink
 from thrustmap.protocols.transcript import TranscriptWriter, read_transcript
 from thrustmap.protocols.urlhandlers.protocol_record import RecordingSerial

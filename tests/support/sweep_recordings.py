@@ -16,7 +16,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from thrustmap.clock import SimClock
+from thrustmap.core.clock import SimClock
 from thrustmap.protocols.urlhandlers.protocol_record import record_url
 from thrustmap.rig import connect, plans
 from thrustmap.rig.interlocks import Limits

@@ -15,7 +15,7 @@ from typing import Any, TextIO
 
 import click
 
-from thrustmap.errors import ThrustmapError
+from thrustmap.core.errors import ThrustmapError
 
 log = logging.getLogger("thrustmap")
 

@@ -259,7 +259,7 @@ def sweep_cmd(
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
         return
-    from thrustmap.files import check_output_path, new_recording_path
+    from thrustmap.core.files import check_output_path, new_recording_path
 
     chosen = new_recording_path(
         check_output_path(output, what="Ds log").path, siblings=(".meta.json",)

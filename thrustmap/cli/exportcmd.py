@@ -7,9 +7,9 @@ from pathlib import Path
 
 import click
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.units import SCALES, parse_range
 from thrustmap.fitting.names import TARGETS
-from thrustmap.units import SCALES, parse_range
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,7 @@ def export_cmd(
 
     plan = None
     if output is not None:
-        from thrustmap.files import check_output_path
+        from thrustmap.core.files import check_output_path
 
         plan = check_output_path(output, inputs=[map_file], what="export output")
     tmap = ThrustMap.load(map_file)
@@ -109,7 +109,7 @@ def export_cmd(
     if output is None or plan is None:
         click.echo(result.text, nl=False)
         return
-    from thrustmap.files import atomic_write_text
+    from thrustmap.core.files import atomic_write_text
 
     atomic_write_text(output, result.text)
     summary = ", ".join(f"{k} {v:.3g}" for k, v in result.residual.items())

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.units import SCALES, ThrottleScale, parse_range, scale
 from thrustmap.fitting.names import DEFAULT_MODEL, LOSSES, MODEL_NAMES, VALIDATIONS
-from thrustmap.units import SCALES, ThrottleScale, parse_range, scale
 
 if TYPE_CHECKING:  # the fitting machinery (numpy, scipy) is imported by the command that runs
     from thrustmap.fitting.fit import Row
@@ -192,7 +192,7 @@ def fit_cmd(
     files: tuple[str, ...], output: str, model: str, loss: str, strategy: str | None, **kw: Any
 ) -> None:
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
-    from thrustmap.files import atomic_write_text, check_output_path
+    from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.fit import fit_map
     from thrustmap.fitting.loaders import load_datasets
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from thrustmap.errors import ConfigError, DataFormatError
+from thrustmap.core.errors import ConfigError, DataFormatError
 
 if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
     from thrustmap.fitting.flightlogs.series import FlightLog, Signal
@@ -179,7 +179,7 @@ def extract_cmd(
     as_json: bool,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
-    from thrustmap.files import check_output_path
+    from thrustmap.core.files import check_output_path
     from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
     from thrustmap.fitting.flightlogs.detect import read_log
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
@@ -290,7 +290,7 @@ def gamma_fit_cmd(
     """Fit γ(B) on DF... and write the map with its correction block."""
     import pandas as pd
 
-    from thrustmap.files import atomic_write_text, check_output_path
+    from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.df import read_df, sidecar_path
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from thrustmap.cli.bench import limit_options_except
-from thrustmap.clock import Clock, MonotonicClock
-from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.core.clock import Clock, MonotonicClock
+from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.rig.interlocks import SPIN_MAX_SECONDS as MAX_SECONDS
 from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT as DEFAULT_MAX_THROTTLE_PCT
 from thrustmap.rig.interlocks import Limits

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from thrustmap.errors import ConfigError
+from thrustmap.core.errors import ConfigError
 
 FIGURE_NAMES = (
     "surface",
@@ -42,7 +42,7 @@ def report_cmd(map_file: str, data: tuple[str, ...], output: str) -> None:
 
     DATA are the stand logs the map was fitted from; omitted, they are found from the paths the
     map recorded (next to the map when moved with it)."""
-    from thrustmap.files import check_output_path
+    from thrustmap.core.files import check_output_path
     from thrustmap.report.data import build
     from thrustmap.report.html import write_report
 
@@ -77,7 +77,7 @@ def plot_cmd(figure: str, map_file: str, data: tuple[str, ...], output: str, dpi
     voltages; residuals: against thrust and voltage; coverage: data and prediction interval;
     sweep: raw sweeps with what selection kept (Fig. 5); gamma: γ(B) with its data (Fig. 7);
     errors-by-voltage: e_Th and e_T before/after γ (Figs. 8-9)."""
-    from thrustmap.files import atomic_write_bytes, check_output_path
+    from thrustmap.core.files import atomic_write_bytes, check_output_path
     from thrustmap.report.data import build
     from thrustmap.report.figures import render
 

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap import __version__
-from thrustmap.errors import ConfigError, ThrustmapError
+from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
@@ -113,7 +113,7 @@ def resolve_sources(tmap: ThrustMap, map_path: str | Path) -> list[str]:
 
 def _sidecar(path: str) -> dict[str, Any]:
     """A thrustmap Ds log's JSON sidecar (devices, plan), or {} for other formats."""
-    from thrustmap.jsonfile import load_json
+    from thrustmap.core.jsonfile import load_json
 
     p = Path(path)
     side = p.with_name(p.stem + ".meta.json")

@@ -465,7 +465,7 @@ def render_html(rd: ReportData) -> str:
 
 def write_report(rd: ReportData, output: str) -> int:
     """Write the report atomically; returns its size in bytes."""
-    from thrustmap.files import atomic_write_text
+    from thrustmap.core.files import atomic_write_text
 
     text = render_html(rd)
     atomic_write_text(output, text)

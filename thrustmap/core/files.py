@@ -1,0 +1,151 @@
+"""Writing files safely: atomic replacement, no symlink following, never over an input.
+
+Every file thrustmap writes goes through here:
+
+- :func:`atomic_write_text` / :func:`atomic_write_bytes` write to a temporary file created
+  securely in the target's own folder (``tempfile.mkstemp``: unpredictable name, ``O_EXCL``, so a
+  planted symlink is never followed), flush and fsync it, then ``os.replace`` it onto the target.
+  A reader sees the old file or the new one, never a torn one; a full disk leaves the old file.
+- :func:`check_output_path` is the CLI habit for outputs: the folder must exist and be writable,
+  an output never replaces one of the command's inputs (compared by resolved path and inode),
+  and replacing an existing file is reported (``replaced`` in the result) so the command can say so.
+- :func:`new_recording_path` never overwrites a recording: it refuses, or picks ``name-2.csv``...
+
+Errors are :class:`~thrustmap.core.errors.ConfigError` naming the path and what was expected.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import tempfile
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from thrustmap.core.errors import ConfigError
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+@dataclass(frozen=True)
+class OutputPlan:
+    """Where an output goes, and whether it replaces an existing file."""
+
+    path: Path
+    replaced: bool
+
+
+def check_output_path(
+    path: str | os.PathLike[str],
+    *,
+    inputs: Iterable[str | os.PathLike[str]] = (),
+    what: str = "output",
+) -> OutputPlan:
+    """Check that ``path`` can be written without harm, before any work is done.
+
+    Raises ConfigError when the folder is missing or not writable, when the path is a folder,
+    or when it is one of ``inputs`` (the same file under any name).
+    """
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.exists():
+        raise ConfigError(f"{what} folder does not exist; create it first", file=str(folder))
+    if not folder.is_dir():
+        raise ConfigError(f"{what} folder is not a folder", file=str(folder))
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{what} folder is not writable", file=str(folder))
+    if p.is_dir():
+        raise ConfigError(f"{what} is a folder; expected a file name", file=str(p))
+    for inp in inputs:
+        if _same_file(p, Path(inp)):
+            raise ConfigError(
+                f"{what} would overwrite an input file; choose another name", file=str(p)
+            )
+    return OutputPlan(path=p, replaced=p.exists())
+
+
+def new_recording_path(path: str | os.PathLike[str], *, siblings: Iterable[str] = ()) -> Path:
+    """A path for a new recording that overwrites nothing.
+
+    ``path`` itself when neither it nor any of its sibling files (``siblings`` are suffixes
+    replacing the path's own, e.g. ``(".meta.json",)``) exist; otherwise ``stem-2``, ``stem-3``...
+    """
+    p = Path(path)
+    suffixes = tuple(siblings)
+
+    def taken(candidate: Path) -> bool:
+        if candidate.exists():
+            return True
+        return any(candidate.with_suffix(s).exists() for s in suffixes)
+
+    if not taken(p):
+        return p
+    for n in range(2, 10_000):
+        candidate = p.with_name(f"{p.stem}-{n}{p.suffix}")
+        if not taken(candidate):
+            return candidate
+    raise ConfigError("no free file name for the recording", file=str(p))
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Replace ``path`` with ``data`` atomically (secure temporary in the same folder).
+
+    OSError from the disk (full, read-only, missing folder) becomes a ConfigError naming the
+    path; the previous content of ``path`` is left as it was.
+    """
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise ConfigError(f"cannot write here: {_os_reason(exc)}", file=str(p)) from None
+    try:
+        # mkstemp makes the file private (0600); a map or report is meant to be shared, so give it
+        # the mode an ordinary write would (the old file's, else 0666 less the umask)
+        os.fchmod(fd, _file_mode(p))
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise ConfigError(f"cannot write: {_os_reason(exc)}", file=str(p)) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _file_mode(path: Path) -> int:
+    try:
+        if path.is_file() and not path.is_symlink():
+            return path.stat().st_mode & 0o777
+    except OSError:
+        pass
+    umask = os.umask(0o022)  # read the umask (there is no getter) and put it back
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """:func:`atomic_write_bytes` for UTF-8 text."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _os_reason(exc: OSError) -> str:
+    if exc.errno == errno.ENOSPC:
+        return "the disk is full"
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return "permission denied (read-only folder or file)"
+    if exc.errno == errno.ENOENT:
+        return "the folder does not exist"
+    return exc.strerror or str(exc)

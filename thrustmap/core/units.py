@@ -1,0 +1,106 @@
+"""Throttle scales: one place that converts between native throttle units and percent.
+
+A dataset, a map and a driver each carry the native scale of their throttle command
+(ESC pulse in µs, DShot value, Crazyflie 16-bit command, percent, ...). Fitting works in
+percent of that scale, as the seed paper does; exports convert back exactly (affine).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from thrustmap.core.errors import ConfigError
+
+if TYPE_CHECKING:  # numpy is imported where arrays are converted: the CLI starts without it
+    import numpy as np
+    import numpy.typing as npt
+
+    FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ThrottleScale:
+    """An affine throttle encoding: ``lo`` is 0 % and ``hi`` is 100 %."""
+
+    name: str
+    lo: float
+    hi: float
+    unit: str
+
+    def __post_init__(self) -> None:
+        if not self.hi > self.lo:
+            raise ConfigError(
+                f"throttle scale '{self.name}': range {self.lo:g}:{self.hi:g} needs LO < HI"
+            )
+
+    @property
+    def span(self) -> float:
+        return self.hi - self.lo
+
+    def to_pct(self, native: npt.ArrayLike) -> FloatArray:
+        import numpy as np
+
+        out: FloatArray = (np.asarray(native, dtype=float) - self.lo) / self.span * 100.0
+        return out
+
+    def from_pct(self, pct: npt.ArrayLike) -> FloatArray:
+        import numpy as np
+
+        out: FloatArray = self.lo + np.asarray(pct, dtype=float) / 100.0 * self.span
+        return out
+
+    def with_range(self, lo: float, hi: float) -> ThrottleScale:
+        return ThrottleScale(self.name, lo, hi, self.unit)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "lo": self.lo, "hi": self.hi, "unit": self.unit}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ThrottleScale:
+        try:
+            return cls(str(data["name"]), float(data["lo"]), float(data["hi"]), str(data["unit"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"throttle scale needs name, lo, hi and unit, got {data!r}") from exc
+
+
+#: Encodings a throttle command can take on the wire (seed paper Table 1 and beyond).
+SCALES: dict[str, ThrottleScale] = {
+    s.name: s
+    for s in (
+        ThrottleScale("pwm", 1000.0, 2000.0, "us"),
+        ThrottleScale("oneshot125", 125.0, 250.0, "us"),
+        ThrottleScale("oneshot42", 42.0, 84.0, "us"),
+        ThrottleScale("multishot", 5.0, 25.0, "us"),
+        ThrottleScale("dshot", 48.0, 2047.0, "dshot"),
+        ThrottleScale("crazyflie", 0.0, 65535.0, "cmd"),
+        ThrottleScale("crazyflie-cmd", 10001.0, 60000.0, "cmd"),
+        ThrottleScale("percent", 0.0, 100.0, "%"),
+        ThrottleScale("norm", 0.0, 1.0, "1"),
+        ThrottleScale("norm-sym", -1.0, 1.0, "1"),
+    )
+}
+
+
+def scale(name: str) -> ThrottleScale:
+    """Look up a named throttle scale, with an error listing the known ones."""
+    try:
+        return SCALES[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown throttle scale '{name}'; expected one of: {', '.join(SCALES)}"
+        ) from None
+
+
+def parse_range(text: str, what: str) -> tuple[float, float]:
+    """Parse ``LO:HI`` (numbers, LO < HI) for option ``what``."""
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise ConfigError(f"{what}: expected LO:HI, got '{text}'")
+    try:
+        lo, hi = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ConfigError(f"{what}: expected two numbers LO:HI, got '{text}'") from None
+    if not lo < hi:
+        raise ConfigError(f"{what}: expected LO < HI, got '{text}'")
+    return lo, hi

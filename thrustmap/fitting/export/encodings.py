@@ -1,0 +1,308 @@
+"""Exports: a thrust map in each throttle encoding, and parameters firmware can load.
+
+A map gives throttle in percent of its native scale, Th% = f(T, B) (with a γ block,
+f(γ(B)·T, B)). Every throttle encoding is affine in percent, native = lo + pct/100·(hi − lo),
+and every model here is linear in its coefficients, so rescaling is exact: multiply each
+coefficient by (hi − lo)/100 and add lo to the constant term (the LA model has no constant term,
+so it keeps an explicit offset). ``EncodedMap.evaluate`` equals ``scale.from_pct(map.throttle_pct)``
+to rounding (about 1e-15 relative).
+
+Firmware exports (``export_firmware``) fit each firmware's own curve to samples of the map over
+its validity box and report the residual of that curve form; the C header (``export_c``) carries
+the exact map. Every export text starts with a comment header naming the map (file sha256), its
+validity box and the residual of the exported form.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap import __version__
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.units import SCALES, ThrottleScale
+from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
+from thrustmap.fitting.models import PolyModel
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Standard gravity, for kg -> N and N -> gram-force.
+G0_MPS2 = 9.80665
+
+
+# -- encodings ----------------------------------------------------------------------------------
+def target_scale(encoding: str, range_: tuple[float, float] | None = None) -> ThrottleScale:
+    """The named encoding with optional endpoints LO:HI (in that encoding's units)."""
+    try:
+        base = SCALES[encoding]
+    except KeyError:
+        raise ConfigError(
+            f"unknown encoding '{encoding}'; expected one of: {', '.join(SCALES)}"
+        ) from None
+    if range_ is None:
+        return base
+    lo, hi = range_
+    if not lo < hi:
+        raise ConfigError(f"--range: expected LO < HI, got {lo:g}:{hi:g}")
+    return base.with_range(lo, hi)
+
+
+@dataclass(frozen=True)
+class EncodedMap:
+    """A map whose output is in a target encoding: native = offset + Σ coefficients_k·φ_k(T', B).
+
+    T' = γ(B)·T when ``correction`` is present (the same γ block as the source map; γ is
+    dimensionless, so it does not change with the encoding).
+    """
+
+    model: str
+    scale: ThrottleScale
+    offset: float
+    coefficients: tuple[float, ...]
+    correction: GammaCorrection | None = None
+
+    def evaluate(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray:
+        from thrustmap.fitting.models import get_model
+
+        t = np.asarray(thrust_n, float)
+        if corrected and self.correction is not None:
+            t = self.correction.gamma(voltage_v) * t
+        core = get_model(self.model).evaluate(self.coefficients, t, voltage_v)
+        return np.asarray(self.offset + core, dtype=float)
+
+
+def _constant_index(tmap_model: str) -> int | None:
+    from thrustmap.fitting.models import get_model
+
+    names = get_model(tmap_model).term_names
+    return names.index("1") if "1" in names else None
+
+
+def rescale(tmap: ThrustMap, scale: ThrottleScale) -> EncodedMap:
+    """Exact affine rescaling of ``tmap`` (percent) into ``scale`` (its native units)."""
+    gain = scale.span / 100.0
+    coefs = [gain * c for c in tmap.coefficients]
+    offset = scale.lo
+    k0 = _constant_index(tmap.model)
+    if k0 is not None:
+        coefs[k0] += offset
+        offset = 0.0
+    return EncodedMap(tmap.model, scale, offset, tuple(coefs), tmap.correction)
+
+
+def to_percent(encoded: EncodedMap) -> tuple[float, ...]:
+    """Inverse of ``rescale``: the percent-of-scale coefficients back from an encoded map."""
+    gain = encoded.scale.span / 100.0
+    coefs = list(encoded.coefficients)
+    k0 = _constant_index(encoded.model)
+    if k0 is not None:
+        coefs[k0] -= encoded.scale.lo
+    elif abs(encoded.offset - encoded.scale.lo) > 1e-12 * max(1.0, abs(encoded.scale.lo)):
+        raise ConfigError("encoded map offset does not match its scale's low end")
+    return tuple(c / gain for c in coefs)
+
+
+# -- shared pieces for every export ------------------------------------------------------------
+@dataclass(frozen=True)
+class Samples:
+    """Points (T per rotor [N], B [V], throttle [% of the map's native scale])."""
+
+    thrust_n: FloatArray
+    voltage_v: FloatArray
+    throttle_pct: FloatArray
+
+
+def map_samples(
+    tmap: ThrustMap, *, n_thrust: int = 41, n_voltage: int = 9, voltage_v: float | None = None
+) -> Samples:
+    """A grid over the validity box (or one voltage), throttle from the map (γ applied)."""
+    box = tmap.validity
+    t = np.linspace(box.thrust_n.lo, box.thrust_n.hi, n_thrust)
+    if voltage_v is not None:
+        b = np.array([float(voltage_v)])
+    elif box.voltage_v.hi > box.voltage_v.lo:
+        b = np.linspace(box.voltage_v.lo, box.voltage_v.hi, n_voltage)
+    else:
+        b = np.array([box.voltage_v.lo])
+    tt, bb = np.meshgrid(t, b)
+    tf, bf = tt.ravel(), bb.ravel()
+    return Samples(tf, bf, np.asarray(tmap.throttle_pct(tf, bf), dtype=float))
+
+
+def reference_voltage(tmap: ThrustMap, voltage_v: float | None) -> float:
+    """The voltage a voltage-free firmware curve is fitted at (default: top of the box)."""
+    box = tmap.validity.voltage_v
+    if voltage_v is None:
+        return box.hi
+    if not box.lo - 1e-9 <= voltage_v <= box.hi + 1e-9:
+        raise ConfigError(
+            f"--voltage-v {voltage_v:g} V is outside the map's voltage box "
+            f"{box.lo:g}..{box.hi:g} V; the map says nothing there"
+        )
+    return float(voltage_v)
+
+
+def require_voltage(tmap: ThrustMap, target: str) -> None:
+    """Voltage-compensated exports need a map that varies with voltage over a real range."""
+    box = tmap.validity.voltage_v
+    if not tmap.model_def.uses_voltage:
+        raise ConfigError(
+            f"{target} export fits voltage compensation, but map model '{tmap.model}' has no "
+            "voltage term; refit with a voltage model (e.g. motor or poly2)"
+        )
+    if not box.hi > box.lo:
+        raise ConfigError(
+            f"{target} export fits voltage compensation, but the map was fitted at one voltage "
+            f"({box.lo:g} V); record a sweep over a battery discharge"
+        )
+
+
+def rms_max(err: npt.ArrayLike) -> tuple[float, float]:
+    e = np.asarray(err, float)
+    return float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e)))
+
+
+def header_lines(tmap: ThrustMap, title: str, residual: Sequence[str]) -> list[str]:
+    """Comment header lines (without the comment marker) every export starts with."""
+    box = tmap.validity
+    digest = tmap.file_sha256 or "(map built in memory; no file hash)"
+    lines = [
+        f"thrustmap {__version__} export: {title}",
+        f"map file sha256: {digest}",
+        f"map model: {tmap.model} ({tmap.model_def.formula}), loss {tmap.loss}, "
+        f"strategy {tmap.strategy}, created {tmap.created_utc or 'unknown'}",
+        f"map native throttle scale: {tmap.throttle_scale.name} "
+        f"{tmap.throttle_scale.lo:g}..{tmap.throttle_scale.hi:g} {tmap.throttle_scale.unit}",
+        f"validity box: thrust {box.thrust_n.lo:.6g}..{box.thrust_n.hi:.6g} N per rotor, "
+        f"voltage {box.voltage_v.lo:.6g}..{box.voltage_v.hi:.6g} V, "
+        f"throttle {box.throttle_pct.lo:.6g}..{box.throttle_pct.hi:.6g} %",
+    ]
+    if tmap.correction is not None:
+        g = tmap.correction
+        lines.append(
+            "gamma correction: gamma(B) = "
+            + " + ".join(f"{c:.10g}*B^{k}" for k, c in enumerate(g.coefficients))
+            + f", B clamped to {g.voltage_v.lo:g}..{g.voltage_v.hi:g} V"
+        )
+    lines.extend(f"residual: {r}" for r in residual)
+    return lines
+
+
+def comment(lines: Sequence[str], marker: str) -> str:
+    return "".join(f"{marker} {line}".rstrip() + "\n" for line in lines)
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """The text of an export plus the numbers it reports (for tests and the CLI summary)."""
+
+    target: str
+    text: str
+    values: dict[str, Any] = field(default_factory=dict)
+    residual: dict[str, float] = field(default_factory=dict)
+    suffix: str = ".txt"
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    range_: tuple[float, float] | None = None
+    encoding: str | None = None
+    mass_kg: float | None = None
+    rotors: int | None = None
+    voltage_v: float | None = None
+    firmware: str | None = None
+    spin_max: float = 0.95
+    c_real: str = "double"
+
+
+# -- encoding export (a small YAML document) -----------------------------------------------------
+def _num(x: float) -> str:
+    return repr(float(x))
+
+
+def export_encoding(
+    tmap: ThrustMap, scale: ThrottleScale, options: ExportOptions | None = None
+) -> ExportResult:
+    """Coefficients in ``scale``; Crazyflie scales also carry seed 2's linearisation."""
+    opts = options or ExportOptions()
+    enc = rescale(tmap, scale)
+    extra_residual: list[str] = []
+    extra_text = ""
+    values: dict[str, Any] = {}
+    if scale.name in ("crazyflie", "crazyflie-cmd"):
+        from thrustmap.fitting.export.platforms import crazyflie_seed2
+
+        cf = crazyflie_seed2(tmap, scale, opts)
+        extra_residual, extra_text, values = cf.residual_lines, cf.text, {"seed2": cf}
+    # Show the identity on the box: exported coefficients vs map-then-convert.
+    s = map_samples(tmap, n_thrust=21, n_voltage=5)
+    direct = scale.from_pct(s.throttle_pct)
+    via = enc.evaluate(s.thrust_n, s.voltage_v)
+    dev = float(np.max(np.abs(via - direct)) / max(scale.span, 1e-300))
+    m = tmap.model_def
+    names = list(m.term_names)
+    lines = header_lines(
+        tmap,
+        f"coefficients in encoding {scale.name} {scale.lo:g}..{scale.hi:g} {scale.unit}",
+        [
+            "0 (exact affine rescaling of the map; evaluating these coefficients matches "
+            f"map-then-convert to {dev:.1e} of the range on the validity box)",
+            *extra_residual,
+        ],
+    )
+    out = [comment(lines, "#")]
+    box = tmap.validity
+    out.append(f"format: thrustmap.export.encoding\nversion: 1\nencoding: {scale.name}\n")
+    out.append(f"unit: {json.dumps(scale.unit)}\nrange: [{_num(scale.lo)}, {_num(scale.hi)}]\n")
+    out.append(f"model: {tmap.model}\n")
+    formula = f"throttle_{scale.unit} = offset + " + " + ".join(
+        f"c{k}*{n}" for k, n in enumerate(names)
+    )
+    if tmap.correction is not None:
+        formula += "   with T replaced by gamma(B)*T"
+    out.append(f"formula: {json.dumps(formula)}\n")
+    out.append(f"terms: {json.dumps(names)}\n")
+    out.append(f"offset: {_num(enc.offset)}\n")
+    out.append("coefficients: [" + ", ".join(_num(c) for c in enc.coefficients) + "]\n")
+    if m.uses_voltage or tmap.correction is not None:
+        out.append("inputs: {thrust: N per rotor, voltage: V}\n")
+    else:
+        out.append("inputs: {thrust: N per rotor}\n")
+    out.append(
+        "validity:\n"
+        f"  thrust_n: [{_num(box.thrust_n.lo)}, {_num(box.thrust_n.hi)}]\n"
+        f"  voltage_v: [{_num(box.voltage_v.lo)}, {_num(box.voltage_v.hi)}]\n"
+        f"  throttle: [{_num(float(scale.from_pct(box.throttle_pct.lo)))}, "
+        f"{_num(float(scale.from_pct(box.throttle_pct.hi)))}]\n"
+    )
+    if tmap.correction is not None:
+        g = tmap.correction
+        out.append(
+            "gamma:\n"
+            '  formula: "gamma = sum(g[k] * B^k), B clamped to voltage_v"\n'
+            "  coefficients: [" + ", ".join(_num(c) for c in g.coefficients) + "]\n"
+            f"  voltage_v: [{_num(g.voltage_v.lo)}, {_num(g.voltage_v.hi)}]\n"
+        )
+    out.append(extra_text)
+    values.update({"offset": enc.offset, "coefficients": enc.coefficients, "encoded": enc})
+    return ExportResult(
+        target=scale.name,
+        text="".join(out),
+        values=values,
+        residual={"max_dev_of_range": dev},
+        suffix=".yaml",
+    )
+
+
+def is_poly(tmap: ThrustMap) -> bool:
+    return isinstance(tmap.model_def, PolyModel)

@@ -1,0 +1,378 @@
+"""Fit thrust maps from Ds, validate them, and score maps on new data.
+
+``fit_map``: selection -> model fit -> checks (monotone in T, conditioning) -> ``ThrustMap``.
+``compare``: several models under one validation mode (in-sample, by-file, k-fold); the headline
+counts every held-out point, with the points inside and outside the training box beside it.
+``evaluate``: an existing map against new files.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.core.units import ThrottleScale
+from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.interval import advice, learn_interval
+from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
+from thrustmap.fitting.metrics import ErrorStats, error_stats
+from thrustmap.fitting.models import Identification, Model, get_model
+from thrustmap.fitting.names import DEFAULT_MODEL, VALIDATIONS, Loss, Validation
+from thrustmap.fitting.selection import Points, Selection, select
+from thrustmap.fitting.solve import condition_number, solve_gram
+
+log = logging.getLogger(__name__)
+
+ILL_CONDITIONED = 1e8
+
+
+@dataclass(frozen=True)
+class Pool:
+    """Selected points of several files, concatenated, with their file index."""
+
+    thrust_n: FloatArray
+    voltage_v: FloatArray
+    throttle_pct: FloatArray
+    file_index: np.ndarray[Any, np.dtype[np.int64]]
+    points: tuple[Points, ...]
+    scale: ThrottleScale
+
+    def __len__(self) -> int:
+        return len(self.thrust_n)
+
+    def take(self, mask: np.ndarray[Any, Any]) -> tuple[FloatArray, FloatArray, FloatArray]:
+        return self.thrust_n[mask], self.voltage_v[mask], self.throttle_pct[mask]
+
+
+def pool(datasets: Sequence[Dataset], selection: Selection) -> Pool:
+    if not datasets:
+        raise ConfigError("no datasets given")
+    scales = {d.throttle_scale for d in datasets}
+    if len(scales) > 1:
+        listed = ", ".join(
+            f"{d.name}: {d.throttle_scale.name} {d.throttle_scale.lo:g}..{d.throttle_scale.hi:g}"
+            for d in datasets
+        )
+        raise ConfigError(f"files use different throttle scales ({listed}); fit them separately")
+    pts = tuple(select(d, selection) for d in datasets)
+    for p, d in zip(pts, datasets, strict=True):
+        log.info("%s: kept %d points (%s)", d.name, len(p), p.report)
+    return Pool(
+        thrust_n=np.concatenate([p.thrust_n for p in pts]),
+        voltage_v=np.concatenate([p.voltage_v for p in pts]),
+        throttle_pct=np.concatenate([p.throttle_pct for p in pts]),
+        file_index=np.concatenate([np.full(len(p), i, dtype=np.int64) for i, p in enumerate(pts)]),
+        points=pts,
+        scale=datasets[0].throttle_scale,
+    )
+
+
+def _check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> None:
+    if len(t) < model.n_coefficients:
+        raise FitError(
+            f"{len(t)} points after selection cannot determine the {model.n_coefficients} "
+            f"coefficients of '{model.name}'; widen the ranges or record more levels",
+            file=where,
+        )
+    if model.uses_voltage and not model.voltage_from_physics and np.ptp(b) < 0.05:
+        raise FitError(
+            f"all points at one battery voltage ({np.mean(b):.2f} V): a surface in voltage cannot be "
+            f"fitted; record over a discharge, or use a model without voltage (linear, la)",
+            file=where,
+        )
+    if np.ptp(t) <= 0:
+        raise FitError("all points at one thrust level; need several throttle levels", file=where)
+
+
+def fit_coefficients(
+    model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
+) -> FloatArray:
+    return identify_coefficients(model, t, b, th, loss, where)[0]
+
+
+def identify_coefficients(
+    model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
+) -> tuple[FloatArray, Identification | None]:
+    """Coefficients and how they were identified (which were set by physics, and why)."""
+    _check_fit_data(model, t, b, where)
+    coef, ident = model.identify(t, b, th, loss)
+    if not np.all(np.isfinite(coef)):
+        raise FitError(
+            f"fit of '{model.name}' gave non-finite coefficients; the data cannot determine "
+            "this model (record more levels or use a simpler model)",
+            file=where,
+        )
+    return coef, ident
+
+
+@dataclass
+class FitOutcome:
+    map: ThrustMap
+    pool: Pool
+    warnings: list[str] = field(default_factory=list)
+    trust: str = ""  # where the map can be trusted (its prediction interval and box)
+    more_data: str = ""  # where more data would help most
+
+
+def fit_map(
+    datasets: Sequence[Dataset],
+    *,
+    model: str = DEFAULT_MODEL,
+    loss: Loss = "l2",
+    selection: Selection | None = None,
+    strategy: str | None = None,
+) -> FitOutcome:
+    selection = selection or Selection()
+    m = get_model(model)
+    data = pool(datasets, selection)
+    where = ", ".join(d.path for d in datasets)
+    coef, ident = identify_coefficients(
+        m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
+    )
+    pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
+    stats = error_stats(pred, data.throttle_pct)
+
+    def predictor(
+        t: FloatArray, b: FloatArray, th: FloatArray
+    ) -> Callable[[FloatArray, FloatArray], FloatArray]:
+        c = fit_coefficients(m, t, b, th, loss)
+        return lambda tq, bq: m.evaluate(c, tq, bq)
+
+    interval = learn_interval(
+        data.thrust_n,
+        data.voltage_v,
+        data.throttle_pct,
+        data.file_index,
+        predictor,
+        np.abs(pred - data.throttle_pct),
+    )
+    trust, more_data = advice(
+        interval,
+        data.thrust_n,
+        data.voltage_v,
+        physics_voltage=ident is not None and bool(ident.fixed),
+        few_points=ident is not None and ident.limited_by == "points",
+    )
+    box = ValidityBox(
+        thrust_n=Box(float(data.thrust_n.min()), float(data.thrust_n.max())),
+        voltage_v=Box(float(data.voltage_v.min()), float(data.voltage_v.max())),
+        throttle_pct=Box(float(data.throttle_pct.min()), float(data.throttle_pct.max())),
+    )
+    rotors = {d.rotors_on_esc for d in datasets}
+    rotors_on_esc = rotors.pop() if len(rotors) == 1 else None
+    if strategy is None:
+        strategy = "LA" if m.name == "la" else {1: "SR", 4: "MR"}.get(rotors_on_esc or 0, "unknown")
+    tmap = ThrustMap(
+        model=m.name,
+        coefficients=tuple(float(c) for c in coef),
+        throttle_scale=data.scale,
+        validity=box,
+        loss=loss,
+        strategy=strategy,
+        rotors_on_esc=rotors_on_esc,
+        metrics={"in_sample": stats.to_dict()},
+        selection={**selection.to_dict(), "report": [p.report for p in data.points]},
+        sources=tuple(d.source_record() for d in datasets),
+        identification={} if ident is None else ident.to_dict(),
+        interval={} if interval is None else interval.to_dict(),
+    )
+    if ident is not None:
+        log.info("%s: %s", m.name, ident.reason)
+    warnings = check_map(tmap, data)
+    for w in warnings:
+        log.info("%s", w)  # returned to the caller, who shows them
+    return FitOutcome(tmap, data, warnings, trust, more_data)
+
+
+def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
+    """Warnings a user must see: not monotone in T inside the box, ill-conditioned fit."""
+    out: list[str] = []
+    v = tmap.validity
+    tt, bb = np.meshgrid(
+        np.linspace(v.thrust_n.lo, v.thrust_n.hi, 200),
+        np.linspace(v.voltage_v.lo, v.voltage_v.hi, 25),
+    )
+    th = tmap.throttle_pct(tt, bb, corrected=False)
+    d = np.diff(th, axis=1)
+    if (d < -1e-9).any():
+        i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+        out.append(
+            f"map '{tmap.model}' is not monotone in thrust inside its validity box "
+            f"(throttle falls near T={tt[i, j]:.2f} N, B={bb[i, j]:.2f} V): more thrust would be "
+            "commanded with less throttle"
+        )
+    if data is not None:
+        m = tmap.model_def
+        cond = condition_number(m.conditioned(data.thrust_n, data.voltage_v)[0])
+        if cond > ILL_CONDITIONED:
+            out.append(
+                f"fit of '{m.name}' is ill-conditioned (condition number {cond:.2e}); "
+                "coefficients are poorly determined by this data"
+            )
+    return out
+
+
+# -- validation --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Row:
+    """Held-out errors of one model: ALL held-out points (the headline), and the same points
+    split into inside and outside the training box (detail)."""
+
+    model: str
+    validation: str
+    inside: ErrorStats  # held-out points inside the training box
+    outside: ErrorStats  # held-out points outside the training box
+    folds: int
+    all: ErrorStats  # every held-out point: the headline
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (no NaN: a figure with no points is null). Top-level figures are over all
+        held-out points; ``inside_box`` and ``outside_box`` give the split."""
+        d: dict[str, Any] = {
+            "model": self.model,
+            "validation": self.validation,
+            "folds": self.folds,
+        }
+        d.update(self.all.to_dict())
+        d["inside_box"] = self.inside.to_dict()
+        d["outside_box"] = self.outside.to_dict()
+        return d
+
+
+def _row(
+    model: str,
+    validation: str,
+    folds: int,
+    pred: FloatArray,
+    true: FloatArray,
+    inside: np.ndarray[Any, np.dtype[np.bool_]],
+) -> Row:
+    return Row(
+        model=model,
+        validation=validation,
+        inside=error_stats(pred[inside], true[inside]),
+        outside=error_stats(pred[~inside], true[~inside]),
+        folds=folds,
+        all=error_stats(pred, true),
+    )
+
+
+def _in_box(
+    t: FloatArray, b: FloatArray, t_tr: FloatArray, b_tr: FloatArray, uses_voltage: bool
+) -> Any:
+    ok = (t >= t_tr.min()) & (t <= t_tr.max())
+    if uses_voltage:
+        ok &= (b >= b_tr.min()) & (b <= b_tr.max())
+    return ok
+
+
+def validate(
+    data: Pool, model: str, validation: Validation, loss: Loss = "l2", folds: int = 5, seed: int = 0
+) -> Row:
+    m = get_model(model)
+    n = len(data)
+    if validation == "in-sample":
+        splits = [(np.ones(n, bool), np.ones(n, bool))]
+    elif validation == "by-file":
+        k = len(data.points)
+        if k < 2:
+            raise ConfigError("by-file validation needs at least two files")
+        splits = [(data.file_index != i, data.file_index == i) for i in range(k)]
+    elif validation == "kfold":
+        if n < folds:
+            raise ConfigError(f"kfold needs at least {folds} points, have {n}")
+        fold = np.random.default_rng(seed).permutation(n) % folds
+        splits = [(fold != i, fold == i) for i in range(folds)]
+    else:
+        raise ConfigError(
+            f"unknown validation '{validation}'; expected one of: {', '.join(VALIDATIONS)}"
+        )
+    preds: list[FloatArray] = []
+    trues: list[FloatArray] = []
+    insides: list[np.ndarray[Any, np.dtype[np.bool_]]] = []
+    fast = loss == "l2" and m.linear_least_squares
+    if fast:
+        # One conditioned design for all points; each fold's fit comes from sums of per-split
+        # normal equations, so k folds cost one pass over the samples, not k.
+        design, to_raw = m.conditioned(data.thrust_n, data.voltage_v)
+        gram_all = design.T @ design
+        rhs_all = design.T @ data.throttle_pct
+    for train, test in splits:
+        t, b, th = data.take(train)
+        tt, bt, tht = data.take(test)
+        if fast:
+            _check_fit_data(m, t, b, f"{model} {validation} fold")
+            dt = design[test]
+            if validation == "in-sample":
+                gram, rhs = gram_all, rhs_all
+            else:
+                gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht
+            cols = m.free_columns(t, b)
+            lower = m.lower()
+            coef_c = np.zeros(m.n_coefficients)
+            coef_c[cols] = solve_gram(
+                gram[np.ix_(cols, cols)], rhs[cols], None if lower is None else lower[cols]
+            )
+            pred = dt @ coef_c
+        else:
+            coef = fit_coefficients(m, t, b, th, loss, where=f"{model} {validation} fold")
+            pred = m.evaluate(coef, tt, bt)
+        inside = (
+            _in_box(tt, bt, t, b, m.uses_voltage)
+            if validation != "in-sample"
+            else np.ones(len(tt), bool)
+        )
+        preds.append(pred)
+        trues.append(tht)
+        insides.append(np.asarray(inside, bool))
+    return _row(
+        model,
+        validation,
+        len(splits),
+        np.concatenate(preds),
+        np.concatenate(trues),
+        np.concatenate(insides),
+    )
+
+
+def compare(
+    datasets: Sequence[Dataset],
+    models: Sequence[str],
+    validation: Validation,
+    *,
+    loss: Loss = "l2",
+    selection: Selection | None = None,
+    folds: int = 5,
+) -> list[Row]:
+    data = pool(datasets, selection or Selection())
+    rows = []
+    for name in models:
+        get_model(name)
+        rows.append(validate(data, name, validation, loss, folds))
+    return rows
+
+
+def evaluate(
+    tmap: ThrustMap, datasets: Sequence[Dataset], selection: Selection | None = None
+) -> list[Row]:
+    """Score a map on files: every point (the headline), and inside/outside its box apart."""
+    rows = []
+    for ds in datasets:
+        if ds.throttle_scale != tmap.throttle_scale:
+            raise ConfigError(
+                f"{ds.name} uses throttle scale {ds.throttle_scale.name} {ds.throttle_scale.lo:g}.."
+                f"{ds.throttle_scale.hi:g} but the map uses {tmap.throttle_scale.name} "
+                f"{tmap.throttle_scale.lo:g}..{tmap.throttle_scale.hi:g}"
+            )
+        p = select(ds, selection or Selection())
+        pred = tmap.throttle_pct(p.thrust_n, p.voltage_v, corrected=False)
+        inside = tmap.in_box(p.thrust_n, p.voltage_v)
+        rows.append(_row(tmap.model, f"evaluate:{ds.name}", 1, pred, p.throttle_pct, inside))
+    return rows

@@ -1,0 +1,402 @@
+"""The correction factor γ(B) (seed paper eq. 9-11) and the Table-4 flight metrics.
+
+γ_j = T_c,j / F_m,j per Df sample; γ(B) is a polynomial of degree 0-3 in the battery voltage,
+fitted by least squares or least absolute deviations (eq. 11, exact LP). The degree is chosen by
+held-out error: leave-one-flight-out when the Df holds several flights, otherwise contiguous
+time blocks of the one flight. The one-standard-error rule picks it: the simplest degree whose
+held-out error is within one standard error (over the folds) of the best one, so a higher
+degree must be clearly better, not just better on this draw (the paper settled on degree 2
+for the same reason). A degree needs ``MIN_SAMPLES_PER_COEF`` samples per coefficient, and a
+slope needs ``MIN_SLOPE_SPAN_V`` of battery span: on a narrower span the automatic choice is
+degree 0 and a warning says why. Flights with different mass or rotor count are not pooled
+unless asked (``allow_mixed``): their γ need not be the same function of B.
+
+Metrics (per sample, then mean ± std, overall and binned by voltage):
+- e_Th = |Th − f̂(F_m/n, B)| before, |Th − f̂(γ(B)·F_m/n, B)| after (throttle %), where Th is the
+  throttle actually sent: the mean motor output in the map's scale when the log has it,
+  otherwise f̂(T_c/n, B), the throttle the uncorrected map sent for the command;
+- e_T = |T_c − F_m| before, |T_c/γ(B) − F_m| after, in N and in % of F_m (eq. 14).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+from thrustmap.core.errors import ConfigError, DataFormatError, FitError
+from thrustmap.core.units import ThrottleScale
+from thrustmap.fitting.df import map_extrapolation, motor_pct_in_map_scale, thrust_from_motors
+from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap
+from thrustmap.fitting.names import Loss
+from thrustmap.fitting.solve import solve
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+DEGREES = (0, 1, 2, 3)
+DEFAULT_BLOCKS = 5
+#: samples needed per polynomial coefficient for a degree to be a candidate
+MIN_SAMPLES_PER_COEF = 10
+#: battery-voltage span below which a γ slope cannot be told from noise and drift
+MIN_SLOPE_SPAN_V = 0.5
+
+
+@dataclass
+class GammaFit:
+    correction: GammaCorrection
+    degree: int
+    loss: str
+    heldout: dict[int, float]  # degree -> held-out error (MAE for l1, RMSE for l2) of γ
+    validation: str  # "leave-one-flight-out (k flights)" or "k contiguous time blocks"
+    samples: int
+    metrics: dict[str, Any] = field(default_factory=dict)
+    heldout_se: dict[int, float] = field(default_factory=dict)  # standard error over folds
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "degree": self.degree,
+            "loss": self.loss,
+            "coefficients": list(self.correction.coefficients),
+            "voltage_v": self.correction.voltage_v.to_list(),
+            "heldout_error": {str(k): v for k, v in self.heldout.items()},
+            "heldout_standard_error": {str(k): v for k, v in self.heldout_se.items()},
+            "degree_rule": "one standard error over the held-out folds",
+            "warnings": self.warnings,
+            "validation": self.validation,
+            "samples": self.samples,
+            "metrics": self.metrics,
+        }
+
+
+# -- T_c in newtons ------------------------------------------------------------------------------
+
+
+def thrust_command_n(
+    table: pd.DataFrame, sidecar: dict[str, Any], tmap: ThrustMap | None, given: int | None = None
+) -> tuple[FloatArray, str]:
+    """T_c (collective N) from the Df, computing it through the map when the Df lacks it."""
+    if "thrust_cmd_n" in table.columns and table["thrust_cmd_n"].notna().all():
+        return table["thrust_cmd_n"].to_numpy(float), "Df column thrust_cmd_n"
+    if tmap is None:
+        raise ConfigError("this Df has no thrust_cmd_n column: give the stand map (--map)")
+    volt = table["voltage_v"].to_numpy(float)
+    rotors = _rotors(table, sidecar, given)
+    motor_cols = sorted(c for c in table.columns if c.startswith("motor") and c.endswith("_pct"))
+    scale_d = sidecar.get("columns", {}).get("motor_output_scale")
+    if motor_cols and scale_d:
+        mp, how = motor_pct_in_map_scale(
+            table[motor_cols].to_numpy(float), ThrottleScale.from_dict(scale_d), tmap.throttle_scale
+        )
+        return thrust_from_motors(mp, volt, tmap, rotors), f"motor outputs through the map ({how})"
+    if "thrust_cmd_norm" in table.columns:
+        norm = table["thrust_cmd_norm"].to_numpy(float)
+        t = rotors * tmap.thrust_n(norm * 100.0, volt, corrected=False)
+        return np.asarray(t, float), "thrust_cmd_norm × 100 % of the map's scale, × rotors"
+    raise DataFormatError("Df has no thrust command column (thrust_cmd_n, motor*_pct, norm)")
+
+
+def _rotors(table: pd.DataFrame, sidecar: dict[str, Any], given: int | None = None) -> int:
+    if given is not None:
+        return given
+    flights = sidecar.get("flights", {})
+    counts = {int(v["rotors"]) for v in flights.values() if v.get("rotors")}
+    if len(counts) == 1:
+        return counts.pop()
+    n = sum(1 for c in table.columns if c.startswith("motor") and c.endswith("_pct"))
+    if n > 1:
+        return n
+    raise ConfigError("the rotor count is not recorded in the Df sidecar; give --rotors")
+
+
+# -- fitting -------------------------------------------------------------------------------------
+
+
+def _fit_poly(b: FloatArray, y: FloatArray, degree: int, loss: Loss) -> tuple[float, ...]:
+    """Ascending raw-power coefficients, solved in a centred/scaled basis for conditioning."""
+    bc = float(np.mean(b))
+    bs = float(np.std(b)) or 1.0
+    x = (b - bc) / bs
+    design = np.vander(x, degree + 1, increasing=True)
+    c = solve(design, y, loss=loss)
+    poly = np.polynomial.Polynomial(c)(np.polynomial.Polynomial([-bc / bs, 1.0 / bs]))
+    coef = np.zeros(degree + 1)
+    coef[: len(poly.coef)] = poly.coef
+    return tuple(float(v) for v in coef)
+
+
+def _error(res: FloatArray, loss: str) -> float:
+    return float(np.mean(np.abs(res))) if loss == "l1" else float(np.sqrt(np.mean(res**2)))
+
+
+def _folds(groups: npt.NDArray[Any], time_s: FloatArray, blocks: int) -> tuple[list[Any], str]:
+    names = list(dict.fromkeys(groups.tolist()))
+    if len(names) >= 2:
+        return [groups == g for g in names], f"leave-one-flight-out ({len(names)} flights)"
+    order = np.argsort(time_s, kind="stable")
+    masks = []
+    for chunk in np.array_split(order, blocks):
+        m = np.zeros(len(time_s), bool)
+        m[chunk] = True
+        masks.append(m)
+    return masks, f"{blocks} contiguous time blocks of one flight"
+
+
+def _check_pooling(side: dict[str, Any], allow_mixed: bool, warnings: list[str]) -> None:
+    """Refuse to pool flights of different vehicles (mass or rotor count) unless asked."""
+    flights = side.get("flights", {}) or {}
+    masses = {k: v.get("mass_kg") for k, v in flights.items() if v.get("mass_kg") is not None}
+    rotors = {k: v.get("rotors") for k, v in flights.items() if v.get("rotors") is not None}
+    problems = []
+    if len({round(float(m), 6) for m in masses.values()}) > 1:
+        problems.append(
+            "masses " + ", ".join(f"{k}: {float(m):g} kg" for k, m in sorted(masses.items()))
+        )
+    if len({int(r) for r in rotors.values()}) > 1:
+        problems.append(
+            "rotor counts " + ", ".join(f"{k}: {int(r)}" for k, r in sorted(rotors.items()))
+        )
+    if not problems:
+        return
+    text = "the Df mixes flights with different " + " and ".join(problems)
+    if not allow_mixed:
+        raise FitError(
+            text + ": γ(B) of different vehicles need not agree; fit them separately, or pool "
+            "them on purpose (--pool-mixed)"
+        )
+    warnings.append(text + " (pooled on request)")
+
+
+def fit_gamma(
+    table: pd.DataFrame,
+    sidecar: dict[str, Any] | None = None,
+    tmap: ThrustMap | None = None,
+    *,
+    loss: Loss = "l1",
+    degree: int | None = None,
+    degrees: tuple[int, ...] = DEGREES,
+    blocks: int = DEFAULT_BLOCKS,
+    voltage_bins: int = 6,
+    rotors: int | None = None,
+    allow_mixed: bool = False,
+) -> GammaFit:
+    """Fit γ(B) on a Df (one or more flights); ``degree=None`` chooses it by held-out error."""
+    side = sidecar or {}
+    if loss not in ("l1", "l2"):
+        raise ConfigError(f"unknown loss '{loss}'; expected l1 or l2")
+    if degree is not None and degree not in DEGREES:
+        raise ConfigError(f"γ degree must be one of {DEGREES}, got {degree}")
+    warnings: list[str] = []
+    _check_pooling(side, allow_mixed, warnings)
+    table, no_voltage = _voltage_rows(table, warnings)
+    if no_voltage and not ("thrust_cmd_n" in table.columns and table["thrust_cmd_n"].notna().all()):
+        raise FitError(
+            "the Df has no battery voltage and no thrust_cmd_n: T_c would have to come through "
+            "the stand map's forward direction, which needs B"
+        )
+    if no_voltage and degree is not None and degree > 0:
+        raise ConfigError(f"the Df has no battery voltage: a degree-{degree} γ(B) needs B")
+    t_cmd, t_src = thrust_command_n(table, side, tmap, rotors)
+    if tmap is not None:
+        rotors = _rotors(table, side, rotors)
+    force = table["force_n"].to_numpy(float)
+    volt = table["voltage_v"].to_numpy(float)
+    ok = np.isfinite(t_cmd) & np.isfinite(force) & (force > 0) & (t_cmd > 0)
+    if not no_voltage:
+        ok &= np.isfinite(volt)
+    if ok.sum() < 10:
+        raise FitError(f"only {int(ok.sum())} usable Df samples; need at least 10")
+    b, gam = volt[ok], t_cmd[ok] / force[ok]
+    groups = table["flight"].to_numpy()[ok] if "flight" in table.columns else np.zeros(ok.sum())
+    time_s = np.asarray(
+        table["time_s"].to_numpy(float)[ok] if "time_s" in table.columns else np.arange(len(b)),
+        dtype=np.float64,
+    )
+    span = float(np.ptp(b))
+    n = len(b)
+    candidates = [degree] if degree is not None else list(degrees)
+    if no_voltage:
+        candidates = [0]
+        b = np.zeros(n)  # a constant γ does not depend on B; the zeros only feed the solver
+    elif degree is None:
+        few = [d for d in candidates if n < MIN_SAMPLES_PER_COEF * (d + 1)]
+        if few and len(few) < len(candidates):
+            warnings.append(
+                f"{n} samples: degree {', '.join(map(str, few))} not tried (needs "
+                f"{MIN_SAMPLES_PER_COEF} samples per coefficient)"
+            )
+        candidates = [d for d in candidates if d not in few] or [0]
+        if span < MIN_SLOPE_SPAN_V and any(d > 0 for d in candidates):
+            warnings.append(
+                f"battery voltage spans only {span:.2f} V (< {MIN_SLOPE_SPAN_V:g} V): a slope of "
+                "γ in B cannot be told from noise; fitted a constant γ (fly the battery down "
+                "further, or pool flights at other voltages)"
+            )
+            candidates = [0]
+    elif degree > 0 and span < MIN_SLOPE_SPAN_V:
+        warnings.append(
+            f"battery voltage spans only {span:.2f} V (< {MIN_SLOPE_SPAN_V:g} V): the requested "
+            f"degree-{degree} γ(B) is not supported by the data"
+        )
+    masks, how = _folds(groups, time_s, blocks)
+    heldout: dict[int, float] = {}
+    heldout_se: dict[int, float] = {}
+    for d in candidates:
+        res = np.full(len(b), np.nan)
+        per_fold: list[float] = []
+        for test in masks:
+            train = ~test
+            if train.sum() < d + 2 or not test.any():
+                continue
+            coef = _fit_poly(b[train], gam[train], d, loss)
+            box = Box(float(b[train].min()), float(b[train].max()))
+            res[test] = gam[test] - GammaCorrection(coef, box).gamma(b[test])
+            per_fold.append(_error(res[test], loss))
+        heldout[d] = _error(res[np.isfinite(res)], loss) if np.isfinite(res).any() else np.inf
+        k = len(per_fold)
+        heldout_se[d] = float(np.std(per_fold, ddof=1) / np.sqrt(k)) if k >= 2 else np.inf
+    if degree is None:
+        best = min(heldout, key=lambda d: heldout[d])
+        limit = heldout[best] + (heldout_se[best] if np.isfinite(heldout_se[best]) else 0.0)
+        chosen = min(d for d, e in heldout.items() if e <= limit)
+    else:
+        chosen = degree
+    for w in warnings:
+        log.warning("γ fit: %s", w)
+    coef = _fit_poly(b, gam, chosen, loss)
+    vbox = Box(float(b.min()), float(b.max()))
+    if no_voltage:  # γ is constant: its voltage box only records where it may be applied
+        vbox = tmap.validity.voltage_v if tmap is not None else Box(0.0, 0.0)
+    correction = GammaCorrection(coefficients=coef, voltage_v=vbox, loss=loss)
+    if tmap is not None and rotors:
+        outside = map_extrapolation(
+            tmap, volt[ok], force[ok] / rotors, "per-rotor thrust (F_m / rotors)"
+        )
+        for w in outside:
+            log.warning("γ fit: %s", w)
+        warnings.extend(outside)
+    fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
+    fit.heldout_se = heldout_se
+    fit.warnings = warnings
+    fit.metrics = flight_metrics(
+        table[ok], side, None if no_voltage else tmap, correction, t_cmd[ok], voltage_bins, rotors
+    )
+    if no_voltage:
+        fit.metrics["voltage_unknown"] = (
+            "no battery voltage in the Df: γ fitted as a constant; e_Th (which needs B) not "
+            "computed, no voltage bins"
+        )
+    fit.metrics["thrust_cmd_source"] = t_src
+    fit.correction = GammaCorrection(
+        coefficients=coef,
+        voltage_v=correction.voltage_v,
+        loss=loss,
+        metrics={"degree": chosen, "heldout_error": heldout, "validation": how, **fit.metrics},
+    )
+    return fit
+
+
+def _voltage_rows(table: pd.DataFrame, warnings: list[str]) -> tuple[pd.DataFrame, bool]:
+    """The Df rows with a battery voltage, and whether the Df has none at all (then every row is
+    kept and γ can only be a constant). Rows lacking a voltage among others are dropped."""
+    volt = pd.to_numeric(table["voltage_v"], errors="coerce").to_numpy(float)
+    known = np.isfinite(volt) & (volt > 0)
+    if len(table) and not known.any():
+        text = (
+            "the Df has no battery voltage (the log had none): γ fitted as a constant (degree 0); "
+            "a slope of γ in B cannot be fitted without B"
+        )
+        warnings.append(text)
+        return table, True
+    if not known.all():
+        text = f"{int((~known).sum())} of {len(table)} Df samples have no battery voltage: dropped"
+        warnings.append(text)
+        return table[known].reset_index(drop=True), False
+    return table, False
+
+
+# -- Table-4 metrics -----------------------------------------------------------------------------
+
+
+def _ms(x: FloatArray) -> dict[str, float]:
+    return {"mean": float(np.mean(x)), "std": float(np.std(x))} if len(x) else {}
+
+
+def flight_metrics(
+    table: pd.DataFrame,
+    sidecar: dict[str, Any],
+    tmap: ThrustMap | None,
+    correction: GammaCorrection,
+    t_cmd: FloatArray,
+    voltage_bins: int = 6,
+    rotors: int | None = None,
+) -> dict[str, Any]:
+    """e_Th and e_T before/after γ, mean ± std, overall and per voltage bin."""
+    force = table["force_n"].to_numpy(float)
+    volt = table["voltage_v"].to_numpy(float)
+    if len(correction.coefficients) == 1:  # a constant γ needs no B (a Df may have none)
+        g = np.full(len(volt), correction.coefficients[0])
+    else:
+        g = correction.gamma(volt)
+    per: dict[str, FloatArray] = {
+        "e_T_before_n": np.abs(t_cmd - force),
+        "e_T_after_n": np.abs(t_cmd / g - force),
+    }
+    per["e_T_before_pct"] = per["e_T_before_n"] / force * 100.0
+    per["e_T_after_pct"] = per["e_T_after_n"] / force * 100.0
+    th_src = None
+    if tmap is not None:
+        if rotors is None:
+            raise ConfigError("Table-4 throttle errors need the rotor count; give --rotors")
+        f_rotor = force / rotors
+        th_note = str(sidecar.get("columns", {}).get("throttle_pct", ""))
+        if "throttle_pct" in table.columns and "map's scale" in th_note:
+            th_sent = table["throttle_pct"].to_numpy(float)
+            th_src = "mean motor output (map's scale)"
+        else:
+            th_sent = tmap.throttle_pct(t_cmd / rotors, volt, corrected=False)
+            th_src = "f̂(T_c/n, B): the uncorrected map's throttle for the command"
+        before = tmap.throttle_pct(f_rotor, volt, corrected=False)
+        after = tmap.with_correction(correction).throttle_pct(f_rotor, volt)
+        per["e_Th_before_pct"] = np.abs(th_sent - before)
+        per["e_Th_after_pct"] = np.abs(th_sent - after)
+    out: dict[str, Any] = {k: _ms(v) for k, v in per.items()}
+    out["throttle_sent"] = th_src
+    out["e_T_pct_of"] = "F_m (measured collective force)"
+    if not np.isfinite(volt).all():  # no battery voltage: no voltage bins
+        out["by_voltage"] = []
+        return out
+    edges = np.linspace(float(volt.min()), float(volt.max()), voltage_bins + 1)
+    bins = []
+    idx = np.clip(np.digitize(volt, edges[1:-1]), 0, voltage_bins - 1)
+    for k in range(voltage_bins):
+        m = idx == k
+        if not m.any():
+            continue
+        row: dict[str, Any] = {
+            "voltage_v": [float(edges[k]), float(edges[k + 1])],
+            "samples": int(m.sum()),
+            "gamma": _ms(t_cmd[m] / force[m]),
+        }
+        for key, v in per.items():
+            row[key] = _ms(v[m])
+        bins.append(row)
+    out["by_voltage"] = bins
+    return out
+
+
+def corrected_map(tmap: ThrustMap, fit: GammaFit, sources: list[dict[str, Any]]) -> ThrustMap:
+    """The stand map with the γ correction block attached (predict applies f̂(γ(B)·T_c, B))."""
+    corr = GammaCorrection(
+        coefficients=fit.correction.coefficients,
+        voltage_v=fit.correction.voltage_v,
+        loss=fit.loss,
+        metrics=fit.correction.metrics,
+        sources=tuple(sources),
+    )
+    return tmap.with_correction(corr)

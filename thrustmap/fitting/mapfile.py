@@ -1,0 +1,400 @@
+"""The thrust-map file: a versioned JSON document and the object that evaluates it.
+
+Directions (thrust is per rotor, N; voltage is the battery terminal voltage, V):
+- inverse (the map proper, the seed paper's Th = f(T, B)): ``throttle_pct`` / ``throttle_native``
+- forward (seed 2's direction, thrust from command): ``thrust_n``
+With a γ(B) correction block, the inverse applies Th = f̂(γ(B)·T_c, B) (seed paper eq. 9) and the
+forward gives T_c = T/γ(B); pass ``corrected=False`` for the bench map alone.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap import __version__
+from thrustmap.core.errors import ConfigError, DataFormatError, FitError
+from thrustmap.core.files import atomic_write_text
+from thrustmap.core.jsonfile import Fields, load_json
+from thrustmap.core.units import ThrottleScale
+from thrustmap.fitting.interval import Interval
+from thrustmap.fitting.models import Model, get_model, motor_forward
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+MAP_FORMAT = "thrustmap.map"
+MAP_VERSION = 1
+STRATEGIES = ("LA", "SR", "MR", "unknown")
+
+
+@dataclass(frozen=True)
+class Box:
+    """A closed interval [lo, hi]."""
+
+    lo: float
+    hi: float
+
+    def contains(self, x: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        a = np.asarray(x, float)
+        return np.asarray((a >= self.lo) & (a <= self.hi))
+
+    def to_list(self) -> list[float]:
+        return [self.lo, self.hi]
+
+
+@dataclass(frozen=True)
+class ValidityBox:
+    """Where the map was fitted: thrust per rotor, voltage, and throttle (percent)."""
+
+    thrust_n: Box
+    voltage_v: Box
+    throttle_pct: Box
+
+    def contains(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        return np.asarray(self.thrust_n.contains(thrust_n) & self.voltage_v.contains(voltage_v))
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {
+            "thrust_n": self.thrust_n.to_list(),
+            "voltage_v": self.voltage_v.to_list(),
+            "throttle_pct": self.throttle_pct.to_list(),
+        }
+
+
+@dataclass(frozen=True)
+class GammaCorrection:
+    """γ(B) = Σ coefficients[k]·B^k (ascending powers), fitted on flight data (eq. 11)."""
+
+    coefficients: tuple[float, ...]
+    voltage_v: Box
+    loss: str = "l2"
+    metrics: dict[str, Any] = field(default_factory=dict)
+    sources: tuple[dict[str, Any], ...] = ()
+
+    def gamma(self, voltage_v: npt.ArrayLike) -> FloatArray:
+        b = np.asarray(voltage_v, float)
+        # Clamp to the flown voltage range: a polynomial extrapolated past it is not evidence.
+        b = np.clip(b, self.voltage_v.lo, self.voltage_v.hi)
+        return np.asarray(np.polynomial.polynomial.polyval(b, self.coefficients), dtype=float)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "formula": "gamma = "
+            + " + ".join(
+                f"g{k}" + ("" if k == 0 else "*B" if k == 1 else f"*B^{k}")
+                for k in range(len(self.coefficients))
+            ),
+            "coefficients": list(self.coefficients),
+            "voltage_v": self.voltage_v.to_list(),
+            "loss": self.loss,
+            "metrics": self.metrics,
+            "sources": list(self.sources),
+        }
+
+
+@dataclass(frozen=True)
+class ThrustMap:
+    model: str
+    coefficients: tuple[float, ...]
+    throttle_scale: ThrottleScale
+    validity: ValidityBox
+    loss: str = "l2"
+    strategy: str = "unknown"
+    rotors_on_esc: int | None = None
+    thrust_meaning: str = "per_rotor"
+    metrics: dict[str, Any] = field(default_factory=dict)
+    selection: dict[str, Any] = field(default_factory=dict)
+    sources: tuple[dict[str, Any], ...] = ()
+    correction: GammaCorrection | None = None
+    #: how the coefficients were identified (which were set by physics, and why)
+    identification: dict[str, Any] = field(default_factory=dict)
+    #: prediction interval learned from held-out residuals (see fitting.interval)
+    interval: dict[str, Any] = field(default_factory=dict)
+    tool_version: str = __version__
+    created_utc: str = field(
+        default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
+    )
+    #: sha256 of the file this map was loaded from (empty for a map built in memory)
+    file_sha256: str = field(default="", compare=False)
+
+    @property
+    def model_def(self) -> Model:
+        return get_model(self.model)
+
+    # -- inverse: throttle from thrust -------------------------------------------------------
+    def throttle_pct(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray:
+        t = np.asarray(thrust_n, float)
+        if corrected and self.correction is not None:
+            t = self.correction.gamma(voltage_v) * t
+        return self.model_def.evaluate(self.coefficients, t, voltage_v)
+
+    def throttle_native(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray:
+        return self.throttle_scale.from_pct(
+            self.throttle_pct(thrust_n, voltage_v, corrected=corrected)
+        )
+
+    # -- forward: thrust from throttle --------------------------------------------------------
+    def thrust_n(
+        self, throttle_pct: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray:
+        th, b = np.broadcast_arrays(np.asarray(throttle_pct, float), np.asarray(voltage_v, float))
+        if self.model == "motor":
+            t = motor_forward(self.coefficients, th, b)
+        else:
+            t = self._bisect_thrust(th, b)
+        if corrected and self.correction is not None:
+            t = t / self.correction.gamma(b)
+        return np.asarray(t, dtype=float)
+
+    def _bisect_thrust(self, th: FloatArray, b: FloatArray) -> FloatArray:
+        """Invert Th = f(T, B) in T by vectorised bisection (maps are monotone in T)."""
+        lo = np.zeros_like(th)
+        hi = np.full_like(th, max(self.validity.thrust_n.hi, 1e-6) * 3.0)
+        f_lo = self.model_def.evaluate(self.coefficients, lo, b)
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            f_mid = self.model_def.evaluate(self.coefficients, mid, b)
+            below = f_mid < th
+            lo = np.where(below, mid, lo)
+            hi = np.where(below, hi, mid)
+        t = 0.5 * (lo + hi)
+        return np.where(th <= f_lo, 0.0, t)
+
+    def prediction_interval(self) -> Interval | None:
+        """The map's prediction interval (None for a map without one, e.g. an older file)."""
+        if not self.interval:
+            return None
+        v = self.validity
+        return Interval.from_dict(
+            self.interval, (v.thrust_n.lo, v.thrust_n.hi), (v.voltage_v.lo, v.voltage_v.hi)
+        )
+
+    def in_box(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        return self.validity.contains(thrust_n, voltage_v)
+
+    def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
+        return replace(self, correction=correction)
+
+    # -- file ---------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        m = self.model_def
+        return {
+            "format": MAP_FORMAT,
+            "version": MAP_VERSION,
+            "model": self.model,
+            "formula": m.formula,
+            "terms": list(m.term_names),
+            "coefficients": list(self.coefficients),
+            "loss": self.loss,
+            "units": {
+                "thrust": "N per rotor",
+                "voltage": "V (battery terminal, under load)",
+                "throttle": "% of native scale",
+            },
+            "throttle_scale": self.throttle_scale.to_dict(),
+            "strategy": self.strategy,
+            "rotors_on_esc": self.rotors_on_esc,
+            "thrust_meaning": self.thrust_meaning,
+            "validity": self.validity.to_dict(),
+            "metrics": self.metrics,
+            "selection": self.selection,
+            "sources": list(self.sources),
+            "correction": None if self.correction is None else self.correction.to_dict(),
+            # written only when present, so maps built without them keep their old bytes
+            **({"identification": self.identification} if self.identification else {}),
+            **({"interval": self.interval} if self.interval else {}),
+            "tool_version": self.tool_version,
+            "created_utc": self.created_utc,
+        }
+
+    def dumps(self) -> str:
+        """The map as JSON text. Refuses a map with a number JSON cannot carry (NaN, ±inf),
+        naming the field, so a broken fit never reaches a file or a firmware export."""
+        doc = self.to_dict()
+        bad = _non_finite_path(doc)
+        if bad is not None:
+            raise FitError(f"map has a non-finite number in field '{bad}'; not written")
+        return json.dumps(doc, indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+    def save(self, path: str | Path) -> None:
+        atomic_write_text(path, self.dumps())
+
+    @classmethod
+    def load(cls, path: str | Path) -> ThrustMap:
+        p = Path(path)
+        data = load_json(p, what="map file")
+        tmap = cls.from_dict(data, source=str(p))
+        return replace(tmap, file_sha256=file_sha256(p))
+
+    @classmethod
+    def from_dict(cls, data: Any, *, source: str = "<map>") -> ThrustMap:
+        """Build a map from its JSON document, checking every number that evaluates it: finite
+        coefficients, ordered finite boxes, a finite γ. Errors name the field."""
+        if not isinstance(data, dict) or data.get("format") != MAP_FORMAT:
+            raise DataFormatError(
+                f'not a thrustmap map file (expected "format": "{MAP_FORMAT}")', file=source
+            )
+        f = Fields(data, source=source)
+        version = f.raw("version")
+        if version != MAP_VERSION:
+            raise DataFormatError(
+                f"map file version {version} is not supported (this tool reads {MAP_VERSION})",
+                file=source,
+            )
+        name = f.string("model")
+        try:
+            model = get_model(name)
+        except ConfigError as exc:
+            raise f.error(exc.message, "model") from None
+        coefs = tuple(f.numbers("coefficients"))
+        if len(coefs) != model.n_coefficients:
+            raise f.error(
+                f"model '{model.name}' needs {model.n_coefficients} coefficients, got {len(coefs)}",
+                "coefficients",
+            )
+        vf = f.sub("validity")
+        box = ValidityBox(
+            thrust_n=_box(vf, "thrust_n", minimum=0.0),
+            voltage_v=_box(vf, "voltage_v", minimum=0.0, positive=True),
+            throttle_pct=_box(vf, "throttle_pct"),
+        )
+        correction = None
+        if f.has("correction"):
+            cf = f.sub("correction")
+            gamma = tuple(cf.numbers("coefficients"))
+            if not gamma:
+                raise cf.error("expected at least one coefficient", "coefficients")
+            metrics = cf.obj.get("metrics", {})
+            correction = GammaCorrection(
+                coefficients=gamma,
+                voltage_v=_box(cf, "voltage_v", minimum=0.0, positive=True),
+                loss=cf.string("loss", "l2"),
+                metrics=dict(metrics) if isinstance(metrics, dict) else {},
+                sources=tuple(_list(cf, "sources")),
+            )
+        try:
+            throttle_scale = ThrottleScale.from_dict(dict(f.sub("throttle_scale").obj))
+        except ConfigError as exc:
+            raise f.error(exc.message, "throttle_scale") from None
+        if not (
+            math.isfinite(throttle_scale.lo)
+            and math.isfinite(throttle_scale.hi)
+            and throttle_scale.lo != throttle_scale.hi
+        ):
+            raise f.error("expected finite, different lo and hi", "throttle_scale")
+        rotors = data.get("rotors_on_esc")
+        if rotors is not None:
+            rotors = f.integer("rotors_on_esc", minimum=1, maximum=64)
+        return cls(
+            model=model.name,
+            coefficients=coefs,
+            throttle_scale=throttle_scale,
+            validity=box,
+            loss=f.string("loss", "l2"),
+            strategy=f.string("strategy", "unknown"),
+            rotors_on_esc=rotors,
+            thrust_meaning=f.string("thrust_meaning", "per_rotor"),
+            metrics=_dict(f, "metrics"),
+            selection=_dict(f, "selection"),
+            sources=tuple(_list(f, "sources")),
+            correction=correction,
+            identification=_dict(f, "identification"),
+            interval=_interval(f),
+            tool_version=f.string("tool_version", ""),
+            created_utc=f.string("created_utc", ""),
+        )
+
+
+def _box(f: Fields, key: str, *, minimum: float | None = None, positive: bool = False) -> Box:
+    lo_hi = f.numbers(key)
+    if len(lo_hi) != 2:
+        raise f.error(f"expected [lo, hi], got {len(lo_hi)} numbers", key)
+    lo, hi = lo_hi
+    if lo > hi:
+        raise f.error(f"reversed range [{lo:g}, {hi:g}]; expected lo <= hi", key)
+    if minimum is not None and lo < minimum:
+        raise f.error(f"expected values >= {minimum:g}, got {lo:g}", key)
+    if positive and lo <= 0:
+        raise f.error(f"expected positive values, got {lo:g}", key)
+    return Box(lo, hi)
+
+
+def _dict(f: Fields, key: str) -> dict[str, Any]:
+    if not f.has(key):
+        return {}
+    value = f.raw(key)
+    if not isinstance(value, dict):
+        raise f.error("expected an object", key)
+    return dict(value)
+
+
+def _list(f: Fields, key: str) -> list[Any]:
+    if not f.has(key):
+        return []
+    value = f.raw(key)
+    if not isinstance(value, list):
+        raise f.error("expected a list", key)
+    return value
+
+
+def _interval(f: Fields) -> dict[str, Any]:
+    """The prediction-interval block: its numbers are used by predict, so they are checked."""
+    if not f.has("interval") or not f.raw("interval"):
+        return {}
+    sub = f.sub("interval")
+    out = dict(sub.obj)
+    for key in ("half_width_pct", "growth_per_span"):
+        out[key] = sub.number(key, minimum=0.0)
+    return out
+
+
+def _non_finite_path(obj: Any, path: str = "") -> str | None:
+    """The path of the first NaN/±inf inside a JSON-ready structure, or None."""
+    if isinstance(obj, float):
+        return None if math.isfinite(obj) else (path or "<value>")
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            found = _non_finite_path(v, f"{path}.{k}" if path else str(k))
+            if found is not None:
+                return found
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            found = _non_finite_path(v, f"{path}[{i}]")
+            if found is not None:
+                return found
+    return None
+
+
+def json_ready(obj: Any) -> Any:
+    """A copy of a JSON-ready structure with every NaN/±inf replaced by None (null)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return json_ready(obj.item())
+    return obj
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

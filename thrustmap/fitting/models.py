@@ -1,0 +1,382 @@
+"""Thrust-map models: Th(%) = f(T [N], B [V]), all linear in their coefficients.
+
+Polynomial surfaces (the seed paper's forms) are stored in the raw monomial basis the paper
+writes them in, but fitted in a centred and scaled basis (T/Ts, (B-Bc)/Bs) and expanded back
+exactly, so the narrow voltage range does not make the solve ill-conditioned.
+
+``motor`` is physics-informed. A BLDC motor at duty d on a battery at B volts spins at
+ω = Kv·(d·B − R·I) with current I = I0 + Q/Kt and propeller torque Q = kq·ω², and the propeller
+pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·√T + k2·T, so
+
+    Th = c + (k0 + k1·√T + k2·T) / B,   with k1, k2 ≥ 0
+
+(c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
+with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+
+Identification. At one battery voltage B0, c and k0/B0 are one number, so the data alone cannot
+say how the map scales with B. Physics can: k0 is the resistive drop of the no-load current
+(R·I0, a few tenths of a volt against a duty × voltage of several volts), while c is the ESC's
+throttle offset (dead band / idle), which does not scale with voltage. ``motor`` therefore fits
+the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
+span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
+points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
+throttle, and enough data at several voltages measures that), and only if that fit can be a
+motor (offset within ±50 % of the range, throttle falling with voltage mid-range). The choice
+and its reason are reported (:class:`Identification`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.fitting.names import MODEL_NAMES, Loss
+from thrustmap.fitting.solve import solve
+
+FloatArray = npt.NDArray[np.float64]
+Features = Callable[[FloatArray, FloatArray], FloatArray]
+
+
+@dataclass(frozen=True)
+class Model:
+    """A model linear in its coefficients: Th% = design(T, B) @ coefficients."""
+
+    name: str
+    formula: str
+    description: str
+    term_names: tuple[str, ...]
+    uses_voltage: bool
+    lower_bounds: tuple[float, ...] = field(default=())
+
+    @property
+    def n_coefficients(self) -> int:
+        return len(self.term_names)
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def evaluate(
+        self, coefficients: npt.ArrayLike, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike
+    ) -> FloatArray:
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        flat = self.design(t.ravel(), b.ravel()) @ np.asarray(coefficients, float)
+        return np.asarray(flat.reshape(t.shape), dtype=float)
+
+    #: validation may reuse one conditioned design across folds (False for special fits)
+    linear_least_squares = True
+    #: the model's voltage dependence comes from physics when the data has no voltage spread
+    voltage_from_physics = False
+
+    def conditioned(
+        self, thrust_n: FloatArray, voltage_v: FloatArray
+    ) -> tuple[FloatArray, Callable[[FloatArray], FloatArray]]:
+        """A well-conditioned design for these points, and the map from its coefficients to
+        the raw ones. Lower bounds (0 or -inf only) hold in both bases."""
+        d = self.design(thrust_n, voltage_v)
+        norms = np.linalg.norm(d, axis=0)
+        norms[norms == 0] = 1.0
+        return d / norms, lambda c: np.asarray(c, float) / norms
+
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        """Coefficients the data at these points determines (the others are held at 0)."""
+        return list(range(self.n_coefficients))
+
+    def lower(self) -> FloatArray | None:
+        return np.array(self.lower_bounds, float) if self.lower_bounds else None
+
+    def fit(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> FloatArray:
+        return self.identify(thrust_n, voltage_v, throttle_pct, loss)[0]
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        """Coefficients, and how the data identified them (None: every coefficient fitted)."""
+        design, to_raw = self.conditioned(thrust_n, voltage_v)
+        return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower())), None
+
+
+@dataclass(frozen=True)
+class Identification:
+    """How a model's coefficients were identified, in one line a user can check."""
+
+    form: str  # which form was fitted, e.g. "k0 fixed (physics)" or "full"
+    reason: str  # one line: what the data showed and what was assumed
+    voltage_span_v: float
+    fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
+    evidence: dict[str, float] = field(default_factory=dict)  # figures behind the choice
+    limited_by: str = ""  # "voltage span", "points", "physical sense" (full fit rejected), ""
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "form": self.form,
+            "reason": self.reason,
+            "voltage_span_v": self.voltage_span_v,
+            "fixed": list(self.fixed),
+            "evidence": dict(self.evidence),
+            "limited_by": self.limited_by,
+        }
+
+
+def _term_name(i: int, j: int) -> str:
+    parts = []
+    if i:
+        parts.append("T" if i == 1 else f"T^{i}")
+    if j:
+        parts.append("B" if j == 1 else f"B^{j}")
+    return "*".join(parts) or "1"
+
+
+_LETTERS = "abcdefghijklmnopqrstuvwxyz"
+
+
+@dataclass(frozen=True)
+class PolyModel(Model):
+    """A polynomial surface in T and B given by its monomials T^i·B^j."""
+
+    powers: tuple[tuple[int, int], ...] = ()
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        return np.stack([thrust_n**i * voltage_v**j for i, j in self.powers], axis=1)
+
+    def _scaling(self, t: FloatArray, b: FloatArray) -> tuple[float, float, float]:
+        ts = float(np.max(np.abs(t))) or 1.0
+        bc = float(np.mean(b)) if self.uses_voltage else 0.0
+        bs = float(np.std(b)) if self.uses_voltage else 1.0
+        return ts, bc, bs or 1.0
+
+    def conditioned(
+        self, thrust_n: FloatArray, voltage_v: FloatArray
+    ) -> tuple[FloatArray, Callable[[FloatArray], FloatArray]]:
+        ts, bc, bs = self._scaling(thrust_n, voltage_v)
+        design = self.design(thrust_n / ts, (voltage_v - bc) / bs)
+        return design, lambda c: self._unscale(np.asarray(c, float), ts, bc, bs)
+
+    def _unscale(self, c: FloatArray, ts: float, bc: float, bs: float) -> FloatArray:
+        """Expand Σ c_ij (T/ts)^i ((B-bc)/bs)^j into the raw monomials T^i B^k."""
+        index = {p: n for n, p in enumerate(self.powers)}
+        raw = np.zeros(len(self.powers))
+        for (i, j), cij in zip(self.powers, c, strict=True):
+            for k in range(j + 1):
+                weight = math.comb(j, k) * (-bc) ** (j - k) / (ts**i * bs**j)
+                raw[index[(i, k)]] += cij * weight
+        return raw
+
+
+@dataclass(frozen=True)
+class FeatureModel(Model):
+    """A model given by explicit feature functions (physics-informed forms)."""
+
+    features: Features | None = None
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        assert self.features is not None
+        return self.features(thrust_n, voltage_v)
+
+
+@dataclass(frozen=True)
+class LinearTmaxModel(Model):
+    """The seed paper's LA: Th = 100 % · T / Tmax, Tmax from a full-throttle point."""
+
+    linear_least_squares = False
+
+    def design(self, thrust_n: FloatArray, voltage_v: FloatArray) -> FloatArray:
+        return np.asarray(thrust_n, float)[:, None]
+
+    def fit(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> FloatArray:
+        full = throttle_pct >= 99.0
+        if full.any():
+            tmax = float(np.mean(thrust_n[full]))
+        else:
+            # No full-throttle plateau recorded: extrapolate the physics model to 100 %.
+            coef = MODELS["motor"].fit(thrust_n, voltage_v, throttle_pct, loss)
+            tmax = float(motor_forward(coef, np.array([100.0]), np.array([np.mean(voltage_v)]))[0])
+        if not tmax > 0:
+            raise FitError("linear Th = T/Tmax needs a positive full-throttle thrust")
+        return np.array([100.0 / tmax])
+
+
+def _poly_powers(degree: int) -> tuple[tuple[int, int], ...]:
+    return tuple((i, d - i) for d in range(degree + 1) for i in range(d, -1, -1))
+
+
+def _poly(name: str, powers: Sequence[tuple[int, int]], description: str) -> PolyModel:
+    names = tuple(_term_name(i, j) for i, j in powers)
+    formula = "Th = " + " + ".join(
+        _LETTERS[n] + ("" if t == "1" else "*" + t) for n, t in enumerate(names)
+    )
+    return PolyModel(
+        name=name,
+        formula=formula,
+        description=description,
+        term_names=names,
+        uses_voltage=any(j for _, j in powers),
+        powers=tuple(powers),
+    )
+
+
+def _motor_features(t: FloatArray, b: FloatArray) -> FloatArray:
+    tt = np.clip(t, 0.0, None)
+    return np.stack([np.ones_like(t), 1.0 / b, np.sqrt(tt) / b, tt / b], axis=1)
+
+
+#: relative voltage span (max − min over mean) below which k0 cannot be told from c
+MIN_RELATIVE_SPAN = 0.05
+#: points per coefficient needed before k0 is fitted (below, c and k0/B trade off freely)
+MIN_POINTS_PER_COEFFICIENT = 8
+
+
+@dataclass(frozen=True)
+class MotorModel(FeatureModel):
+    """``motor``, fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
+
+    voltage_from_physics = True
+
+    def _fit_form(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, full: bool
+    ) -> FloatArray:
+        design, to_raw = self.conditioned(t, b)
+        lower = self.lower()
+        assert lower is not None
+        if full:
+            return to_raw(solve(design, th, loss=loss, lower=lower))
+        keep = [0, 2, 3]
+        sub = solve(design[:, keep], th, loss=loss, lower=lower[keep])
+        coef = np.zeros(4)
+        coef[keep] = sub
+        return to_raw(coef)
+
+    def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
+        """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""
+        span = float(np.ptp(b)) if len(b) else 0.0
+        mean_b = float(np.mean(b)) if len(b) else 0.0
+        rel = span / mean_b if mean_b > 0 else 0.0
+        physics = "1/B scaling from motor physics (k0 = R·I0 ≈ 0, c = ESC throttle offset)"
+        if rel < MIN_RELATIVE_SPAN:
+            return "voltage span", (
+                f"voltage span {span:.2f} V ({100 * rel:.1f} % of {mean_b:.2f} V): {physics}, "
+                "not fitted"
+            )
+        need = MIN_POINTS_PER_COEFFICIENT * self.n_coefficients
+        if len(b) < need:
+            return "points", (
+                f"voltage span {span:.2f} V but only {len(b)} points (k0 and c need {need}+ to "
+                f"be told apart): {physics}, not fitted"
+            )
+        return None
+
+    def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
+        return [0, 2, 3] if self._physics_reason(voltage_v) is not None else [0, 1, 2, 3]
+
+    def identify(
+        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+    ) -> tuple[FloatArray, Identification | None]:
+        t, b, th = thrust_n, voltage_v, throttle_pct
+        span = float(np.ptp(b)) if len(b) else 0.0
+        lacking = self._physics_reason(b)
+        if lacking is not None:
+            limit, reason = lacking
+            coef = self._fit_form(t, b, th, loss, False)
+            evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit
+            )
+        mean_b = float(np.mean(b))
+        full = self._fit_form(t, b, th, loss, True)
+        unphysical = _unphysical(full, t)
+        if unphysical:
+            reason = (
+                f"voltage span {span:.2f} V over {len(b)} points, but fitting k0 gave {unphysical}:"
+                " 1/B scaling from motor physics (k0 = 0) kept"
+            )
+            coef = self._fit_form(t, b, th, loss, False)
+            return coef, Identification(
+                "k0 fixed (physics)", reason, span, ("1/B",), {}, "physical sense"
+            )
+        reason = (
+            f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "
+            f"{len(b)} points: 1/B term fitted from the data"
+        )
+        return full, Identification("full", reason, span)
+
+
+#: where the ESC's duty reaches zero must lie near the bottom of the throttle range
+OFFSET_RANGE_PCT = (-50.0, 50.0)
+
+
+def _unphysical(coef: FloatArray, thrust_n: FloatArray) -> str:
+    """Why a full ``motor`` fit cannot be a motor ('' when it can): the throttle offset far
+    outside the range, or more voltage needing MORE throttle over the upper half of the thrust
+    range (where a multirotor hovers and manoeuvres; near idle a real ESC may be flat in B)."""
+    c, k0, k1, k2 = (float(x) for x in coef)
+    if not OFFSET_RANGE_PCT[0] <= c <= OFFSET_RANGE_PCT[1]:
+        return f"a throttle offset c = {c:.0f} %"
+    t_mid = 0.5 * (float(np.min(thrust_n)) + float(np.max(thrust_n)))
+    if k0 + k1 * np.sqrt(max(t_mid, 0.0)) + k2 * t_mid <= 0:
+        return f"throttle rising with voltage at {t_mid:.3g} N"
+    return ""
+
+
+def motor_forward(
+    coefficients: npt.ArrayLike, throttle_pct: FloatArray, voltage_v: FloatArray
+) -> FloatArray:
+    """Closed-form inverse of ``motor``: thrust from throttle (solve the quadratic in √T)."""
+    c, k0, k1, k2 = (float(x) for x in np.asarray(coefficients, float))
+    rhs = (np.asarray(throttle_pct, float) - c) * np.asarray(voltage_v, float) - k0
+    if k2 > 0:
+        s = (-k1 + np.sqrt(np.clip(k1 * k1 + 4 * k2 * rhs, 0.0, None))) / (2 * k2)
+    else:
+        s = rhs / k1 if k1 > 0 else np.zeros_like(rhs)
+    return np.asarray(np.clip(s, 0.0, None) ** 2, dtype=float)
+
+
+_PAPER_TRUNC2 = ((0, 0), (1, 0), (0, 1), (2, 0))
+_PAPER_TRUNC3 = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (0, 3))
+
+MODELS: dict[str, Model] = {
+    m.name: m
+    for m in (
+        LinearTmaxModel(
+            name="la",
+            formula="Th = 100 * T / Tmax",
+            description="seed paper LA: linear through zero, Tmax from a full-throttle point",
+            term_names=("T",),
+            uses_voltage=False,
+        ),
+        _poly("linear", ((0, 0), (1, 0)), "linear in thrust, no voltage (seed paper eq. 5)"),
+        _poly("poly1", _poly_powers(1), "full bivariate polynomial, degree 1"),
+        _poly("poly2", _poly_powers(2), "full bivariate polynomial, degree 2 (seed paper eq. 12)"),
+        _poly("poly3", _poly_powers(3), "full bivariate polynomial, degree 3"),
+        _poly("poly4", _poly_powers(4), "full bivariate polynomial, degree 4"),
+        _poly("poly2-trunc", _PAPER_TRUNC2, "seed paper's 2nd-degree truncated form"),
+        _poly("poly3-trunc", _PAPER_TRUNC3, "seed paper's 3rd-degree truncated form"),
+        MotorModel(
+            name="motor",
+            formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k1, k2 >= 0",
+            description="physics-informed: duty x voltage drives rotor speed, thrust ~ speed^2; "
+            "monotone in T, scales as 1/B; k0 = 0 unless the data spans enough voltage to fit it",
+            term_names=("1", "1/B", "sqrt(T)/B", "T/B"),
+            uses_voltage=True,
+            lower_bounds=(-np.inf, -np.inf, 0.0, 0.0),
+            features=_motor_features,
+        ),
+    )
+}
+
+if tuple(MODELS) != MODEL_NAMES:  # the names the CLI offers must be the ones implemented
+    raise ImportError(f"fitting.names.MODEL_NAMES {MODEL_NAMES} != MODELS {tuple(MODELS)}")
+
+
+def get_model(name: str) -> Model:
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ConfigError(f"unknown model '{name}'; expected one of: {', '.join(MODELS)}") from None

@@ -1,0 +1,147 @@
+"""``thrustmap probe``: identify what is at a URL and take a short live reading.
+
+An FC is opened as a throttle output (its exit commands stop and verifies it, as always) but no
+motor is commanded; a stand is read for a second or so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from thrustmap.core.clock import Clock
+from thrustmap.core.errors import SafetyError, ThrustmapError
+from thrustmap.rig.devices.detect import resolve
+from thrustmap.rig.devices.registry import Detection, driver
+from thrustmap.rig.interfaces import DeviceIdentity, StandSample, Telemetry
+
+
+@dataclass
+class StandSummary:
+    samples: int
+    duration_s: float
+    rate_hz: float | None
+    means: dict[str, float]  # field -> mean over the window (fields the stand reports)
+    bad_lines: int = 0
+
+
+@dataclass
+class ProbeReport:
+    url: str
+    detection: Detection
+    identity: DeviceIdentity | None = None
+    throttle_scale: str = ""
+    telemetry: Telemetry | None = None
+    motor_values: tuple[int, ...] | None = None
+    stand: StandSummary | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, object]:
+        out: dict[str, object] = {
+            "url": self.url,
+            "kind": self.detection.kind,
+            "firmware": self.detection.firmware,
+            "evidence": self.detection.evidence,
+            "identity": None if self.identity is None else self.identity.to_dict(),
+            "throttle_scale": self.throttle_scale,
+            "warnings": list(self.warnings),
+        }
+        if self.telemetry is not None:
+            t = self.telemetry
+            out["telemetry"] = {
+                "voltage_v": t.voltage_v,
+                "current_a": t.current_a,
+                "rpm": None if t.rpm is None else list(t.rpm),
+                "temperature_c": None if t.temperature_c is None else list(t.temperature_c),
+            }
+        if self.motor_values is not None:
+            out["motor_values"] = list(self.motor_values)
+        if self.stand is not None:
+            out["stand"] = {
+                "samples": self.stand.samples,
+                "duration_s": self.stand.duration_s,
+                "rate_hz": self.stand.rate_hz,
+                "means": dict(self.stand.means),
+                "bad_lines": self.stand.bad_lines,
+            }
+        return out
+
+
+def summarize_samples(samples: Sequence[StandSample], duration_s: float) -> StandSummary:
+    means: dict[str, float] = {}
+    for name in ("thrust_n", "torque_nm", "voltage_v", "current_a", "rpm", "temperature_c"):
+        values = [getattr(s, name) for s in samples if getattr(s, name) is not None]
+        if values:
+            means[name] = math.fsum(values) / len(values)
+    rate = None
+    if len(samples) >= 2 and samples[-1].time_s > samples[0].time_s:
+        rate = (len(samples) - 1) / (samples[-1].time_s - samples[0].time_s)
+    return StandSummary(len(samples), duration_s, rate, means)
+
+
+def probe_device(
+    url: str,
+    clock: Clock,
+    *,
+    kind: str | None = None,
+    baudrate: int | None = None,
+    calibration: str | None = None,
+    line_preset: str | None = None,
+    line_spec_file: str | None = None,
+    seconds: float = 1.0,
+) -> ProbeReport:
+    """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
+    output (its exit commands stop and verifies it, as always) but no motor is commanded."""
+    from thrustmap.rig.connect import open_stand, open_throttle_output
+    from thrustmap.rig.stand.line import LineStand
+
+    found = resolve(url, clock, kind, baudrate)
+    report = ProbeReport(url, found)
+    if driver(found.kind).role == "fc":
+        output = open_throttle_output(url, clock, kind=kind or found.kind, baudrate=baudrate)
+        with output:
+            try:
+                report.identity = output.identify()
+            except SafetyError as exc:
+                report.warnings.append(str(exc))
+            report.throttle_scale = output.throttle_scale.name
+            try:
+                report.telemetry = output.read_telemetry()
+            except ThrustmapError as exc:
+                report.warnings.append(f"no telemetry: {exc}")
+            motor_values = getattr(output, "motor_values", None)
+            if callable(motor_values):
+                try:
+                    report.motor_values = tuple(int(v) for v in motor_values())
+                    if not any(report.motor_values):  # 0 = "no information", not "stopped"
+                        report.warnings.append(
+                            "MSP_MOTOR reads 0 for every motor: this FC reports no motor "
+                            "values, so a motor stop cannot be verified on it"
+                        )
+                except ThrustmapError as exc:
+                    report.warnings.append(f"no motor values: {exc}")
+        return report
+    stand = open_stand(
+        url,
+        clock,
+        kind=found.kind,
+        calibration=calibration,
+        line_preset=line_preset,
+        line_spec_file=line_spec_file,
+        baudrate=baudrate,
+    )
+    with stand:
+        report.identity = stand.identify()
+        start = clock.now_s()
+        samples: list[StandSample] = []
+        while True:
+            samples += stand.read_samples()
+            if clock.now_s() - start >= seconds:
+                break
+            clock.sleep_s(0.02)
+        report.stand = summarize_samples(samples, clock.now_s() - start)
+        if isinstance(stand, LineStand):
+            report.stand.bad_lines = stand.error_count
+            report.identity = stand.identify()
+    return report

@@ -1,0 +1,228 @@
+"""Safety limits ("suspenders"), declared ONCE in the table ``INTERLOCKS``.
+
+Each row names one limit: the ``Limits`` field that holds it, its unit, its default, the CLI
+option that sets it, and — for limits checked against every reading — what it reads and which
+side of the threshold trips it. Everything else is generated from the table:
+
+- ``Limits`` (the thresholds; its defaults are the table's),
+- ``check`` (the first trip of one reading) and ``margins`` (the headroom shown live),
+- the options of ``thrustmap sweep`` (``thrustmap.cli.bench.limit_options``).
+
+Adding an interlock is one row here (plus, for a new kind of reading, one ``Reading`` field).
+A plan is checked against the throttle ceiling and slew limit before any motor spins
+(``check_plan``); the stand and link watchdogs (``stale_data_s``, ``link_timeout_s``) are run by
+the runner's loop.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Literal
+
+from thrustmap.core.errors import SafetyError
+from thrustmap.rig.plans import Plan
+
+#: ``spin``: one short, capped motor test (the CLI's defaults; a sweep uses the table below)
+SPIN_MAX_THROTTLE_PCT = 20.0
+SPIN_MAX_SECONDS = 10.0
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What the runner knows at one instant (None = not measured by this rig)."""
+
+    thrust_n: float | None = None
+    current_a: float | None = None
+    voltage_v: float | None = None
+    rpm: float | None = None
+    temperature_c: float | None = None
+    vibration_g: float | None = None
+
+
+@dataclass(frozen=True)
+class Interlock:
+    """One row of the interlock table (see module)."""
+
+    field: str  # the Limits attribute
+    option: str  # the CLI option that sets it
+    unit: str
+    default: float | int | None
+    help: str
+    #: "reading": checked on every reading; "plan": checked on the plan before it runs;
+    #: "watchdog": a silence the runner's loop times; "setting": feeds another row
+    role: Literal["reading", "plan", "watchdog", "setting"]
+    name: str = ""  # the trip's name ("thrust"), for role "reading"
+    value: Callable[[Reading], float | None] | None = None
+    upper: bool = True  # True: trips above the threshold, False: below
+    trip_unit: str = ""  # the unit of the reading (default: ``unit``)
+    #: the threshold a reading is compared with (default: the field's value)
+    threshold: Callable[[Limits], float | None] | None = None
+    value_type: type = float
+
+    def limit(self, limits: Limits) -> float | None:
+        if self.threshold is not None:
+            return self.threshold(limits)
+        value = getattr(limits, self.field)
+        return None if value is None else float(value)
+
+
+def _abs_thrust(r: Reading) -> float | None:
+    return None if r.thrust_n is None else abs(r.thrust_n)
+
+
+def _min_voltage(limits: Limits) -> float | None:
+    return limits.min_voltage_v
+
+
+INTERLOCKS: tuple[Interlock, ...] = (
+    Interlock(
+        "max_thrust_n", "--max-thrust", "N", 20.0, "Stop above this thrust.", "reading",
+        "thrust", _abs_thrust,
+    ),
+    Interlock(
+        "max_current_a", "--max-current", "A", 60.0, "Stop above this current.", "reading",
+        "current", lambda r: r.current_a,
+    ),
+    Interlock(
+        "min_cell_voltage_v", "--min-cell-voltage", "V per cell", 3.3,
+        "Stop below this battery voltage per cell.", "reading", "voltage",
+        lambda r: r.voltage_v, upper=False, trip_unit="V", threshold=_min_voltage,
+    ),
+    Interlock(
+        "cells", "--cells", "cells", None,
+        "Battery cells for the voltage limit (default: as the FC reports).", "setting",
+        value_type=int,
+    ),
+    Interlock(
+        "max_rpm", "--max-rpm", "rpm", 40000.0, "Stop above this speed.", "reading",
+        "rpm", lambda r: r.rpm,
+    ),
+    Interlock(
+        "max_temperature_c", "--max-temp", "°C", 90.0,
+        "Stop above this motor/ESC temperature.", "reading", "temperature",
+        lambda r: r.temperature_c,
+    ),
+    Interlock(
+        "max_vibration_g", "--max-vibration", "g", 8.0, "Stop above this vibration.",
+        "reading", "vibration", lambda r: r.vibration_g,
+    ),
+    Interlock(
+        "max_throttle_pct", "--max-throttle", "%", 80.0,
+        "Throttle ceiling: a plan above it is refused.", "plan",
+    ),
+    Interlock(
+        "max_slew_pct_s", "--max-slew", "%/s", 100.0,
+        "Steps are slewed at this rate; a faster ramp is refused.", "plan",
+    ),
+    Interlock(
+        "stale_data_s", "--stale-s", "s", 0.5, "Stop when the stand is silent this long.",
+        "watchdog",
+    ),
+    Interlock(
+        "link_timeout_s", "--link-timeout", "s", 1.0,
+        "Stop when the throttle output (FC) is silent this long.", "watchdog",
+    ),
+)  # fmt: skip
+BY_FIELD: dict[str, Interlock] = {i.field: i for i in INTERLOCKS}
+
+
+def _default(name: str) -> Any:
+    return field(default=BY_FIELD[name].default)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The thresholds, one per ``INTERLOCKS`` row (defaults from the table; a test checks that
+    the two list the same fields)."""
+
+    max_thrust_n: float = _default("max_thrust_n")
+    max_current_a: float = _default("max_current_a")
+    min_cell_voltage_v: float = _default("min_cell_voltage_v")
+    cells: int | None = _default("cells")
+    max_rpm: float = _default("max_rpm")
+    max_temperature_c: float = _default("max_temperature_c")
+    max_vibration_g: float = _default("max_vibration_g")
+    max_throttle_pct: float = _default("max_throttle_pct")
+    max_slew_pct_s: float = _default("max_slew_pct_s")
+    stale_data_s: float = _default("stale_data_s")
+    link_timeout_s: float = _default("link_timeout_s")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_options(cls, values: dict[str, Any]) -> Limits:
+        """From a mapping keyed by field name (the CLI's parsed options); missing or None
+        values keep the table's default."""
+        return cls(
+            **{f.name: values[f.name] for f in fields(cls) if values.get(f.name) is not None}
+        )
+
+    @property
+    def min_voltage_v(self) -> float | None:
+        return None if self.cells is None else self.cells * self.min_cell_voltage_v
+
+
+@dataclass(frozen=True)
+class Trip:
+    limit: str
+    value: float
+    threshold: float
+    message: str
+
+
+def _applicable(limits: Limits, r: Reading) -> list[tuple[Interlock, float, float]]:
+    """(row, value, threshold) for every reading interlock that applies to ``r``."""
+    out = []
+    for row in INTERLOCKS:
+        if row.role != "reading" or row.value is None:
+            continue
+        value, threshold = row.value(r), row.limit(limits)
+        if value is not None and threshold is not None:
+            out.append((row, value, threshold))
+    return out
+
+
+def check(limits: Limits, reading: Reading) -> Trip | None:
+    """The first interlock ``reading`` trips, if any."""
+    for row, value, threshold in _applicable(limits, reading):
+        if (value > threshold) if row.upper else (value < threshold):
+            word = "above" if row.upper else "below"
+            unit = row.trip_unit or row.unit
+            return Trip(
+                row.name,
+                value,
+                threshold,
+                f"{row.name} {value:.2f} {unit} {word} limit {threshold:.2f} {unit}",
+            )
+    return None
+
+
+def margins(limits: Limits, reading: Reading) -> dict[str, float]:
+    """Headroom to each applicable limit, as a fraction of the limit (1 = far, 0 = at it)."""
+    out: dict[str, float] = {}
+    for row, value, threshold in _applicable(limits, reading):
+        if threshold == 0:
+            continue
+        out[row.name] = (
+            (threshold - value) / threshold if row.upper else (value - threshold) / threshold
+        )
+    return out
+
+
+def check_plan(plan: Plan, limits: Limits) -> None:
+    """Refuse a plan that would exceed the throttle ceiling or ramp faster than allowed."""
+    ceiling, slew_row = BY_FIELD["max_throttle_pct"], BY_FIELD["max_slew_pct_s"]
+    if plan.max_throttle_pct > limits.max_throttle_pct:
+        raise SafetyError(
+            f"plan '{plan.name}' reaches {plan.max_throttle_pct:.1f} % throttle, above the "
+            f"{limits.max_throttle_pct:.1f} % ceiling; lower --to or raise {ceiling.option} "
+            "explicitly"
+        )
+    slew = plan.max_ramp_slew_pct_s()
+    if slew > limits.max_slew_pct_s:
+        raise SafetyError(
+            f"plan '{plan.name}' ramps at {slew:.1f} %/s, above the {limits.max_slew_pct_s:.1f} %/s "
+            f"slew limit; lengthen the ramp or raise {slew_row.option}"
+        )

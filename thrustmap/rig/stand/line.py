@@ -1,0 +1,708 @@
+"""Configurable text-line thrust stands (DIY stands on a serial port) as a ``Stand``.
+
+``LineStand(port, clock, spec)`` reads the stand's lines through
+:class:`~thrustmap.protocols.stands.line.LineStandDecoder` and turns them into timestamped
+:class:`~thrustmap.rig.interfaces.StandSample` s:
+
+- Timestamps come from the injected clock. Lines arrive in bursts (a 250 Hz stand read at
+  50 Hz gives five lines per read); when the spec has a ``time_s`` column the newest line of a
+  burst is stamped "now" and the older ones keep the stand's own spacing (never earlier than
+  the previous sample, never later than now). Without a device time every line of a burst is
+  stamped "now".
+- ``tare()`` zeroes the thrust field on the mean of readings at rest (the offset is subtracted
+  from every later sample); it refuses when the stand reports the rotor turning.
+- When the spec has a keep-alive line it is sent every ``keepalive_interval_s`` from
+  ``read_samples``/``service`` (any command also counts: the stand's watchdog is fed by any
+  line).
+- Bad lines never raise: they are counted (``error_count``) and logged with their line
+  numbers (the first ``max_logged_errors`` in full, then every 100th). ``#WATCHDOG`` and
+  ``#ERR`` comments from the stand are counted and logged as warnings.
+- Until the stand prints its ``#COLS``-style header (it does so after reset, so a host that
+  connects mid-stream misses it), named columns are looked up in the spec's ``header_names``.
+
+``LineStandEscOutput(stand)`` is the stand's own ESC output as a ``ThrottleOutput`` when the
+spec has a throttle-command template (like ``TytoEscOutput``): the stop is verified from the
+stand's throttle column when it has one, else from the link (the stand keeps streaming and
+does not answer ``#ERR`` to the stop command).
+
+``load_line_spec(path)`` reads a user's own stand description (JSON, see
+``line_spec_from_dict``) with errors that name the file, the key and, where it can, the line.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from thrustmap.core.clock import Clock
+from thrustmap.core.errors import ConfigError, DataFormatError, SafetyError, ThrustmapError
+from thrustmap.core.jsonfile import load_json
+from thrustmap.core.units import ThrottleScale
+from thrustmap.core.units import scale as lookup_scale
+from thrustmap.protocols.stands.line import (
+    FIELDS,
+    Column,
+    LineComment,
+    LineError,
+    LineHeader,
+    LineSample,
+    LineStandDecoder,
+    LineStandSpec,
+    preset,
+)
+from thrustmap.protocols.transport import SerialLike
+from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample, Telemetry, ThrottleOutput
+
+log = logging.getLogger(__name__)
+
+#: rpm above which ``tare`` refuses (the rotor is turning)
+TARE_MAX_RPM = 300.0
+#: a throttle reading within this many percent of 0 counts as "stopped"
+STOP_TOLERANCE_PCT = 0.5
+MAX_PENDING_SAMPLES = 100_000
+
+
+class LineStandError(ThrustmapError):
+    """The line stand did something that prevents the requested operation."""
+
+
+class LineStandTimeout(LineStandError):
+    """The line stand sent no usable data within the time allowed."""
+
+
+@dataclass(frozen=True)
+class _Raw:
+    """A decoded line with its host timestamp (before the tare is applied)."""
+
+    time_s: float
+    sample: LineSample
+
+
+class LineStand(Stand):
+    def __init__(
+        self,
+        port: SerialLike,
+        clock: Clock,
+        spec: LineStandSpec,
+        *,
+        max_logged_errors: int = 20,
+        read_size: int = 65536,
+    ) -> None:
+        self.port = port
+        self.clock = clock
+        self.spec = spec
+        self.max_logged_errors = max_logged_errors
+        self.read_size = read_size
+        self.decoder = LineStandDecoder(spec)
+        if spec.header_prefix is not None and spec.header_names:
+            # Assume the documented column order until the stand prints its own header.
+            header = spec.header_line()
+            assert header is not None
+            self.decoder.feed_events((header + "\n").encode())
+            self.decoder.line_no = 0
+        self.port.timeout = 0.0
+        self.tare_offset_n = 0.0
+        self.drives_esc = False
+        self.banner: list[str] = []
+        self.header_seen: tuple[str, ...] | None = None
+        self.watchdog_trips = 0
+        self.command_errors = 0
+        self.lines_received = 0
+        self.last_sample: LineSample | None = None
+        self.last_sample_time_s: float | None = None
+        self._pending: deque[_Raw] = deque(maxlen=MAX_PENDING_SAMPLES)
+        self._last_time_s = -math.inf
+        self._last_tx_s = -math.inf
+        self._closed = False
+        self._errors_seen = 0
+
+    # -- counters ---------------------------------------------------------------------------
+    @property
+    def error_count(self) -> int:
+        """Lines that could not be read (bad numbers, missing columns, overlong lines)."""
+        return self.decoder.error_count
+
+    # -- host -> stand ----------------------------------------------------------------------
+    def send(self, data: bytes) -> None:
+        """Write one whole command line (any line feeds the stand's watchdog)."""
+        self.port.write(data)
+        self._last_tx_s = self.clock.now_s()
+
+    def send_stop(self) -> None:
+        self.send(self.spec.stop_bytes())
+
+    def _keepalive_due(self, now_s: float) -> bool:
+        return (
+            self.spec.keepalive is not None
+            and now_s - self._last_tx_s >= self.spec.keepalive_interval_s
+        )
+
+    def service(self) -> None:
+        """Send the keep-alive if it is due and take in whatever the stand has sent."""
+        now = self.clock.now_s()
+        if self._keepalive_due(now):
+            data = self.spec.keepalive_bytes()
+            assert data is not None
+            self.send(data)
+        self._pump()
+
+    # -- stand -> host ----------------------------------------------------------------------
+    def _read_available(self) -> bytes:
+        chunks: list[bytes] = []
+        for _ in range(64):  # bounded: a fast stand can never keep us here forever
+            waiting = self.port.in_waiting
+            if waiting <= 0:
+                break
+            data = self.port.read(min(waiting, self.read_size))
+            if not data:
+                break
+            chunks.append(data)
+        return b"".join(chunks)
+
+    def _pump(self) -> int:
+        """Read and decode what has arrived; returns the number of new samples."""
+        data = self._read_available()
+        if not data:
+            return 0
+        now = self.clock.now_s()
+        samples: list[LineSample] = []
+        for event in self.decoder.feed_events(data):
+            if isinstance(event, LineSample):
+                samples.append(event)
+            elif isinstance(event, LineError):
+                self._log_error(event)
+            elif isinstance(event, LineComment):
+                self._comment(event)
+            elif isinstance(event, LineHeader):
+                self.header_seen = event.names
+                log.info("%s: header at line %d: %s", self.spec.name, event.line_no, event.names)
+        self.lines_received = self.decoder.line_no
+        for sample, time_s in zip(samples, self._stamp(samples, now), strict=True):
+            self._pending.append(_Raw(time_s, sample))
+        if samples:
+            self.last_sample = samples[-1]
+            self.last_sample_time_s = self._last_time_s
+        return len(samples)
+
+    def _stamp(self, samples: list[LineSample], now_s: float) -> list[float]:
+        if not samples:
+            return []
+        times = [now_s] * len(samples)
+        device = [s.time_s for s in samples]
+        last = device[-1]
+        if last is not None and all(t is not None for t in device):
+            back = [last - t for t in device if t is not None]
+            # Spacing from the stand's clock, unless it went backwards (a reset or a wrap).
+            if all(b >= 0 for b in back) and all(
+                a >= b for a, b in zip(back, back[1:], strict=False)
+            ):
+                times = [now_s - b for b in back]
+        out: list[float] = []
+        for t in times:
+            t = min(max(t, self._last_time_s), now_s)
+            out.append(t)
+            self._last_time_s = t
+        return out
+
+    def _log_error(self, error: LineError) -> None:
+        self._errors_seen += 1
+        n = self._errors_seen
+        if n <= self.max_logged_errors:
+            log.warning("%s (line %r)", error, error.text[:80])
+            if n == self.max_logged_errors:
+                log.warning("%s: further bad lines are counted, not logged", self.spec.name)
+        elif n % 100 == 0:
+            log.warning("%s: %d bad lines so far (latest: %s)", self.spec.name, n, error)
+
+    def _comment(self, comment: LineComment) -> None:
+        text = comment.text
+        word = text.split(None, 1)[0].upper() if text else ""
+        if word == "WATCHDOG":
+            self.watchdog_trips += 1
+            log.warning(
+                "%s: the stand's watchdog stopped the motor (line %d)",
+                self.spec.name,
+                comment.line_no,
+            )
+        elif word == "ERR":
+            self.command_errors += 1
+            log.warning(
+                "%s: the stand did not understand a command: %s (line %d)",
+                self.spec.name,
+                text,
+                comment.line_no,
+            )
+        else:
+            if len(self.banner) < 32:
+                self.banner.append(text)
+            log.info("%s: %s", self.spec.name, text)
+
+    # -- Stand ------------------------------------------------------------------------------
+    def identify(self) -> DeviceIdentity:
+        details = {"spec": self.spec.name}
+        if self.banner:
+            details["banner"] = " | ".join(self.banner[:4])
+        if self.header_seen is not None:
+            details["columns"] = ",".join(self.header_seen)
+        if self.spec.throttle_command is not None:
+            details["throttle_scale"] = self.spec.throttle_scale
+        return DeviceIdentity(kind="line-stand", details=details)
+
+    def _to_stand_sample(self, raw: _Raw) -> StandSample:
+        s = raw.sample
+        return StandSample(
+            time_s=raw.time_s,
+            thrust_n=s.thrust_n - self.tare_offset_n,
+            torque_nm=s.torque_nm,
+            voltage_v=s.voltage_v,
+            current_a=s.current_a,
+            rpm=s.rpm,
+            throttle_native=s.throttle if self.drives_esc else None,
+        )
+
+    def read_samples(self) -> list[StandSample]:
+        self.service()
+        out = [self._to_stand_sample(raw) for raw in self._pending]
+        self._pending.clear()
+        return out
+
+    def wait_for_data(self, timeout_s: float = 2.0) -> None:
+        """Return once a sample has arrived (kept for ``read_samples``); raise
+        ``LineStandTimeout`` naming the likely cause if none comes within ``timeout_s``."""
+        deadline = self.clock.now_s() + timeout_s
+        while True:
+            self.service()
+            if self._pending:
+                return
+            if self.clock.now_s() >= deadline:
+                raise LineStandTimeout(self._silence_message(timeout_s))
+            self.clock.sleep_s(0.005)
+
+    def _silence_message(self, timeout_s: float) -> str:
+        why = f"no data from line stand '{self.spec.name}' within {timeout_s:g} s"
+        if self.error_count:
+            last = self.decoder.errors[-1] if self.decoder.errors else None
+            why += f"; {self.error_count} lines could not be read"
+            if last is not None:
+                why += f" (latest: {last})"
+            why += " — wrong preset or spec file?"
+        elif self.lines_received:
+            why += f"; {self.lines_received} lines were only comments or headers"
+        else:
+            why += " (wrong port or baud rate?)"
+        return why
+
+    def tare(
+        self,
+        service: Callable[[], None] | None = None,
+        samples: int = 50,
+        timeout_s: float = 3.0,
+    ) -> None:
+        """Zero the thrust reading on the mean of ``samples`` readings at rest (``service`` is
+        called while waiting for them)."""
+        deadline = self.clock.now_s() + timeout_s
+        raws: list[LineSample] = []
+        while len(raws) < samples:
+            self.service()
+            raws += [r.sample for r in self._pending]
+            self._pending.clear()
+            if len(raws) >= samples or self.clock.now_s() >= deadline:
+                break
+            if service is not None:
+                service()
+            self.clock.sleep_s(0.005)
+        if not raws:
+            raise LineStandTimeout("cannot tare: " + self._silence_message(timeout_s))
+        turning = [s.rpm for s in raws if s.rpm is not None and abs(s.rpm) > TARE_MAX_RPM]
+        if turning:
+            raise LineStandError(
+                f"cannot tare line stand '{self.spec.name}': the rotor is turning "
+                f"({max(turning):.0f} rpm); stop the motor first"
+            )
+        if len(raws) < samples:
+            log.warning("%s: tared on %d of %d samples", self.spec.name, len(raws), samples)
+        self.tare_offset_n = math.fsum(s.thrust_n for s in raws) / len(raws)
+        log.info(
+            "%s: tared on %d samples, thrust offset %.4f N",
+            self.spec.name,
+            len(raws),
+            self.tare_offset_n,
+        )
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.spec.throttle_command is not None or self.spec.stop_command is not None:
+                self.send_stop()
+        except Exception as exc:  # the port may be gone; closing must not raise
+            log.warning("%s: could not send the stop command on close: %s", self.spec.name, exc)
+        finally:
+            self.port.close()
+
+
+class LineStandEscOutput(ThrottleOutput):
+    """The line stand's own ESC output (its throttle-command template) as a throttle output."""
+
+    def __init__(self, stand: LineStand, motor: int = 0, *, verify_timeout_s: float = 0.5) -> None:
+        spec = stand.spec
+        if spec.throttle_command is None:
+            raise ConfigError(
+                f"line stand '{spec.name}' has no throttle command: it cannot drive the ESC"
+            )
+        self.stand = stand
+        self.motor = motor
+        self.verify_timeout_s = verify_timeout_s
+        self.throttle_scale: ThrottleScale = lookup_scale(spec.throttle_scale)
+        self.commanded_native = self.throttle_scale.lo
+        self.last_verification = ""
+        self._stop_sent_at_line: int | None = None
+        self._errors_at_stop = 0
+        stand.drives_esc = True
+
+    def identify(self) -> DeviceIdentity:
+        spec = self.stand.spec
+        return DeviceIdentity(
+            kind="line-stand-esc",
+            motor_protocol=spec.throttle_scale,
+            motor_count=1,
+            details={"spec": spec.name},
+        )
+
+    def set_throttle(self, values: Mapping[int, float]) -> None:
+        if set(values) - {self.motor}:
+            raise SafetyError(
+                f"the stand's ESC output drives one motor ({self.motor}), asked {sorted(values)}"
+            )
+        scale = self.throttle_scale
+        native = values.get(self.motor, scale.lo)
+        if not math.isfinite(native):
+            raise SafetyError(f"throttle {native!r} is not a finite number")
+        native = min(max(native, scale.lo), scale.hi)
+        self.stand.send(self.stand.spec.command_for(native))
+        self.commanded_native = native
+
+    def keepalive(self) -> None:
+        if self.stand.spec.keepalive is None:
+            # No keep-alive line: refreshing the command itself is harmless.
+            self.stand.send(self.stand.spec.command_for(self.commanded_native))
+        self.stand.service()
+
+    def stop(self) -> None:
+        self.stand._pump()  # lines already here were sent before the stop
+        errors_before = self.stand.command_errors
+        self.stand.send_stop()
+        self.commanded_native = self.throttle_scale.lo
+        self._stop_sent_at_line = self.stand.decoder.line_no
+        self._errors_at_stop = errors_before
+
+    def verify_stopped(self) -> bool:
+        """True when the stand reports its throttle at stop (or, without a throttle column,
+        keeps streaming after the stop without answering ``#ERR``)."""
+        stand = self.stand
+        if self._stop_sent_at_line is None:
+            self.stop()
+        assert self._stop_sent_at_line is not None
+        after_line = self._stop_sent_at_line
+        has_throttle = "throttle" in stand.spec.columns
+        deadline = stand.clock.now_s() + self.verify_timeout_s
+        while True:
+            stand.service()
+            if stand.command_errors > self._errors_at_stop:
+                self.last_verification = "refused"
+                log.error("%s: the stand answered #ERR to the stop command", stand.spec.name)
+                return False
+            fresh = [r.sample for r in stand._pending if r.sample.line_no > after_line]
+            if has_throttle:
+                for s in fresh:
+                    if s.throttle is not None and self._is_stop(s.throttle):
+                        self.last_verification = "throttle column"
+                        return True
+            elif fresh:
+                self.last_verification = "link only"
+                log.info(
+                    "%s: stop sent and the stand is streaming; it does not report its "
+                    "throttle, so the stop is confirmed by the link only",
+                    stand.spec.name,
+                )
+                return True
+            if stand.clock.now_s() >= deadline:
+                self.last_verification = "timeout"
+                return False
+            stand.clock.sleep_s(0.005)
+
+    def _is_stop(self, native: float) -> bool:
+        pct = float(self.throttle_scale.to_pct(native))
+        return pct <= STOP_TOLERANCE_PCT
+
+    def read_telemetry(self) -> Telemetry:
+        self.stand.service()
+        now = self.stand.clock.now_s()
+        s = self.stand.last_sample
+        if s is None:
+            return Telemetry(now)
+        return Telemetry(
+            now,
+            voltage_v=s.voltage_v,
+            current_a=s.current_a,
+            rpm=None if s.rpm is None else (s.rpm,),
+        )
+
+    def close(self) -> None:
+        pass  # the stand owns the port
+
+
+# --------------------------------------------------------------------------- JSON specs
+
+SPEC_KEYS = {
+    "format",
+    "extends",
+    "name",
+    "description",
+    "columns",
+    "delimiter",
+    "comment_prefix",
+    "header_prefix",
+    "header_names",
+    "throttle_scale",
+    "throttle_command",
+    "stop_command",
+    "keepalive",
+    "keepalive_interval_s",
+    "watchdog_s",
+    "baudrate",
+    "command_vars",
+    "load_cell",
+}
+SPEC_FORMAT = "thrustmap-line-stand"
+COLUMN_KEYS = {"index", "name", "scale", "offset"}
+LOAD_CELL_KEYS = {"field", "tare", "si_per_count"}
+
+
+class _SpecReader:
+    def __init__(self, source: str | None, text: str | None) -> None:
+        self.source = source
+        self.text = text
+
+    def line_of(self, key: str) -> int | None:
+        """The line of the first ``"key"`` in the file text (best effort)."""
+        if not self.text or not key:
+            return None
+        leaf = key.rsplit(".", 1)[-1]
+        at = self.text.find(f'"{leaf}"')
+        return None if at < 0 else self.text.count("\n", 0, at) + 1
+
+    def error(self, key: str, message: str) -> ConfigError:
+        where = f"key '{key}': " if key else ""
+        return ConfigError(where + message, file=self.source, line=self.line_of(key))
+
+    def string(self, data: Mapping[str, Any], key: str, path: str, *, null: bool = False) -> Any:
+        value = data[key]
+        if value is None and null:
+            return None
+        if not isinstance(value, str):
+            want = "a string or null" if null else "a string"
+            raise self.error(path, f"expected {want}, got {value!r}")
+        return value
+
+    def number(
+        self,
+        data: Mapping[str, Any],
+        key: str,
+        path: str,
+        *,
+        null: bool = False,
+        positive: bool = False,
+    ) -> Any:
+        value = data[key]
+        if value is None and null:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(path, f"expected a number, got {value!r}")
+        if not math.isfinite(value) or (positive and value <= 0):
+            raise self.error(path, f"expected a {'positive' if positive else 'finite'} number")
+        return float(value)
+
+    def unknown(self, data: Mapping[str, Any], known: set[str], prefix: str) -> None:
+        extra = sorted(set(data) - known)
+        if extra:
+            raise self.error(
+                prefix + extra[0], f"unknown key; expected some of {', '.join(sorted(known))}"
+            )
+
+    def column(self, field_name: str, data: Any) -> Column:
+        path = f"columns.{field_name}"
+        if not isinstance(data, dict):
+            raise self.error(path, 'expected an object like {"index": 2, "scale": 0.001}')
+        self.unknown(data, COLUMN_KEYS, path + ".")
+        index = data.get("index")
+        if index is not None and (
+            isinstance(index, bool) or not isinstance(index, int) or index < 0
+        ):
+            raise self.error(path + ".index", f"expected a 0-based column number, got {index!r}")
+        name = None if data.get("name") is None else self.string(data, "name", path + ".name")
+        if (index is None) == (name is None):
+            raise self.error(path, "expected exactly one of 'index' (0-based) or 'name'")
+        scale = 1.0 if "scale" not in data else self.number(data, "scale", path + ".scale")
+        if scale == 0:
+            raise self.error(path + ".scale", "expected a non-zero number")
+        offset = 0.0 if "offset" not in data else self.number(data, "offset", path + ".offset")
+        return Column(index=index, name=name, scale=scale, offset=offset)
+
+
+def line_spec_from_dict(
+    data: Any, source: str | None = None, *, text: str | None = None
+) -> LineStandSpec:
+    """Build a ``LineStandSpec`` from a JSON object.
+
+    Keys (all optional except where noted): ``extends`` (a preset name to start from),
+    ``name`` and ``columns`` (required without ``extends``; ``columns`` maps a field among
+    ``time_s, throttle, thrust_n, torque_nm, voltage_v, current_a, rpm`` to ``{"index": n}``
+    (0-based) or ``{"name": "thrust_mN"}`` plus optional ``scale``/``offset``, with
+    ``si = raw * scale + offset``; with ``extends`` the given columns replace the preset's,
+    ``null`` removes one), ``delimiter`` (null: whitespace), ``comment_prefix``,
+    ``header_prefix`` (null: no header), ``header_names``, ``throttle_scale`` (pwm, percent,
+    ...), ``throttle_command``/``stop_command``/``keepalive`` (str.format templates with
+    ``{us}``, ``{pct}``, ``{fraction}``, ``{native}``), ``keepalive_interval_s``,
+    ``watchdog_s``, ``baudrate``, ``command_vars``, ``description`` and ``load_cell``
+    (``{"field": "thrust_n", "tare": counts, "si_per_count": n}``) for a raw load cell.
+    """
+    r = _SpecReader(source, text)
+    if not isinstance(data, dict):
+        raise r.error("", "expected a JSON object at the top level")
+    r.unknown(data, SPEC_KEYS, "")
+    if "format" in data and data["format"] != SPEC_FORMAT:
+        raise r.error("format", f'expected "{SPEC_FORMAT}", got {data["format"]!r}')
+    base: LineStandSpec | None = None
+    if data.get("extends") is not None:
+        name = r.string(data, "extends", "extends")
+        try:
+            base = preset(name)
+        except ConfigError as exc:
+            raise r.error("extends", exc.message) from None
+    elif "name" not in data or "columns" not in data:
+        missing = "name" if "name" not in data else "columns"
+        raise r.error(missing, "required (or 'extends' naming a preset to start from)")
+
+    kwargs: dict[str, Any] = {}
+    for key in ("name", "description", "comment_prefix", "throttle_scale"):
+        if key in data:
+            kwargs[key] = r.string(data, key, key)
+    for key in ("delimiter", "header_prefix", "throttle_command", "stop_command", "keepalive"):
+        if key in data:
+            kwargs[key] = r.string(data, key, key, null=True)
+    if kwargs.get("delimiter") == "":
+        raise r.error("delimiter", "expected a non-empty string, or null for whitespace")
+    if "keepalive_interval_s" in data:
+        kwargs["keepalive_interval_s"] = r.number(
+            data, "keepalive_interval_s", "keepalive_interval_s", positive=True
+        )
+    if "watchdog_s" in data:
+        kwargs["watchdog_s"] = r.number(data, "watchdog_s", "watchdog_s", null=True, positive=True)
+    if "baudrate" in data:
+        baud = data["baudrate"]
+        if baud is not None and (isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0):
+            raise r.error("baudrate", f"expected a positive integer, got {baud!r}")
+        kwargs["baudrate"] = baud
+    if "header_names" in data:
+        names = data["header_names"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise r.error("header_names", "expected a list of strings")
+        kwargs["header_names"] = tuple(names)
+    if "command_vars" in data:
+        cvars = data["command_vars"]
+        if not isinstance(cvars, dict):
+            raise r.error("command_vars", "expected an object of template variables")
+        kwargs["command_vars"] = dict(cvars)
+    if "throttle_scale" in kwargs:
+        try:
+            lookup_scale(kwargs["throttle_scale"])
+        except ConfigError as exc:
+            raise r.error("throttle_scale", exc.message) from None
+
+    columns: dict[str, Column] = dict(base.columns) if base is not None else {}
+    if "columns" in data:
+        given = data["columns"]
+        if not isinstance(given, dict):
+            raise r.error("columns", "expected an object mapping fields to columns")
+        for field_name, col in given.items():
+            if field_name not in FIELDS:
+                raise r.error(
+                    f"columns.{field_name}", f"unknown field; expected some of {', '.join(FIELDS)}"
+                )
+            if col is None and base is not None:
+                columns.pop(field_name, None)
+            else:
+                columns[field_name] = r.column(field_name, col)
+    kwargs["columns"] = columns
+
+    try:
+        spec = replace(base, **kwargs) if base is not None else LineStandSpec(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(exc.message, file=source) from None
+
+    if data.get("load_cell") is not None:
+        cell = data["load_cell"]
+        if not isinstance(cell, dict):
+            raise r.error("load_cell", 'expected {"field": "thrust_n", "tare": ..., ...}')
+        r.unknown(cell, LOAD_CELL_KEYS, "load_cell.")
+        for key in ("tare", "si_per_count"):
+            if key not in cell:
+                raise r.error(f"load_cell.{key}", "required")
+        field_name = cell.get("field", "thrust_n")
+        if field_name not in spec.columns:
+            raise r.error("load_cell.field", f"no column for field {field_name!r}")
+        tare = r.number(cell, "tare", "load_cell.tare")
+        per = r.number(cell, "si_per_count", "load_cell.si_per_count")
+        if per == 0:
+            raise r.error("load_cell.si_per_count", "expected a non-zero number")
+        spec = spec.with_load_cell(field_name, tare, per)
+    return spec
+
+
+def load_line_spec(path: str | Path) -> LineStandSpec:
+    """Read a line-stand description from a JSON file (see ``line_spec_from_dict``): bounded and
+    strict (``thrustmap.core.jsonfile``); errors name the file, the key and its line."""
+    source = str(path)
+    try:
+        data = load_json(path, what="line stand spec")
+    except DataFormatError as exc:
+        raise ConfigError(exc.message, file=source, line=exc.line) from None
+    text = Path(path).read_text(encoding="utf-8-sig", errors="replace")  # for the keys' lines
+    return line_spec_from_dict(data, source, text=text)
+
+
+def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
+    """The JSON form of a spec (``load_line_spec`` reads it back to an equal spec)."""
+    columns: dict[str, dict[str, Any]] = {}
+    for key, col in spec.columns.items():
+        entry: dict[str, Any] = {"index": col.index} if col.index is not None else {}
+        if col.name is not None:
+            entry["name"] = col.name
+        entry["scale"] = col.scale
+        entry["offset"] = col.offset
+        columns[key] = entry
+    return {
+        "format": SPEC_FORMAT,
+        "name": spec.name,
+        "description": spec.description,
+        "columns": columns,
+        "delimiter": spec.delimiter,
+        "comment_prefix": spec.comment_prefix,
+        "header_prefix": spec.header_prefix,
+        "header_names": list(spec.header_names),
+        "throttle_scale": spec.throttle_scale,
+        "throttle_command": spec.throttle_command,
+        "stop_command": spec.stop_command,
+        "keepalive": spec.keepalive,
+        "keepalive_interval_s": spec.keepalive_interval_s,
+        "watchdog_s": spec.watchdog_s,
+        "baudrate": spec.baudrate,
+        "command_vars": dict(spec.command_vars),
+    }
