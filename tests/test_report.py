@@ -382,10 +382,12 @@ def test_every_command_help_says_where_the_pictures_are(
         paths.append([name])
         if isinstance(cmd, click.Group):
             paths += [[name, sub] for sub in cmd.commands]
+    from thrustmap.cli.pictures import NONE
+
     for path in paths:
         code, out, _ = run_cli([*path, "--help"], capsys)
         assert code == 0
-        assert "Pictures:" in out, path
+        assert ("Pictures:" in out) == (path[0] not in NONE), path
 
 
 def test_gamma_section_says_when_the_df_moved(
@@ -404,3 +406,48 @@ def test_gamma_section_says_when_the_df_moved(
     assert "Df &#x27;/gone/hover-df.csv&#x27; not found" in text
     cells = parse(text).cells
     assert float(cells["e_T_after_pct"][0]) == demo["gamma"]["metrics"]["e_T_after_pct"]["mean"]
+
+
+# -- layout at a laptop's width (issue 24) ----------------------------------------------------------
+
+_MEASURE = """<script>window.addEventListener('load',function(){var bad=[];
+document.querySelectorAll('.tw, table').forEach(function(e,i){
+if(e.scrollWidth>e.clientWidth+1)bad.push(i+':'+e.scrollWidth+'>'+e.clientWidth)});
+if(document.documentElement.scrollWidth>window.innerWidth+1)bad.push('page');
+document.body.setAttribute('data-overflow',bad.join(' ')||'none')});</script>"""
+
+
+@pytest.mark.parametrize("which", ["demo", "xnova"])
+def test_report_tables_fit_1280_px_without_a_scrollbar(
+    which: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    case = request.getfixturevalue(which)
+    page = tmp_path / "measured.html"
+    page.write_text(
+        case["html"].read_text(encoding="utf-8").replace("</body>", _MEASURE + "</body>"),
+        encoding="utf-8",
+    )
+    dom = browser(page, "--dump-dom", "--window-size=1280,2400", "--virtual-time-budget=3000")
+    found = re.search(r'data-overflow="([^"]*)"', dom.stdout)
+    assert found is not None, "the measuring script did not run"
+    assert found.group(1) == "none"
+
+
+def test_titles_name_the_map_file_when_no_strategy_was_recorded(
+    demo: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    raw = json.loads(Path(demo["map"]).read_text(encoding="utf-8"))
+    raw["strategy"] = "unknown"
+    nameless = tmp_path / "bench-2026-11.json"
+    nameless.write_text(json.dumps(raw), encoding="utf-8")
+    for s in raw["sources"]:  # the report finds the logs beside the map or where they were
+        p = Path(str(s["path"]))
+        if not p.is_absolute():
+            s["path"] = str(Path(demo["map"]).parent / p)
+    nameless.write_text(json.dumps(raw), encoding="utf-8")
+    html = tmp_path / "r.html"
+    code, _, err = run_cli(["report", str(nameless), "-o", str(html)], capsys)
+    assert code == 0, err
+    text = html.read_text(encoding="utf-8")
+    assert "unknown + γ(B)" not in text and "unknown map" not in text
+    assert "bench-2026-11.json + γ(B)" in text

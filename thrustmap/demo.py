@@ -47,6 +47,26 @@ def experiments() -> dict[str, plans.Plan]:
     }
 
 
+def sr_vs_mr(sr: ThrustMap, mr: ThrustMap) -> str:
+    """One sentence: how much more command the MR map asks than SR, over the range both cover."""
+    a, c = sr.validity, mr.validity
+    t_lo, t_hi = max(a.thrust_n.lo, c.thrust_n.lo), min(a.thrust_n.hi, c.thrust_n.hi)
+    b_lo, b_hi = max(a.voltage_v.lo, c.voltage_v.lo), min(a.voltage_v.hi, c.voltage_v.hi)
+    if not (t_lo < t_hi and b_lo < b_hi):
+        return "SR vs MR: the two maps share no thrust and voltage range to compare."
+    t, b = np.meshgrid(np.linspace(t_lo, t_hi, 25), np.linspace(b_lo, b_hi, 5))
+    pct = np.asarray(mr.throttle_pct(t.ravel(), b.ravel()), float) - np.asarray(
+        sr.throttle_pct(t.ravel(), b.ravel()), float
+    )
+    scale = sr.throttle_scale
+    diff = pct / 100.0 * (scale.hi - scale.lo)  # in SR's own unit
+    unit = "µs" if scale.unit == "us" else scale.unit
+    return (
+        f"MR vs SR: {float(np.mean(diff)):+.1f} {unit} on average "
+        f"({float(np.min(diff)):+.1f}..{float(np.max(diff)):+.1f}) for equal thrust and voltage."
+    )
+
+
 @dataclass
 class StrategyResult:
     name: str
@@ -152,19 +172,7 @@ def report(results: list[StrategyResult], out_dir: Path) -> str:
     ]
     by = {r.name: r for r in results}
     if "SR" in by and "MR" in by:
-        a, c = by["SR"].tmap.validity, by["MR"].tmap.validity
-        b_lo, b_hi = max(a.voltage_v.lo, c.voltage_v.lo), min(a.voltage_v.hi, c.voltage_v.hi)
-        t = round(0.5 * min(a.thrust_n.hi, c.thrust_n.hi), 1)
-        if b_lo < b_hi:
-            b = round(0.5 * (b_lo + b_hi), 1)
-            sr = float(by["SR"].tmap.throttle_native(t, b))
-            mr = float(by["MR"].tmap.throttle_native(t, b))
-            lines += [
-                "",
-                f"At {t:g} N per rotor and {b:g} V (inside both maps' boxes) the MR map asks {mr - sr:+.1f} µs "
-                f"more than SR ({mr:.1f} vs {sr:.1f} µs): with four rotors the ESC bus sags more than the",
-                "voltage sensor sees, the effect the paper measured.",
-            ]
+        lines += ["", sr_vs_mr(by["SR"].tmap, by["MR"].tmap)]
     lines += ["", f"Files in {out_dir}/:"]
     for r in results:
         lines.append(

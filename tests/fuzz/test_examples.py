@@ -326,4 +326,4 @@ def test_cli_success_shows_held_warnings_on_one_line_each(
     cli.main(["fine"])
     out, err = capsys.readouterr()
     assert out == "result\n"
-    assert err.splitlines() == ["WARNING thrustmap.test: first second"]
+    assert err.splitlines() == ["warning: first second"]

@@ -112,15 +112,44 @@ def cli(ctx: click.Context, verbose: int, debug: bool) -> None:
     if handler is not None:
         handler.verbose = verbose
     else:  # cli() called directly (tests, embedding): plain stderr logging
-        logging.basicConfig(level=level, format=_LOG_FORMAT, stream=sys.stderr)
+        logging.basicConfig(level=level, stream=sys.stderr)
+        for root_handler in logging.getLogger().handlers:
+            root_handler.setFormatter(CliFormatter())
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
 
 
-_LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
+class CliFormatter(logging.Formatter):
+    """A log record as the CLI's own lines read: ``warning: ...``, ``error: ...``.
+
+    The logger's name is an implementation detail, shown only at debug level (``-vv``), where
+    it helps; a CRITICAL line keeps its upper-case word, because it means a motor we commanded
+    may still be turning.
+    """
+
+    PREFIX = {
+        logging.DEBUG: "debug: ",
+        logging.INFO: "",
+        logging.WARNING: "warning: ",
+        logging.ERROR: "error: ",
+        logging.CRITICAL: "CRITICAL: ",
+    }
+
+    def format(self, record: logging.LogRecord) -> str:
+        message = " ".join(record.getMessage().splitlines())
+        if record.exc_info and record.levelno <= logging.DEBUG:
+            message += " " + " ".join(self.formatException(record.exc_info).splitlines())
+        prefix = self.PREFIX.get(record.levelno, f"{record.levelname.lower()}: ")
+        if record.levelno <= logging.DEBUG:
+            return f"{prefix}{record.name}: {message}"
+        return prefix + message
+
 
 #: commands that drive hardware or run for minutes: their warnings are shown as they happen
 LIVE_COMMANDS = frozenset({"sweep", "spin", "probe", "demo", "ports", "live"})
+
+
+_MAX_REMEMBERED = 1000  # distinct lines remembered to show each warning once
 
 
 class _CliLogHandler(logging.Handler):
@@ -139,7 +168,8 @@ class _CliLogHandler(logging.Handler):
         self.live = live
         self.verbose = 0
         self.held: list[str] = []
-        self.setFormatter(logging.Formatter(_LOG_FORMAT))
+        self.shown: set[str] = set()
+        self.setFormatter(CliFormatter())
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
@@ -147,7 +177,13 @@ class _CliLogHandler(logging.Handler):
         except Exception:  # pragma: no cover - a broken record must not take the command down
             self.handleError(record)
             return
+        if record.levelno <= logging.WARNING:
+            if line in self.shown or line in self.held:
+                return  # the same warning twice says nothing new (errors are always shown)
+            if len(self.shown) >= _MAX_REMEMBERED:
+                self.shown.clear()  # bounded: a long run forgets, at worst repeating a line
         if self.live or self.verbose:
+            self.shown.add(line)
             self._write(line)
         else:
             self.held.append(line)
@@ -161,6 +197,7 @@ class _CliLogHandler(logging.Handler):
 
     def flush_held(self) -> None:
         for line in self.held:
+            self.shown.add(line)
             self._write(line)
         self.held.clear()
 

@@ -227,9 +227,12 @@ def sweep_cmd(
     Before the plan the rotor must be at rest and the stand is tared (shown as its own phase).
 
     \b
-    Exit codes: 0 done (stop verified); 1 aborted by a limit or a device failure (stop
-    verified); 2 refused or bad input (nothing spun); 3 stop NOT verified (disconnect the
-    battery); 130 interrupted by Ctrl-C/SIGTERM (stop verified)."""
+    Exit codes:
+      0    done (stop verified)
+      1    aborted by a limit or a device failure (stop verified)
+      2    refused or bad input (nothing spun)
+      3    stop NOT verified (disconnect the battery)
+      130  interrupted by Ctrl-C/SIGTERM (stop verified)"""
     from thrustmap.rig.runner import RunConfig
     from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
 

@@ -14,6 +14,17 @@ from thrustmap.fitting.names import TARGETS
 log = logging.getLogger(__name__)
 
 
+def _name(given: str, names: tuple[str, ...], option: str, what: str) -> str:
+    """A target or encoding name as typed (`PX4`, `ArduPilot`, `DShot600`): matched without case."""
+    by_lower = {n.lower(): n for n in names}
+    found = by_lower.get(given.strip().lower())
+    if found is None:
+        raise ConfigError(
+            f"{option}: unknown {what} '{given}'; expected one of: {', '.join(names)}"
+        )
+    return found
+
+
 @click.command("export")
 @click.argument("map_file", metavar="MAP", type=click.Path(dir_okay=False, path_type=Path))
 @click.option(
@@ -74,12 +85,9 @@ def export_cmd(
     output: Path | None,
 ) -> None:
     """Export MAP for a throttle encoding or a firmware."""
-    if target not in TARGETS:
-        raise ConfigError(f"--to: unknown target '{target}'; expected one of: {', '.join(TARGETS)}")
-    if encoding is not None and encoding not in SCALES:
-        raise ConfigError(
-            f"--encoding: unknown encoding '{encoding}'; expected one of: {', '.join(SCALES)}"
-        )
+    target = _name(target, TARGETS, "--to", "target")
+    if encoding is not None:
+        encoding = _name(encoding, tuple(SCALES), "--encoding", "encoding")
     if not 0.0 < spin_max <= 1.0:
         raise ConfigError(f"--spin-max: expected a value in (0, 1], got {spin_max:g}")
     range_ = parse_range(range_text, "--range") if range_text is not None else None

@@ -111,11 +111,14 @@ def _fmt(x: float, width: int) -> str:
 
 
 def _rows_table(rows: list[Row]) -> str:
-    """Every held-out point is the headline (n, mean, std, p95, max); the split into points
-    inside and outside the training box is the detail beside it."""
+    """Every evaluated point is the headline (n, mean, std, p95, max); the split into points
+    inside and outside the training box is the detail beside it. Columns are as wide as their
+    longest entry, so a long model or validation name never shifts the numbers."""
+    w_model = max([len("model"), *(len(r.model) for r in rows)])
+    w_val = max([len("validation"), *(len(r.validation) for r in rows)])
     head = (
-        f"{'model':<12} {'validation':<22} {'n':>5} {'mean %':>8} {'std %':>7} {'p95 %':>7} "
-        f"{'max %':>8}  inside box | outside box"
+        f"{'model':<{w_model}} {'validation':<{w_val}} {'n':>5} {'mean %':>8} {'std %':>7} "
+        f"{'p95 %':>7} {'max %':>8}  inside box | outside box"
     )
     lines = [head, "-" * len(head)]
     for r in rows:
@@ -123,11 +126,35 @@ def _rows_table(rows: list[Row]) -> str:
         ins = f"n={i.n} mean {i.mean_pct:.3f} %" if i.n else "n=0"
         out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "n=0"
         lines.append(
-            f"{r.model:<12} {r.validation:<22} {s.n:>5} {_fmt(s.mean_pct, 8)} "
+            f"{r.model:<{w_model}} {r.validation:<{w_val}} {s.n:>5} {_fmt(s.mean_pct, 8)} "
             f"{_fmt(s.std_pct, 7)} {_fmt(s.p95_pct, 7)} {_fmt(s.max_pct, 8)}  {ins} | {out}"
         )
-    lines.append("(all held-out points; the split by the training box beside them)")
+    kinds = {r.validation.split(":", 1)[0] for r in rows}
+    if kinds == {"evaluate"}:
+        lines.append(
+            "(every point of the new data; the split by the map's training box beside them)"
+        )
+    elif kinds == {"in-sample"}:
+        lines.append("(in-sample: every fitted point, scored by the map fitted on it)")
+    elif "in-sample" in kinds:
+        lines.append(
+            "(in-sample rows: the fitted points themselves; other rows: all held-out points; "
+            "the split by the training box beside them)"
+        )
+    else:
+        lines.append("(all held-out points; the split by the training box beside them)")
     return "\n".join(lines)
+
+
+def _meta_value(key: str, value: Any) -> str:
+    """A sidecar value as a person reads it: an outcome is "completed" or "aborted: reason"."""
+    if key == "outcome" and isinstance(value, dict):
+        status = str(value.get("status") or "unknown")
+        reason = str(value.get("reason") or "")
+        return f"{status}: {reason}" if reason else status
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={v}" for k, v in value.items())
+    return str(value)
 
 
 def _json(obj: Any) -> str:
@@ -411,6 +438,6 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         )
         for k, v in ds.meta.items():
             note = LAYOUTS.get(v, "") if k == "layout" else ""
-            click.echo(f"  {k}: {v}" + (f" ({note})" if note else ""))
+            click.echo(f"  {k}: {_meta_value(k, v)}" + (f" ({note})" if note else ""))
         rules = ", ".join(f"{k}={v}" for k, v in p.report.items() if k != "file")
         click.echo(f"  selection (what each rule did): {rules}")

@@ -282,9 +282,12 @@ def spin_cmd(
     SIGTERM).
 
     \b
-    Exit codes: 0 done (stop verified); 1 aborted by a device failure (stop verified); 2
-    refused or bad input (nothing spun); 3 stop NOT verified (disconnect the battery); 130
-    interrupted by Ctrl-C/SIGTERM (stop verified)."""
+    Exit codes:
+      0    done (stop verified)
+      1    aborted by a device failure (stop verified)
+      2    refused or bad input (nothing spun)
+      3    stop NOT verified (disconnect the battery)
+      130  interrupted by Ctrl-C/SIGTERM (stop verified)"""
     from thrustmap.cli.live import LiveView
     from thrustmap.rig.fc.motor_numbers import parse_motor
     from thrustmap.rig.session import BenchSession, Rig, exit_code, pairing_warnings

@@ -30,11 +30,15 @@ WHERE: dict[str, str] = {
     "report": f"Pictures: this report; single figures for papers with {PLOT}.",
     "plot": f"Pictures: these figures, all together in {REPORT}.",
 }
+#: commands with nothing to picture (hardware identity, the model list): no line
+NONE = frozenset({"ports", "probe", "models"})
 DEFAULT = f"Pictures: {REPORT} (every figure and table in one file) and {PLOT}."
 
 
 def attach(command: click.Command, path: str) -> click.Command:
     """Append the pictures line to ``command``'s help epilog (and its subcommands')."""
+    if path in NONE:
+        return command
     line = WHERE.get(path, DEFAULT)
     if not command.epilog or line not in command.epilog:
         command.epilog = f"{command.epilog}\n\n{line}" if command.epilog else line

@@ -85,6 +85,14 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     tool_version: str = __version__
 
+    @property
+    def map_label(self) -> str:
+        """What to call the map in titles and tables: its strategy (SR, MR, LA) when recorded,
+        else its file name, never "unknown"."""
+        if self.tmap.strategy and self.tmap.strategy != "unknown":
+            return f"{self.tmap.strategy} map"
+        return Path(self.map_path).name
+
 
 # -- finding the data ----------------------------------------------------------------------------
 

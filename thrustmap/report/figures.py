@@ -112,7 +112,7 @@ def surface(rd: ReportData) -> Figure:
     ax.set_xlabel(T)
     ax.set_ylabel(B)
     ax.set_zlabel(TH)
-    ax.set_title(f"{rd.tmap.strategy} map, model {rd.tmap.model}")
+    ax.set_title(f"{rd.map_label}, model {rd.tmap.model}")
     ax.yaxis.set_major_locator(MaxNLocator(5))
     ax.view_init(elev=22, azim=-130)
     ax.legend(loc="upper left")
@@ -194,6 +194,14 @@ def coverage(rd: ReportData) -> Figure:
             zorder=5,
         )
         a2.legend(loc="upper left")
+        # keep the star whole: a suggestion at the grid's corner gets a margin around it
+        t_s, b_s = rd.suggestion
+        for (lo, hi), x, setter in (
+            (a2.get_xlim(), t_s, a2.set_xlim),
+            (a2.get_ylim(), b_s, a2.set_ylim),
+        ):
+            pad = 0.05 * (max(hi, x) - min(lo, x) or 1.0)
+            setter(min(lo, x - pad), max(hi, x + pad))
     a2.set_title("prediction interval")
     for ax in (a1, a2):
         ax.set_xlabel(T)

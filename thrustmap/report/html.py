@@ -70,10 +70,21 @@ for(i=0;i<q.length;i++){var o=q[i];if(o.k===0){g.beginPath();g.moveTo(o.p[0][0],
 for(j=1;j<4;j++)g.lineTo(o.p[j][0],o.p[j][1]);g.closePath();g.fillStyle=o.c;g.globalAlpha=.75;
 g.fill();g.globalAlpha=1;g.strokeStyle='rgba(40,40,60,.25)';g.stroke()}else{g.fillStyle='#111';
 g.fillRect(o.p[0]-1.5,o.p[1]-1.5,3,3)}}
-var ax=[[d.t[1],d.b[0],d.z[0],'T (N)'],[d.t[0],d.b[1],d.z[0],'B (V)'],[d.t[0],d.b[0],d.z[1],'Th (%)']];
-var O=P(d.t[0],d.b[0],d.z[0]);g.strokeStyle='#333';g.fillStyle='#333';g.font='12px sans-serif';
-for(i=0;i<3;i++){var A=P(ax[i][0],ax[i][1],ax[i][2]);g.beginPath();g.moveTo(O[0],O[1]);
-g.lineTo(A[0],A[1]);g.stroke();g.fillText(ax[i][3],A[0]+4,A[1])}}
+var lo=[d.t[0],d.b[0],d.z[0]],hi=[d.t[1],d.b[1],d.z[1]],names=['T (N)','B (V)','Th (%)'];
+function Pv(v){return P(v[0],v[1],v[2])}
+function fmt(v){var a=Math.abs(v);return a>=100?v.toFixed(0):a>=10?v.toFixed(1):v.toFixed(2)}
+function lab(x,y,s,right){var w=g.measureText(s).width;if(right)x-=w;
+g.fillStyle='rgba(255,255,255,.85)';g.fillRect(x-2,y-11,w+4,14);g.fillStyle='#333';g.fillText(s,x,y)}
+g.strokeStyle='#333';g.font='12px sans-serif';
+var back=lo.slice(),best=-1e9;[[lo[0],lo[1]],[hi[0],lo[1]],[lo[0],hi[1]],[hi[0],hi[1]]].forEach(
+function(q){var z=-P(q[0],q[1],lo[2])[2];if(z>best){best=z;back=[q[0],q[1],lo[2]]}});
+for(i=0;i<3;i++){var base=i===2?back:lo,O=Pv(base),e1=base.slice();e1[i]=hi[i];var A=Pv(e1);
+g.beginPath();g.moveTo(O[0],O[1]);g.lineTo(A[0],A[1]);g.stroke();
+for(var k=(i===2?1:0);k<=2;k++){var pt=base.slice();pt[i]=lo[i]+(hi[i]-lo[i])*k/2;var Q=Pv(pt);
+g.beginPath();g.arc(Q[0],Q[1],2,0,6.3);g.fillStyle='#333';g.fill();
+if(i===0)lab(Q[0]-8,Q[1]+14,fmt(pt[i]),true);else if(i===1)lab(Q[0]+6,Q[1]+14,fmt(pt[i]));
+else lab(Q[0]-6,Q[1]+4,fmt(pt[i]),true)}
+var e2=base.slice();e2[i]=hi[i]+(hi[i]-lo[i])*0.22;var L=Pv(e2);lab(L[0]+4,L[1],names[i],i===2)}}
 c.onmousedown=function(e){drag=[e.clientX,e.clientY]};window.onmouseup=function(){drag=null};
 window.onmousemove=function(e){if(!drag)return;az+=(e.clientX-drag[0])*0.01;
 el=Math.max(-1.5,Math.min(1.5,el+(e.clientY-drag[1])*0.01));drag=[e.clientX,e.clientY];draw()};
@@ -295,33 +306,30 @@ def _validation(rd: ReportData) -> str:
     if not rd.validation:
         return "<p>No validation was computed.</p>"
     modes = list(rd.validation)
-    top = '<th class="l" rowspan="2">model</th>' + "".join(
-        f'<th colspan="{4 if m == "in-sample" else 8}">{_e(m)}</th>' for m in modes
-    )
-    sub = ""
-    for m in modes:
-        sub += "<th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>"
-        if m != "in-sample":
-            sub += "<th>inside box n</th><th>inside mean %</th>"
-            sub += "<th>outside box n</th><th>outside mean %</th>"
     by_model: dict[str, dict[str, Row]] = {}
     for m, rows in rd.validation.items():
         for row in rows:
             by_model.setdefault(row.model, {})[m] = row
-    body = []
-    for model, per in by_model.items():
-        cells = [_td(model + (" (this map)" if model == rd.tmap.model else ""))]
-        for m in modes:
+    tables = ""
+    # One table per validation mode, so the table reads on a laptop screen and in print
+    # (all modes side by side were ~1500 px wide, the k-fold columns behind a scrollbar).
+    for m in modes:
+        head = '<th class="l">model</th><th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>'
+        if m != "in-sample":
+            head += "<th>inside box n</th><th>inside mean %</th>"
+            head += "<th>outside box n</th><th>outside mean %</th>"
+        body = []
+        for model, per in by_model.items():
+            if m not in per:
+                continue
             r = per[m]
             k = f"{m}:{model}"
             s = r.all  # the headline counts every held-out point
-            ms = (
-                f'<td data-key="{k}:mean_pct" data-value="{s.mean_pct!r}" '
-                f'data-std="{s.std_pct!r}">{s.mean_pct:.3f} ± {s.std_pct:.3f}</td>'
-            )
+            cells = [_td(model + (" (this map)" if model == rd.tmap.model else ""))]
             cells += [
                 _num(s.n, "d", f"{k}:n"),
-                ms,
+                f'<td data-key="{k}:mean_pct" data-value="{s.mean_pct!r}" '
+                f'data-std="{s.std_pct!r}">{s.mean_pct:.3f} ± {s.std_pct:.3f}</td>',
                 _num(s.p95_pct, ".3f", f"{k}:p95_pct"),
                 _num(s.max_pct, ".3f", f"{k}:max_pct"),
             ]
@@ -332,17 +340,18 @@ def _validation(rd: ReportData) -> str:
                     _num(r.outside.n, "d", f"{k}:outside_n"),
                     _num(r.outside.mean_pct, ".3f", f"{k}:outside_mean_pct"),
                 ]
-        body.append(cells)
+            body.append("<tr>" + "".join(cells) + "</tr>")
+        tables += (
+            f"<h3>{_e(m)}</h3>"
+            f'<div class="tw"><table class="validation"><tr>{head}</tr>{"".join(body)}</table></div>'
+        )
     return (
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
         "file out in turn, <b>kfold</b> 5 random folds. The held-out figures count every held-out point; "
         "those inside and outside the training box (extrapolation) are shown beside them. "
         "Same numbers as <code>thrustmap compare --json</code>."
-        "</p>"
-        + f'<div class="tw"><table class="validation"><tr>{top}</tr><tr>{sub}</tr>'
-        + "".join("<tr>" + "".join(r) + "</tr>" for r in body)
-        + "</table></div>"
+        "</p>" + tables
     )
 
 
@@ -394,9 +403,9 @@ def _gamma(rd: ReportData) -> str:
             f"{v['mean']:.3f} ± {v['std']:.3f}</td>"
         )
 
-    label = rd.tmap.strategy
+    label = rd.map_label
     out += "<h3>Table 4 layout</h3>" + _table(
-        ("strategy", "e_Th (%)", "e_T (%)", "e_T (N)"),
+        ("map", "e_Th (%)", "e_T (%)", "e_T (N)"),
         [
             [_td(label), ms("e_Th_before_pct"), ms("e_T_before_pct"), ms("e_T_before_n")],
             [_td(f"{label} + γ(B)"), ms("e_Th_after_pct"), ms("e_T_after_pct"), ms("e_T_after_n")],

@@ -86,11 +86,15 @@ class Plan:
 
     def describe(self, scale_lo: float = 0.0, scale_hi: float = 100.0, unit: str = "%") -> str:
         def native(pct: float) -> str:
-            return f"{scale_lo + pct / 100 * (scale_hi - scale_lo):.0f} {unit}"
+            """The level in the FC's own unit, beside the %; nothing when that unit is %."""
+            if unit == "%" and (scale_lo, scale_hi) == (0.0, 100.0):
+                return ""
+            shown = "µs" if unit == "us" else unit
+            return f" ({scale_lo + pct / 100 * (scale_hi - scale_lo):.0f} {shown})"
 
         lines = [
             f"plan '{self.name}': {len(self.segments)} segments, up to {self.duration_s:.1f} s, "
-            f"ceiling {self.max_throttle_pct:.1f} % ({native(self.max_throttle_pct)})"
+            f"ceiling {self.max_throttle_pct:.1f} %{native(self.max_throttle_pct)}"
         ]
         for t, s in self.timeline():
             if isinstance(s, Hold):
@@ -100,7 +104,7 @@ class Plan:
                     else f"{s.dwell_s:.1f} s"
                 )
                 lines.append(
-                    f"  {t:7.1f} s  {s.label:<6} {s.throttle_pct:5.1f} % ({native(s.throttle_pct)})  {how}"
+                    f"  {t:7.1f} s  {s.label:<6} {s.throttle_pct:5.1f} %{native(s.throttle_pct)}  {how}"
                 )
             else:
                 lines.append(
@@ -149,10 +153,20 @@ def steps(
     record_s: float = 1.0,
     repeats: int = 1,
 ) -> Plan:
-    """Up-steps from a low level, returning to it between steps (paper: *-steps.csv)."""
+    """Up-steps from a low level, returning to it between steps (paper: *-steps.csv).
+
+    A level equal to the low level is no step (it would hold the low level twice), so it is left
+    out: ``--from 10 --low 10`` steps to 15, 20, ... and back to 10 between them.
+    """
+    levels = [lv for lv in _levels(start_pct, stop_pct, step_pct) if abs(lv - low_pct) > 1e-9]
+    if not levels:
+        raise ConfigError(
+            f"steps: every level in {start_pct:g}..{stop_pct:g} % equals the low level "
+            f"({low_pct:g} %): nothing to step to"
+        )
     segs: list[Segment] = [_hold(low_pct, low_dwell_s, settle, record_s, "low")]
     for _ in range(max(repeats, 1)):
-        for level in _levels(start_pct, stop_pct, step_pct):
+        for level in levels:
             segs.append(_hold(level, dwell_s, settle, record_s, "step"))
             segs.append(_hold(low_pct, low_dwell_s, settle, record_s, "low"))
     return Plan(

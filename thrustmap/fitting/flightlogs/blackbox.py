@@ -105,8 +105,8 @@ def read(
     for fl in flights:
         fl.warnings[:0] = notes
         fl.metadata["logs_in_file"] = len(ranges)
-    for note in notes:
-        log.warning("%s: %s", p, note)
+    for note in notes:  # carried in each flight's warnings and shown once by whoever reports it
+        log.debug("%s: %s", p, note)
     return flights
 
 

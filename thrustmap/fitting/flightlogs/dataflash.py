@@ -336,8 +336,8 @@ def parse(path: str | Path) -> DataFlashLog:
     for chunk in np.split(order, bounds):
         if len(chunk):
             starts[int(types[chunk[0]])] = starts_all[chunk]
-    for w in warnings:
-        log.warning("%s: %s", p, w)
+    for w in warnings:  # returned with the log and shown once by whoever reports it
+        log.debug("%s: %s", p, w)
     return DataFlashLog(str(p), buf, formats, starts, warnings, bytes_decoded=end_pos - skipped)
 
 
