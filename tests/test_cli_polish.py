@@ -94,6 +94,7 @@ def test_inspect_says_completed_not_a_dict(capsys: pytest.CaptureFixture[str]) -
     assert code == 0, err
     assert "  outcome: completed\n" in out
     assert "{'status'" not in out
+    assert "1000..2000 µs" in out and " us" not in out  # µs in human output
 
 
 def test_evaluate_columns_stay_aligned_with_a_long_validation_name(

@@ -408,7 +408,7 @@ def predict_cmd(
         level = "" if interval is None else f" ({100 * interval.level:.0f} % prediction interval)"
         click.echo(
             f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
-            f"{native:.2f}{pm_native} {sc.unit}{level}"
+            f"{native:.2f}{pm_native} {sc.unit_label}{level}"
         )
 
 
@@ -429,10 +429,10 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         sc = ds.throttle_scale
         click.echo(
             f"{ds.path}\n  format {ds.format}, {len(ds)} samples, throttle scale {sc.name} "
-            f"{sc.lo:g}..{sc.hi:g} {sc.unit}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
+            f"{sc.lo:g}..{sc.hi:g} {sc.unit_label}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
         )
         click.echo(
-            f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g} {sc.unit}, "
+            f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g} {sc.unit_label}, "
             f"thrust {np.min(ds.thrust_n):.3f}..{np.max(ds.thrust_n):.3f} N, "
             f"voltage {np.min(ds.voltage_v):.2f}..{np.max(ds.voltage_v):.2f} V"
         )

@@ -38,6 +38,11 @@ class ThrottleScale:
     def span(self) -> float:
         return self.hi - self.lo
 
+    @property
+    def unit_label(self) -> str:
+        """The unit as a person reads it ("µs"); ``unit`` stays the ASCII name in files."""
+        return unit_label(self.unit)
+
     def to_pct(self, native: npt.ArrayLike) -> FloatArray:
         import numpy as np
 
@@ -62,6 +67,11 @@ class ThrottleScale:
             return cls(str(data["name"]), float(data["lo"]), float(data["hi"]), str(data["unit"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"throttle scale needs name, lo, hi and unit, got {data!r}") from exc
+
+
+def unit_label(unit: str) -> str:
+    """An ASCII unit name as shown to a person: "us" is written "µs"."""
+    return "µs" if unit == "us" else unit
 
 
 #: Encodings a throttle command can take on the wire (seed paper Table 1 and beyond).

@@ -428,7 +428,7 @@ def source_files(rd: ReportData) -> list[dict[str, Any]]:
                 "battery_cells": fc.get("battery_cells") or side.get("cells") or "not recorded",
                 "rotors_on_esc": ds.rotors_on_esc or side.get("rotors_on_esc") or "not recorded",
                 "throttle_scale": f"{ds.throttle_scale.name} {ds.throttle_scale.lo:g}.."
-                f"{ds.throttle_scale.hi:g} {ds.throttle_scale.unit}",
+                f"{ds.throttle_scale.hi:g} {ds.throttle_scale.unit_label}",
             }
         )
     if rd.gamma is not None:

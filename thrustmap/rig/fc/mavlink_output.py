@@ -274,7 +274,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
         if not (math.isfinite(value) and scale.lo <= value <= scale.hi):
             raise SafetyError(
                 f"throttle {value!r} for {self.motor_label(motor)} is outside "
-                f"{scale.lo:g}..{scale.hi:g} {scale.unit} ({scale.name})"
+                f"{scale.lo:g}..{scale.hi:g} {scale.unit_label} ({scale.name})"
             )
 
     def _check_schedule(self) -> None:
