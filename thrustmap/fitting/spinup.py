@@ -214,4 +214,4 @@ def spin_up(datasets: Sequence[Dataset]) -> SpinUp:
     )
     value = float(worst["throttle_pct"])
     log.info("spin-up: %.3f %% of the throttle scale (%s)", value, reason)
-    return SpinUp(value, "+".join(kinds), reason, files)
+    return SpinUp(value, " or ".join(kinds), reason, files)

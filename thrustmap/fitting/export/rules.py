@@ -280,7 +280,7 @@ BETAFLIGHT_45 = Firmware(
     source="betaflight src/main/cli/settings.c (4.5.5)",
     params=(
         _BF_LINEAR, _BF_LIMIT, _BF_MAX,
-        Param("dshot_idle_value", 0.0, 2000.0, "0.01 %", 550.0, _BF_IDLE_TEXT, integer=True),
+        Param("dshot_idle_value", 0.0, 2000.0, "x0.01 %", 550.0, _BF_IDLE_TEXT, integer=True),
         Param("min_throttle", 750.0, 2250.0, "us", 1070.0, "PWM pulse at idle", integer=True),
     ),
     rules=(Rule(_p("min_throttle"), "<", _p("max_throttle"), "empty PWM output range"),),
@@ -294,7 +294,7 @@ def _betaflight_calver(title: str, tag: str) -> Firmware:
         source=f"betaflight src/main/cli/settings.c ({tag})",
         params=(
             _BF_LINEAR, _BF_LIMIT, _BF_MAX,
-            Param("motor_idle", 0.0, 2000.0, "0.01 %", 550.0, _BF_IDLE_TEXT, integer=True),
+            Param("motor_idle", 0.0, 2000.0, "x0.01 %", 550.0, _BF_IDLE_TEXT, integer=True),
             Param("min_command", 750.0, 2250.0, "us", 1000.0, "PWM pulse when stopped",
                   integer=True),
         ),
