@@ -104,6 +104,20 @@ def fit_px4(thrust_n: npt.ArrayLike, throttle_frac: npt.ArrayLike) -> Px4Fit:
     return Px4Fit(f, tmax)
 
 
+def supported_samples(
+    tmap: ThrustMap, *, n_thrust: int = 41, n_voltage: int = 9, voltage_v: float | None = None
+) -> Samples:
+    """Map samples over the validity box, kept where the map's throttle lies inside the
+    throttle range measured on the stand (the supported region): the corner of the box at high
+    thrust and low voltage asks for more than the motor gave, and is not fitted nor scored."""
+    s = map_samples(tmap, n_thrust=n_thrust, n_voltage=n_voltage, voltage_v=voltage_v)
+    th = tmap.validity.throttle_pct
+    keep = (s.throttle_pct >= th.lo - 1e-9) & (s.throttle_pct <= th.hi + 1e-9)
+    if int(keep.sum()) < 3:
+        raise FitError("fewer than three map points inside the measured throttle range")
+    return Samples(s.thrust_n[keep], s.voltage_v[keep], s.throttle_pct[keep])
+
+
 def _pwm_scale(opts: ExportOptions) -> ThrottleScale:
     name = opts.encoding or "pwm"
     if name not in ("pwm", "oneshot125", "oneshot42", "multishot"):
@@ -162,7 +176,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
                 pwm_params += [(f"PWM_MAIN_MIN{n}", scale.lo, 6), (f"PWM_MAIN_MAX{n}", scale.hi, 6)]
         rules.require({k: v for k, v, _ in pwm_params})
     b_ref = reference_voltage(tmap, opts.voltage_v)
-    ref = map_samples(tmap, voltage_v=b_ref, n_thrust=81)
+    ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     s_ref = _fraction(ref.throttle_pct, scale)
     keep = s_ref >= 0.0  # the curve is fitted above the output range's low end (the idle)
     ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
@@ -170,7 +184,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     fit = fit_px4(ref.thrust_n, s_ref)
     f = round(fit.thr_mdl_fac, 3)
     err_ref = 100 * (px4_throttle(ref.thrust_n / fit.thrust_max_n, f) - s_ref)
-    box = map_samples(tmap)
+    box = supported_samples(tmap)
     s_box = _fraction(box.throttle_pct, scale)
     keep = s_box >= 0.0
     box = Samples(box.thrust_n[keep], box.voltage_v[keep], box.throttle_pct[keep])
@@ -187,7 +201,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     ]
     if varies:
         residual += [
-            f"over the voltage box without battery scaling: RMS {r_box[0]:.3f} %, max "
+            f"over the supported region of the voltage box without battery scaling: RMS {r_box[0]:.3f} %, max "
             f"{r_box[1]:.3f} % (battery variation adds this on top of the form error)",
             f"with MC_BAT_SCALE_EN=1 (thrust x {b_ref:g} V / V_now, clamped 1..1.3): RMS "
             f"{r_bat[0]:.3f} %, max {r_bat[1]:.3f} %",
@@ -455,7 +469,7 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
          "MOT_PWM_MIN": scale.lo, "MOT_PWM_MAX": scale.hi,
          "MOT_BAT_VOLT_MAX": round(v_max, 2), "MOT_BAT_VOLT_MIN": round(v_min, 2)}
     )  # fmt: skip
-    box = map_samples(tmap)
+    box = supported_samples(tmap)
     act = _fraction(box.throttle_pct, scale)
     fit = fit_ardupilot(
         box.thrust_n,
@@ -485,9 +499,10 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )[0]
     )
     residual = [
-        f"ArduPilot curve vs map over the box above MOT_SPIN_MIN (with its voltage scaling): "
+        f"ArduPilot curve vs map over the supported region above MOT_SPIN_MIN (with its "
+        "voltage scaling): "
         f"RMS {r_box[0]:.3f} %, max {r_box[1]:.3f} % of the {scale.lo:g}..{scale.hi:g} "
-        f"{scale.unit} range ({int(above.sum())} of {above.size} box points)",
+        f"{scale.unit} range ({int(above.sum())} points)",
         f"at {vbox.hi:g} V only: RMS {r_ref[0]:.3f} %, max {r_ref[1]:.3f} %; without voltage "
         f"scaling (MOT_BAT_VOLT_MAX=0): RMS {r_nc[0]:.3f} %, max {r_nc[1]:.3f} %",
     ]
@@ -697,7 +712,7 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )
     scale = target_scale(enc, (lo, hi))
     b_ref = reference_voltage(tmap, opts.voltage_v)
-    ref = map_samples(tmap, voltage_v=b_ref, n_thrust=81)
+    ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     out = _fraction(ref.throttle_pct, scale)
     keep = out >= 0.0  # above idle
     ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
@@ -706,7 +721,7 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     e = fit.thrust_linear / 100.0
     pred = betaflight_out(np.clip(ref.thrust_n / fit.thrust_max_n, 0, 1), e, generation)
     r_ref = rms_max(100 * (pred - out))
-    box = map_samples(tmap)
+    box = supported_samples(tmap)
     out_box = _fraction(box.throttle_pct, scale)
     keep = out_box >= 0.0
     box = Samples(box.thrust_n[keep], box.voltage_v[keep], box.throttle_pct[keep])
@@ -719,7 +734,7 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         f"thrust_linear={fit.thrust_linear} curve vs map at {b_ref:g} V: RMS {r_ref[0]:.3f} %, "
         f"max {r_ref[1]:.3f} % of the motor output range (thrust_linear=0 would leave RMS "
         f"{r_lin[0]:.3f} %)",
-        f"over the voltage box (Betaflight's curve has no voltage term): RMS {r_box[0]:.3f} %, "
+        f"over the supported region of the voltage box (Betaflight's curve has no voltage term): RMS {r_box[0]:.3f} %, "
         f"max {r_box[1]:.3f} %; vbat_sag_compensation addresses part of this",
     ]
     formula = (
