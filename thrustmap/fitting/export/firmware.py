@@ -247,6 +247,11 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         values["MPC_THR_HOVER"] = round(hover, 3)
     if idle_note:
         notes.append(idle_note)
+    if pwm_params and len(pwm_params) > 2:
+        notes.append(
+            f"PWM_MAIN_MINn/MAXn written for outputs 1..{rotors_out} (--rotors); if your motors "
+            "sit on other outputs, apply the same values there"
+        )
     params += pwm_params
     written = {n: float(v) for n, v, _ in params}
     rules.require(written)
@@ -568,7 +573,8 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     text = comment(lines, "#") + "".join(f"{n},{format(v, fmt)}\n" for n, v, fmt in params)
     values: dict[str, float] = dict(written)
     values["thrust_max_n"] = fit.thrust_max_n
-    values["spin_up_fraction"] = math.nan if spin_frac is None else spin_frac
+    if spin_frac is not None:
+        values["spin_up_fraction"] = spin_frac
     resid = {
         "rms_pct": r_box[0],
         "max_pct": r_box[1],
