@@ -529,7 +529,9 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         f"at least {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN (pre-arm refuses ARM > MIN)",
         f"MOT_SPIN_MAX {opts.spin_max:g} is a convention (headroom) and fixes the scale of "
         "MOT_THST_EXPO, fitted above MOT_SPIN_MIN",
-        f"MOT_BAT_VOLT_MAX/MIN: the pack under load on the stand ({vbox.lo:g}..{vbox.hi:g} V)",
+        f"MOT_BAT_VOLT_MAX/MIN: the pack under load on the stand ({vbox.lo:g}..{vbox.hi:g} V); "
+        "ArduPilot compensates on its resting-voltage estimate (sag removed) unless "
+        "MOT_OPTIONS bit 0 (raw voltage) is set, which matches these loaded voltages",
         f"thrust at u=1 and {v_max:g} V: {fit.thrust_max_n:.4g} N per rotor",
         "MOT_PWM_TYPE must match the ESC protocol",
     ]
@@ -750,7 +752,13 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     notes = [
         f"firmware {opts.firmware} -> {formula}, e = thrust_linear/100, m = T/T_max; fitted "
         f"e = {fit.expo:.4f}, T_max {fit.thrust_max_n:.4g} N per rotor at {b_ref:g} V",
-        f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below",
+        f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below"
+        + (
+            " (the PWM low end is min_command + motor_idle/10 us: min_command must stay at "
+            "its default 1000)"
+            if enc == "pwm" and idle_name == "motor_idle"
+            else ""
+        ),
     ]
     if fit.expo > betaflight_max_expo(generation) - 0.005:
         notes.append(
