@@ -113,6 +113,37 @@ def test_spin_up_is_the_lowest_command_spinning_in_every_sweep() -> None:
     assert "highest over 2 file(s)" in both.reason
 
 
+def test_each_sweep_has_its_own_rest_level() -> None:
+    # one file, two sweeps recorded with different load-cell tares (a re-saved concatenation):
+    # the second sweep's rest reads 0.3 N; noise is measured against each sweep's own rest
+    cmds = [1000.0, *np.arange(1050.0, 1400.0, 10.0)]
+    a, b = _stand(cmds, 1120.0, rpm=False), _stand(cmds, 1120.0, rpm=False)
+    both = replace(
+        a,
+        throttle_native=np.concatenate([a.throttle_native, b.throttle_native]),
+        thrust_n=np.concatenate([a.thrust_n, b.thrust_n + 0.3]),
+        voltage_v=np.concatenate([a.voltage_v, b.voltage_v]),
+        line=np.arange(1, 2 * len(a) + 1),
+        time_s=np.arange(2 * len(a)) * 0.1,
+    )
+    r = file_spin_up(both)
+    assert r["sweeps"] == 2 and r["throttle_pct"] == pytest.approx(12.0)
+
+
+def test_a_dithering_command_is_bounded_work() -> None:
+    n = 200_000
+    rng = np.random.default_rng(3)
+    c = np.where(rng.random(n) < 0.5, 1000.0, 1000.0 + rng.random(n) * 900)
+    thrust = np.where(c > 1100, (c - 1100) / 100, 0.0) + rng.normal(0, 0.01, n)
+    d = Dataset(
+        path="dither.csv", format="test", throttle_scale=SCALES["pwm"], throttle_native=c,
+        thrust_n=thrust, voltage_v=np.full(n, 16.0), line=np.arange(1, n + 1),
+        time_s=np.arange(n) * 0.01,
+    )  # fmt: skip
+    r = file_spin_up(d)
+    assert "taken as one" in r["note"] and 10.0 < r["throttle_pct"] < 12.0
+
+
 def test_spin_up_cannot_tell_without_low_throttle_points() -> None:
     cmds = list(np.arange(1200.0, 1500.0, 10.0))
     r = file_spin_up(_stand(cmds, 1100.0))  # lowest command already spins (rpm)

@@ -44,6 +44,8 @@ STOP_BAND_PCT = 1.0
 NOISE_SIGMAS = 5.0
 FLOOR_FRACTION = 0.01
 MIN_RUN = 3
+#: beyond this many rest-to-rest runs in one file, the file is taken as one sweep (bounded work)
+MAX_SWEEPS = 500
 
 
 @dataclass(frozen=True)
@@ -131,6 +133,12 @@ def file_spin_up(ds: Dataset) -> dict[str, Any]:
     times = None if ds.time_s is None else ds.time_s[ok]
     summary = is_step_summary(native, times, ds.throttle_scale)
     sweeps = _sweeps(rest)
+    if not summary:  # a run of one or two rows is a command passing by, not a sweep
+        sweeps = [(r, i) for r, i in sweeps if len(i) >= MIN_RUN]
+    if len(sweeps) > MAX_SWEEPS:  # the command dithers across the rest band: one sweep
+        above = np.flatnonzero(~rest)
+        sweeps = [(np.flatnonzero(rest), above)]
+        out["note"] = f"more than {MAX_SWEEPS} sweeps: taken as one"
     if not sweeps:
         out["reason"] = "no sample above the rest command"
         return out
