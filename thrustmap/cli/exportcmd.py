@@ -57,7 +57,9 @@ def _name(given: str, names: tuple[str, ...], option: str, what: str) -> str:
 @click.option(
     "--firmware",
     metavar="VERSION",
-    help="Firmware version the export is for (betaflight: thrust_linear changed in 2026.6).",
+    help="Firmware version whose names, ranges and rules the export follows: betaflight "
+    "4.5, 4.6 (2025.12) or 2026.6 (required); ardupilot 4.x; px4 1.12-1.13 or 1.14+ "
+    "(default 1.14+).",
 )
 @click.option(
     "--spin-max",

@@ -180,6 +180,7 @@ def fit_map(
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
         interval={} if interval is None else interval.to_dict(),
+        spin_up=spin_up_block(datasets),
     )
     if ident is not None:
         log.info("%s: %s", m.name, ident.reason)
@@ -187,6 +188,13 @@ def fit_map(
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
     return FitOutcome(tmap, data, warnings, trust, more_data)
+
+
+def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
+    """The map's ``spin_up`` block: the lowest command the raw samples show spinning."""
+    from thrustmap.fitting.spinup import spin_up
+
+    return spin_up(datasets).to_dict()
 
 
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:

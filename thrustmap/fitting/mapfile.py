@@ -120,6 +120,8 @@ class ThrustMap:
     identification: dict[str, Any] = field(default_factory=dict)
     #: prediction interval learned from held-out residuals (see fitting.interval)
     interval: dict[str, Any] = field(default_factory=dict)
+    #: lowest reliably spinning command measured on the stand (see fitting.spinup)
+    spin_up: dict[str, Any] = field(default_factory=dict)
     tool_version: str = __version__
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -217,6 +219,7 @@ class ThrustMap:
             # written only when present, so maps built without them keep their old bytes
             **({"identification": self.identification} if self.identification else {}),
             **({"interval": self.interval} if self.interval else {}),
+            **({"spin_up": self.spin_up} if self.spin_up else {}),
             "tool_version": self.tool_version,
             "created_utc": self.created_utc,
         }
@@ -314,6 +317,7 @@ class ThrustMap:
             correction=correction,
             identification=_dict(f, "identification"),
             interval=_interval(f),
+            spin_up=_dict(f, "spin_up"),
             tool_version=f.string("tool_version", ""),
             created_utc=f.string("created_utc", ""),
         )

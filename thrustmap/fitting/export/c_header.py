@@ -32,6 +32,7 @@ from thrustmap.fitting.export.encodings import (
     header_lines,
     target_scale,
 )
+from thrustmap.fitting.export.rules import C_HEADER
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.models import LinearTmaxModel, PolyModel
 
@@ -140,6 +141,7 @@ def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
             "the map to the float return value's rounding (double) or ~3e-7 of the range (float)",
         ],
     )
+    lines.append(f"firmware: {C_HEADER.header()}; it replaces no firmware default")
     lines += [
         "",
         "float thrustmap_throttle(float thrust_n, float voltage_v): thrust per rotor [N], battery",
@@ -215,6 +217,7 @@ def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
 
 def export_c_header(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     scale = target_scale(opts.encoding or "percent", opts.range_)
+    C_HEADER.require({"range_lo": scale.lo, "range_hi": scale.hi})
     return ExportResult(
         target="c-header",
         text=c_header_text(tmap, scale),

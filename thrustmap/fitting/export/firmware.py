@@ -30,6 +30,7 @@ from thrustmap.fitting.export.encodings import (
     G0_MPS2,
     ExportOptions,
     ExportResult,
+    Samples,
     comment,
     header_lines,
     map_samples,
@@ -38,7 +39,15 @@ from thrustmap.fitting.export.encodings import (
     rms_max,
     target_scale,
 )
+from thrustmap.fitting.export.rules import (
+    ARDUPILOT_SPIN_MARGIN,
+    Firmware,
+    ardupilot_rules,
+    betaflight_rules,
+    px4_rules,
+)
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.spinup import SpinUp
 
 log = logging.getLogger(__name__)
 FloatArray = npt.NDArray[np.float64]
@@ -95,6 +104,20 @@ def fit_px4(thrust_n: npt.ArrayLike, throttle_frac: npt.ArrayLike) -> Px4Fit:
     return Px4Fit(f, tmax)
 
 
+def supported_samples(
+    tmap: ThrustMap, *, n_thrust: int = 41, n_voltage: int = 9, voltage_v: float | None = None
+) -> Samples:
+    """Map samples over the validity box, kept where the map's throttle lies inside the
+    throttle range measured on the stand (the supported region): the corner of the box at high
+    thrust and low voltage asks for more than the motor gave, and is not fitted nor scored."""
+    s = map_samples(tmap, n_thrust=n_thrust, n_voltage=n_voltage, voltage_v=voltage_v)
+    th = tmap.validity.throttle_pct
+    keep = (s.throttle_pct >= th.lo - 1e-9) & (s.throttle_pct <= th.hi + 1e-9)
+    if int(keep.sum()) < 3:
+        raise FitError("fewer than three map points inside the measured throttle range")
+    return Samples(s.thrust_n[keep], s.voltage_v[keep], s.throttle_pct[keep])
+
+
 def _pwm_scale(opts: ExportOptions) -> ThrottleScale:
     name = opts.encoding or "pwm"
     if name not in ("pwm", "oneshot125", "oneshot42", "multishot"):
@@ -102,16 +125,70 @@ def _pwm_scale(opts: ExportOptions) -> ThrottleScale:
     return target_scale(name, opts.range_)
 
 
+def spin_up_native(tmap: ThrustMap, encoding: str) -> float | None:
+    """The measured spin-up in ``encoding``'s units (its default range), None when unknown."""
+    block = SpinUp.from_dict(tmap.spin_up) if tmap.spin_up else None
+    if block is None or block.throttle_pct is None:
+        return None
+    return float(SCALES[encoding].from_pct(block.throttle_pct))
+
+
+def idle_low_end(
+    tmap: ThrustMap, scale: ThrottleScale, given: bool, what: str
+) -> tuple[ThrottleScale, str]:
+    """The output range's low end (the armed idle) at or above the measured spin-up: raised to
+    it when the user gave no --range, refused when the given one is below it."""
+    spin = spin_up_native(tmap, scale.name)
+    if spin is None:
+        _, why = spin_up_fraction(tmap, scale)
+        return scale, f"{what} kept at {scale.lo:g} {scale.unit}: {why}"
+    if given:
+        if scale.lo < spin - 1e-9:
+            raise ConfigError(
+                f"--range low end {scale.lo:g} {scale.unit} ({what}) is below {spin:.6g}, the "
+                "lowest command the stand saw spinning reliably: a motor can stall there"
+            )
+        return scale, f"{what} {scale.lo:g} {scale.unit} as given (stand spin-up {spin:.6g})"
+    if spin <= scale.lo:
+        return scale, f"{what} {scale.lo:g} {scale.unit} is above the stand spin-up {spin:.6g}"
+    lo = float(math.ceil(spin - 1e-9))
+    if not lo < scale.hi:
+        raise ConfigError(f"stand spin-up {spin:.6g} is at or above the range top {scale.hi:g}")
+    return scale.with_range(lo, scale.hi), (
+        f"{what} raised from {scale.lo:g} to {lo:g} {scale.unit}: the stand saw reliable "
+        "spin and thrust only from there (the curve is fitted above it)"
+    )
+
+
 def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
+    rules = px4_rules(opts.firmware)
     scale = _pwm_scale(opts)
+    idle_note = ""
+    if scale.name == "pwm":
+        scale, idle_note = idle_low_end(tmap, scale, opts.range_ is not None, "PWM minimum")
+    rotors_out = opts.rotors or 4
+    pwm_params: list[tuple[str, float, int]] = []
+    if scale.name == "pwm":
+        if rules.title.startswith("PX4 v1.13"):
+            pwm_params = [("PWM_MAIN_MIN", scale.lo, 6), ("PWM_MAIN_MAX", scale.hi, 6)]
+        else:
+            for n in range(1, rotors_out + 1):
+                pwm_params += [(f"PWM_MAIN_MIN{n}", scale.lo, 6), (f"PWM_MAIN_MAX{n}", scale.hi, 6)]
+        rules.require({k: v for k, v, _ in pwm_params})
     b_ref = reference_voltage(tmap, opts.voltage_v)
-    ref = map_samples(tmap, voltage_v=b_ref, n_thrust=81)
+    ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     s_ref = _fraction(ref.throttle_pct, scale)
+    keep = s_ref >= 0.0  # the curve is fitted above the output range's low end (the idle)
+    ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
+    s_ref = s_ref[keep]
     fit = fit_px4(ref.thrust_n, s_ref)
     f = round(fit.thr_mdl_fac, 3)
     err_ref = 100 * (px4_throttle(ref.thrust_n / fit.thrust_max_n, f) - s_ref)
-    box = map_samples(tmap)
+    box = supported_samples(tmap)
     s_box = _fraction(box.throttle_pct, scale)
+    keep = s_box >= 0.0
+    box = Samples(box.thrust_n[keep], box.voltage_v[keep], box.throttle_pct[keep])
+    s_box = s_box[keep]
     err_box = 100 * (px4_throttle(box.thrust_n / fit.thrust_max_n, f) - s_box)
     bat_scale = np.clip(b_ref / box.voltage_v, 1.0, 1.3)
     err_bat = 100 * (px4_throttle(box.thrust_n / fit.thrust_max_n * bat_scale, f) - s_box)
@@ -124,7 +201,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     ]
     if varies:
         residual += [
-            f"over the voltage box without battery scaling: RMS {r_box[0]:.3f} %, max "
+            f"over the supported region of the voltage box without battery scaling: RMS {r_box[0]:.3f} %, max "
             f"{r_box[1]:.3f} % (battery variation adds this on top of the form error)",
             f"with MC_BAT_SCALE_EN=1 (thrust x {b_ref:g} V / V_now, clamped 1..1.3): RMS "
             f"{r_bat[0]:.3f} %, max {r_bat[1]:.3f} %",
@@ -137,8 +214,13 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         f"fitted at {b_ref:g} V over thrust {tmap.validity.thrust_n.lo:g}.."
         f"{tmap.validity.thrust_n.hi:g} N; full-throttle thrust of the fitted curve "
         f"{fit.thrust_max_n:.4g} N per rotor",
-        f"set the ESC output range to {scale.lo:g}..{scale.hi:g} {scale.unit} "
-        "(PWM_MAIN_MINn/PWM_MAIN_MAXn on v1.14+): THR_MDL_FAC is normalised over it",
+        f"ESC output range {scale.lo:g}..{scale.hi:g} {scale.unit}: THR_MDL_FAC is normalised "
+        "over it"
+        + (
+            " (written below as the PWM output limits)"
+            if pwm_params
+            else f"; set it on the {scale.name} outputs yourself"
+        ),
         "MC_BAT_SCALE_EN scales the thrust setpoint by V_charged/V_now (1..1.3); set "
         f"BAT1_V_CHARGED so that V_charged = {b_ref:g} V; recommended value below",
     ]
@@ -161,11 +243,24 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )
         if not tmap.validity.thrust_n.lo <= hover_n <= tmap.validity.thrust_n.hi:
             notes.append("WARNING: hover thrust is outside the map's thrust box (extrapolated)")
-        if not 0.1 <= hover <= 0.8:
-            notes.append("WARNING: MPC_THR_HOVER outside PX4's 0.1..0.8; check mass and rotors")
         params.append(("MPC_THR_HOVER", round(hover, 3), 9))
         values["MPC_THR_HOVER"] = round(hover, 3)
-    lines = header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual) + notes
+    if idle_note:
+        notes.append(idle_note)
+    if pwm_params and len(pwm_params) > 2:
+        notes.append(
+            f"PWM_MAIN_MINn/MAXn written for outputs 1..{rotors_out} (--rotors); if your motors "
+            "sit on other outputs, apply the same values there"
+        )
+    params += pwm_params
+    written = {n: float(v) for n, v, _ in params}
+    rules.require(written)
+    values.update(written)
+    lines = (
+        header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual)
+        + change_lines(rules, written)
+        + notes
+    )
     text = comment(lines, "#")
     text += "#\n# Vehicle-Id\tComponent-Id\tName\tValue\tType\n"
     for name, value, typ in params:
@@ -235,11 +330,18 @@ def fit_ardupilot(
     spin_max: float = 0.95,
     bat_volt_max: float,
     bat_volt_min: float,
+    spin_min: float | None = None,
 ) -> ArduPilotParams:
-    """Fit MOT_THST_EXPO and MOT_SPIN_MIN (and the thrust scale) minimising actuator error."""
+    """Fit MOT_THST_EXPO and MOT_SPIN_MIN (and the thrust scale) minimising actuator error.
+
+    With ``spin_min`` given (the measured spin-up and the firmware's margin), MOT_SPIN_MIN is
+    held there and only MOT_THST_EXPO and the thrust scale are fitted, on the points above it.
+    """
     t = np.asarray(thrust_n, float)
     b = np.asarray(voltage_v, float)
     a = np.asarray(actuator, float)
+    if spin_min is not None:
+        return _fit_ardupilot_expo(t, b, a, spin_min, spin_max, bat_volt_max, bat_volt_min)
     if t.size < 3:
         raise FitError("ArduPilot fit needs at least three points")
 
@@ -276,15 +378,103 @@ def fit_ardupilot(
     return params(sol.x)
 
 
+def _fit_ardupilot_expo(
+    t: FloatArray,
+    b: FloatArray,
+    a: FloatArray,
+    spin_min: float,
+    spin_max: float,
+    bat_volt_max: float,
+    bat_volt_min: float,
+) -> ArduPilotParams:
+    keep = a >= spin_min
+    t, b, a = t[keep], b[keep], a[keep]
+    if t.size < 3:
+        raise FitError(
+            f"ArduPilot fit: fewer than three map points above MOT_SPIN_MIN {spin_min:g}; the map "
+            "does not cover the range where the motor spins"
+        )
+
+    def params(x: FloatArray) -> ArduPilotParams:
+        return ArduPilotParams(
+            float(x[0]), spin_min, spin_max, bat_volt_max, bat_volt_min, float(np.exp(x[1]))
+        )
+
+    def resid(x: FloatArray) -> FloatArray:
+        return np.asarray(ardupilot_actuator(t, b, params(x)) - a, dtype=float)
+
+    best: tuple[float, FloatArray] | None = None
+    for e0 in (-0.5, 0.0, 0.3, 0.65, 0.9):
+        g = ardupilot_thrust(
+            a, b, ArduPilotParams(e0, spin_min, spin_max, bat_volt_max, bat_volt_min, 1.0)
+        )
+        k = float(np.dot(g, t) / max(np.dot(g, g), 1e-300))
+        if not k > 0:
+            continue
+        x0 = np.array([e0, math.log(k)])
+        cost = float(np.sum(resid(x0) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, x0)
+    if best is None:
+        raise FitError("ArduPilot fit: thrust does not increase with throttle")
+    sol = opt.least_squares(
+        resid, best[1], bounds=([-1.0, -np.inf], [1.0, np.inf]), x_scale=[0.1, 0.1],
+        xtol=1e-12, ftol=1e-12,
+    )  # fmt: skip
+    return params(sol.x)
+
+
+def spin_up_fraction(tmap: ThrustMap, scale: ThrottleScale) -> tuple[float | None, str]:
+    """The measured spin-up as a fraction of ``scale`` (None when the data cannot tell), and
+    one sentence saying where it comes from."""
+    block = SpinUp.from_dict(tmap.spin_up) if tmap.spin_up else None
+    if block is None:
+        return None, (
+            "the map records no measured spin-up (fitted before this tool measured it): the "
+            "stand data cannot tell"
+        )
+    if block.throttle_pct is None:
+        return None, block.reason
+    frac = float(_fraction(np.array([block.throttle_pct]), scale)[0])
+    native = float(SCALES[scale.name].from_pct(block.throttle_pct))
+    return frac, (
+        f"the stand saw the motor spin and make thrust from {native:.6g} {scale.unit} "
+        f"({frac:.4f} of {scale.lo:g}..{scale.hi:g}) in every sweep ({block.signal})"
+    )
+
+
+def change_lines(rules: Firmware, written: dict[str, float]) -> list[str]:
+    return [f"firmware: {rules.header()}", "written vs the firmware defaults:"] + [
+        f"  {line}" for line in rules.changes(written)
+    ]
+
+
+def ardupilot_spin_min(spin_frac: float | None, rules: Firmware) -> float:
+    """MOT_SPIN_MIN: the measured spin-up, but never less than the default MOT_SPIN_ARM plus the
+    firmware's usual margin; the firmware default when the data cannot tell. Rounded up."""
+    arm = rules.param("MOT_SPIN_ARM").default or 0.0
+    if spin_frac is None:
+        return rules.param("MOT_SPIN_MIN").default or 0.0
+    return math.ceil(max(spin_frac, arm + ARDUPILOT_SPIN_MARGIN) * 1e4 - 1e-6) / 1e4
+
+
 def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
+    rules = ardupilot_rules(opts.firmware)
     require_voltage(tmap, "ardupilot")
     scale = _pwm_scale(opts)
     vbox = tmap.validity.voltage_v
     v_max = reference_voltage(tmap, opts.voltage_v)
     v_min = vbox.lo
-    if not 0.6 * v_max <= v_min:
-        log.info("ArduPilot clamps voltage below 0.6 x MOT_BAT_VOLT_MAX")
-    box = map_samples(tmap)
+    spin_frac, spin_why = spin_up_fraction(tmap, scale)
+    spin_min = ardupilot_spin_min(spin_frac, rules)
+    arm = rules.param("MOT_SPIN_ARM").default or 0.0
+    # check what can be checked before fitting: a refusal names the rule, not a fit failure
+    rules.require(
+        {"MOT_SPIN_MIN": spin_min, "MOT_SPIN_MAX": opts.spin_max,
+         "MOT_PWM_MIN": scale.lo, "MOT_PWM_MAX": scale.hi,
+         "MOT_BAT_VOLT_MAX": round(v_max, 2), "MOT_BAT_VOLT_MIN": round(v_min, 2)}
+    )  # fmt: skip
+    box = supported_samples(tmap)
     act = _fraction(box.throttle_pct, scale)
     fit = fit_ardupilot(
         box.thrust_n,
@@ -293,30 +483,68 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         spin_max=opts.spin_max,
         bat_volt_max=v_max,
         bat_volt_min=v_min,
+        spin_min=spin_min,
     )
     shown = ArduPilotParams(
-        round(fit.thst_expo, 4), round(fit.spin_min, 4), opts.spin_max,
+        round(fit.thst_expo, 4), spin_min, opts.spin_max,
         round(v_max, 2), round(v_min, 2), fit.thrust_max_n,
     )  # fmt: skip
-    err_box = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, shown) - act)
-    at_ref = box.voltage_v == np.max(box.voltage_v)
+    above = act >= spin_min  # the region the firmware's curve covers
+    err_box = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, shown) - act)[above]
+    at_ref = (box.voltage_v == np.max(box.voltage_v))[above]
     no_comp = ArduPilotParams(
         shown.thst_expo, shown.spin_min, shown.spin_max, 0.0, 0.0, shown.thrust_max_n
     )
-    err_nocomp = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, no_comp) - act)
+    err_nocomp = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, no_comp) - act)[above]
     r_box, r_ref, r_nc = rms_max(err_box), rms_max(err_box[at_ref]), rms_max(err_nocomp)
+    t_at_min = float(
+        tmap.thrust_n(
+            np.array([float(SCALES[scale.name].to_pct(scale.lo + spin_min * scale.span))]),
+            np.array([v_max]),
+        )[0]
+    )
     residual = [
-        f"ArduPilot curve vs map over the box (with its voltage scaling): RMS {r_box[0]:.3f} %, "
-        f"max {r_box[1]:.3f} % of the {scale.lo:g}..{scale.hi:g} {scale.unit} range",
+        f"ArduPilot curve vs map over the supported region above MOT_SPIN_MIN (with its "
+        "voltage scaling): "
+        f"RMS {r_box[0]:.3f} %, max {r_box[1]:.3f} % of the {scale.lo:g}..{scale.hi:g} "
+        f"{scale.unit} range ({int(above.sum())} points)",
         f"at {vbox.hi:g} V only: RMS {r_ref[0]:.3f} %, max {r_ref[1]:.3f} %; without voltage "
         f"scaling (MOT_BAT_VOLT_MAX=0): RMS {r_nc[0]:.3f} %, max {r_nc[1]:.3f} %",
     ]
+    if spin_frac is None:
+        spin_note = (
+            f"MOT_SPIN_MIN kept at the firmware default {spin_min:g}: {spin_why}; check on the "
+            "vehicle that every motor spins reliably at MOT_SPIN_MIN"
+        )
+    else:
+        spin_note = (
+            f"MOT_SPIN_MIN {spin_min:g} = max(measured spin-up {spin_frac:.4f}, default "
+            f"MOT_SPIN_ARM {arm:g} + {ARDUPILOT_SPIN_MARGIN:g}); {spin_why}"
+        )
     notes = [
+        spin_note,
+        f"the map gives {t_at_min:.4g} N per rotor at MOT_SPIN_MIN and {v_max:g} V; ArduPilot's "
+        "curve starts from zero there (the residual above covers this)",
+        f"MOT_SPIN_ARM is not written: this file assumes its default {arm:g}; keep MOT_SPIN_ARM "
+        f"at least {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN (pre-arm refuses ARM > MIN)",
         f"MOT_SPIN_MAX {opts.spin_max:g} is a convention (headroom) and fixes the scale of "
-        "MOT_THST_EXPO; MOT_SPIN_MIN is where the fitted curve reaches zero thrust",
+        "MOT_THST_EXPO, fitted above MOT_SPIN_MIN",
+        f"MOT_BAT_VOLT_MAX/MIN: the pack under load on the stand ({vbox.lo:g}..{vbox.hi:g} V); "
+        "ArduPilot compensates on its resting-voltage estimate (sag removed) unless "
+        "MOT_OPTIONS bit 0 (raw voltage) is set, which matches these loaded voltages",
         f"thrust at u=1 and {v_max:g} V: {fit.thrust_max_n:.4g} N per rotor",
-        "set MOT_SPIN_ARM below MOT_SPIN_MIN; MOT_PWM_TYPE must match the ESC protocol",
+        "MOT_PWM_TYPE must match the ESC protocol",
     ]
+    if spin_frac is not None and spin_frac > arm:
+        notes.append(
+            f"the stand saw no reliable spin below {spin_frac:.4f}: at MOT_SPIN_ARM {arm:g} the "
+            "motors may not turn when armed on the ground; raise MOT_SPIN_ARM to where they do, "
+            f"still {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN"
+        )
+    if 0.6 * v_max > v_min:
+        notes.append(
+            f"ArduPilot raises MOT_BAT_VOLT_MIN to 0.6 x MOT_BAT_VOLT_MAX = {0.6 * v_max:.2f} V"
+        )
     params: list[tuple[str, float, str]] = [
         ("MOT_THST_EXPO", shown.thst_expo, ".4f"),
         ("MOT_SPIN_MIN", shown.spin_min, ".4f"),
@@ -334,13 +562,21 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         hover = hover_n / fit.thrust_max_n
         notes.append(
             f"hover: {opts.mass_kg:g} kg on {rotors} rotors = {hover_n:.4g} N per rotor -> "
-            f"MOT_THST_HOVER {hover:.4f} (ArduPilot keeps it in 0.125..0.6875 and learns it)"
+            f"MOT_THST_HOVER {hover:.4f} (ArduPilot learns it with MOT_HOVER_LEARN)"
         )
         params.append(("MOT_THST_HOVER", round(hover, 4), ".4f"))
-    lines = header_lines(tmap, "ArduPilot parameters (.param)", residual) + notes
+    written = {n: float(format(v, fmt)) for n, v, fmt in params}
+    rules.require(written)
+    lines = (
+        header_lines(tmap, "ArduPilot parameters (.param)", residual)
+        + change_lines(rules, written)
+        + notes
+    )
     text = comment(lines, "#") + "".join(f"{n},{format(v, fmt)}\n" for n, v, fmt in params)
-    values = {n: float(v) for n, v, _ in params}
+    values: dict[str, float] = dict(written)
     values["thrust_max_n"] = fit.thrust_max_n
+    if spin_frac is not None:
+        values["spin_up_fraction"] = spin_frac
     resid = {
         "rms_pct": r_box[0],
         "max_pct": r_box[1],
@@ -439,31 +675,65 @@ def fit_betaflight(thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str)
 
 def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     generation = betaflight_generation(opts.firmware)
+    assert opts.firmware is not None  # betaflight_generation refuses None
+    rules = betaflight_rules(opts.firmware)
+    idle_name = "dshot_idle_value" if rules.title == "Betaflight 4.5" else "motor_idle"
     enc = opts.encoding or "dshot"
     if enc not in ("dshot", "pwm"):
         raise ConfigError(f"betaflight export takes --encoding dshot or pwm, not '{enc}'")
+    spin = spin_up_native(tmap, enc)
+    default_idle = int(rules.param(idle_name).default or 0)
     if enc == "dshot":
-        lo, hi = opts.range_ or (48.0 + 0.055 * 1999.0, 2047.0)
-        idle = round((lo - 48.0) / 1999.0 * 10000)
-        limit = round((hi - 48.0) / 1999.0 * 100)
-        if not (0 <= idle <= 2000 and 1 <= limit <= 100):
-            raise ConfigError(f"--range {lo:g}:{hi:g} is not a Betaflight DShot idle/limit range")
+        if opts.range_ is None:
+            idle = default_idle
+            if spin is not None:
+                idle = max(idle, math.ceil((spin - 48.0) / 1999.0 * 10000 - 1e-6))
+            limit = 100
+        else:
+            lo, hi = opts.range_
+            idle = round((lo - 48.0) / 1999.0 * 10000)
+            limit = round((hi - 48.0) / 1999.0 * 100)
+        settings = [(idle_name, idle), ("motor_output_limit", limit)]
+        rules.require(dict(settings))
         lo, hi = 48.0 + idle / 10000 * 1999.0, 2047.0 - 1999.0 * (1 - limit / 100)
-        settings = [("dshot_idle_value", idle), ("motor_output_limit", limit)]
     else:
-        lo, hi = opts.range_ or (1070.0, 2000.0)
+        base_lo = 1070.0 if idle_name == "dshot_idle_value" else 1000.0 + default_idle / 10
+        lo, hi = opts.range_ or (max(base_lo, math.ceil(spin - 1e-6)) if spin else base_lo, 2000.0)
         lo, hi = float(round(lo)), float(round(hi))
-        settings = [("min_throttle", int(lo)), ("max_throttle", int(hi))]
+        if idle_name == "dshot_idle_value":
+            settings = [("min_throttle", int(lo)), ("max_throttle", int(hi))]
+        else:  # 4.6+: the PWM low end is min_command (default 1000) + motor_idle / 10 µs
+            settings = [(idle_name, int(round((lo - 1000.0) * 10))), ("max_throttle", int(hi))]
+        rules.require(dict(settings))
+    if spin is None:
+        _, why = spin_up_fraction(tmap, target_scale(enc))
+        idle_note = f"idle {lo:.6g} {enc}: {why}; check every motor spins at idle"
+    elif lo < spin - 1e-6:
+        raise ConfigError(
+            f"--range low end {lo:.6g} ({idle_name}) is below {spin:.6g}, the lowest command "
+            "the stand saw spinning reliably: a motor can stall or desync at idle"
+        )
+    else:
+        idle_note = (
+            f"idle {lo:.6g} {enc} at or above the stand spin-up {spin:.6g} (firmware default "
+            f"{idle_name} {default_idle}); thrust_linear is fitted above it"
+        )
     scale = target_scale(enc, (lo, hi))
     b_ref = reference_voltage(tmap, opts.voltage_v)
-    ref = map_samples(tmap, voltage_v=b_ref, n_thrust=81)
+    ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     out = _fraction(ref.throttle_pct, scale)
+    keep = out >= 0.0  # above idle
+    ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
+    out = out[keep]
     fit = fit_betaflight(ref.thrust_n, out, generation)
     e = fit.thrust_linear / 100.0
     pred = betaflight_out(np.clip(ref.thrust_n / fit.thrust_max_n, 0, 1), e, generation)
     r_ref = rms_max(100 * (pred - out))
-    box = map_samples(tmap)
+    box = supported_samples(tmap)
     out_box = _fraction(box.throttle_pct, scale)
+    keep = out_box >= 0.0
+    box = Samples(box.thrust_n[keep], box.voltage_v[keep], box.throttle_pct[keep])
+    out_box = out_box[keep]
     pred_box = betaflight_out(np.clip(box.thrust_n / fit.thrust_max_n, 0, 1), e, generation)
     r_box = rms_max(100 * (pred_box - out_box))
     lin = betaflight_out(np.clip(ref.thrust_n / fit.thrust_max_n, 0, 1), 0.0, generation)
@@ -472,7 +742,7 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         f"thrust_linear={fit.thrust_linear} curve vs map at {b_ref:g} V: RMS {r_ref[0]:.3f} %, "
         f"max {r_ref[1]:.3f} % of the motor output range (thrust_linear=0 would leave RMS "
         f"{r_lin[0]:.3f} %)",
-        f"over the voltage box (Betaflight's curve has no voltage term): RMS {r_box[0]:.3f} %, "
+        f"over the supported region of the voltage box (Betaflight's curve has no voltage term): RMS {r_box[0]:.3f} %, "
         f"max {r_box[1]:.3f} %; vbat_sag_compensation addresses part of this",
     ]
     formula = (
@@ -482,14 +752,27 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     notes = [
         f"firmware {opts.firmware} -> {formula}, e = thrust_linear/100, m = T/T_max; fitted "
         f"e = {fit.expo:.4f}, T_max {fit.thrust_max_n:.4g} N per rotor at {b_ref:g} V",
-        f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below",
+        f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below"
+        + (
+            " (the PWM low end is min_command + motor_idle/10 us: min_command must stay at "
+            "its default 1000)"
+            if enc == "pwm" and idle_name == "motor_idle"
+            else ""
+        ),
     ]
     if fit.expo > betaflight_max_expo(generation) - 0.005:
         notes.append(
             f"WARNING: fit hit the limit {round(100 * betaflight_max_expo(generation))}; "
             "the map is more curved than this firmware's curve can follow"
         )
-    lines = header_lines(tmap, f"Betaflight CLI ({generation} thrust_linear)", residual) + notes
+    notes.append(idle_note)
+    written = {"thrust_linear": float(fit.thrust_linear), **{k: float(v) for k, v in settings}}
+    rules.require(written)
+    lines = (
+        header_lines(tmap, f"Betaflight CLI ({generation} thrust_linear)", residual)
+        + change_lines(rules, written)
+        + notes
+    )
     text = comment(lines, "#")
     text += f"set thrust_linear = {fit.thrust_linear}\n"
     text += "".join(f"set {k} = {v}\n" for k, v in settings) + "save\n"

@@ -24,6 +24,7 @@ from thrustmap.fitting.export.encodings import (
     rms_max,
     target_scale,
 )
+from thrustmap.fitting.export.rules import AEROSTACK2
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.models import MODELS, PolyModel
 
@@ -179,6 +180,13 @@ def export_aerostack2(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
             f"WARNING: as2_platform_betaflight hard-codes 4 motors; this export uses {rotors}"
         )
     box = tmap.validity.thrust_n
+    written = {
+        "min_throttle": scale.lo, "max_throttle": scale.hi,
+        "thrust_min_n": rotors * box.lo, "thrust_max_n": rotors * box.hi,
+    }  # fmt: skip
+    AEROSTACK2.require(written)
+    notes.append(f"firmware: {AEROSTACK2.header()}")
+    notes += [f"writes {line}" for line in AEROSTACK2.changes(written)]
     lines = header_lines(tmap, "Aerostack2 platform parameters (ROS 2 YAML)", residual) + notes
     doc = comment(lines, "#") + "/**:\n  ros__parameters:\n    use_thrust_map: true\n"
     doc += f"    thrust:\n      max: {rotors * box.hi!r}  # N, collective\n"
