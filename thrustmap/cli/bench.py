@@ -210,6 +210,13 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     help="Do not ask whether the propellers are on and the area is clear.",
 )
 @click.option("-q", "--quiet", is_flag=True, help="Only the summary (no live view).")
+@click.option(
+    "--sim-apart",
+    is_flag=True,
+    help="With a sim:// stand and a sim:// FC: keep them on separate simulated benches (the "
+    "stand then measures a rotor nothing drives, like a thrown propeller). By default they "
+    "form one bench.",
+)
 def sweep_cmd(
     kind: str,
     stand_url: str,
@@ -241,10 +248,11 @@ def sweep_cmd(
     check_plan(plan, limits)
     from thrustmap.cli.live import LiveView
     from thrustmap.rig.fc.motor_numbers import parse_motor
+    from thrustmap.rig.sim.pairing import pair_sim_urls
 
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     rig = Rig(
-        stand=stand_url,
+        stand=pair_sim_urls(stand_url, throttle_url, apart=kw["sim_apart"]),
         throttle=throttle_url,
         kind=None if fc_kind == "auto" else fc_kind,
         calibration=kw["tyto_calibration"],
@@ -275,12 +283,12 @@ def sweep_cmd(
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
     )
-    if not kw["yes"]:
-        click.confirm(
-            f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
-            abort=True,
-            err=True,
-        )
+    if not kw["yes"] and not click.confirm(
+        f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
+        err=True,
+    ):
+        click.echo("refused: nothing spun", err=True)
+        sys.exit(2)
     session = BenchSession(rig, clock)
     try:
         with session, LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:

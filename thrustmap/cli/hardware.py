@@ -296,8 +296,10 @@ def spin_cmd(
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)
     check_spin(request, max_throttle)  # refuse before anything is opened
+    from thrustmap.rig.sim.pairing import pair_sim_urls
+
     rig = Rig(
-        stand=stand_url,
+        stand=None if stand_url is None else pair_sim_urls(stand_url, url),
         throttle=url,
         kind=kind,
         baudrate=baud,
@@ -309,13 +311,13 @@ def spin_cmd(
     clock = make_clock(clock_choice, rig.urls())
     for warning in pairing_warnings(rig):
         click.echo(f"warning: {warning}", err=True)
-    if not yes:
-        click.confirm(
-            f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
-            "Propellers on? The stand must be secured and the area clear. Spin now?",
-            abort=True,
-            err=True,
-        )
+    if not yes and not click.confirm(
+        f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
+        "Propellers on? The stand must be secured and the area clear. Spin now?",
+        err=True,
+    ):
+        click.echo("refused: nothing spun", err=True)
+        sys.exit(2)
     session = BenchSession(rig, clock)
     try:
         with session:
