@@ -364,11 +364,19 @@ def spin_cmd(
         sys.exit(code)
 
 
+def native_text(value: float, unit: str) -> str:
+    """A throttle in its native scale: "1100 µs"; a dimensionless one (unit "1", PX4's
+    normalised 0..1) as the bare fraction, "0.100"."""
+    if unit in ("1", ""):
+        return f"{value:.3f}"
+    return f"{value:.4g} {unit}"
+
+
 def _report_line(report: SpinReport, motor: int, unit: str) -> str:
     parts = [
         f"t={report.elapsed_s:4.1f}s",
         f"motor {motor}",
-        f"{report.throttle_pct:5.1f} % ({report.throttle_native:.4g} {unit})",
+        f"{report.throttle_pct:5.1f} % ({native_text(report.throttle_native, unit)})",
     ]
     tel = report.telemetry
     if tel is not None:
