@@ -17,19 +17,20 @@ from thrustmap.rig.sim.pairing import pair_sim_urls
 SWEEP = ["sweep", "steps", "--stand", "sim://tyto-1585", "--throttle", "sim://betaflight"]
 
 
-def sweep(tmp_path: Path, *extra: str, name: str = "run.csv") -> tuple[int, str, Path]:
-    out = tmp_path / name
+def sweep(tmp_path: Path, *extra: str) -> tuple[int, Path]:
+    """Run the issue's sweep (steps to 40 %); (exit code, Ds log)."""
+    out = tmp_path / "run.csv"
     try:
         main([*SWEEP, "--to", "40", "-o", str(out), "--yes", "--quiet", *extra])
         code = 0
     except SystemExit as exc:
         code = int(exc.code or 0)
-    return code, "", out
+    return code, out
 
 
 def test_two_sim_urls_form_one_bench(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The issue's command: the simulated stand measures the motor the simulated FC drives."""
-    code, _, out = sweep(tmp_path)
+    code, out = sweep(tmp_path)
     printed = capsys.readouterr()
     assert code == 0, printed.err
     assert "completed" in printed.out and "stop verified" in printed.out
@@ -42,7 +43,7 @@ def test_thrown_propeller_aborts_within_two_steps_and_fit_refuses_the_log(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """--sim-apart: the stand measures a rotor nobody drives (a thrown propeller)."""
-    code, _, out = sweep(tmp_path, "--sim-apart")
+    code, out = sweep(tmp_path, "--sim-apart")
     printed = capsys.readouterr()
     assert code == 1, printed.out + printed.err
     assert "thrust did not rise above the stand's noise" in printed.out
@@ -65,7 +66,7 @@ def test_fit_refuses_a_completed_log_of_noise(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """What the old code wrote: the interlock off, the run 'completes' with thrust in noise."""
-    code, _, out = sweep(tmp_path, "--sim-apart", "--min-thrust-by", "0")
+    code, out = sweep(tmp_path, "--sim-apart", "--min-thrust-by", "0")
     assert code == 0
     with pytest.raises(SystemExit) as info:
         main(["fit", str(out), "-o", str(tmp_path / "map.json")])
@@ -130,3 +131,28 @@ def test_pairing_of_sim_urls() -> None:
     assert pair_sim_urls("/dev/ttyUSB0", "sim://betaflight") == "/dev/ttyUSB0"
     assert pair_sim_urls("sim://tyto-1585", "/dev/ttyACM0") == "sim://tyto-1585"
     assert pair_sim_urls("sim://line-stand", "sim://betaflight") == "sim://line-stand"
+
+
+def test_a_simulated_stand_beside_a_real_motor_turns_the_interlock_off(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Its thrust is noise by design (the real Betaflight SITL suite runs such sweeps)."""
+    args = ["sweep", "steps", "--stand", "sim://tyto-1585?drive_esc=0", "--to", "40"]
+    main([*args, "--throttle", "/dev/ttyACM0", "-o", str(tmp_path / "r.csv"), "--dry-run"])
+    err = capsys.readouterr().err
+    assert "the thrust-response interlock (--min-thrust-by) is off" in err
+    main([*args, "--throttle", "sim://betaflight", "-o", str(tmp_path / "r.csv"), "--dry-run"])
+    assert "--min-thrust-by" not in capsys.readouterr().err
+
+
+def test_answering_n_refuses_the_sweep_with_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import io
+
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    with pytest.raises(SystemExit) as info:
+        main([*SWEEP, "--to", "40", "-o", str(tmp_path / "run.csv")])
+    assert info.value.code == 2  # refused, nothing spun (not 130: nothing was interrupted)
+    assert "refused: nothing spun" in capsys.readouterr().err
+    assert not (tmp_path / "run.csv").exists()

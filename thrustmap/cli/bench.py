@@ -83,6 +83,18 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
 
 
+def _stand_cannot_see_the_motor(stand_url: str | None, throttle_url: str | None) -> bool:
+    """A simulated stand with a real throttle output: its thrust is noise whatever spins."""
+    from thrustmap.rig.devices.urls import is_simulated
+
+    return (
+        stand_url is not None
+        and throttle_url is not None
+        and is_simulated(stand_url)
+        and not is_simulated(throttle_url)
+    )
+
+
 def limit_options(fn: FC) -> FC:
     """One click option per row of the interlock table (``rig.interlocks.INTERLOCKS``): its
     option name, its default and its unit come from the table, never from here."""
@@ -263,6 +275,15 @@ def sweep_cmd(
     )
     for warning in pairing_warnings(rig):
         click.echo(f"warning: {warning}", err=True)
+    if _stand_cannot_see_the_motor(rig.stand, rig.throttle) and limits.min_thrust_by_pct > 0:
+        # a simulated stand beside a real motor measures noise by design: the thrust-response
+        # interlock would stop every such run, so it is off, and said so
+        limits = dataclasses.replace(limits, min_thrust_by_pct=0.0)
+        click.echo(
+            "warning: the thrust-response interlock (--min-thrust-by) is off: "
+            "a simulated stand cannot measure a real motor",
+            err=True,
+        )
     if kw["dry_run"]:
         click.echo(plan.describe())
         click.echo(
