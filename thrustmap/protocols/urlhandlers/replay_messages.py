@@ -44,7 +44,7 @@ import logging
 import math
 import struct
 from bisect import bisect_left
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -339,10 +339,15 @@ def detect_protocol(events: Sequence[TranscriptEvent]) -> Protocol | None:
     written = b"".join(e.data for e in events if e.direction == "w")[:4096]
     if not written:
         return None
+    candidates: list[Protocol] = []
     if written[:2] in (b"$M", b"$X"):
-        return MspProtocol()
+        candidates.append(MspProtocol())
     if written[0] in (0xFD, 0xFE):
-        return MavlinkProtocol()
+        candidates.append(MavlinkProtocol())
+    for proto in candidates:  # the first frame must decode, or it is some other protocol
+        frames, _ = proto.split(written)
+        if frames and proto.decode(frames[0]) is not None:
+            return proto
     return None
 
 
@@ -394,7 +399,7 @@ def _units(events: Sequence[TranscriptEvent], proto: Protocol) -> list[Unit]:
 def _assign_replies(units: list[Unit]) -> None:
     """Each reply read goes to the earliest earlier request that asked for it and has no such
     reply yet, else to the latest one that asked (a duplicate answer); else it is stream."""
-    open_asks: dict[Hashable, list[int]] = {}
+    open_asks: dict[Hashable, deque[int]] = {}
     answered: set[tuple[int, Hashable]] = set()
     for unit in units:
         msg = unit.msg
@@ -402,14 +407,16 @@ def _assign_replies(units: list[Unit]) -> None:
             continue
         if unit.direction == "w":
             for key in msg.asks:
-                open_asks.setdefault(key, []).append(unit.pos)
+                open_asks.setdefault(key, deque()).append(unit.pos)
             continue
-        for key in msg.answers:
-            askers = [
-                p
-                for p in open_asks.get(key, [])
-                if unit.time_s - units[p].time_s <= _MAX_REPLY_LATENCY_S
-            ]
+        for key in sorted(msg.answers, key=repr):  # a stable order whatever the hash seed
+            pending = open_asks.get(key)
+            if not pending:
+                continue
+            # requests too old to be answered now are dropped (linear time on long sweeps)
+            while pending and unit.time_s - units[pending[0]].time_s > _MAX_REPLY_LATENCY_S:
+                answered.discard((pending.popleft(), key))
+            askers = list(pending)
             if not askers:
                 continue
             fresh = [p for p in askers if (p, key) not in answered]
