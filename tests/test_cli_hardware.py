@@ -375,8 +375,8 @@ def test_spin_above_the_default_cap_when_raised_explicitly(peers: list[Spy]) -> 
 
 def test_spin_asks_first(peers: list[Spy]) -> None:
     result = run("spin", "sim://betaflight", "--motor", "1", "--throttle", "10", input="n\n")
-    assert result.exit_code == 1  # click.Abort
-    assert "Propellers on?" in result.output
+    assert result.exit_code == 2  # refused, nothing spun (not 130: nothing was interrupted)
+    assert "Propellers on?" in result.output and "refused: nothing spun" in result.output
     assert peers == []
     result = run(
         "spin",

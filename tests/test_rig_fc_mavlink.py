@@ -311,7 +311,7 @@ def test_px4_stop_not_verified_when_outputs_keep_running(caplog: pytest.LogCaptu
 def test_px4_verify_accepts_a_coasting_rotor_on_the_physics_plant() -> None:
     plant = make_plant("xnova-2207-6s", rotors_on_esc=1, seed=1, noise=False)
     out, vehicle, clock, _ = px4(PX4Vehicle(plant, cells=6))
-    assert out.identify().motor_count == 1
+    assert out.identify().motor_count == 4  # the quadx vehicle; one rotor of it on the stand
     out.set_throttle({0: 0.6})
     spin_for(out, clock, 3.0)
     spinning = out.read_telemetry().rpm
@@ -728,3 +728,20 @@ def _no_real_sleep(
 def _forbidden_sleep(seconds: float) -> None:
     if seconds:
         raise AssertionError(f"a test slept for real ({seconds} s)")
+
+
+def test_sim_px4_reports_a_consistent_vehicle() -> None:
+    """Cells from the plant's pack (6S at 24.9 V, not 4), motors from the frame (a quadx, not the
+    one rotor on the stand); motors off the stand are accepted and drive nothing."""
+    plant = make_plant("xnova-2207-6s", rotors_on_esc=1, seed=1, noise=False)
+    out, vehicle, clock, _ = px4(PX4Vehicle(plant))
+    ident = out.identify()
+    assert (ident.battery_cells, ident.motor_count) == (6, 4)
+    tel = out.read_telemetry()
+    assert tel.voltage_v is not None and 3.3 * 6 < tel.voltage_v < 4.35 * 6
+    out.set_throttle({2: 0.3})  # motor 3: not on the stand
+    spin_for(out, clock, 1.0)
+    assert plant.state(clock.now_s()).rpm[0] == 0.0
+    assert out.stop_and_verify()
+    constant = PX4Vehicle(ConstantPlant(motor_count=1))  # 16.8 V: a 4S pack
+    assert (constant.cells, constant.motor_count) == (4, 4)

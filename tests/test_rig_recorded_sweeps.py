@@ -5,7 +5,9 @@ must be used, and the Ds log must come out identical to the one recorded."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,22 +44,54 @@ def test_recorded_sweep_replays_byte_for_byte(tmp_path: Path, flavour: str) -> N
     assert meta["outcome"]["status"] == "completed" and meta["stop_verified"] is True
 
 
-def test_a_changed_driver_is_caught(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    """Strict replay fails the moment the code writes a byte the recording does not have."""
+def _replay_with_plan(tmp_path: Path, new_plan: Any, *, match: str) -> tuple[Any, list[Any]]:
+    original = recordings.plan
+    recordings.plan = new_plan
+    try:
+        return recordings.replay("msp", FIXTURES, tmp_path / "run.csv", match=match)
+    finally:
+        recordings.plan = original
+
+
+def test_a_changed_driver_is_caught_byte_for_byte(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """With match=bytes, strict replay fails the moment the code writes a byte the recording
+    does not have (here: a shorter dwell, so the next step's command comes early)."""
     from thrustmap.rig import plans
 
-    original = recordings.plan
-    recordings.plan = lambda: plans.stairs(10, 40, 10, dwell_s=1.4)  # type: ignore[assignment]
-    try:
-        result, ports = recordings.replay("msp", FIXTURES, tmp_path / "run.csv")
-    finally:
-        recordings.plan = original  # type: ignore[assignment]
+    result, ports = _replay_with_plan(
+        tmp_path, lambda: plans.stairs(10, 40, 10, dwell_s=1.4), match="bytes"
+    )
     # the first differing write is refused, the runner aborts, and the transcript is not used up
     assert result.status == "aborted"
     report = ports[0].report()
     assert not report.fully_consumed and report.write_bytes_remaining > 0
     # the refusal names the first differing byte (the runner saw it as a failing link and stopped)
     assert any("write-stream byte" in r.getMessage() for r in caplog.records)
+
+
+def test_message_replay_tolerates_cadence_but_catches_a_changed_command(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """By message (the default), a shorter dwell only changes how many keep-alives are sent: it
+    replays. A higher throttle than recorded is a real divergence, named in message terms."""
+    from thrustmap.rig import plans
+
+    result, ports = _replay_with_plan(
+        tmp_path, lambda: plans.stairs(10, 40, 10, dwell_s=1.4), match="auto"
+    )
+    assert result.status == "completed" and result.stop_verified
+    assert ports[0].report().match == "messages" and ports[0].report().unanswered == ""
+    caplog.clear()
+    result, ports = _replay_with_plan(
+        tmp_path / "b", lambda: plans.stairs(10, 50, 20, dwell_s=1.5), match="auto"
+    )
+    assert result.status == "aborted"
+    text = " ".join(r.getMessage() for r in caplog.records)
+    # the recording's motor went to 40 % (1400 us) and stopped; this driver ramps on to 50 %
+    assert re.search(r"expected SET_MOTOR 1000 [0 1]+, driver sent SET_MOTOR 1[45]\d0 ", text)
+    assert result.stop_verified
 
 
 def test_fixtures_regenerate_identically(tmp_path: Path) -> None:

@@ -3,8 +3,9 @@
 ``record(flavour, out_dir)`` runs a short stairs sweep on the simulator with both links tapped
 by ``record://`` (the FC over MSP or MAVLink, and the Tyto stand), and keeps the Ds log it
 produced. ``replay(flavour, fixture_dir, out_csv)`` runs the same plan through the same drivers
-and runner on ``replay://`` transports, strictly: any byte the code writes that the recording
-did not is an error, and the Ds log must come out identical.
+and runner on ``replay://`` transports, strictly: any message the code writes that the recording
+cannot answer is an error (any byte, with ``match="bytes"``), and the Ds log must come out
+identical.
 
 Regenerate: ``python -m support.sweep_recordings fixtures/sweeps``.
 """
@@ -106,12 +107,16 @@ def record(flavour: str, out_dir: Path) -> RunResult:
     return result
 
 
-def replay(flavour: str, fixture_dir: Path, out_csv: Path) -> tuple[RunResult, list[Any]]:
-    """Replay strictly; returns the run and the two replay ports (``.report()``, ``.assert_consumed()``)."""
+def replay(
+    flavour: str, fixture_dir: Path, out_csv: Path, *, match: str = "auto"
+) -> tuple[RunResult, list[Any]]:
+    """Replay strictly; returns the run and the two replay ports (``.report()``, ``.assert_consumed()``).
+
+    ``match``: the FC link's replay mode (``auto`` is by message; ``bytes`` byte for byte)."""
     _, kind = FLAVOURS[flavour]
     fc_log, stand_log, _ = paths(flavour, fixture_dir)
     return _run(
-        f"replay://{fc_log}",
+        f"replay://{fc_log}?match={match}",
         f"replay://{stand_log}",
         kind,
         SimClock(),

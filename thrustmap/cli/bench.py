@@ -83,6 +83,18 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
 
 
+def _stand_cannot_see_the_motor(stand_url: str | None, throttle_url: str | None) -> bool:
+    """A simulated stand with a real throttle output: its thrust is noise whatever spins."""
+    from thrustmap.rig.devices.urls import is_simulated
+
+    return (
+        stand_url is not None
+        and throttle_url is not None
+        and is_simulated(stand_url)
+        and not is_simulated(throttle_url)
+    )
+
+
 def limit_options(fn: FC) -> FC:
     """One click option per row of the interlock table (``rig.interlocks.INTERLOCKS``): its
     option name, its default and its unit come from the table, never from here."""
@@ -210,6 +222,13 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     help="Do not ask whether the propellers are on and the area is clear.",
 )
 @click.option("-q", "--quiet", is_flag=True, help="Only the summary (no live view).")
+@click.option(
+    "--sim-apart",
+    is_flag=True,
+    help="With a sim:// stand and a sim:// FC: keep them on separate simulated benches (the "
+    "stand then measures a rotor nothing drives, like a thrown propeller). By default they "
+    "form one bench.",
+)
 def sweep_cmd(
     kind: str,
     stand_url: str,
@@ -241,10 +260,11 @@ def sweep_cmd(
     check_plan(plan, limits)
     from thrustmap.cli.live import LiveView
     from thrustmap.rig.fc.motor_numbers import parse_motor
+    from thrustmap.rig.sim.pairing import pair_sim_urls
 
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     rig = Rig(
-        stand=stand_url,
+        stand=pair_sim_urls(stand_url, throttle_url, apart=kw["sim_apart"]),
         throttle=throttle_url,
         kind=None if fc_kind == "auto" else fc_kind,
         calibration=kw["tyto_calibration"],
@@ -255,6 +275,15 @@ def sweep_cmd(
     )
     for warning in pairing_warnings(rig):
         click.echo(f"warning: {warning}", err=True)
+    if _stand_cannot_see_the_motor(rig.stand, rig.throttle) and limits.min_thrust_by_pct > 0:
+        # a simulated stand beside a real motor measures noise by design: the thrust-response
+        # interlock would stop every such run, so it is off, and said so
+        limits = dataclasses.replace(limits, min_thrust_by_pct=0.0)
+        click.echo(
+            "warning: the thrust-response interlock (--min-thrust-by) is off: "
+            "a simulated stand cannot measure a real motor",
+            err=True,
+        )
     if kw["dry_run"]:
         click.echo(plan.describe())
         click.echo(
@@ -275,12 +304,12 @@ def sweep_cmd(
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
     )
-    if not kw["yes"]:
-        click.confirm(
-            f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
-            abort=True,
-            err=True,
-        )
+    if not kw["yes"] and not click.confirm(
+        f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
+        err=True,
+    ):
+        click.echo("refused: nothing spun", err=True)
+        sys.exit(2)
     session = BenchSession(rig, clock)
     try:
         with session, LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:

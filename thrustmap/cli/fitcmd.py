@@ -221,12 +221,14 @@ def fit_cmd(
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.loaders import check_thrust_leaves_noise, load_datasets
 
     # a Ds log's sidecar (run.meta.json) is an input too; run.json is a free name for the map
     sidecars = [s for f in files if (s := Path(f).with_suffix(".meta.json")).exists()]
     plan = check_output_path(output, inputs=[*files, *sidecars], what="map output")
     datasets = load_datasets(files, _column_map(kw))
+    for ds in datasets:
+        check_thrust_leaves_noise(ds)  # a map of pure noise is refused, not written
     out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
     atomic_write_text(output, out.map.dumps())
     s = out.map.metrics["in_sample"]

@@ -296,8 +296,10 @@ def spin_cmd(
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)
     check_spin(request, max_throttle)  # refuse before anything is opened
+    from thrustmap.rig.sim.pairing import pair_sim_urls
+
     rig = Rig(
-        stand=stand_url,
+        stand=None if stand_url is None else pair_sim_urls(stand_url, url),
         throttle=url,
         kind=kind,
         baudrate=baud,
@@ -309,13 +311,13 @@ def spin_cmd(
     clock = make_clock(clock_choice, rig.urls())
     for warning in pairing_warnings(rig):
         click.echo(f"warning: {warning}", err=True)
-    if not yes:
-        click.confirm(
-            f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
-            "Propellers on? The stand must be secured and the area clear. Spin now?",
-            abort=True,
-            err=True,
-        )
+    if not yes and not click.confirm(
+        f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
+        "Propellers on? The stand must be secured and the area clear. Spin now?",
+        err=True,
+    ):
+        click.echo("refused: nothing spun", err=True)
+        sys.exit(2)
     session = BenchSession(rig, clock)
     try:
         with session:
@@ -362,11 +364,19 @@ def spin_cmd(
         sys.exit(code)
 
 
+def native_text(value: float, unit: str) -> str:
+    """A throttle in its native scale: "1100 µs"; a dimensionless one (unit "1", PX4's
+    normalised 0..1) as the bare fraction, "0.100"."""
+    if unit in ("1", ""):
+        return f"{value:.3f}"
+    return f"{value:.4g} {unit}"
+
+
 def _report_line(report: SpinReport, motor: int, unit: str) -> str:
     parts = [
         f"t={report.elapsed_s:4.1f}s",
         f"motor {motor}",
-        f"{report.throttle_pct:5.1f} % ({report.throttle_native:.4g} {unit})",
+        f"{report.throttle_pct:5.1f} % ({native_text(report.throttle_native, unit)})",
     ]
     tel = report.telemetry
     if tel is not None:

@@ -61,6 +61,13 @@ def sparkline(values: list[float], width: int) -> str:
     return "".join(SPARK[min(7, int((v - lo) / span * 7.999))] for v in picked)
 
 
+def _native(value: float, unit: str) -> str:
+    """A native throttle: "1100 µs"; a dimensionless one (PX4's 0..1) as the fraction "0.100"."""
+    if unit in ("1", ""):
+        return f"{value:.3f}"
+    return f"{value:.0f} {unit}"
+
+
 def _fmt(x: float | None, spec: str, unit: str) -> str:
     return "–" if x is None else f"{format(x, spec)} {unit}"
 
@@ -246,11 +253,7 @@ class LiveView:
         if self.margins:
             name, m = min(self.margins.items(), key=lambda kv: kv[1])
             margin = f"  tightest margin {name} {m * 100:.0f} %"
-        native = (
-            ""
-            if s.throttle_native is None
-            else f" ({s.throttle_native:.0f}{' ' + s.unit if s.unit else ''})"
-        )
+        native = "" if s.throttle_native is None else f" ({_native(s.throttle_native, s.unit)})"
         return (
             f"{s.elapsed_s:5.0f}/{s.total_s:.0f} s ETA {eta:.0f} s{seg} {s.label}  "
             f"thr {_fmt(s.throttle_pct, '.1f', '%')}{native}  T {_fmt(s.thrust_n, '.2f', 'N')}  "
@@ -308,11 +311,7 @@ class LiveView:
         bar_w = max(w - len(tail) - 2, 4)
         filled = int(round(frac * bar_w))
         line(("█" * filled, "green"), ("░" * (bar_w - filled), "grey50"), (tail, ""))
-        native = (
-            ""
-            if s.throttle_native is None
-            else f" ({s.throttle_native:.0f}{' ' + s.unit if s.unit else ''})"
-        )
+        native = "" if s.throttle_native is None else f" ({_native(s.throttle_native, s.unit)})"
         cells = [
             ("throttle", _fmt(s.throttle_pct, ".1f", "%") + native),
             ("thrust", _fmt(s.thrust_n, ".3f", "N")),

@@ -871,3 +871,39 @@ def load_datasets(
     if not paths:
         raise DataFormatError("no input files given; expected one or more stand logs")
     return [load_dataset(p, column_map) for p in paths]
+
+
+#: a Ds log's thrust "leaves the noise" when at least this share of its samples lies beyond
+#: ``THRUST_NOISE_SIGMAS`` noise deviations (never less than ``THRUST_NOISE_FLOOR_N``) from zero
+THRUST_LEAVES_SHARE = 0.01
+THRUST_NOISE_SIGMAS = 6.0
+THRUST_NOISE_FLOOR_N = 0.005
+
+
+def check_thrust_leaves_noise(ds: Dataset) -> None:
+    """Refuse a thrustmap Ds log whose thrust never leaves the load cell's noise.
+
+    Such a log (a thrown propeller, an unplugged load cell, a stand measuring a motor nobody
+    drove) fits a map that is pure noise. The noise is measured on the log itself, from the
+    sample-to-sample differences (median |diff| / 0.954 is the deviation of Gaussian noise,
+    and the few steps of a sweep do not move a median); the runner tares the stand, so zero
+    thrust is 0. A load cell that holds its value between updates (most differences 0) cannot
+    be judged this way and is never refused."""
+    if ds.format != "thrustmap":
+        return
+    thrust = ds.thrust_n[np.isfinite(ds.thrust_n)]
+    diffs = np.abs(np.diff(thrust))
+    diffs = diffs[diffs > 0]
+    if thrust.size < 20 or diffs.size < thrust.size // 2:
+        return
+    band = max(THRUST_NOISE_SIGMAS * float(np.median(diffs)) / 0.954, THRUST_NOISE_FLOOR_N)
+    if np.count_nonzero(np.abs(thrust) > band) >= THRUST_LEAVES_SHARE * thrust.size:
+        return
+    pct = ds.throttle_scale.to_pct(ds.throttle_native[np.isfinite(ds.throttle_native)])
+    top = float(np.max(pct)) if pct.size else 0.0
+    raise DataFormatError(
+        f"thrust never leaves the load cell's noise (|T| <= {band:.3f} N) with the throttle up "
+        f"to {top:.0f} %: expected a thrust that follows the command (a thrown propeller, an "
+        "unplugged load cell, or the stand measuring another motor?)",
+        file=ds.path,
+    )

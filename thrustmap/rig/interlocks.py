@@ -11,11 +11,15 @@ side of the threshold trips it. Everything else is generated from the table:
 Adding an interlock is one row here (plus, for a new kind of reading, one ``Reading`` field).
 A plan is checked against the throttle ceiling and slew limit before any motor spins
 (``check_plan``); the stand and link watchdogs (``stale_data_s``, ``link_timeout_s``) are run by
-the runner's loop.
+the runner's loop, and so is the one limit that compares two things over time: thrust must
+follow the command (``min_thrust_by_pct``, checked by ``ThrustResponse``).
 """
 
 from __future__ import annotations
 
+import math
+import statistics
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
@@ -50,8 +54,9 @@ class Interlock:
     default: float | int | None
     help: str
     #: "reading": checked on every reading; "plan": checked on the plan before it runs;
-    #: "watchdog": a silence the runner's loop times; "setting": feeds another row
-    role: Literal["reading", "plan", "watchdog", "setting"]
+    #: "watchdog": a silence the runner's loop times; "setting": feeds another row;
+    #: "response": thrust against the command over time (``ThrustResponse``)
+    role: Literal["reading", "plan", "watchdog", "setting", "response"]
     name: str = ""  # the trip's name ("thrust"), for role "reading"
     value: Callable[[Reading], float | None] | None = None
     upper: bool = True  # True: trips above the threshold, False: below
@@ -123,6 +128,14 @@ INTERLOCKS: tuple[Interlock, ...] = (
         "link_timeout_s", "--link-timeout", "s", 1.0,
         "Stop when the throttle output (FC) is silent this long.", "watchdog",
     ),
+    Interlock(
+        "min_thrust_by_pct", "--min-thrust-by", "%", 15.0,
+        "Stop when thrust has not risen above the stand's noise once the confirmed command "
+        "reaches this throttle (or the plan's ceiling, if lower), or falls back to it while "
+        "commanded there: a thrown propeller, an unplugged load cell, an ESC that never armed. "
+        "0 turns it off.",
+        "response", "thrust response",
+    ),
 )  # fmt: skip
 BY_FIELD: dict[str, Interlock] = {i.field: i for i in INTERLOCKS}
 
@@ -147,6 +160,7 @@ class Limits:
     max_slew_pct_s: float = _default("max_slew_pct_s")
     stale_data_s: float = _default("stale_data_s")
     link_timeout_s: float = _default("link_timeout_s")
+    min_thrust_by_pct: float = _default("min_thrust_by_pct")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -225,4 +239,110 @@ def check_plan(plan: Plan, limits: Limits) -> None:
         raise SafetyError(
             f"plan '{plan.name}' ramps at {slew:.1f} %/s, above the {limits.max_slew_pct_s:.1f} %/s "
             f"slew limit; lengthen the ramp or raise {slew_row.option}"
+        )
+
+
+#: the band around the at-rest thrust that counts as "no thrust": this many standard deviations
+#: of the at-rest readings, or their largest excursion (x 1.5), whichever is wider ...
+NOISE_SIGMAS = 5.0
+NOISE_PEAK_FACTOR = 1.5
+#: ... and never narrower than this (a load cell's resolution)
+NOISE_FLOOR_N = 0.002
+#: how long thrust may stay in the band with the command at or above the threshold: spin-up,
+#: an ESC's start-up beeps and the slew of a step, with a margin
+RESPONSE_S = 1.5
+#: the at-rest readings the noise is measured on: the last this many seconds before the tare
+REST_WINDOW_S = 1.0
+#: at-rest readings needed to know the noise (fewer: the check is off, and the log says so)
+MIN_REST_SAMPLES = 5
+
+
+class ThrustResponse:
+    """Thrust must follow the command (row ``min_thrust_by_pct``).
+
+    Fed the at-rest readings before the plan (their spread is the stand's noise; their mean the
+    zero, or 0 once the stand is tared), then every reading of the plan with the command the
+    throttle output confirmed. Trips when the confirmed command has stood at or above the
+    threshold for ``RESPONSE_S`` without thrust ever leaving the noise band ("did not rise"), or,
+    once it had, with thrust back inside the band for ``RESPONSE_S`` ("collapsed")."""
+
+    def __init__(self, limits: Limits, plan_ceiling_pct: float, *, response_s: float = RESPONSE_S):
+        chosen = limits.min_thrust_by_pct
+        self.threshold_pct = min(chosen, plan_ceiling_pct) if chosen > 0 else 0.0
+        self.response_s = response_s
+        self._rest: deque[tuple[float, float]] = deque()
+        self._zero_n: float | None = None
+        self.band_n: float | None = None
+        self._above_since: float | None = None  # confirmed command >= threshold since
+        self._quiet_since: float | None = None  # thrust inside the band since
+        self._rose = False
+        self._peak_rpm: float | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.threshold_pct > 0
+
+    def rest_sample(self, time_s: float, thrust_n: float | None) -> None:
+        """A reading while the rotor comes to rest (only the last ``REST_WINDOW_S`` are kept:
+        a rotor still coasting down at first is not noise)."""
+        if thrust_n is None or not math.isfinite(thrust_n):
+            return
+        self._rest.append((time_s, thrust_n))
+        while self._rest and self._rest[0][0] < time_s - REST_WINDOW_S:
+            self._rest.popleft()
+
+    def start(self, *, tared: bool) -> None:
+        """The plan begins: fix the noise band from the at-rest readings."""
+        values = [x for _, x in self._rest]
+        if len(values) < MIN_REST_SAMPLES:
+            return
+        mean = statistics.fmean(values)
+        sigma = statistics.pstdev(values)
+        peak = max(abs(x - mean) for x in values)
+        self.band_n = max(NOISE_SIGMAS * sigma, NOISE_PEAK_FACTOR * peak, NOISE_FLOOR_N)
+        self._zero_n = 0.0 if tared else mean
+
+    def update(
+        self, now_s: float, confirmed_pct: float, thrust_n: float | None, rpm: float | None
+    ) -> Trip | None:
+        if not self.enabled or self.band_n is None or self._zero_n is None or thrust_n is None:
+            return None
+        if rpm is not None and math.isfinite(rpm):
+            self._peak_rpm = max(self._peak_rpm or 0.0, abs(rpm))
+        if confirmed_pct + 1e-9 < self.threshold_pct:
+            self._above_since = self._quiet_since = None
+            return None
+        if self._above_since is None:
+            self._above_since = now_s
+        outside = abs(thrust_n - self._zero_n) > self.band_n
+        if outside:
+            self._rose = True
+            self._quiet_since = None
+            return None
+        if self._quiet_since is None:
+            self._quiet_since = max(now_s, self._above_since)
+        if now_s - self._quiet_since < self.response_s:
+            return None
+        return self._trip(confirmed_pct, thrust_n, now_s - self._quiet_since)
+
+    def _trip(self, pct: float, thrust_n: float, quiet_s: float) -> Trip:
+        band = self.band_n or 0.0
+        if self._rose:
+            what = f"thrust collapsed to the stand's noise (|T| <= {band:.3f} N)"
+        else:
+            what = f"thrust did not rise above the stand's noise (|T| <= {band:.3f} N)"
+        rpm = ""
+        if self._peak_rpm is not None:
+            rpm = (
+                f", the motor turns ({self._peak_rpm:.0f} rpm)"
+                if self._peak_rpm > 300
+                else ", rpm 0"
+            )
+        return Trip(
+            "thrust response",
+            abs(thrust_n - (self._zero_n or 0.0)),
+            band,
+            f"{what} for {quiet_s:.1f} s at {pct:.1f} % confirmed by the throttle output{rpm}: "
+            "a thrown propeller, an unplugged load cell or an ESC that never armed? "
+            "(--min-thrust-by)",
         )

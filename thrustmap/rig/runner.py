@@ -22,7 +22,15 @@ from thrustmap.core.clock import Clock
 from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import SafetyError
 from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
-from thrustmap.rig.interlocks import Limits, Reading, Trip, check, check_plan, margins
+from thrustmap.rig.interlocks import (
+    Limits,
+    Reading,
+    ThrustResponse,
+    Trip,
+    check,
+    check_plan,
+    margins,
+)
 from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
 from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 from thrustmap.rig.settle import RestDetector, SettleDetector
@@ -145,6 +153,8 @@ class Runner:
         self._phase = "at-rest"
         self._last_sample: StandSample | None = None
         self._failing_since: float | None = None  # when throttle commands started failing
+        #: thrust must follow the confirmed command (interlock ``min_thrust_by_pct``)
+        self._response = ThrustResponse(self.limits, plan.max_throttle_pct)
         #: the verdict of the final stop (also when ``run`` re-raises a driver's exception)
         self.stop_verified: bool | None = None
 
@@ -259,6 +269,9 @@ class Runner:
             self._phase = "tare"
             self._report(self.clock.now_s())
             self.stand.tare(service=lambda: self._service_link(self.clock.now_s()))
+            self._response.start(tared=True)
+        if self.stand is not None and self._response.enabled and self._response.band_n is None:
+            log.info("thrust-response interlock off: no at-rest readings to measure noise with")
         now = self.clock.now_s()
         self._last_sample_at = now
         self._service_link(now)
@@ -293,9 +306,10 @@ class Runner:
         while self.clock.now_s() - start < self.cfg.spin_down_max_s:
             now = self.clock.now_s()
             self._service_link(now)
-            if detector.update(now, self.stand.read_samples()) and now - start >= (
-                self.cfg.spin_down_s
-            ):
+            samples = self.stand.read_samples()
+            for sample in samples:
+                self._response.rest_sample(sample.time_s, sample.thrust_n)
+            if detector.update(now, samples) and now - start >= (self.cfg.spin_down_s):
                 return
             self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
@@ -441,7 +455,9 @@ class Runner:
         )
         if self.writer is not None:
             self._write(s, throttle, reading)
-        trip = check(self.limits, reading)
+        trip = check(self.limits, reading) or self._response.update(
+            self.clock.now_s(), self._sent_pct or 0.0, reading.thrust_n, reading.rpm
+        )
         if trip is not None:
             self._abort(f"limit tripped: {trip.message}", trip)
 

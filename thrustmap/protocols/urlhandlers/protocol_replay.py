@@ -1,14 +1,21 @@
 """``replay://x.jsonl`` — serve a recorded transcript back to the same driver code.
 
-URL: ``replay://<path>?strict=1`` — the path is percent-decoded; ``replay://fixtures/a.jsonl``
-is relative to the working directory, ``replay:///abs/a.jsonl`` is absolute. Keyword arguments:
-``strict=`` (default True), ``clock=`` (see below), plus ordinary pyserial settings.
+URL: ``replay://<path>?strict=1&match=messages`` — the path is percent-decoded;
+``replay://fixtures/a.jsonl`` is relative to the working directory, ``replay:///abs/a.jsonl`` is
+absolute. Keyword arguments: ``strict=`` (default True), ``match=`` (default ``auto``),
+``clock=`` (see below), plus ordinary pyserial settings.
 
 Semantics:
-- Writes are matched byte for byte against the recorded writes (as one stream: chunking may
-  differ). Strict mode raises ``ReplayMismatchError`` at the first differing byte, naming the
-  offset in the write stream, both bytes and the transcript line; writing past the end of the
-  recording raises too. Non-strict mode logs, counts and carries on.
+- ``match=messages`` (the default for a recording of MAVLink or MSP, recognised from its bytes):
+  the recording is replayed message by message, so it outlives the driver that made it — the
+  rules are in ``replay_messages``. A real divergence raises ``ReplayDivergenceError`` in
+  message terms ("expected PARAM_REQUEST_READ MOT_SPIN_ARM, driver sent COMMAND_LONG 209 ...")
+  with the transcript line of the expected message.
+- ``match=bytes`` (the default for anything else, e.g. a stand's protocol): writes are matched
+  byte for byte against the recorded writes (as one stream: chunking may differ). Strict mode
+  raises ``ReplayMismatchError`` at the first differing byte, naming the offset in the write
+  stream, both bytes and the transcript line; writing past the end of the recording raises
+  too. Non-strict mode logs, counts and carries on.
 - Reads return only bytes recorded before the next recorded write, so the order of reads and
   writes is preserved. When the driver asks for more than that, it gets fewer bytes, as a serial
   port does at its timeout. Unread bytes stay readable after a write (like an input buffer);
@@ -39,6 +46,11 @@ from thrustmap.protocols.transcript import (
     TransportError,
     read_transcript,
 )
+from thrustmap.protocols.urlhandlers.replay_messages import (
+    Divergence,
+    MessageReplay,
+    detect_protocol,
+)
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +74,18 @@ class ReplayMismatchError(TransportError):
         self.actual = actual
 
 
+class ReplayDivergenceError(ReplayMismatchError):
+    """The driver sent a message the recording cannot answer (message-level replay)."""
+
+    def __init__(
+        self, message: str, *, file: str, line: int | None, offset: int, actual: int
+    ) -> None:
+        super().__init__(message, file=file, line=line, offset=offset, expected=None, actual=actual)
+
+
+MATCH_MODES = ("auto", "messages", "bytes")
+
+
 class ReplayIncompleteError(TransportError):
     """The driver stopped before the transcript's recorded traffic was used up."""
 
@@ -74,6 +98,10 @@ class ReplayReport:
     read_bytes_served: int
     read_bytes_remaining: int  # recorded reads never delivered (incl. ones still buffered)
     mismatches: int  # only non-strict mode counts; strict raises on the first
+    match: str = "bytes"  # "messages" or "bytes"
+    unused: str = ""  # message mode: recorded messages the driver did not send (a summary)
+    unanswered: str = ""  # message mode: requests the recording has no answer for
+    repeats: int = 0  # message mode: requests answered with a copy of a recorded answer
 
     @property
     def fully_consumed(self) -> bool:
@@ -101,9 +129,14 @@ class ReplaySerial(SerialBase):
         *,
         strict: bool = True,
         clock: Clock | None = None,
+        match: str = "auto",
         **serial_kwargs: Any,
     ) -> None:
+        if match not in MATCH_MODES:
+            raise TransportError(f"replay:// match={match!r}; expected one of {MATCH_MODES}")
         self.strict = strict
+        self.match = match
+        self._messages: MessageReplay | None = None
         self._clock = clock
         self._transcript: Transcript | None = None
         self._events: tuple[TranscriptEvent, ...] = ()
@@ -132,7 +165,16 @@ class ReplaySerial(SerialBase):
         self._rx_ends.clear()
         self._written = self._served = self._mismatches = self._released = 0
         self._origin_s = self._clock.now_s() if self._clock is not None else 0.0
-        self._release()
+        self._messages = None
+        proto = detect_protocol(self._events) if self.match != "bytes" else None
+        if proto is not None:
+            self._messages = MessageReplay(self._events, proto)
+        elif self.match == "messages":
+            raise TransportError(
+                "match=messages: the recording is neither MAVLink nor MSP", file=transcript.path
+            )
+        else:
+            self._release()
 
     @property
     def transcript(self) -> Transcript:
@@ -153,9 +195,12 @@ class ReplaySerial(SerialBase):
         for key, value in (p.partition("=")[::2] for p in parts.query.split("&") if p):
             if key == "strict":
                 self.strict = _truthy(unquote(value))
+            elif key == "match" and unquote(value) in MATCH_MODES:
+                self.match = unquote(value)
             else:
                 raise TransportError(
-                    f"unknown replay:// option {key!r}; expected strict=0 or strict=1",
+                    f"unknown replay:// option {key}={value}; expected strict=0|1 or "
+                    "match=auto|messages|bytes",
                     file=self._port,
                 )
         self._load(read_transcript(path))
@@ -177,6 +222,17 @@ class ReplaySerial(SerialBase):
         report = self.report()
         if report.fully_consumed:
             log.info("replay %s: transcript fully consumed", report.path)
+        elif report.match == "messages":
+            parts = []
+            if report.unused:
+                parts.append(f"the driver did not send {report.unused}")
+            if report.unanswered:
+                parts.append(f"the recording has no answer to {report.unanswered}")
+            log.warning(
+                "replay %s: replayed by message; %s",
+                report.path,
+                "; ".join(parts) or f"{report.read_bytes_remaining} recorded bytes not read",
+            )
         else:
             log.warning(
                 "replay %s: transcript not fully consumed (%d write bytes and %d read bytes left)",
@@ -202,6 +258,21 @@ class ReplaySerial(SerialBase):
             self._next += 1
 
     def report(self) -> ReplayReport:
+        path = self._transcript.path if self._transcript else str(self._port)
+        replay = self._messages
+        if replay is not None:
+            return ReplayReport(
+                path=path,
+                write_bytes_matched=replay.written,
+                write_bytes_remaining=replay.remaining_write_bytes(),
+                read_bytes_served=self._served,
+                read_bytes_remaining=replay.remaining_read_bytes() + len(self._rx),
+                mismatches=replay.divergences if not self.strict else 0,
+                match="messages",
+                unused=replay.describe_unused(),
+                unanswered=replay.describe_unanswered(),
+                repeats=replay.repeats,
+            )
         w_left = r_left = 0
         for index in range(self._next, len(self._events)):
             event = self._events[index]
@@ -210,7 +281,7 @@ class ReplaySerial(SerialBase):
             else:
                 r_left += len(event.data)
         return ReplayReport(
-            path=self._transcript.path if self._transcript else str(self._port),
+            path=path,
             write_bytes_matched=self._written,
             write_bytes_remaining=w_left,
             read_bytes_served=self._served,
@@ -245,7 +316,34 @@ class ReplaySerial(SerialBase):
         self._mismatches += 1
         log.warning("replay %s:%s: %s", self.transcript.path, line, message)
 
+    def _now_rel(self) -> float | None:
+        return None if self._clock is None else self._clock.now_s() - self._origin_s
+
+    def _consume_messages(self, replay: MessageReplay, data: bytes) -> None:
+        start = self._written
+        problems = replay.write(data, self._now_rel(), strict=self.strict)
+        self._written += len(data)
+        for problem in problems:
+            self._diverged(problem, start)
+
+    def _diverged(self, problem: Divergence, offset: int) -> None:
+        line = problem.expected.line if problem.expected is not None else None
+        message = str(problem)
+        if self.strict:
+            raise ReplayDivergenceError(
+                message,
+                file=self.transcript.path,
+                line=line,
+                offset=offset,
+                actual=problem.actual_bytes[0] if problem.actual_bytes else 0,
+            )
+        self._mismatches += 1
+        log.warning("replay %s:%s: %s", self.transcript.path, line, message)
+
     def _consume_write(self, data: bytes) -> None:
+        if self._messages is not None:
+            self._consume_messages(self._messages, data)
+            return
         pos = 0
         while pos < len(data):
             if self._next >= len(self._events):
@@ -276,6 +374,9 @@ class ReplaySerial(SerialBase):
     def _available(self) -> int:
         """Bytes readable now. With a clock, a recorded read's bytes arrive at its recorded time
         (as they did from the device), so the driver sees the same timeline it saw then."""
+        if self._messages is not None:
+            self._rx += self._messages.take_due(self._now_rel(), _TIME_EPS_S)
+            return len(self._rx)
         if self._clock is None:
             return len(self._rx)
         now_rel = self._clock.now_s() - self._origin_s + _TIME_EPS_S
@@ -290,6 +391,8 @@ class ReplaySerial(SerialBase):
         """Recorded time of the first byte not yet readable (None: nothing before the next write)."""
         if self._clock is None:
             return None
+        if self._messages is not None:
+            return self._messages.next_due()
         pending = self._served + self._available()
         return next((t for end, t in self._rx_ends if end > pending), None)
 
@@ -307,13 +410,15 @@ class ReplaySerial(SerialBase):
             while arrival is not None and arrival <= deadline_rel and available < size:
                 self._advance_clock_to(arrival)
                 available = self._available()
-                arrival = self._next_arrival_rel()
+                previous, arrival = arrival, self._next_arrival_rel()
+                if arrival is not None and arrival <= previous:
+                    break  # no progress (rounding): let the timeout below move the clock
             if available < size:
                 self._advance_clock_to(deadline_rel)
         data = bytes(self._rx[: min(size, available)])
         del self._rx[: len(data)]
         self._served += len(data)
-        while self._rx_ends and self._rx_ends[0][0] <= self._served:
+        while self._messages is None and self._rx_ends and self._rx_ends[0][0] <= self._served:
             self._rx_ends.popleft()
         return data
 
@@ -343,11 +448,12 @@ class Serial(ReplaySerial):
         *args: Any,
         strict: bool = True,
         clock: Clock | None = None,
+        match: str = "auto",
         **kwargs: Any,
     ) -> None:
         if args:
             raise TypeError("replay:// takes keyword arguments only (timeout=..., strict=...)")
-        super().__init__(None, strict=strict, clock=clock, **kwargs)
+        super().__init__(None, strict=strict, clock=clock, match=match, **kwargs)
         if port is not None:
             self.port = port
             self.open()

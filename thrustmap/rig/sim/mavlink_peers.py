@@ -45,7 +45,7 @@ Registration: importing this module registers ``px4`` and ``ardupilot`` with
 ``thrustmap.protocols.peer`` using a ``ConstantPlant``; call ``register_mavlink_peers(factory,
 replace=True)`` to put a physics plant behind them. URL options: ``motors`` (4), ``sysid`` (1),
 ``rate_hz`` (10), PX4 ``armed``/``safety``/``com_mot_test_en``/``thr_mdl_fac``/``legacy_pwm``/
-``flood``, ArduPilot ``landed``/``safety``/``rc_calibrated``/``frame_class``/``frame_type``/
+``flood``/``cells`` (default: the plant's pack), ArduPilot ``landed``/``safety``/``rc_calibrated``/``frame_class``/``frame_type``/
 ``init_delay_s``.
 """
 
@@ -102,14 +102,19 @@ class PX4Vehicle(SimMavlinkVehicle):
         *,
         armed: bool = False,
         safety_on: bool = False,
-        cells: int = 4,
+        cells: int | None = None,
+        motors: int | None = None,
         legacy_pwm: bool = False,
         flood: bool = False,
         **kwargs: Any,
     ) -> None:
         self.pilot_armed = armed
         self.safety_on = safety_on
-        self.cells = cells
+        #: the battery's cells: as given, else the plant's pack (its voltage must match them)
+        self.cells = cells if cells is not None else plant_cells(plant)
+        #: the vehicle's motors (its frame: 4 for the SIH quadx); the plant may hold fewer
+        #: rotors (one on the stand): motors beyond them drive nothing
+        self.motor_count = motors if motors is not None else max(4, plant.motor_count)
         self.legacy_pwm = legacy_pwm
         self.flood = flood
         self._tests: dict[int, tuple[float, float]] = {}  # motor -> (fraction, deadline_s)
@@ -126,10 +131,10 @@ class PX4Vehicle(SimMavlinkVehicle):
             "COM_MOT_TEST_EN": 1.0,
             "THR_MDL_FAC": 0.0,
             "MC_BAT_SCALE_EN": 0.0,
-            "CA_ROTOR_COUNT": float(self.plant.motor_count),
+            "CA_ROTOR_COUNT": float(self.motor_count),
         }
         for ch in range(1, PX4_OUTPUTS + 1):
-            is_motor = ch <= self.plant.motor_count
+            is_motor = ch <= self.motor_count
             params[f"PWM_MAIN_FUNC{ch}"] = float(100 + ch) if is_motor else 0.0
             params[f"PWM_MAIN_MIN{ch}"] = 1000.0
             params[f"PWM_MAIN_MAX{ch}"] = 2000.0
@@ -186,15 +191,18 @@ class PX4Vehicle(SimMavlinkVehicle):
         }
 
     def _esc_status(self, state: PlantState) -> list[Any]:
+        missing = max(0, self.motor_count - len(state.rpm))  # motors off the stand: at rest
+        rpm = list(state.rpm) + [0.0] * missing
+        current = list(state.motor_current_a) + [0.0] * missing
         return [
             enc.esc_status_message(
                 first_index=first,
                 time_s=self.time_since_boot_s,
-                rpm=state.rpm[first : first + 4],
-                voltage_v=[state.voltage_v] * len(state.rpm[first : first + 4]),
-                current_a=state.motor_current_a[first : first + 4],
+                rpm=rpm[first : first + 4],
+                voltage_v=[state.voltage_v] * len(rpm[first : first + 4]),
+                current_a=current[first : first + 4],
             )
-            for first in range(0, max(1, self.plant.motor_count), 4)
+            for first in range(0, max(1, len(rpm)), 4)
         ]
 
     def outputs_us(self) -> list[int]:
@@ -219,7 +227,8 @@ class PX4Vehicle(SimMavlinkVehicle):
 
     def _stop(self, motor: int, time_s: float) -> None:
         self._tests.pop(motor, None)
-        self.set_plant_throttle(motor, 0.0, time_s)
+        if motor < self.plant.motor_count:  # motors beyond the stand's drive nothing
+            self.set_plant_throttle(motor, 0.0, time_s)
 
     def _fraction(self, value: float) -> float:
         """Inverse of PX4's thrust model rel_thrust = f·u² + (1-f)·u (THR_MDL_FAC = f)."""
@@ -241,7 +250,7 @@ class PX4Vehicle(SimMavlinkVehicle):
         if 33 <= function <= 48:
             return R.ACCEPTED  # a servo: nothing on the stand
         motor = function - 1
-        if not 0 <= motor < min(16, self.plant.motor_count):
+        if not 0 <= motor < min(16, self.motor_count):
             return R.DENIED
         if math.isnan(value):
             self._stop(motor, now_s)
@@ -250,7 +259,8 @@ class PX4Vehicle(SimMavlinkVehicle):
             timeout_s = mav.PX4_ACTUATOR_TEST_MAX_TIMEOUT_S
         fraction = self._fraction(value)
         self._tests[motor] = (fraction, now_s + timeout_s)
-        self.set_plant_throttle(motor, fraction, now_s)
+        if motor < self.plant.motor_count:
+            self.set_plant_throttle(motor, fraction, now_s)
         return R.ACCEPTED
 
 
@@ -456,6 +466,21 @@ class ArduPilotVehicle(SimMavlinkVehicle):
 PlantFactory = Callable[[Mapping[str, str]], Plant]
 
 
+#: a LiPo cell's highest resting voltage: a pack of V volts has at least V / this cells
+_LIPO_FULL_CELL_V = 4.35
+
+
+def plant_cells(plant: Plant) -> int:
+    """The cells of the battery behind ``plant``: the physics preset's, else the fewest LiPo
+    cells its voltage can come from (16.8 V: 4S; 24.9 V: 6S)."""
+    params = getattr(plant, "params", None)
+    cells = getattr(params, "cells", None)
+    if isinstance(cells, int) and cells >= 1:
+        return cells
+    voltage_v = plant.state(0.0).voltage_v
+    return max(1, math.ceil(voltage_v / _LIPO_FULL_CELL_V))
+
+
 def constant_plant(options: Mapping[str, str]) -> Plant:
     return ConstantPlant(motor_count=int(options.get("motors", "4")))
 
@@ -485,6 +510,8 @@ def px4_from_options(options: Mapping[str, str], plant: Plant | None = None) -> 
         safety_on=_flag(options, "safety", False),
         legacy_pwm=_flag(options, "legacy_pwm", False),
         flood=_flag(options, "flood", False),
+        cells=int(options["cells"]) if "cells" in options else None,
+        motors=int(options["motors"]) if "motors" in options else None,
         params=params,
         **_common(options),
     )
