@@ -173,7 +173,7 @@ def test_completed_run_stops_at_the_target_and_says_why(tmp_path: Path) -> None:
     probes = points[5:]
     assert probes, "no point was chosen from the map"
     for p in probes:
-        assert "widest interval" in p["reason"] or "largest throttle gap" in p["reason"]
+        assert "widest interval" in p["reason"] or "largest gap" in p["reason"]
     assert all(p["pi_after_pct"] is not None for p in points[5:])
     assert any(p["pi_before_pct"] is not None for p in probes)
     assert summary["worst_pi_pct"] <= 1.0
@@ -360,3 +360,31 @@ def test_sigkill_mid_run_the_watchdog_stops_the_motor(tmp_path: Path) -> None:
     # the killed run's log still loads, marked partial, with its coarse-pass record
     ds = load_dataset(tmp_path / "k.csv")
     assert "partial" in ds.meta
+
+
+@pytest.mark.parametrize("width", [40, 80, 120])
+def test_the_live_panel_shows_the_worst_interval_and_time_left(
+    width: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import io
+
+    from rich.cells import cell_len
+    from rich.console import Console
+
+    from thrustmap.cli.live import LiveView, Snapshot
+
+    note = "worst interval ±1.17 % (target 1 %), 7 points, 0.52 Wh, ~4 s left"
+    snap = Snapshot(elapsed_s=12.0, total_s=16.0, label="probe", throttle_pct=53.6, plan_note=note)
+    view = LiveView("sweep adaptive", live=False, quiet=True)
+    view.feed(snap, {"current": 0.4})
+    buf = io.StringIO()
+    Console(file=buf, width=width, force_terminal=True, color_system=None).print(view.render(width))
+    lines = buf.getvalue().splitlines()
+    assert all(cell_len(ln) <= width for ln in lines)
+    text = "\n".join(lines)
+    assert "adaptive: worst interval ±1.1" in text
+    if width >= 80:
+        assert "~4 s left" in text
+    with LiveView("sweep adaptive", live=False, plain_period_s=0.0) as plain:
+        plain.feed(snap, {"current": 0.4})
+    assert note in capsys.readouterr().err  # off a terminal too

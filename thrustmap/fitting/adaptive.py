@@ -174,7 +174,8 @@ class MapChooser:
         b_lo, b_hi = float(b.min()), float(b.max())
         grid_b = np.unique(np.array([b_lo, 0.5 * (b_lo + b_hi), b_hi, voltage_v]))
         tt, bb = np.meshgrid(grid_t, grid_b)
-        worst = float(np.max(fitted.half_width_pct(tt, bb)))
+        worst_all = float(np.max(fitted.half_width_pct(tt, bb)))
+        worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
         note = ""
         span = b_hi - b_lo
         mean_b = float(b.mean())
@@ -190,7 +191,7 @@ class MapChooser:
             value = float(fitted.half_width_pct(np.array([thrust_n]), np.array([volts]))[0])
             return value if math.isfinite(value) else None
 
-        met = worst <= self.target_pi_pct and len(usable) >= self.min_points
+        met = worst is not None and worst <= self.target_pi_pct and len(usable) >= self.min_points
         if met:
             return Verdict(worst, True, None, "target met", None, pi_at, note)
         # the choice: at the voltage now, widest interval; among equal ones, the largest gap
@@ -219,7 +220,12 @@ class MapChooser:
             return _keep_going("the map gives no throttle for the envelope")
         flat = bool(wide.all())
         why = (
-            f"widest interval ±{float(pi_now[k]):.2f} % at {target_t:.3g} N, {cand_b[k]:.2f} V"
+            (
+                f"widest interval ±{float(pi_now[k]):.2f} %"
+                if worst is not None
+                else "no interval yet (too few points to hold any out)"
+            )
+            + f" at {target_t:.3g} N, {cand_b[k]:.2f} V"
             + (
                 f" (equal over the range: largest gap, {gap[k] * 100:.0f} % of the envelope)"
                 if flat
@@ -227,7 +233,8 @@ class MapChooser:
             )
             + ("" if near.any() else "; no point yet near this voltage")
         )
-        return Verdict(worst, False, level, why, float(pi_now[k]), pi_at, note)
+        before = float(pi_now[k]) if math.isfinite(float(pi_now[k])) else None
+        return Verdict(worst, False, level, why, before, pi_at, note)
 
 
 def _voltage_model(

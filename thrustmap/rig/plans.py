@@ -411,6 +411,10 @@ class AdaptiveDriver:
     # -- the run --------------------------------------------------------------------------------
     def segments(self) -> Iterator[Segment]:
         """The coarse pass, then the chooser's levels, each decided after the previous hold."""
+        if self.records:
+            raise ConfigError(
+                "an adaptive plan runs once (it holds its run's points): build a new one"
+            )
         for i, seg in enumerate(self.coarse_segments()):
             self._pending = {
                 "reason": f"coarse pass {i + 1}/{len(self.coarse_pct)}",
@@ -527,6 +531,8 @@ class AdaptiveDriver:
         else:
             ratio = max(self.worst_pi_pct / self.chooser.target_pi_pct, 1.0)
             left = max(n * (ratio**2 - 1.0), 0.0) * per_point
+        # the chooser's minimum number of points comes first
+        left = max(left, (getattr(self.chooser, "min_points", 0) - n) * per_point)
         left = min(left, (self.max_points - len(self.records)) * per_point)
         if self.max_minutes is not None:
             left = min(left, max(60 * self.max_minutes - elapsed, 0.0))
