@@ -5,6 +5,8 @@ drivers and the runner on a SimClock (a minute of bench time takes about a secon
 
 - fixed: the paper's stairs-up (10..60 % by 5 %, 3 s per level) and steps (15..60 % by 5 %,
   3 s, 2 s back at 10 %), as ``thrustmap demo`` runs them;
+- settle: the same pair, each hold ending once thrust settled plus 1 s (the dwells become
+  maxima): how much of the saving settle detection alone gives;
 - adaptive: ``plans.adaptive`` with ``fitting.adaptive.MapChooser`` over the same 10..60 %:
   a coarse pass of 5 settled holds, then one settled hold at a time where the fitted map is
   least certain at the voltage now, until the 95 % interval is within TARGET_PI_PCT over the
@@ -94,6 +96,14 @@ def run(rig: str, seed: int, out: Path, which: str) -> Run:
     if which == "fixed":
         exps = {k: experiments()[k] for k in ("stairs-up", "steps")}
         cfg = RunConfig()
+    elif which == "settle":  # the same pair with settle detection on every hold
+        exps = {
+            "stairs-up": plans.stairs(10, 60, 5, dwell_s=3.0, settle=True, record_s=1.0),
+            "steps": plans.steps(
+                15, 60, 5, low_pct=10, dwell_s=3.0, low_dwell_s=2.0, settle=True, record_s=1.0
+            ),
+        }
+        cfg = SETTLE_CFG
     else:
         exps = {"adaptive": adaptive_plan()}
         cfg = SETTLE_CFG
@@ -101,7 +111,7 @@ def run(rig: str, seed: int, out: Path, which: str) -> Run:
     wh0 = _energy_wh(plant)
     with fc, stand:
         for name, plan in exps.items():
-            path = out / f"{rig.replace(' ', '_')}-{seed}-{name}.csv"
+            path = out / f"{rig.replace(' ', '_')}-{seed}-{which}-{name}.csv"
             result = record_sweep(plan, fc, stand, str(path), clock, limits=LIMITS, config=cfg)
             if result.status != "completed":
                 raise RuntimeError(f"{rig} {name} (seed {seed}) {result.status}: {result.reason}")
@@ -146,24 +156,24 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         for rig in RIGS:
-            rows: dict[str, list[Run]] = {"fixed": [], "adaptive": []}
+            rows: dict[str, list[Run]] = {"fixed": [], "settle": [], "adaptive": []}
             for seed in seeds:
                 fixed = run(rig, seed, out, "fixed")
-                adapt = run(rig, seed, out, "adaptive")
-                plant = fixed.plant  # the same rig: the true map does not depend on the run
                 box = fixed.tmap.validity
-                fixed.truth_pct = truth_pct(fixed.tmap, plant, box)
-                adapt.truth_pct = truth_pct(adapt.tmap, plant, box)
-                rows["fixed"].append(fixed)
-                rows["adaptive"].append(adapt)
+                for name in rows:
+                    r = fixed if name == "fixed" else run(rig, seed, out, name)
+                    # the same rig: the true map does not depend on the run
+                    r.truth_pct = truth_pct(r.tmap, fixed.plant, box)
+                    rows[name].append(r)
             f = _mean(rows["fixed"])
             a = _mean(rows["adaptive"])
-            for name, r in (("fixed", f), ("adaptive", a)):
+            for name in rows:
+                r = _mean(rows[name])
                 rel = (
                     ""
                     if name == "fixed"
-                    else f"   {100 * a[0] / f[0]:5.0f} % {100 * a[1] / f[1]:6.0f} % "
-                    f"{a[3] - f[3]:+8.3f} pp"
+                    else f"   {100 * r[0] / f[0]:5.0f} % {100 * r[1] / f[1]:6.0f} % "
+                    f"{r[3] - f[3]:+8.3f} pp"
                 )
                 print(
                     f"{rig:<18} {name:<9} {r[0]:>9.1f} s {r[1]:>6.3f} Wh {r[2]:>9.1f} "
