@@ -240,16 +240,34 @@ def test_a_tripped_limit_stops_within_100ms(tmp_path: Path) -> None:
     peers.reset_benches()
     rig = make_rig()
     plan = plans.adaptive(MapChooser(0.01), 10, 60, coarse_levels=8, **PLAN_KW)
-    limits = Limits(max_current_a=120, max_throttle_pct=75, max_thrust_n=5.5)
+    limits = Limits(max_current_a=120, max_throttle_pct=75, max_rpm=27000)
     with rig.fc, rig.stand:
         result = adaptive_run(rig, tmp_path / "t.csv", plan, limits=limits)
-    assert result.status == "aborted" and result.trip is not None and result.trip.limit == "thrust"
+    assert result.status == "aborted" and result.trip is not None and result.trip.limit == "rpm"
     ds = load_dataset(tmp_path / "t.csv")
-    t_cross = float(ds.time_s[ds.thrust_n > 5.5][0])  # type: ignore[index]
+    assert ds.rpm is not None
+    t_cross = float(ds.time_s[ds.rpm > 27000][0])  # type: ignore[index]
     stops = rig.fc_port.stop_times(t_cross)
     assert stops and stops[0] - t_cross <= 0.1
     assert result.stop_verified and motors_at_rest(rig)
-    assert_partial_adaptive_log(tmp_path / "t.csv", "limit tripped: thrust")
+    assert_partial_adaptive_log(tmp_path / "t.csv", "limit tripped: rpm")
+
+
+def test_the_plan_stays_below_the_thrust_and_current_limits(tmp_path: Path) -> None:
+    """A coarse level past 80 % of a limit ends the coarse pass and becomes the plan's top."""
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(1.0), 10, 60, **PLAN_KW)
+    limits = Limits(max_current_a=120, max_throttle_pct=75, max_thrust_n=5.5)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "h.csv", plan, limits=limits)
+    assert result.status == "completed" and result.stop_verified and motors_at_rest(rig)
+    assert "of the 5.5 N limit: the plan's top is now 47.5 %" in result.reason
+    points = sidecar(tmp_path / "h.csv")["adaptive"]["points"]  # type: ignore[index]
+    assert max(p["throttle_pct"] for p in points) <= 47.5
+    assert len(points) > 4  # the run went on below the limit
+    ds = load_dataset(tmp_path / "h.csv")
+    assert float(ds.thrust_n.max()) < 5.5
 
 
 @pytest.mark.parametrize("device", ["fc", "stand"])
@@ -315,6 +333,7 @@ def test_sweep_adaptive_refuses_bad_input(
         (["--thrust-range", "1-5"], "--thrust-range"),
         (["--target-pi", "-1"], "--target-pi"),
         (["--to", "90"], "ceiling"),
+        (["--thrust-range", "1:30", "--max-thrust", "20"], "above the thrust limit 20 N"),
     ):
         with pytest.raises(SystemExit) as exc:
             main(adaptive_args(tmp_path, "--dry-run", *bad))

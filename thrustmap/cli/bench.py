@@ -100,6 +100,11 @@ def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
                 f"--thrust-range {kw['thrust_range']!r}: expected LO:HI in newtons, e.g. 0.5:8"
             ) from None
         thrust_range = (lo, hi)
+        cap = Limits.from_options(kw).max_thrust_n
+        if hi > cap:
+            raise ConfigError(
+                f"--thrust-range top {hi:g} N is above the thrust limit {cap:g} N (--max-thrust)"
+            )
     chooser = MapChooser(kw["target_pi"], thrust_range_n=thrust_range)
     return plans.adaptive(
         chooser,

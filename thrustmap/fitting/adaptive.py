@@ -122,7 +122,6 @@ class MapChooser:
         model: str = "motor",
         min_points: int = 7,
         candidates: int = 41,
-        voltage_band_rel: float = 0.01,
         fit: Callable[..., Fitted] = fit_interval,
     ) -> None:
         if not (math.isfinite(target_pi_pct) and target_pi_pct > 0):
@@ -138,8 +137,13 @@ class MapChooser:
         self.model = model
         self.min_points = min_points
         self.candidates = candidates
-        self.voltage_band_rel = voltage_band_rel
         self._fit = fit
+        if fit is fit_interval:
+            # the fit's imports (scipy: over a second) load now, before any motor spins, not
+            # during the run while a motor holds its level unattended
+            import scipy.optimize  # noqa: F401
+
+            import thrustmap.fitting.fit  # noqa: F401
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -13,13 +13,17 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 from thrustmap.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
+
+#: an adaptive plan goes no higher than a level whose thrust or current reached this share of
+#: its interlock limit
+LIMIT_HEADROOM = 0.8
 
 
 @dataclass(frozen=True)
@@ -391,6 +395,7 @@ class AdaptiveDriver:
         self._pending: dict[str, Any] = {"reason": "coarse pass", "pi_before_pct": None}
         self._assessment: Assessment | None = None
         self._clipped = 0  # chosen levels in a row outside the plan's range
+        self._near_limit = ""  # why the coarse pass ended early (a limit was near)
 
     # -- the plan's shape (dry run, limits) -----------------------------------------------------
     @property
@@ -416,6 +421,9 @@ class AdaptiveDriver:
                 "an adaptive plan runs once (it holds its run's points): build a new one"
             )
         for i, seg in enumerate(self.coarse_segments()):
+            if self._near_limit:
+                log.info("adaptive plan: coarse pass ends early: %s", self._near_limit)
+                break
             self._pending = {
                 "reason": f"coarse pass {i + 1}/{len(self.coarse_pct)}",
                 "pi_before_pct": None,
@@ -437,8 +445,9 @@ class AdaptiveDriver:
                     "(the plan's range): narrow --thrust-range or widen --from/--to"
                 )
             if self.stop_reason:
-                if self.note:
-                    self.stop_reason += f"; {self.note}"
+                for extra in (self._near_limit, self.note):
+                    if extra:
+                        self.stop_reason += f"; {extra}"
                 log.info("adaptive plan ends: %s", self.stop_reason)
                 return
             if a is not None and a.next_pct is not None:
@@ -459,10 +468,14 @@ class AdaptiveDriver:
         gaps = [(b - a, 0.5 * (a + b)) for a, b in zip(levels, levels[1:], strict=False)]
         return max(gaps)[1] if gaps else 0.5 * (self.lo_pct + self.hi_pct)
 
-    def observe(self, point: SettledPoint) -> None:
-        """One hold has ended: refit (through the chooser) and record the point."""
+    def observe(self, point: SettledPoint, caps: Mapping[str, float] | None = None) -> None:
+        """One hold has ended: refit (through the chooser) and record the point. ``caps``: the
+        interlocks' thrust and current limits (``max_thrust_n``, ``max_current_a``); a point
+        past ``LIMIT_HEADROOM`` of one ends the coarse pass there and lowers the plan's top to
+        its level, so the run stays where the limits allow instead of tripping them."""
         if point.samples > 0 and math.isfinite(point.thrust_n):
             self.points.append(point)
+            self._check_headroom(point, caps or {})
         voltage = self._voltage_now()
         a = (
             self.chooser.assess(self.points, voltage)
@@ -495,6 +508,23 @@ class AdaptiveDriver:
                 "worst_pi_after_pct": _r(None if a is None else a.worst_pi_pct),
             }
         )
+
+    def _check_headroom(self, point: SettledPoint, caps: Mapping[str, float]) -> None:
+        for value, key, what, unit in (
+            (point.thrust_n, "max_thrust_n", "thrust", "N"),
+            (point.current_a, "max_current_a", "current", "A"),
+        ):
+            cap = caps.get(key)
+            if value is None or cap is None or not cap > 0 or value < LIMIT_HEADROOM * cap:
+                continue
+            if point.throttle_pct < self.hi_pct:
+                self.hi_pct = point.throttle_pct
+            if not self._near_limit:
+                self._near_limit = (
+                    f"{what} {value:.3g} {unit} at {point.throttle_pct:.1f} % is "
+                    f"{100 * value / cap:.0f} % of the {cap:g} {unit} limit: the plan's top is "
+                    f"now {self.hi_pct:g} %"
+                )
 
     def _voltage_now(self) -> float | None:
         for p in reversed(self.points):
@@ -554,6 +584,7 @@ class AdaptiveDriver:
             "worst_pi_pct": _r(self.worst_pi_pct),
             "stop_reason": self.stop_reason,
             "note": self.note,
+            "near_limit": self._near_limit,
             "budget": {
                 "max_minutes": self.max_minutes,
                 "max_wh": self.max_wh,

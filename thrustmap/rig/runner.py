@@ -245,7 +245,8 @@ class Runner:
                 elapsed_s=self.clock.now_s() - self._t0,
                 energy_wh=self._energy_j / 3600.0,
                 label=seg.label,
-            )
+            ),
+            {"max_thrust_n": self.limits.max_thrust_n, "max_current_a": self.limits.max_current_a},
         )
         if self.writer is not None:
             self.writer.note(self._adaptive_meta())
