@@ -407,3 +407,22 @@ def test_the_live_panel_shows_the_worst_interval_and_time_left(
     with LiveView("sweep adaptive", live=False, plain_period_s=0.0) as plain:
         plain.feed(snap, {"current": 0.4})
     assert note in capsys.readouterr().err  # off a terminal too
+
+
+def test_the_plan_revisits_the_range_as_the_voltage_sags(tmp_path: Path) -> None:
+    """An unreachable target and a 3-minute budget: the battery sags by about a volt, and the
+    plan measures the envelope's low and high ends again at the lower voltages."""
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, max_minutes=3.0, **PLAN_KW)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "v.csv", plan)
+    assert result.status == "completed" and "budget reached" in result.reason
+    points = sidecar(tmp_path / "v.csv")["adaptive"]["points"]  # type: ignore[index]
+    top = [p for p in points if p["throttle_pct"] >= 50.0]
+    bottom = [p for p in points if p["throttle_pct"] <= 15.0]
+    for ends in (top, bottom):  # each end measured again after the battery fell by 0.5 V
+        volts = [p["voltage_v"] for p in ends]
+        assert len(ends) >= 3 and max(volts) - min(volts) >= 0.5, volts
+    middle = [p for p in points[5:] if 20.0 <= p["throttle_pct"] <= 45.0]
+    assert len(middle) >= 3  # and the middle too, not only the ends
