@@ -356,9 +356,15 @@ def test_sigkill_mid_run_the_watchdog_stops_the_motor(tmp_path: Path) -> None:
         )  # fmt: skip
         try:
             deadline = time.monotonic() + 30.0
-            while not server.peer.motor_values[0] > 1000:
+            side = tmp_path / "k.meta.json"
+            # killed once the first hold is recorded, with the motor spinning at the next level
+            while not (
+                side.exists()
+                and '"pi_after_pct"' in side.read_text(encoding="utf-8")
+                and server.peer.motor_values[0] > 1000
+            ):
                 assert proc.poll() is None, "the run ended before the motor spun"
-                assert time.monotonic() < deadline, "the motor never spun"
+                assert time.monotonic() < deadline, "the first hold never ended"
                 time.sleep(0.05)
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=10)
@@ -376,9 +382,11 @@ def test_sigkill_mid_run_the_watchdog_stops_the_motor(tmp_path: Path) -> None:
             assert time.monotonic() < deadline, log.read_text(encoding="utf-8")
             time.sleep(0.05)
         assert "ended without a confirmed motor stop" in log.read_text(encoding="utf-8")
-    # the killed run's log still loads, marked partial, with its coarse-pass record
+    # the killed run's log still loads, marked partial, and keeps each finished hold's record
     ds = load_dataset(tmp_path / "k.csv")
-    assert "partial" in ds.meta
+    assert "partial" in ds.meta and ds.meta["outcome"]["status"] == "running"
+    points = sidecar(tmp_path / "k.csv")["adaptive"]["points"]  # type: ignore[index]
+    assert points and points[0]["reason"] == "coarse pass 1/5"
 
 
 @pytest.mark.parametrize("width", [40, 80, 120])
