@@ -267,3 +267,31 @@ def test_sigkill_mid_spin_the_watchdog_stops_the_motor(
     log = Path(env["XDG_STATE_HOME"]) / "thrustmap" / "watchdog.log"
     text = log.read_text(encoding="utf-8")
     assert "ended without a confirmed motor stop" in text and "verified by MSP_MOTOR" in text
+
+
+def test_adaptive_sweep_with_a_short_budget_stops_the_motor(
+    sitl: BetaflightSitl, env: dict[str, str], tmp_path: Path
+) -> None:
+    """``sweep adaptive`` on the real firmware: the coarse pass and the chosen levels reach the
+    output, the time budget ends the run, and the stop is verified by the firmware itself. (The
+    simulated stand is not driven by the SITL's motor: its thrust stays at rest, so no map can
+    be fitted and the plan fills throttle gaps until the budget ends it.)"""
+    t0 = time.monotonic()
+    args = thrustmap(
+        "sweep", "adaptive", "--stand", STAND, "--throttle", sitl.url,
+        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet",
+        "--from", "10", "--to", "20", "--coarse", "3", "--dwell", "2", "--max-minutes", "0.15",
+    )  # fmt: skip
+    result = run(args, env, timeout_s=90.0)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "completed" in result.stdout and "budget reached" in result.stdout
+    assert "stop verified" in result.stdout and "CRITICAL" not in result.stderr
+    levels = {round(s.values[0]) for s in sitl.pwm_since(t0)}
+    assert {1100, 1150, 1200} <= levels, sorted(levels)  # the coarse pass reached the output
+    assert max(levels) <= 1201  # never above --to
+    meta = json.loads((tmp_path / "run.meta.json").read_text(encoding="utf-8"))
+    assert meta["outcome"]["status"] == "completed" and meta["stop_verified"] is True
+    assert meta["adaptive"]["stop_reason"].startswith("budget reached")
+    points = meta["adaptive"]["points"]
+    assert len(points) > 3 and "largest throttle gap" in points[3]["reason"]  # chosen after
+    assert_stopped(sitl)

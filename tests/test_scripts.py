@@ -114,3 +114,14 @@ def test_declining_the_prompt_spins_nothing(
     assert load_script("steps").main(["-o", str(out)]) is None
     assert not out.exists()
     assert "nothing spun" in capsys.readouterr().out
+
+
+def test_adaptive_stops_at_its_target_and_records_why(tmp_path: Path) -> None:
+    result, out = run("adaptive", tmp_path)
+    assert result.reason.startswith("target met")  # type: ignore[attr-defined]
+    ds = load_dataset(out)
+    assert ds.meta["outcome"]["status"] == "completed"
+    meta = json.loads(out.with_suffix(".meta.json").read_text(encoding="utf-8"))
+    points = meta["adaptive"]["points"]
+    assert [round(p["throttle_pct"], 1) for p in points[:5]] == [10.0, 22.5, 35.0, 47.5, 60.0]
+    assert len(points) > 5 and all(p["pi_after_pct"] is not None for p in points[5:])

@@ -79,6 +79,8 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
         )
     if kind == "ramp":
         return plans.ramp(kw["start"], kw["stop"], duration_s=kw["duration"], repeats=kw["repeats"])
+    if kind == "adaptive":
+        return _adaptive_plan(kw)
     levels = [float(x) for x in (kw["levels"] or "").split(",") if x.strip()]
     return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
 
@@ -92,6 +94,40 @@ def _stand_cannot_see_the_motor(stand_url: str | None, throttle_url: str | None)
         and throttle_url is not None
         and is_simulated(stand_url)
         and not is_simulated(throttle_url)
+    )
+
+
+def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
+    """``sweep adaptive``: every hold settles (``--dwell`` is its maximum); the chooser fits
+    the points as they come (``thrustmap.fitting.adaptive``)."""
+    from thrustmap.core.errors import ConfigError
+    from thrustmap.fitting.adaptive import MapChooser
+
+    thrust_range = None
+    if kw["thrust_range"]:
+        try:
+            lo, hi = (float(x) for x in kw["thrust_range"].split(":"))
+        except ValueError:
+            raise ConfigError(
+                f"--thrust-range {kw['thrust_range']!r}: expected LO:HI in newtons, e.g. 0.5:8"
+            ) from None
+        thrust_range = (lo, hi)
+        cap = Limits.from_options(kw).max_thrust_n
+        if hi > cap:
+            raise ConfigError(
+                f"--thrust-range top {hi:g} N is above the thrust limit {cap:g} N (--max-thrust)"
+            )
+    chooser = MapChooser(kw["target_pi"], thrust_range_n=thrust_range)
+    return plans.adaptive(
+        chooser,
+        kw["start"],
+        kw["stop"],
+        coarse_levels=kw["coarse"],
+        dwell_s=kw["dwell"],
+        settle=True,
+        record_s=kw["record"],
+        max_minutes=kw["max_minutes"],
+        max_wh=kw["max_wh"],
     )
 
 
@@ -195,6 +231,34 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     "--duration", type=float, default=30.0, show_default=True, help="ramp: seconds per ramp."
 )
 @click.option("--repeats", type=int, default=1, show_default=True)
+@click.option(
+    "--target-pi",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="adaptive: stop once the map's 95 % prediction interval is within this many % "
+    "throttle over the envelope.",
+)
+@click.option(
+    "--thrust-range",
+    help="adaptive: the envelope LO:HI in N (default: the coarse pass's thrusts, up to the "
+    "thrust at --to).",
+)
+@click.option(
+    "--max-minutes",
+    type=float,
+    default=10.0,
+    show_default=True,
+    help="adaptive: bench-time budget.",
+)
+@click.option("--max-wh", type=float, help="adaptive: battery-energy budget, Wh.")
+@click.option(
+    "--coarse",
+    type=int,
+    default=5,
+    show_default=True,
+    help="adaptive: levels in the coarse pass, --from to --to.",
+)
 @limit_options
 @click.option(
     "--tyto-calibration",
@@ -239,7 +303,12 @@ def sweep_cmd(
     output: str,
     **kw: Any,
 ) -> None:
-    """Run a step/stairs/ramp sweep on a stand and record it as a Ds log.
+    """Run a step/stairs/ramp sweep, or an adaptive run, on a stand and record it as a Ds log.
+
+    adaptive (the recommended way to calibrate): a short coarse pass, then one settled hold at
+    a time where the map being fitted is least certain at the battery voltage now, until its
+    95 % interval is within --target-pi over the envelope or a budget (--max-minutes,
+    --max-wh) or a limit ends the run; the log's sidecar says why each point was chosen.
 
     Every way out — completion, a tripped limit, an error, Ctrl-C, SIGTERM, a silent stand or
     FC — stops the motor and verifies the stop; the log is kept and marked with the outcome.

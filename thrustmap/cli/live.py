@@ -46,6 +46,7 @@ class Snapshot:
     current_a: float | None = None
     rpm: float | None = None
     temperature_c: float | None = None
+    plan_note: str = ""  # an adaptive plan: worst interval, points, time left
 
 
 def sparkline(values: list[float], width: int) -> str:
@@ -216,6 +217,7 @@ class LiveView:
                 current_a=r.current_a,
                 rpm=r.rpm,
                 temperature_c=r.temperature_c,
+                plan_note=getattr(st, "plan_note", ""),
             ),
             dict(st.margins),
         )
@@ -258,7 +260,7 @@ class LiveView:
             f"{s.elapsed_s:5.0f}/{s.total_s:.0f} s ETA {eta:.0f} s{seg} {s.label}  "
             f"thr {_fmt(s.throttle_pct, '.1f', '%')}{native}  T {_fmt(s.thrust_n, '.2f', 'N')}  "
             f"{_fmt(s.voltage_v, '.2f', 'V')}  {_fmt(s.current_a, '.1f', 'A')}  "
-            f"{_fmt(s.rpm, '.0f', 'rpm')}{margin}"
+            f"{_fmt(s.rpm, '.0f', 'rpm')}{margin}" + (f"  {s.plan_note}" if s.plan_note else "")
         )
 
     def _plain(self, line: str) -> None:
@@ -311,6 +313,8 @@ class LiveView:
         bar_w = max(w - len(tail) - 2, 4)
         filled = int(round(frac * bar_w))
         line(("█" * filled, "green"), ("░" * (bar_w - filled), "grey50"), (tail, ""))
+        if s.plan_note:
+            line(("adaptive: ", "grey50"), (s.plan_note, "bold cyan"))
         native = "" if s.throttle_native is None else f" ({_native(s.throttle_native, s.unit)})"
         cells = [
             ("throttle", _fmt(s.throttle_pct, ".1f", "%") + native),

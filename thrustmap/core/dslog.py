@@ -194,6 +194,19 @@ class DsWriter:
             ) from None
         self.rows += 1
 
+    def note(self, extra: Mapping[str, Any]) -> None:
+        """Add ``extra`` to the sidecar while the run goes on (an adaptive plan's record of each
+        point), so a run that is killed keeps it. The outcome stays ``running``; a disk error is
+        logged, never raised (the samples matter more than the note)."""
+        self.meta.update(dict(extra))
+        try:
+            atomic_write_text(
+                self.meta_path,
+                json.dumps(self.meta, indent=2) + "\n" + " " * SIDECAR_RESERVE_BYTES + "\n",
+            )
+        except ThrustmapError as exc:
+            log.warning("cannot update the Ds log's sidecar: %s", exc)
+
     def finish(self, status: str, reason: str = "", extra: Mapping[str, Any] | None = None) -> None:
         """Close the CSV and record the outcome (``completed`` or ``aborted``) in the sidecar.
 

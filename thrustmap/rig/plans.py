@@ -4,16 +4,26 @@ A plan is a list of segments in percent of the throttle output's native scale. I
 printed, timed, and checked against the limits before any motor spins (``--dry-run``); the
 runner executes it. The seed paper's four experiments (its Fig. 5) are provided:
 ``steps`` (up-steps returning to a low level), ``stairs-up``, ``stairs-down`` and ``ramp`` (up
-then down), plus ``explicit`` for a user's own list of levels.
+then down), plus ``explicit`` for a user's own list of levels, and ``adaptive``: a short coarse pass, then
+each level chosen from the map being fitted (``AdaptiveDriver``; the choosing is injected, see
+``thrustmap.fitting.adaptive``), until the map is good enough or a budget is spent.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+import logging
+import math
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from thrustmap.core.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+#: an adaptive plan goes no higher than a level whose thrust or current reached this share of
+#: its interlock limit
+LIMIT_HEADROOM = 0.8
 
 
 @dataclass(frozen=True)
@@ -46,13 +56,26 @@ class Plan:
     name: str
     segments: tuple[Segment, ...]
     params: dict[str, Any] = field(default_factory=dict)
+    #: an adaptive plan's feedback side: ``segments`` is then its coarse pass, and the runner
+    #: takes the levels that follow from ``adaptive.segments()``
+    adaptive: AdaptiveDriver | None = field(default=None, compare=False)
 
     @property
     def max_throttle_pct(self) -> float:
         return max(
-            (s.throttle_pct if isinstance(s, Hold) else max(s.start_pct, s.end_pct))
-            for s in self.segments
+            [
+                (s.throttle_pct if isinstance(s, Hold) else max(s.start_pct, s.end_pct))
+                for s in self.segments
+            ]
+            + ([] if self.adaptive is None else [self.adaptive.max_throttle_pct])
         )
+
+    def run_segments(self) -> Iterator[Segment]:
+        """What the runner executes: the segments, or an adaptive plan's levels as it decides."""
+        if self.adaptive is None:
+            yield from self.segments
+        else:
+            yield from self.adaptive.segments()
 
     @property
     def duration_s(self) -> float:
@@ -111,14 +134,28 @@ class Plan:
                     f"  {t:7.1f} s  {s.label:<6} {s.start_pct:5.1f} -> {s.end_pct:5.1f} % over "
                     f"{s.duration_s:.1f} s ({abs(s.end_pct - s.start_pct) / s.duration_s:.2f} %/s)"
                 )
+        a = self.adaptive
+        if a is not None:
+            lines[0] = (
+                f"plan 'adaptive': coarse pass of {len(self.segments)} holds (up to "
+                f"{self.duration_s:.1f} s), then one hold at a time between {a.lo_pct:g} and "
+                f"{a.hi_pct:g} %{native(a.hi_pct)} where the map is least certain"
+            )
+            lines.append(
+                f"  then: target 95 % interval <= {a.chooser.target_pi_pct:g} % throttle over "
+                f"the envelope; stops at the target or the budget ({a.budget_text()})"
+            )
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "name": self.name,
             "params": self.params,
             "segments": [{"type": type(s).__name__.lower(), **asdict(s)} for s in self.segments],
         }
+        if self.adaptive is not None:
+            out["adaptive"] = self.adaptive.to_dict()
+        return out
 
 
 def _levels(start_pct: float, stop_pct: float, step_pct: float) -> list[float]:
@@ -253,4 +290,378 @@ def explicit(
     )
 
 
-PLANS = ("steps", "stairs-up", "stairs-down", "ramp", "explicit")
+# --------------------------------------------------------------------------- adaptive
+
+
+@dataclass(frozen=True)
+class SettledPoint:
+    """What one hold measured, as the runner hands it to an adaptive plan: the means over the
+    hold's recorded part (after settling, or its last ``record_s`` for a fixed hold)."""
+
+    throttle_pct: float
+    thrust_n: float
+    voltage_v: float | None
+    current_a: float | None
+    samples: int
+    settled: bool
+    elapsed_s: float  # plan time when the hold ended
+    energy_wh: float  # drawn from the battery since the plan started (stand's V × I)
+    label: str = ""
+
+
+class Assessment(Protocol):
+    """A chooser's verdict on the points so far (``thrustmap.fitting.adaptive.Verdict``).
+
+    ``next_pct`` None: no level to propose (no usable fit yet, or the target is met).
+    ``pi_at(thrust_n, voltage_v)`` is the interval of the same fit there (for the point just
+    measured: its interval after)."""
+
+    @property
+    def worst_pi_pct(self) -> float | None: ...  # widest 95 % half-width over the envelope
+    @property
+    def target_met(self) -> bool: ...
+    @property
+    def next_pct(self) -> float | None: ...
+    @property
+    def next_reason(self) -> str: ...
+    @property
+    def next_pi_pct(self) -> float | None: ...  # the interval where the next point is aimed
+    @property
+    def pi_at(self) -> Callable[[float, float], float | None]: ...
+    @property
+    def note(self) -> str: ...  # e.g. the voltage span needs another battery or a supply
+
+
+class Chooser(Protocol):
+    """Decides the next command from the points so far at the battery voltage now."""
+
+    target_pi_pct: float
+
+    def assess(self, points: Sequence[SettledPoint], voltage_v: float) -> Assessment: ...
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+class AdaptiveDriver:
+    """The feedback side of an adaptive plan: a short coarse pass (the plan's ``segments``),
+    then one hold at a time at the throttle the chooser names, until the chooser's target is met
+    over the envelope or a budget ends the run.
+
+    The runner calls ``segments()`` (a generator) and ``observe()`` after each hold. The driver
+    keeps a record per point (why it was chosen, the interval before and after) and the stopping
+    reason (``summary()``), which the runner writes into the Ds log's sidecar."""
+
+    def __init__(
+        self,
+        chooser: Chooser,
+        coarse_pct: Sequence[float],
+        *,
+        lo_pct: float,
+        hi_pct: float,
+        dwell_s: float,
+        record_s: float,
+        settle: bool = True,
+        max_minutes: float | None = None,
+        max_wh: float | None = None,
+        max_points: int = 200,
+    ) -> None:
+        if not coarse_pct:
+            raise ConfigError("an adaptive plan needs at least one coarse level")
+        if not 0 <= lo_pct < hi_pct <= 100:
+            raise ConfigError(
+                f"adaptive range must satisfy 0 <= from < to <= 100, got {lo_pct:g}..{hi_pct:g}"
+            )
+        for v in coarse_pct:
+            if not lo_pct - 1e-9 <= v <= hi_pct + 1e-9:
+                raise ConfigError(f"coarse level {v:g} % is outside {lo_pct:g}..{hi_pct:g} %")
+        if max_minutes is not None and max_minutes <= 0:
+            raise ConfigError(f"--max-minutes must be positive, got {max_minutes:g}")
+        if max_wh is not None and max_wh <= 0:
+            raise ConfigError(f"--max-wh must be positive, got {max_wh:g}")
+        if max_points < len(coarse_pct):
+            raise ConfigError(
+                f"max_points ({max_points}) is below the coarse pass ({len(coarse_pct)})"
+            )
+        self.chooser = chooser
+        self.coarse_pct = tuple(float(v) for v in coarse_pct)
+        self.lo_pct, self.hi_pct = float(lo_pct), float(hi_pct)
+        self.dwell_s, self.record_s, self.settle = dwell_s, record_s, settle
+        self.max_minutes, self.max_wh, self.max_points = max_minutes, max_wh, max_points
+        self.points: list[SettledPoint] = []
+        self.records: list[dict[str, Any]] = []
+        self.stop_reason = ""
+        self.note = ""
+        self.worst_pi_pct: float | None = None
+        self._pending: dict[str, Any] = {"reason": "coarse pass", "pi_before_pct": None}
+        self._assessment: Assessment | None = None
+        self._clipped = 0  # chosen levels in a row outside the plan's range
+        self._near_limit = ""  # why the coarse pass ended early (a limit was near)
+
+    # -- the plan's shape (dry run, limits) -----------------------------------------------------
+    @property
+    def max_throttle_pct(self) -> float:
+        return self.hi_pct
+
+    def coarse_segments(self) -> tuple[Segment, ...]:
+        return tuple(
+            _hold(v, self.dwell_s, self.settle, self.record_s, "coarse") for v in self.coarse_pct
+        )
+
+    def budget_text(self) -> str:
+        parts = [f"{self.max_minutes:g} min" if self.max_minutes else "no time budget"]
+        parts.append(f"{self.max_wh:g} Wh" if self.max_wh else "no energy budget")
+        parts.append(f"at most {self.max_points} points")
+        return ", ".join(parts)
+
+    # -- the run --------------------------------------------------------------------------------
+    def segments(self) -> Iterator[Segment]:
+        """The coarse pass, then the chooser's levels, each decided after the previous hold."""
+        if self.records:
+            raise ConfigError(
+                "an adaptive plan runs once (it holds its run's points): build a new one"
+            )
+        for i, seg in enumerate(self.coarse_segments()):
+            if self._near_limit:
+                log.info("adaptive plan: coarse pass ends early: %s", self._near_limit)
+                break
+            self._pending = {
+                "reason": f"coarse pass {i + 1}/{len(self.coarse_pct)}",
+                "pi_before_pct": None,
+            }
+            yield seg
+        while True:
+            a = self._assessment
+            stop = self._budget_exhausted()
+            if stop:
+                self.stop_reason = stop
+            elif a is not None and a.target_met:
+                self.stop_reason = (
+                    f"target met: 95 % interval <= {self.chooser.target_pi_pct:g} % over the "
+                    f"envelope at the voltages seen (worst {a.worst_pi_pct or 0.0:.2f} %)"
+                )
+            elif self._clipped >= 3:
+                self.stop_reason = (
+                    f"the envelope needs throttle outside {self.lo_pct:g}..{self.hi_pct:g} % "
+                    "(the plan's range): narrow --thrust-range or widen --from/--to"
+                )
+            if self.stop_reason:
+                for extra in (self._near_limit, self.note):
+                    if extra:
+                        self.stop_reason += f"; {extra}"
+                log.info("adaptive plan ends: %s", self.stop_reason)
+                return
+            if a is not None and a.next_pct is not None:
+                level, reason, before = a.next_pct, a.next_reason, a.next_pi_pct
+            else:  # no usable fit: fill the widest gap in throttle
+                level = self._largest_gap_pct()
+                reason = f"{'no fit' if a is None else a.next_reason}: largest throttle gap"
+                before = None
+            clipped = min(max(level, self.lo_pct), self.hi_pct)
+            self._clipped = self._clipped + 1 if abs(clipped - level) > 1e-6 else 0
+            if self._clipped:
+                reason += f" (wanted {level:.1f} %, held at the plan's range)"
+            self._pending = {"reason": reason, "pi_before_pct": before}
+            yield _hold(round(clipped, 3), self.dwell_s, self.settle, self.record_s, "probe")
+
+    def _largest_gap_pct(self) -> float:
+        levels = sorted({self.lo_pct, self.hi_pct, *(p.throttle_pct for p in self.points)})
+        gaps = [(b - a, 0.5 * (a + b)) for a, b in zip(levels, levels[1:], strict=False)]
+        return max(gaps)[1] if gaps else 0.5 * (self.lo_pct + self.hi_pct)
+
+    def observe(self, point: SettledPoint, caps: Mapping[str, float] | None = None) -> None:
+        """One hold has ended: refit (through the chooser) and record the point. ``caps``: the
+        interlocks' thrust and current limits (``max_thrust_n``, ``max_current_a``); a point
+        past ``LIMIT_HEADROOM`` of one ends the coarse pass there and lowers the plan's top to
+        its level, so the run stays where the limits allow instead of tripping them."""
+        if point.samples > 0 and math.isfinite(point.thrust_n):
+            self.points.append(point)
+            self._check_headroom(point, caps or {})
+        voltage = self._voltage_now()
+        a = (
+            self.chooser.assess(self.points, voltage)
+            if voltage is not None and self.points
+            else None
+        )
+        self._assessment = a
+        if a is not None:
+            self.worst_pi_pct = a.worst_pi_pct
+            self.note = a.note or self.note
+        after = (
+            None
+            if a is None or point.voltage_v is None
+            else a.pi_at(point.thrust_n, point.voltage_v)
+        )
+        self.records.append(
+            {
+                "point": len(self.records) + 1,
+                "throttle_pct": round(point.throttle_pct, 4),
+                "thrust_n": _r(point.thrust_n),
+                "voltage_v": _r(point.voltage_v),
+                "current_a": _r(point.current_a),
+                "samples": point.samples,
+                "settled": point.settled,
+                "elapsed_s": round(point.elapsed_s, 3),
+                "energy_wh": round(point.energy_wh, 5),
+                "reason": self._pending["reason"],
+                "pi_before_pct": _r(self._pending["pi_before_pct"]),
+                "pi_after_pct": _r(after),
+                "worst_pi_after_pct": _r(None if a is None else a.worst_pi_pct),
+            }
+        )
+
+    def _check_headroom(self, point: SettledPoint, caps: Mapping[str, float]) -> None:
+        for value, key, what, unit in (
+            (point.thrust_n, "max_thrust_n", "thrust", "N"),
+            (point.current_a, "max_current_a", "current", "A"),
+        ):
+            cap = caps.get(key)
+            if value is None or cap is None or not cap > 0 or value < LIMIT_HEADROOM * cap:
+                continue
+            if point.throttle_pct < self.hi_pct:
+                self.hi_pct = point.throttle_pct
+            if not self._near_limit:
+                self._near_limit = (
+                    f"{what} {value:.3g} {unit} at {point.throttle_pct:.1f} % is "
+                    f"{100 * value / cap:.0f} % of the {cap:g} {unit} limit: the plan's top is "
+                    f"now {self.hi_pct:g} %"
+                )
+
+    def _voltage_now(self) -> float | None:
+        for p in reversed(self.points):
+            if p.voltage_v is not None and math.isfinite(p.voltage_v):
+                return p.voltage_v
+        return None
+
+    def _budget_exhausted(self) -> str:
+        last = self.points[-1] if self.points else None
+        if len(self.records) >= self.max_points:
+            return f"budget reached: {self.max_points} points"
+        if last is None:
+            return ""
+        if self.max_minutes is not None and last.elapsed_s >= 60 * self.max_minutes:
+            return f"budget reached: {last.elapsed_s / 60:.1f} of {self.max_minutes:g} min"
+        if self.max_wh is not None and last.energy_wh >= self.max_wh:
+            return f"budget reached: {last.energy_wh:.2f} of {self.max_wh:g} Wh"
+        return ""
+
+    # -- what it says ---------------------------------------------------------------------------
+    def time_left_s(self) -> float | None:
+        """A rough estimate: the interval of a fit shrinks about as 1/sqrt(points), so the points
+        still needed are n·((worst/target)² − 1), at the mean time per point so far; capped by
+        the time budget."""
+        n = len(self.points)
+        if n == 0:
+            return None
+        elapsed = self.points[-1].elapsed_s
+        per_point = elapsed / n
+        if n < len(self.coarse_pct):
+            left = (len(self.coarse_pct) - n + 2) * per_point
+        elif self.worst_pi_pct is None:
+            left = 2 * per_point
+        else:
+            ratio = max(self.worst_pi_pct / self.chooser.target_pi_pct, 1.0)
+            left = max(n * (ratio**2 - 1.0), 0.0) * per_point
+        # the chooser's minimum number of points comes first
+        left = max(left, (getattr(self.chooser, "min_points", 0) - n) * per_point)
+        left = min(left, (self.max_points - len(self.records)) * per_point)
+        if self.max_minutes is not None:
+            left = min(left, max(60 * self.max_minutes - elapsed, 0.0))
+        return left
+
+    def status_line(self) -> str:
+        worst = "–" if self.worst_pi_pct is None else f"±{self.worst_pi_pct:.2f} %"
+        left = self.time_left_s()
+        eta = "" if left is None else f", ~{left:.0f} s left"
+        energy = f", {self.points[-1].energy_wh:.2f} Wh" if self.points else ""
+        return (
+            f"worst interval {worst} (target {self.chooser.target_pi_pct:g} %), "
+            f"{len(self.records)} points{energy}{eta}"
+        )
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "target_pi_pct": self.chooser.target_pi_pct,
+            "worst_pi_pct": _r(self.worst_pi_pct),
+            "stop_reason": self.stop_reason,
+            "note": self.note,
+            "near_limit": self._near_limit,
+            "budget": {
+                "max_minutes": self.max_minutes,
+                "max_wh": self.max_wh,
+                "max_points": self.max_points,
+            },
+            "points": self.records,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "coarse_pct": list(self.coarse_pct),
+            "range_pct": [self.lo_pct, self.hi_pct],
+            "dwell_s": self.dwell_s,
+            "record_s": self.record_s,
+            "settle": self.settle,
+            "max_minutes": self.max_minutes,
+            "max_wh": self.max_wh,
+            "max_points": self.max_points,
+            "chooser": self.chooser.to_dict(),
+        }
+
+
+def _r(x: float | None, nd: int = 5) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+def adaptive(
+    chooser: Chooser,
+    start_pct: float = 10.0,
+    stop_pct: float = 60.0,
+    *,
+    coarse_levels: int = 5,
+    dwell_s: float = 3.0,
+    settle: bool = True,
+    record_s: float = 1.0,
+    max_minutes: float | None = None,
+    max_wh: float | None = None,
+    max_points: int = 200,
+) -> Plan:
+    """An adaptive plan: ``coarse_levels`` evenly spaced holds from ``start_pct`` to
+    ``stop_pct``, then holds chosen one at a time by ``chooser`` (for the fitted map's least
+    certain throttle at the battery voltage now), never outside ``start_pct..stop_pct``, until
+    the chooser's target is met or a budget (``max_minutes``, ``max_wh``, ``max_points``) ends
+    it. ``duration_s`` is the budget when there is one (the run may end much sooner)."""
+    if coarse_levels < 2:
+        raise ConfigError(f"the coarse pass needs at least 2 levels, got {coarse_levels}")
+    if stop_pct <= start_pct:
+        raise ConfigError(f"--to ({stop_pct:g} %) must be above --from ({start_pct:g} %)")
+    step = (stop_pct - start_pct) / (coarse_levels - 1)
+    coarse = [round(start_pct + k * step, 3) for k in range(coarse_levels)]
+    driver = AdaptiveDriver(
+        chooser,
+        coarse,
+        lo_pct=start_pct,
+        hi_pct=stop_pct,
+        dwell_s=dwell_s,
+        record_s=record_s,
+        settle=settle,
+        max_minutes=max_minutes,
+        max_wh=max_wh,
+        max_points=max_points,
+    )
+    return Plan(
+        "adaptive",
+        driver.coarse_segments(),
+        {
+            "from": start_pct,
+            "to": stop_pct,
+            "coarse_levels": coarse_levels,
+            "dwell_s": dwell_s,
+            "settle": settle,
+            "target_pi_pct": chooser.target_pi_pct,
+            "max_minutes": max_minutes,
+            "max_wh": max_wh,
+        },
+        adaptive=driver,
+    )
+
+
+PLANS = ("steps", "stairs-up", "stairs-down", "ramp", "explicit", "adaptive")

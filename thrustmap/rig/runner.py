@@ -31,7 +31,7 @@ from thrustmap.rig.interlocks import (
     check_plan,
     margins,
 )
-from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
+from thrustmap.rig.plans import Hold, Plan, Ramp, Segment, SettledPoint
 from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 from thrustmap.rig.settle import RestDetector, SettleDetector
 
@@ -82,6 +82,7 @@ class Status:
     wait_s: float = 0.0
     telemetry: Telemetry | None = None  # the output's latest (FC battery, ESC rpm)
     sample: StandSample | None = None  # the stand's latest sample (None without a stand)
+    plan_note: str = ""  # an adaptive plan's state (worst interval, time left)
 
 
 @dataclass
@@ -157,6 +158,11 @@ class Runner:
         self._response = ThrustResponse(self.limits, plan.max_throttle_pct)
         #: the verdict of the final stop (also when ``run`` re-raises a driver's exception)
         self.stop_verified: bool | None = None
+        # what each hold measured, for an adaptive plan (``plans.SettledPoint``)
+        self._collect = False
+        self._held: list[tuple[float, float | None, float | None]] = []
+        self._energy_j = 0.0
+        self._energy_t: float | None = None
 
     # -- public ---------------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -167,10 +173,14 @@ class Runner:
             try:
                 try:
                     self._preflight()
-                    for i, seg in enumerate(self.plan.segments):
+                    for i, seg in enumerate(self.plan.run_segments()):
                         self._segment_index = i
+                        self._held = []
                         self._run_segment(seg)
+                        self._observe(seg)
                     status, reason = "completed", ""
+                    if self.plan.adaptive is not None:
+                        reason = self.plan.adaptive.stop_reason
                 except Aborted as exc:
                     reason, trip = exc.reason, exc.trip
                 except Terminated as exc:
@@ -203,6 +213,7 @@ class Runner:
                             "stop_unverifiable": getattr(self.output, "stop_unverifiable", None),
                             "stop_latency_s": latency,
                             "trip": None if trip is None else trip.__dict__,
+                            **self._adaptive_meta(),
                         },
                     )
         return RunResult(
@@ -219,6 +230,38 @@ class Runner:
         )
 
     # -- internals -------------------------------------------------------------------------------
+    def _adaptive_meta(self) -> dict[str, Any]:
+        if self.plan.adaptive is None:
+            return {}
+        return {"adaptive": self.plan.adaptive.summary()}
+
+    def _observe(self, seg: Segment) -> None:
+        """An adaptive plan hears what the hold measured; its record goes into the sidecar at
+        once, so a run that is killed keeps why each point was chosen."""
+        driver = self.plan.adaptive
+        if driver is None or not isinstance(seg, Hold):
+            return
+        held = self._held
+        volts = [v for _, v, _ in held if v is not None]
+        amps = [a for _, _, a in held if a is not None]
+        driver.observe(
+            SettledPoint(
+                throttle_pct=seg.throttle_pct,
+                thrust_n=float(np.mean([t for t, _, _ in held])) if held else float("nan"),
+                voltage_v=float(np.mean(volts)) if volts else None,
+                current_a=float(np.mean(amps)) if amps else None,
+                samples=len(held),
+                settled=self._label.endswith("-settled"),
+                elapsed_s=self.clock.now_s() - self._t0,
+                energy_wh=self._energy_j / 3600.0,
+                label=seg.label,
+            ),
+            {"max_thrust_n": self.limits.max_thrust_n, "max_current_a": self.limits.max_current_a},
+        )
+        if self.writer is not None:
+            self.writer.note(self._adaptive_meta())
+        self._report(self.clock.now_s())
+
     def _stop_until_verified(self) -> bool:
         """Stop and verify; on a lost link keep re-sending for ``stop_retry_s`` (Betaflight keeps
         the last motor value forever, so giving up after one try is not an option)."""
@@ -332,9 +375,12 @@ class Runner:
             self.cfg.settle_window_s, self.cfg.settle_band_n, self.cfg.settle_rel
         )
         settled_at: float | None = None
+        record_s = seg.record_s if isinstance(seg, Hold) else 0.0
         while True:
             now = self.clock.now_s()
             t_in = now - start
+            # the part of a hold that describes it: after settling, else its last record_s
+            self._collect = (settled_at is not None) if settle else t_in >= length - record_s
             if t_in >= length:
                 if settle:
                     log.info("hold %.1f %% did not settle within %.1f s", self._cmd_pct, length)
@@ -448,6 +494,14 @@ class Runner:
         )
         self._reading = reading
         self._last_sample = s
+        if reading.voltage_v is not None and reading.current_a is not None:
+            if self._energy_t is not None and s.time_s > self._energy_t:
+                self._energy_j += (
+                    reading.voltage_v * reading.current_a * (s.time_s - self._energy_t)
+                )
+            self._energy_t = s.time_s
+        if self._collect:
+            self._held.append((s.thrust_n, reading.voltage_v, reading.current_a))
         throttle = (
             s.throttle_native
             if s.throttle_native is not None
@@ -505,13 +559,18 @@ class Runner:
         if self.monitor is None:
             return
         in_plan = self._phase == "plan"
+        driver = self.plan.adaptive
+        duration = self.plan.duration_s
+        if driver is not None and in_plan:
+            left = driver.time_left_s()
+            duration = now - self._t0 + (left if left is not None else self.plan.duration_s)
         self.monitor(
             Status(
                 time_s=now,
                 elapsed_s=now - self._t0 if in_plan else 0.0,
-                plan_duration_s=self.plan.duration_s,
+                plan_duration_s=duration,
                 segment=self._segment_index,
-                segments=len(self.plan.segments),
+                segments=len(self.plan.segments) if driver is None else 0,
                 label=self._label,
                 throttle_pct=self._cmd_pct,
                 throttle_native=float(self.scale.from_pct(self._cmd_pct)),
@@ -521,6 +580,7 @@ class Runner:
                 wait_s=(self._t0 if in_plan else now) - self._start,
                 telemetry=self._telemetry,
                 sample=self._last_sample,
+                plan_note="" if driver is None else driver.status_line(),
             )
         )
 

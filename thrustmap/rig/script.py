@@ -43,8 +43,15 @@ class SegmentLog:
             self.last = None
 
     def _show(self, st: Status) -> None:
-        seg = self.plan.segments[st.segment]
-        level = f"{seg.throttle_pct:5.1f} %" if isinstance(seg, Hold) else f"-> {seg.end_pct:.1f} %"
+        if st.segment < len(self.plan.segments):
+            seg = self.plan.segments[st.segment]
+            level = (
+                f"{seg.throttle_pct:5.1f} %" if isinstance(seg, Hold) else f"-> {seg.end_pct:.1f} %"
+            )
+            label = seg.label
+        else:  # an adaptive plan's level, chosen during the run
+            level, label = f"{st.throttle_pct:5.1f} %", st.label.removesuffix("-settled")
+        total = f"/{st.segments}" if st.segments else ""
         r = st.reading
         values = [
             f"{value:.{digits}f} {unit}"
@@ -57,8 +64,9 @@ class SegmentLog:
             if value is not None
         ]
         self.emit(
-            f"  {st.elapsed_s:6.1f} s  {st.segment + 1:>2}/{st.segments} {seg.label:<6} {level}: "
+            f"  {st.elapsed_s:6.1f} s  {st.segment + 1:>2}{total} {label:<6} {level}: "
             + ", ".join(values)
+            + (f"  [{st.plan_note}]" if st.plan_note else "")
         )
 
 

@@ -1,0 +1,436 @@
+"""The adaptive plan (issue 22): the chooser, the plan's record, and every way out.
+
+The chooser is checked with injected fits whose interval is known; the plan runs on the
+simulated bench through the real MSP and Tyto drivers (a SimClock: a minute in milliseconds),
+and through the CLI; SIGKILL mid-run is handed to the watchdog over a real TCP socket.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.msp_tcp import MspTcpServer
+from test_rig_runner import Rig, make_rig, motors_at_rest
+
+from thrustmap.cli import main
+from thrustmap.core.errors import ConfigError
+from thrustmap.demo import truth_error_pct
+from thrustmap.fitting.adaptive import Fitted, MapChooser
+from thrustmap.fitting.fit import fit_map
+from thrustmap.fitting.loaders import load_dataset
+from thrustmap.rig import plans
+from thrustmap.rig.interlocks import Limits
+from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
+from thrustmap.rig.sim import peers
+from thrustmap.rig.sim.msp_peer import MspPeer
+from thrustmap.rig.sim.plant import ConstantPlant
+
+PROJECT = Path(__file__).resolve().parents[1]
+
+
+# --------------------------------------------------------------------------- the chooser
+
+
+@dataclass(frozen=True)
+class P:
+    throttle_pct: float
+    thrust_n: float
+    voltage_v: float | None
+    elapsed_s: float = 0.0
+
+
+def fake_fit(half_width: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Callable[..., Fitted]:
+    """A fit whose map is Th = 10·T and whose interval is ``half_width``."""
+
+    def fit(th: np.ndarray, t: np.ndarray, b: np.ndarray, *, model: str) -> Fitted:
+        return Fitted(
+            lambda tq, bq: 10.0 * np.asarray(tq, float),
+            lambda tq, bq: np.broadcast_to(half_width(tq, bq), np.broadcast(tq, bq).shape),
+        )
+
+    return fit
+
+
+POINTS = [P(10 * t, t, 24.0, i) for i, t in enumerate((0.5, 1.0, 2.0, 5.0, 6.0))]
+
+
+def test_chooser_commands_the_least_certain_thrust_at_the_voltage_now() -> None:
+    chooser = MapChooser(
+        0.1, min_points=3, fit=fake_fit(lambda t, b: 0.2 + 0.1 * np.abs(np.asarray(t) - 2.0))
+    )
+    v = chooser.assess(POINTS, 24.0)
+    assert not v.target_met and v.next_pct is not None
+    # the widest interval over the envelope 0.5..6 N is at 6 N: 0.2 + 0.4
+    assert v.next_pct == pytest.approx(60.0)
+    assert v.next_pi_pct == pytest.approx(0.6)
+    assert v.worst_pi_pct == pytest.approx(0.6)
+    assert "±0.60 % at 6 N" in v.next_reason
+    assert v.pi_at(2.0, 24.0) == pytest.approx(0.2)
+
+
+def test_a_flat_interval_fills_the_largest_gap() -> None:
+    chooser = MapChooser(0.5, min_points=3, fit=fake_fit(lambda t, b: np.full(np.shape(t), 2.0)))
+    v = chooser.assess(POINTS, 24.0)
+    assert v.next_pct is not None
+    assert 30.0 <= v.next_pct <= 40.0  # the gap 2..5 N, at its middle
+    assert "largest gap" in v.next_reason
+
+
+def test_target_met_needs_the_interval_and_enough_points() -> None:
+    flat = fake_fit(lambda t, b: np.full(np.shape(t), 0.3))
+    assert MapChooser(0.5, min_points=5, fit=flat).assess(POINTS, 24.0).target_met
+    not_yet = MapChooser(0.5, min_points=6, fit=flat).assess(POINTS, 24.0)
+    assert not not_yet.target_met and not_yet.next_pct is not None
+    wide = MapChooser(0.2, min_points=5, fit=flat).assess(POINTS, 24.0)
+    assert not wide.target_met and wide.worst_pi_pct == pytest.approx(0.3)
+
+
+def test_a_narrow_voltage_span_says_another_battery_is_needed() -> None:
+    v = MapChooser(0.5, min_points=3, fit=fake_fit(lambda t, b: np.full(np.shape(t), 0.3)))
+    note = v.assess(POINTS, 24.0).note
+    assert "voltage span 0.00 V" in note and "another charge or a bench supply" in note
+    spread = [P(p.throttle_pct, p.thrust_n, 21.0 + i) for i, p in enumerate(POINTS)]
+    assert v.assess(spread, 25.0).note == ""
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"target_pi_pct": 0.0}, "--target-pi must be a positive"),
+        ({"target_pi_pct": 1.0, "thrust_range_n": (5.0, 2.0)}, "--thrust-range"),
+    ],
+)
+def test_bad_targets_refused(kwargs: dict[str, object], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        MapChooser(**kwargs)  # type: ignore[arg-type]
+
+
+def test_bad_budgets_refused() -> None:
+    chooser = MapChooser(1.0)
+    with pytest.raises(ConfigError, match="max-minutes"):
+        plans.adaptive(chooser, max_minutes=0)
+    with pytest.raises(ConfigError, match="max-wh"):
+        plans.adaptive(chooser, max_wh=-1)
+    with pytest.raises(ConfigError, match="must be above"):
+        plans.adaptive(chooser, 40, 30)
+
+
+# --------------------------------------------------------------------------- on the bench
+
+
+def adaptive_run(
+    rig: Rig,
+    path: Path,
+    plan: plans.Plan,
+    *,
+    limits: Limits | None = None,
+    monitor: Callable[[Status], None] | None = None,
+) -> RunResult:
+    return record_sweep(
+        plan,
+        rig.fc,
+        rig.stand,
+        str(path),
+        rig.clock,
+        limits=limits or Limits(max_current_a=120, max_throttle_pct=75),
+        config=RunConfig(settle_window_s=0.6),
+        monitor=monitor,
+    )
+
+
+def sidecar(path: Path) -> dict[str, object]:
+    return json.loads(path.with_suffix(".meta.json").read_text(encoding="utf-8"))  # type: ignore[no-any-return]
+
+
+def test_completed_run_stops_at_the_target_and_says_why(tmp_path: Path) -> None:
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(1.0), 10, 60, dwell_s=3.0)
+    notes: list[str] = []
+    with rig.fc, rig.stand:
+        result = adaptive_run(
+            rig, tmp_path / "a.csv", plan, monitor=lambda s: notes.append(s.plan_note)
+        )
+    assert result.status == "completed" and result.stop_verified and motors_at_rest(rig)
+    assert result.reason.startswith("target met")
+    # far shorter than the paper's stairs-up + steps pair (85 s)
+    assert result.duration_s < 40.0
+    meta = sidecar(tmp_path / "a.csv")
+    summary = meta["adaptive"]
+    assert isinstance(summary, dict) and summary["stop_reason"] == result.reason
+    points = summary["points"]
+    assert [p["reason"] for p in points[:5]] == [f"coarse pass {i}/5" for i in range(1, 6)]
+    probes = points[5:]
+    assert probes, "no point was chosen from the map"
+    for p in probes:
+        assert "widest interval" in p["reason"] or "largest gap" in p["reason"]
+    assert all(p["pi_after_pct"] is not None for p in points[5:])
+    assert any(p["pi_before_pct"] is not None for p in probes)
+    assert summary["worst_pi_pct"] <= 1.0
+    # the live panel's line: worst interval and time left
+    assert any("worst interval ±" in n and "s left" in n for n in notes)
+    # the log fits like any other, close to the simulator's true map
+    tmap = fit_map([load_dataset(tmp_path / "a.csv")]).map
+    assert truth_error_pct(tmap, peers.bench_plant({"bench": "t"})) <= 0.5
+
+
+@pytest.mark.parametrize(
+    ("budget", "reason"),
+    [({"max_minutes": 0.4}, "budget reached: 0."), ({"max_wh": 0.3}, "Wh")],
+)
+def test_a_budget_ends_the_run(tmp_path: Path, budget: dict[str, float], reason: str) -> None:
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, dwell_s=3.0, **budget)  # unreachable target
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "b.csv", plan)
+    assert result.status == "completed" and result.stop_verified and motors_at_rest(rig)
+    assert "budget reached" in result.reason and reason in result.reason
+    if "max_minutes" in budget:  # overshoots by at most one hold
+        assert 24.0 <= result.duration_s <= 24.0 + 3.0 + 0.5
+    assert sidecar(tmp_path / "b.csv")["adaptive"]["stop_reason"] == result.reason  # type: ignore[index]
+
+
+def assert_partial_adaptive_log(path: Path, reason_part: str) -> None:
+    """The aborted run loads, says why it ended, keeps each point's record and fits."""
+    ds = load_dataset(path)
+    assert ds.meta["outcome"]["status"] == "aborted" and "partial" in ds.meta
+    assert reason_part in ds.meta["outcome"]["reason"]
+    assert sidecar(path)["adaptive"]["points"], "the per-point record was lost"  # type: ignore[index]
+    assert fit_map([ds]).map.validity.thrust_n.hi > 0
+
+
+PLAN_KW = {"dwell_s": 3.0}
+
+
+@pytest.mark.parametrize("how", ["sigint", "sigterm"])
+def test_ctrl_c_and_sigterm_stop_within_100ms(tmp_path: Path, how: str) -> None:
+    peers.reset_benches()
+    rig = make_rig()
+    fired: list[float] = []
+
+    def monitor(st: Status) -> None:
+        if st.elapsed_s > 14.0 and not fired:  # past the coarse pass, choosing from the map
+            fired.append(st.time_s)
+            os.kill(os.getpid(), signal.SIGINT if how == "sigint" else signal.SIGTERM)
+
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, **PLAN_KW)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "x.csv", plan, monitor=monitor)
+    assert result.status == "aborted" and result.interrupted and result.stop_verified
+    stops = rig.fc_port.stop_times(fired[0])
+    assert stops and stops[0] - fired[0] <= 0.1
+    assert motors_at_rest(rig)
+    assert_partial_adaptive_log(
+        tmp_path / "x.csv", "interrupted" if how == "sigint" else "terminated"
+    )
+
+
+def test_a_tripped_limit_stops_within_100ms(tmp_path: Path) -> None:
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, coarse_levels=8, **PLAN_KW)
+    limits = Limits(max_current_a=120, max_throttle_pct=75, max_rpm=27000)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "t.csv", plan, limits=limits)
+    assert result.status == "aborted" and result.trip is not None and result.trip.limit == "rpm"
+    ds = load_dataset(tmp_path / "t.csv")
+    assert ds.rpm is not None
+    t_cross = float(ds.time_s[ds.rpm > 27000][0])  # type: ignore[index]
+    stops = rig.fc_port.stop_times(t_cross)
+    assert stops and stops[0] - t_cross <= 0.1
+    assert result.stop_verified and motors_at_rest(rig)
+    assert_partial_adaptive_log(tmp_path / "t.csv", "limit tripped: rpm")
+
+
+def test_the_plan_stays_below_the_thrust_and_current_limits(tmp_path: Path) -> None:
+    """A coarse level past 80 % of a limit ends the coarse pass and becomes the plan's top."""
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(1.0), 10, 60, **PLAN_KW)
+    limits = Limits(max_current_a=120, max_throttle_pct=75, max_thrust_n=5.5)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "h.csv", plan, limits=limits)
+    assert result.status == "completed" and result.stop_verified and motors_at_rest(rig)
+    assert "of the 5.5 N limit: the plan's top is now 47.5 %" in result.reason
+    points = sidecar(tmp_path / "h.csv")["adaptive"]["points"]  # type: ignore[index]
+    assert max(p["throttle_pct"] for p in points) <= 47.5
+    assert len(points) > 4  # the run went on below the limit
+    ds = load_dataset(tmp_path / "h.csv")
+    assert float(ds.thrust_n.max()) < 5.5
+
+
+@pytest.mark.parametrize("device", ["fc", "stand"])
+def test_a_lost_link_stops_the_motor(tmp_path: Path, device: str) -> None:
+    peers.reset_benches()
+    rig = make_rig()
+    limits = Limits(max_current_a=120, max_throttle_pct=75, link_timeout_s=1.0)
+    if device == "fc":
+        rig.fc_port.dead = lambda t: 16.0 <= t < 18.0  # back later: the stop is then verified
+    else:
+        rig.stand_port.dead = lambda t: t >= 16.0
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, **PLAN_KW)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "l.csv", plan, limits=limits)
+    assert result.status == "aborted" and result.stop_verified and motors_at_rest(rig)
+    what = "throttle output" if device == "fc" else "stand"
+    assert f"lost link to the {what}" in result.reason
+    stops = rig.fc_port.stop_times(16.0)
+    assert stops and stops[0] - 16.0 <= limits.link_timeout_s + 0.6
+    assert_partial_adaptive_log(tmp_path / "l.csv", f"lost link to the {what}")
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def adaptive_args(tmp_path: Path, *more: str) -> list[str]:
+    return [
+        "sweep", "adaptive",
+        "--stand", "sim://tyto-1585?bench=cli-a&drive_esc=0",
+        "--throttle", "sim://betaflight?bench=cli-a&protocol=PWM",
+        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", *more,
+    ]  # fmt: skip
+
+
+def test_sweep_adaptive_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    peers.reset_benches()
+    main(adaptive_args(tmp_path, "--target-pi", "1.5"))
+    out = capsys.readouterr().out
+    assert "completed" in out and "target met" in out and "stop verified" in out
+    ds = load_dataset(tmp_path / "run.csv")
+    assert ds.meta["outcome"]["reason"].startswith("target met")
+    meta = sidecar(tmp_path / "run.csv")
+    assert meta["plan"]["name"] == "adaptive"  # type: ignore[index]
+    assert meta["adaptive"]["target_pi_pct"] == 1.5  # type: ignore[index]
+
+
+def test_sweep_adaptive_dry_run_shows_the_coarse_pass_budgets_and_limits(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    main(adaptive_args(tmp_path, "--dry-run", "--max-minutes", "4", "--max-wh", "2.5"))
+    out = capsys.readouterr().out
+    assert "coarse pass of 5 holds" in out
+    assert out.count("coarse  ") == 5 and "47.5 %" in out
+    assert "4 min, 2.5 Wh" in out and "target 95 % interval <= 1 %" in out
+    assert "limits ok: ceiling 60.0 %" in out
+    assert not (tmp_path / "run.csv").exists()
+
+
+def test_sweep_adaptive_refuses_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for bad, said in (
+        (["--thrust-range", "1-5"], "--thrust-range"),
+        (["--target-pi", "-1"], "--target-pi"),
+        (["--to", "90"], "ceiling"),
+        (["--thrust-range", "1:30", "--max-thrust", "20"], "above the thrust limit 20 N"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(adaptive_args(tmp_path, "--dry-run", *bad))
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert said in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_sigkill_mid_run_the_watchdog_stops_the_motor(tmp_path: Path) -> None:
+    peer = MspPeer(ConstantPlant(4), "betaflight-4", serial_rate_hz=None)
+    env = dict(os.environ, PYTHONPATH=str(PROJECT))
+    with MspTcpServer(peer) as server:
+        proc = subprocess.Popen(
+            [
+                sys.executable, "-m", "thrustmap", "sweep", "adaptive",
+                "--stand", "sim://tyto-1585?drive_esc=0", "--throttle", server.url,
+                "-o", str(tmp_path / "k.csv"), "--yes", "--quiet", "--max-current", "120",
+            ],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            deadline = time.monotonic() + 30.0
+            side = tmp_path / "k.meta.json"
+            # killed once the first hold is recorded, with the motor spinning at the next level
+            while not (
+                side.exists()
+                and '"pi_after_pct"' in side.read_text(encoding="utf-8")
+                and server.peer.motor_values[0] > 1000
+            ):
+                assert proc.poll() is None, "the run ended before the motor spun"
+                assert time.monotonic() < deadline, "the first hold never ended"
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
+            deadline = time.monotonic() + 10.0
+            while not server.peer.motors_at_rest:
+                assert time.monotonic() < deadline, server.peer.motor_values
+                time.sleep(0.05)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        log = tmp_path / "k.watchdog.log"
+        deadline = time.monotonic() + 10.0
+        while "verified by MSP_MOTOR" not in log.read_text(encoding="utf-8"):
+            assert time.monotonic() < deadline, log.read_text(encoding="utf-8")
+            time.sleep(0.05)
+        assert "ended without a confirmed motor stop" in log.read_text(encoding="utf-8")
+    # the killed run's log still loads, marked partial, and keeps each finished hold's record
+    ds = load_dataset(tmp_path / "k.csv")
+    assert "partial" in ds.meta and ds.meta["outcome"]["status"] == "running"
+    points = sidecar(tmp_path / "k.csv")["adaptive"]["points"]  # type: ignore[index]
+    assert points and points[0]["reason"] == "coarse pass 1/5"
+
+
+@pytest.mark.parametrize("width", [40, 80, 120])
+def test_the_live_panel_shows_the_worst_interval_and_time_left(
+    width: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import io
+
+    from rich.cells import cell_len
+    from rich.console import Console
+
+    from thrustmap.cli.live import LiveView, Snapshot
+
+    note = "worst interval ±1.17 % (target 1 %), 7 points, 0.52 Wh, ~4 s left"
+    snap = Snapshot(elapsed_s=12.0, total_s=16.0, label="probe", throttle_pct=53.6, plan_note=note)
+    view = LiveView("sweep adaptive", live=False, quiet=True)
+    view.feed(snap, {"current": 0.4})
+    buf = io.StringIO()
+    Console(file=buf, width=width, force_terminal=True, color_system=None).print(view.render(width))
+    lines = buf.getvalue().splitlines()
+    assert all(cell_len(ln) <= width for ln in lines)
+    text = "\n".join(lines)
+    assert "adaptive: worst interval ±1.1" in text
+    if width >= 80:
+        assert "~4 s left" in text
+    with LiveView("sweep adaptive", live=False, plain_period_s=0.0) as plain:
+        plain.feed(snap, {"current": 0.4})
+    assert note in capsys.readouterr().err  # off a terminal too
+
+
+def test_the_plan_revisits_the_range_as_the_voltage_sags(tmp_path: Path) -> None:
+    """An unreachable target and a 3-minute budget: the battery sags by about a volt, and the
+    plan measures the envelope's low and high ends again at the lower voltages."""
+    peers.reset_benches()
+    rig = make_rig()
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, max_minutes=3.0, **PLAN_KW)
+    with rig.fc, rig.stand:
+        result = adaptive_run(rig, tmp_path / "v.csv", plan)
+    assert result.status == "completed" and "budget reached" in result.reason
+    points = sidecar(tmp_path / "v.csv")["adaptive"]["points"]  # type: ignore[index]
+    top = [p for p in points if p["throttle_pct"] >= 50.0]
+    bottom = [p for p in points if p["throttle_pct"] <= 15.0]
+    for ends in (top, bottom):  # each end measured again after the battery fell by 0.5 V
+        volts = [p["voltage_v"] for p in ends]
+        assert len(ends) >= 3 and max(volts) - min(volts) >= 0.5, volts
+    middle = [p for p in points[5:] if 20.0 <= p["throttle_pct"] <= 45.0]
+    assert len(middle) >= 3  # and the middle too, not only the ends

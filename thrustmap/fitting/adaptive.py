@@ -1,0 +1,261 @@
+"""Choosing where an adaptive bench run measures next, from the map it is fitting.
+
+After each settled point the points so far are fitted (the default model, as ``thrustmap fit``
+would) and the map's 95 % prediction interval is asked over the envelope: thrusts in the
+envelope at the voltages seen. The next command is the throttle the map gives for the thrust
+whose prediction is least certain **at the battery voltage now** (the voltage cannot be chosen:
+it falls as the battery discharges). Where the interval is equally wide (inside the data's box
+it may be flat), the thrust farthest from any point measured near this voltage wins, so the plan
+fills gaps and revisits the range as the voltage moves. The run is done once the worst interval
+over the envelope is within the target.
+
+Everything the map is asked goes through one function, :func:`fit_interval` (fit the points,
+return the prediction and its interval at (T, B)), so a change of the interval's definition
+changes the choice without touching the rest.
+
+This module belongs to ``fitting``: it knows nothing of the rig. The plan
+(``thrustmap.rig.plans.adaptive``) receives a :class:`MapChooser` from its caller.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from thrustmap.core.errors import ConfigError, ThrustmapError
+from thrustmap.core.units import ThrottleScale
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+#: relative voltage span under which the map's voltage scaling is not identified from data
+#: (the identification rule of ``fit``: 5 % of the mean voltage)
+IDENTIFY_SPAN_REL = 0.05
+PERCENT = ThrottleScale("percent", 0.0, 100.0, "%")
+
+
+class PointLike(Protocol):
+    """What the chooser reads of a measured point (``thrustmap.rig.plans.SettledPoint``)."""
+
+    @property
+    def throttle_pct(self) -> float: ...
+    @property
+    def thrust_n(self) -> float: ...
+    @property
+    def voltage_v(self) -> float | None: ...
+    @property
+    def elapsed_s(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A fit of the points so far: throttle and its 95 % half-width, both in % throttle."""
+
+    throttle_pct: Callable[[FloatArray, FloatArray], FloatArray]
+    half_width_pct: Callable[[FloatArray, FloatArray], FloatArray]
+
+
+def fit_interval(
+    throttle_pct: FloatArray, thrust_n: FloatArray, voltage_v: FloatArray, *, model: str
+) -> Fitted:
+    """THE adapter to the fitting API: fit a map to settled points (one steady-state point
+    each) and return its prediction and prediction interval at (T, B)."""
+    from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
+    from thrustmap.fitting.fit import fit_map
+
+    n = len(thrust_n)
+    ds = Dataset(
+        path="adaptive-points",
+        format="adaptive",
+        throttle_scale=PERCENT,
+        throttle_native=np.asarray(throttle_pct, float),
+        thrust_n=np.asarray(thrust_n, float),
+        voltage_v=np.asarray(voltage_v, float),
+        line=np.arange(1, n + 1, dtype=np.int64),
+        meta={"layout": STEP_SUMMARY},
+    )
+    tmap = fit_map([ds], model=model).map
+    interval = tmap.prediction_interval()
+
+    def half_width(t: FloatArray, b: FloatArray) -> FloatArray:
+        if interval is None:
+            return np.full(np.broadcast(t, b).shape, np.inf)
+        return np.asarray(interval.half_width(t, b), dtype=np.float64)
+
+    def throttle(t: FloatArray, b: FloatArray) -> FloatArray:
+        return np.asarray(tmap.throttle_pct(t, b, corrected=False), dtype=np.float64)
+
+    return Fitted(throttle, half_width)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Satisfies ``thrustmap.rig.plans.Assessment`` (same fields)."""
+
+    worst_pi_pct: float | None
+    target_met: bool
+    next_pct: float | None
+    next_reason: str
+    next_pi_pct: float | None
+    pi_at: Callable[[float, float], float | None]
+    note: str = ""
+
+
+class MapChooser:
+    """Picks the next throttle where the fitted map is least certain at the voltage now.
+
+    ``thrust_range_n``: the envelope the target must hold over; None: from the thrust of the
+    lowest coarse level to the highest thrust measured (the top of the plan's throttle range,
+    which the limits allow). ``min_points``: no verdict of "done" before this many points."""
+
+    def __init__(
+        self,
+        target_pi_pct: float,
+        *,
+        thrust_range_n: tuple[float, float] | None = None,
+        model: str = "motor",
+        min_points: int = 7,
+        candidates: int = 41,
+        fit: Callable[..., Fitted] = fit_interval,
+    ) -> None:
+        if not (math.isfinite(target_pi_pct) and target_pi_pct > 0):
+            raise ConfigError(f"--target-pi must be a positive % throttle, got {target_pi_pct:g}")
+        if thrust_range_n is not None:
+            lo, hi = thrust_range_n
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+                raise ConfigError(
+                    f"--thrust-range must be LO:HI with 0 <= LO < HI N, got {lo:g}:{hi:g}"
+                )
+        self.target_pi_pct = float(target_pi_pct)
+        self.thrust_range_n = thrust_range_n
+        self.model = model
+        self.min_points = min_points
+        self.candidates = candidates
+        self._fit = fit
+        if fit is fit_interval:
+            # the fit's imports (scipy: over a second) load now, before any motor spins, not
+            # during the run while a motor holds its level unattended
+            import scipy.optimize  # noqa: F401
+
+            import thrustmap.fitting.fit  # noqa: F401
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "target_pi_pct": self.target_pi_pct,
+            "thrust_range_n": None if self.thrust_range_n is None else list(self.thrust_range_n),
+            "model": self.model,
+            "min_points": self.min_points,
+            "rule": "least certain thrust at the voltage now; ties to the largest gap",
+        }
+
+    def envelope(self, t: FloatArray) -> tuple[float, float]:
+        if self.thrust_range_n is not None:
+            return self.thrust_range_n
+        positive = t[t > 0]
+        lo = float(positive.min()) if len(positive) else 0.0
+        return lo, float(t.max())
+
+    def assess(self, points: Sequence[PointLike], voltage_v: float) -> Verdict:
+        usable = [p for p in points if p.voltage_v is not None and math.isfinite(p.thrust_n)]
+        th = np.array([p.throttle_pct for p in usable], float)
+        t = np.array([p.thrust_n for p in usable], float)
+        b = np.array([p.voltage_v for p in usable], float)
+        if len(usable) < 4:
+            return _keep_going("too few points to fit yet")
+        try:
+            fitted = self._fit(th, t, b, model=self.model)
+        except (ThrustmapError, np.linalg.LinAlgError, ValueError) as exc:
+            log.info("adaptive fit failed with %d points: %s", len(usable), exc)
+            return _keep_going(f"no fit yet ({exc})")
+        t_lo, t_hi = self.envelope(t)
+        grid_t = np.linspace(t_lo, t_hi, self.candidates)
+        b_lo, b_hi = float(b.min()), float(b.max())
+        grid_b = np.unique(np.array([b_lo, 0.5 * (b_lo + b_hi), b_hi, voltage_v]))
+        tt, bb = np.meshgrid(grid_t, grid_b)
+        worst_all = float(np.max(fitted.half_width_pct(tt, bb)))
+        worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
+        note = ""
+        span = b_hi - b_lo
+        mean_b = float(b.mean())
+        if span < IDENTIFY_SPAN_REL * mean_b:
+            note = (
+                f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V): "
+                "how the map scales with voltage rests on motor physics; for a measured "
+                "scaling, continue on a battery at another charge or a bench supply "
+                f"(at least {IDENTIFY_SPAN_REL * mean_b:.1f} V apart)"
+            )
+
+        def pi_at(thrust_n: float, volts: float) -> float | None:
+            value = float(fitted.half_width_pct(np.array([thrust_n]), np.array([volts]))[0])
+            return value if math.isfinite(value) else None
+
+        met = worst is not None and worst <= self.target_pi_pct and len(usable) >= self.min_points
+        if met:
+            return Verdict(worst, True, None, "target met", None, pi_at, note)
+        # the choice: at the voltage now, widest interval; among equal ones, the largest gap
+        # the voltage each candidate would be measured at: now, less the sag its load brings
+        # (a linear fit of the points' voltage on thrust and time)
+        el = np.array([p.elapsed_s for p in usable], float)
+        cand_b = _voltage_model(t, el, b, grid_t, float(el.max()), voltage_v)
+        pi_now = fitted.half_width_pct(grid_t, cand_b)
+        # gap: distance to the nearest point in thrust (envelope units) and voltage (units of
+        # the span that identifies the voltage scaling, 5 % of the mean)
+        span_t = max(t_hi - t_lo, 1e-9)
+        unit_b = IDENTIFY_SPAN_REL * mean_b
+        gap = np.min(
+            np.hypot(
+                (grid_t[:, None] - t[None, :]) / span_t, (cand_b[:, None] - b[None, :]) / unit_b
+            ),
+            axis=1,
+        )
+        near = np.abs(b - voltage_v) <= unit_b
+        wide = pi_now >= float(pi_now.max()) * 0.98
+        score = np.where(wide, gap, -1.0)
+        k = int(np.argmax(score))
+        target_t = float(grid_t[k])
+        level = float(fitted.throttle_pct(np.array([target_t]), np.array([cand_b[k]]))[0])
+        if not math.isfinite(level):
+            return _keep_going("the map gives no throttle for the envelope")
+        flat = bool(wide.all())
+        why = (
+            (
+                f"widest interval ±{float(pi_now[k]):.2f} %"
+                if worst is not None
+                else "no interval yet (too few points to hold any out)"
+            )
+            + f" at {target_t:.3g} N, {cand_b[k]:.2f} V"
+            + (
+                f" (equal over the range: largest gap, {gap[k] * 100:.0f} % of the envelope)"
+                if flat
+                else ""
+            )
+            + ("" if near.any() else "; no point yet near this voltage")
+        )
+        before = float(pi_now[k]) if math.isfinite(float(pi_now[k])) else None
+        return Verdict(worst, False, level, why, before, pi_at, note)
+
+
+def _voltage_model(
+    t: FloatArray, el: FloatArray, b: FloatArray, grid_t: FloatArray, now_s: float, b_now: float
+) -> FloatArray:
+    """Voltage expected at each candidate thrust now: B ≈ a + c·T + d·time fitted to the points
+    (sag under load, discharge), anchored to the voltage now; flat when it cannot be fitted."""
+    if len(t) < 4 or float(np.ptp(t)) <= 0:
+        return np.full_like(grid_t, b_now)
+    design = np.column_stack([np.ones_like(t), t, el])
+    coef, *_ = np.linalg.lstsq(design, b, rcond=None)
+    if not np.all(np.isfinite(coef)):
+        return np.full_like(grid_t, b_now)
+    c_t = min(float(coef[1]), 0.0)  # more thrust never raises the battery voltage
+    predicted_now = float(coef[0] + coef[2] * now_s)
+    return np.asarray(predicted_now + c_t * grid_t, dtype=np.float64)
+
+
+def _keep_going(why: str) -> Verdict:
+    return Verdict(None, False, None, why, None, lambda t, b: None)
