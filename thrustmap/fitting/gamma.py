@@ -8,7 +8,14 @@ held-out error is within one standard error (over the folds) of the best one, so
 degree must be clearly better, not just better on this draw (the paper settled on degree 2
 for the same reason). A degree needs ``MIN_SAMPLES_PER_COEF`` samples per coefficient, and a
 slope needs ``MIN_SLOPE_SPAN_V`` of battery span: on a narrower span the automatic choice is
-degree 0 and a warning says why. Flights with different mass or rotor count are not pooled
+degree 0 and a warning says why.
+
+γ never makes the map worse: the rule above chooses among the degrees whose corrected map is no
+worse than the uncorrected one in any voltage bin with ``MIN_BIN_SAMPLES`` Df samples (in e_Th
+when the map is given, else e_T). A degree that fails is reported with its bins and numbers
+(``GammaFit.guard``); when none passes, γ = 1 is kept (the map stays as it was) and a warning
+says why. A degree given explicitly is kept, its worse bins reported. Flights with different
+mass or rotor count are not pooled
 unless asked (``allow_mixed``): their γ need not be the same function of B.
 
 Metrics (per sample, then mean ± std, overall and binned by voltage):
