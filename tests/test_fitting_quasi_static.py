@@ -127,3 +127,16 @@ def test_slow_steps_are_still_plateaus() -> None:
     )
     r = select(ds, Selection()).report
     assert "quasi_static_staircase" not in r and r["plateaus"] >= 14, r
+
+
+def test_report_sweep_shows_the_paired_stairs_not_plateaus() -> None:
+    """The report's sweep figure reads what selection did: the staircase's stairs are paired
+    up/down, none is a 'settled plateau'."""
+    from thrustmap.report.data import sweep_mask
+
+    ds = load_dataset(FIXTURE)
+    mask = sweep_mask(ds, Selection())
+    assert mask.stair_pair is not None
+    assert mask.stair_pair.mean() > 0.8 and not mask.kept.any() and not mask.settling.any()
+    pts = select(ds, Selection())
+    assert pts.roles is not None and len(pts.roles) == len(ds)

@@ -101,6 +101,10 @@ class Selection:
         }
 
 
+#: per-sample roles (``Points.roles``)
+ROLE_OTHER, ROLE_PLATEAU, ROLE_SETTLING, ROLE_STAIR_PAIR, ROLE_RAMP = 0, 1, 2, 3, 4
+
+
 @dataclass(frozen=True)
 class Points:
     """Fit points from one file: plateau means, quasi-static ramp samples, or raw samples."""
@@ -111,6 +115,9 @@ class Points:
     throttle_pct: FloatArray
     kind: npt.NDArray[np.str_]  # "plateau", "ramp-pair", "ramp", "step-summary" or "sample"
     report: dict[str, Any] = field(default_factory=dict)
+    # per SAMPLE of the file (before the range filters): what steady-state extraction did with
+    # it (ROLE_* codes); None for step summaries and raw samples
+    roles: npt.NDArray[np.int8] | None = None
 
     def __len__(self) -> int:
         return len(self.thrust_n)
@@ -125,6 +132,7 @@ def _in_range(x: FloatArray, rng: tuple[float, float] | None) -> npt.NDArray[np.
 def select(ds: Dataset, sel: Selection) -> Points:
     """Apply steady-state extraction (unless ``all_samples``) and the range filters."""
     report: dict[str, Any] = {"file": ds.name, "samples": len(ds)}
+    roles = None
     if sel.all_samples:
         t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
         kind = np.full(len(ds), "sample")
@@ -136,7 +144,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
             kind = np.full(len(ds), "step-summary")
             report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
         else:
-            t, b, th, kind, stopped, info = _steady_state(ds, sel, _rotor_stopped(ds, sel))
+            t, b, th, kind, stopped, info, roles = _steady_state(ds, sel, _rotor_stopped(ds, sel))
             report.update(info)
         if stopped.any():
             # The rotor was not turning: the load cell reads its offset (tare information).
@@ -179,6 +187,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
         throttle_pct=ds.throttle_scale.to_pct(th[keep]),
         kind=kind[keep],
         report=report,
+        roles=roles,
     )
 
 
@@ -496,8 +505,10 @@ def _steady_state(
     np.ndarray[Any, Any],
     npt.NDArray[np.bool_],
     dict[str, Any],
+    npt.NDArray[np.int8],
 ]:
-    """Points, their kinds, whether each was taken with the rotor mostly stopped, and a report."""
+    """Points, their kinds, whether each was taken with the rotor mostly stopped, a report, and
+    each sample's role."""
     th = ds.throttle_native
     tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
     known = ds.meta.get("thrust_sensor") == SAMPLE_AND_HOLD
@@ -510,6 +521,7 @@ def _steady_state(
     n_plateau_samples = n_settle_dropped = n_ramp_kept = 0
     n_runner_settled = n_trending = n_unsettled = 0
     in_plateau = np.zeros(len(ds), dtype=bool)
+    roles = np.zeros(len(ds), dtype=np.int8)
     levels = _levels(ds, tol)
     stairs = [
         _Stair(
@@ -584,6 +596,7 @@ def _steady_state(
         su, sw = sub[u], sub[w]
         rows = np.r_[su.a : su.b, sw.a : sw.b]
         point_at_rest.append(bool(stopped[rows].mean() > 0.5))
+        roles[rows] = ROLE_STAIR_PAIR
     for i in used:
         in_plateau[stairs[i].a : stairs[i].b] = True
     n_stair_samples = sum(stairs[i].b - stairs[i].a for i in used)
@@ -625,6 +638,8 @@ def _steady_state(
             continue
         n_plateau_samples += b - a
         n_settle_dropped += start - a
+        roles[a:start] = ROLE_SETTLING
+        roles[start:b] = ROLE_PLATEAU
         t_out.append(float(np.mean(ds.thrust_n[kept])))
         b_out.append(float(np.mean(ds.voltage_v[start:b])))
         th_out.append(float(np.mean(th[start:b])))
@@ -660,8 +675,11 @@ def _steady_state(
             n_paired += int(inside.sum())
             paired[up[inside]] = True
             paired[down] = True
+            roles[up[inside]] = ROLE_RAMP
+            roles[down] = ROLE_RAMP
         quasi = on_ramp & ~paired & (slew_pct_s * sel.ramp_lag_s <= sel.lag_budget_pct)
         idx = np.flatnonzero(quasi)
+        roles[idx] = ROLE_RAMP
         n_ramp_kept = len(idx) + int(paired.sum())
         t_out.extend(ds.thrust_n[idx].tolist())
         b_out.extend(ds.voltage_v[idx].tolist())
@@ -713,4 +731,5 @@ def _steady_state(
         np.asarray(kinds),
         np.asarray(point_at_rest, dtype=bool),
         info,
+        roles,
     )

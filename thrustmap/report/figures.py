@@ -75,6 +75,14 @@ def sweep(rd: ReportData) -> Figure:
         )
         ax.plot(x, part(mask.settling), color="tab:red", lw=1.6, label="dropped: settling")
         ax.plot(x, part(mask.kept), color="tab:blue", lw=1.6, label="kept: settled plateau")
+        if mask.stair_pair is not None and mask.stair_pair.any():
+            ax.plot(
+                x,
+                part(mask.stair_pair),
+                color="tab:purple",
+                lw=1.6,
+                label="kept: stairs paired up/down",
+            )
         ax.set_ylabel("T (N)")
         ax.set_title(ds.name, loc="left")
         tw = ax.twinx()
@@ -86,7 +94,7 @@ def sweep(rd: ReportData) -> Figure:
         *axes[0].get_legend_handles_labels(),
         loc="upper center",
         ncol=4,
-        bbox_to_anchor=(0.5, 0.04),
+        bbox_to_anchor=(0.5, -0.02),
         frameon=False,
     )
     return fig
