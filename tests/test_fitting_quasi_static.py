@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
+from thrustmap.core.errors import FitError
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_dataset
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.selection import Selection, describe, select
 from thrustmap.rig.sim.physics import true_throttle_fraction
 from thrustmap.rig.sim.presets import preset
 from thrustmap.rig.sim.sysid import SYSID_BATTERY, lag_ratio, simulate_staircase, write_csv
@@ -140,3 +141,40 @@ def test_report_sweep_shows_the_paired_stairs_not_plateaus() -> None:
     assert mask.stair_pair.mean() > 0.8 and not mask.kept.any() and not mask.settling.any()
     pts = select(ds, Selection())
     assert pts.roles is not None and len(pts.roles) == len(ds)
+
+
+def test_one_way_staircase_says_why_it_was_not_kept(tmp_path: Path) -> None:
+    """Up only: no opposite leg, so the lag cannot be cancelled; the output says so."""
+    log = simulate_staircase(seed=1, cell_update_s=0.1)
+    top = int(np.argmax(log.pwm))
+    up_only = replace(
+        log,
+        pwm=log.pwm[: top + 1],
+        weight_g=log.weight_g[: top + 1],
+        vbat_v=log.vbat_v[: top + 1],
+        rpm=log.rpm[: top + 1],
+        current_a=log.current_a[: top + 1],
+        true_total_n=log.true_total_n[: top + 1],
+    )
+    ds = load_dataset(write_csv(up_only, tmp_path / "up.csv"))
+    with pytest.raises(FitError, match="1 staircase leg of stairs too short to settle had no opp"):
+        select(ds, Selection())
+    # with a plateau at the top (held 1 s), that is kept and the leg is said to be unpaired
+    held = np.concatenate([ds.throttle_native, np.full(100, ds.throttle_native[-1])])
+    n = len(held)
+    longer = replace(
+        ds,
+        throttle_native=held,
+        # the load cell keeps converting every 100 ms on the held level (tiny noise)
+        thrust_n=np.concatenate(
+            [ds.thrust_n, np.repeat(ds.thrust_n[-1] * 1.02 + 1e-5 * np.arange(10) % 3e-5, 10)]
+        ),
+        voltage_v=np.concatenate([ds.voltage_v, np.full(100, ds.voltage_v[-1])]),
+        line=np.arange(n, dtype=np.int64) + 2,
+        time_s=np.arange(n) * 0.01,
+        rpm=None,
+        current_a=None,
+    )
+    r = select(longer, Selection()).report
+    assert r["quasi_static_legs_unpaired"] == 1 and "stair_pairs" not in r
+    assert "no opposite leg" in (describe(r) or "")

@@ -195,6 +195,13 @@ def describe(report: dict[str, Any]) -> str | None:
     """One line on a quasi-static staircase (what was paired and kept), or None."""
     q = report.get("quasi_static_staircase")
     if not isinstance(q, dict):
+        n = report.get("quasi_static_legs_unpaired", 0)
+        if n:
+            return (
+                f"quasi-static staircase: {n} leg{'s' if n > 1 else ''} of stairs too short to "
+                "settle, with no opposite leg to pair with: the lag cannot be cancelled and "
+                "those stairs were dropped (run the staircase up and back down)"
+            )
         return None
     if "dwell_s" in q:
         dwell = f"stairs of {q['dwell_s']:.3f} s"
@@ -216,6 +223,12 @@ def describe(report: dict[str, Any]) -> str | None:
         )
         if report.get(k)
     ]
+    unpaired = report.get("quasi_static_legs_unpaired", 0)
+    if unpaired:
+        dropped.append(
+            f"{unpaired} leg{'s' if unpaired > 1 else ''} without an opposite leg (lag not "
+            "cancelled: run the staircase up and back down)"
+        )
     return (
         f"quasi-static staircase: {dwell}{lag}; {q.get('legs', 0)} legs paired up/down at equal "
         f"command so the lag cancels: {report.get('stair_pairs', 0)} points{kept}"
@@ -585,6 +598,14 @@ def _steady_state(
         legpairs.stalled += one.stalled
         legpairs.voltage_apart += one.voltage_apart
     legpairs.lag_s = lags
+    # legs of a staircase too short to settle that had no opposite leg to pair with: their lag
+    # cannot be cancelled (run the staircase up and back down)
+    n_unpaired = sum(
+        1
+        for _, leg in all_legs
+        if leg not in legs
+        and float(np.median([sub[i].updates for i in leg])) < sel.quasi_static_updates
+    )
     used = {candidates[i] for i in legpairs.used}
     for (u, w), t, v, c in zip(
         legpairs.stairs, legpairs.thrust_n, legpairs.voltage_v, legpairs.command, strict=True
@@ -687,9 +708,16 @@ def _steady_state(
         kinds.extend(["ramp"] * len(idx))
         point_at_rest.extend(stopped[idx].tolist())
     if not t_out:
+        why = (
+            f"; {n_unpaired} staircase leg{'s' if n_unpaired > 1 else ''} of stairs too short to "
+            "settle had no opposite leg to cancel the lag (run it up and back down)"
+            if n_unpaired
+            else ""
+        )
         raise FitError(
             "no steady-state points found (no throttle plateau of "
-            f"{sel.min_plateau_samples}+ samples, no slow ramp); use --all-samples to fit raw samples",
+            f"{sel.min_plateau_samples}+ samples, no slow ramp{why}); use --all-samples to fit "
+            "raw samples",
             file=ds.path,
         )
     info = {
@@ -710,6 +738,7 @@ def _steady_state(
         "stair_pairs_dropped_stalled": n_stalled,
         "stair_pairs_dropped_voltage_apart": legpairs.voltage_apart,
         "turning_stairs_dropped_unsettled": n_turns,
+        "quasi_static_legs_unpaired": n_unpaired,
     }
     info.update({k: v for k, v in rules.items() if v})
     if staircase:
