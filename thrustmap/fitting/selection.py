@@ -392,8 +392,8 @@ def _trends(y: FloatArray, sel: Selection) -> bool:
 
 @dataclass(frozen=True)
 class _Stair:
-    """One command level: [a, b), its command, row-mean thrust and voltage, fresh updates,
-    dwell (s when the log has time, else rows) and mid time."""
+    """One command level: [a, b), its command, row-mean thrust and voltage, fresh updates and
+    dwell (s when the log has time, else rows)."""
 
     a: int
     b: int
@@ -402,7 +402,6 @@ class _Stair:
     voltage_v: float
     updates: int
     dwell: float
-    mid: float
 
 
 def _stair_legs(stairs: list[_Stair], tol: float, min_legs: int) -> list[tuple[int, list[int]]]:
@@ -536,21 +535,34 @@ def _steady_state(
     in_plateau = np.zeros(len(ds), dtype=bool)
     roles = np.zeros(len(ds), dtype=np.int8)
     levels = _levels(ds, tol)
+    # per-level sums from cumulative sums: one pass, however many levels a file has
+    period = _row_period(ds)
+    bounds = np.array([(a, b) for a, b, _ in levels], dtype=np.int64).reshape(-1, 2)
+    lo_i, hi_i = bounds[:, 0], bounds[:, 1]
+    rows_n = np.maximum(hi_i - lo_i, 1)
+
+    def level_mean(x: npt.ArrayLike) -> FloatArray:
+        c = np.concatenate([[0.0], np.cumsum(np.asarray(x, dtype=float))])
+        return np.asarray((c[hi_i] - c[lo_i]) / rows_n, dtype=float)
+
+    cmd_m, t_m, v_m = level_mean(th), level_mean(ds.thrust_n), level_mean(ds.voltage_v)
+    n_upd = level_mean(fresh) * rows_n
+    if ds.time_s is not None and len(levels):
+        dwells = ds.time_s[hi_i - 1] - ds.time_s[lo_i] + period
+    else:
+        dwells = (hi_i - lo_i).astype(float)
     stairs = [
         _Stair(
-            a=a,
-            b=b,
-            command=float(np.mean(th[a:b])),
+            a=int(lo_i[k]),
+            b=int(hi_i[k]),
+            command=float(cmd_m[k]),
             # row mean of what the sensor showed (a held reading counts for as long as it held)
-            thrust_n=float(np.mean(ds.thrust_n[a:b])),
-            voltage_v=float(np.mean(ds.voltage_v[a:b])),
-            updates=int(fresh[a:b].sum()),
-            dwell=float(ds.time_s[b - 1] - ds.time_s[a]) + _row_period(ds)
-            if ds.time_s is not None
-            else float(b - a),
-            mid=float(np.mean(ds.time_s[a:b])) if ds.time_s is not None else (a + b) / 2.0,
+            thrust_n=float(t_m[k]),
+            voltage_v=float(v_m[k]),
+            updates=int(round(n_upd[k])),
+            dwell=float(dwells[k]),
         )
-        for a, b, _ in levels
+        for k in range(len(levels))
     ]
     at_rest_n = [
         st.thrust_n
@@ -598,12 +610,13 @@ def _steady_state(
         legpairs.stalled += one.stalled
         legpairs.voltage_apart += one.voltage_apart
     legpairs.lag_s = lags
+    paired_starts = {leg[0] for leg in legs}
     # legs of a staircase too short to settle that had no opposite leg to pair with: their lag
     # cannot be cancelled (run the staircase up and back down)
     n_unpaired = sum(
         1
         for _, leg in all_legs
-        if leg not in legs
+        if leg[0] not in paired_starts
         and float(np.median([sub[i].updates for i in leg])) < sel.quasi_static_updates
     )
     used = {candidates[i] for i in legpairs.used}
@@ -633,7 +646,7 @@ def _steady_state(
             "legs": len(legs),
         }
         if ds.time_s is not None:
-            staircase["sensor_update_s"] = round(per_update * _row_period(ds), 4)
+            staircase["sensor_update_s"] = round(per_update * period, 4)
         if legpairs.lag_s and ds.time_s is not None:
             # rotor + sensor lag seen between the legs (a first-order time constant)
             staircase["lag_s"] = round(float(np.median(legpairs.lag_s)), 4)
