@@ -17,6 +17,7 @@ from support import (
     mavlink_transcripts,
     rosbag_sim,
     simulate_flight,
+    stand_recordings,
     sweep_recordings,
 )
 
@@ -24,7 +25,7 @@ DEFAULT_DIR = Path(__file__).resolve().parents[2] / "fixtures"
 
 
 def regenerate(fixtures: Path) -> list[Path]:
-    """Write every fixture under ``fixtures`` (flightlogs/, transcripts/, sweeps/)."""
+    """Write every fixture under ``fixtures`` (flightlogs/, transcripts/, sweeps/, stands/)."""
     flightlogs = fixtures / "flightlogs"
     written: list[Path] = list(simulate_flight.write_fixtures(flightlogs))
     written += [Path(p) for p in blackbox_encode.write_fixtures(str(flightlogs))]
@@ -36,6 +37,7 @@ def regenerate(fixtures: Path) -> list[Path]:
     for flavour in sweep_recordings.FLAVOURS:
         sweep_recordings.record(flavour, sweeps)
     written += sorted(p for p in sweeps.iterdir() if p.is_file())
+    written += stand_recordings.write_fixtures(fixtures / "stands")
     return written
 
 

@@ -222,6 +222,7 @@ def fit_cmd(
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.fit import fit_map
     from thrustmap.fitting.loaders import check_thrust_leaves_noise, load_datasets
+    from thrustmap.fitting.selection import describe as describe_selection
 
     # a Ds log's sidecar (run.meta.json) is an input too; run.json is a free name for the map
     sidecars = [s for f in files if (s := Path(f).with_suffix(".meta.json")).exists()]
@@ -244,6 +245,8 @@ def fit_cmd(
                 else ""
             )
         )
+        if stair := describe_selection(r):
+            click.echo(f"  {stair}")
     click.echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
     click.echo(
         f"in-sample e_Th: mean {s['mean_pct']:.3f} % ± {s['std_pct']:.3f}, p95 {s['p95_pct']:.3f} %, "
@@ -423,6 +426,7 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
 
     from thrustmap.fitting.dataset import LAYOUTS
     from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.selection import describe as describe_selection
     from thrustmap.fitting.selection import select
 
     sel = _selection(kw)
@@ -441,5 +445,9 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         for k, v in ds.meta.items():
             note = LAYOUTS.get(v, "") if k == "layout" else ""
             click.echo(f"  {k}: {_meta_value(k, v)}" + (f" ({note})" if note else ""))
-        rules = ", ".join(f"{k}={v}" for k, v in p.report.items() if k != "file")
+        rules = ", ".join(
+            f"{k}={v}" for k, v in p.report.items() if k != "file" and not isinstance(v, dict)
+        )
         click.echo(f"  selection (what each rule did): {rules}")
+        if stair := describe_selection(p.report):
+            click.echo(f"  {stair}")

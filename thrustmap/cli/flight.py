@@ -340,7 +340,7 @@ def gamma_fit_cmd(
     click.echo(f"flown voltage {flown}; {fit.validation}")
     click.echo(
         "held-out error by degree (± standard error; the simplest within one SE of the best "
-        "wins): "
+        "wins, among the degrees that leave no populated voltage bin worse than uncorrected): "
         + ", ".join(
             f"{d}: {e:.4g} ± {fit.heldout_se.get(d, float('nan')):.2g}"
             for d, e in sorted(fit.heldout.items())
@@ -356,6 +356,9 @@ def gamma_fit_cmd(
                 f"{a['mean']:.3f} ± {a['std']:.3f}"
             )
     click.echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
+    g = fit.guard
+    floor = int(g.get("min_bin_samples", 20))
+    worse_at = {tuple(w["voltage_v"]) for r in g.get("rejected", []) for w in r["worse"]}
     for row in m["by_voltage"]:
         lo, hi = row["voltage_v"]
         eth = (
@@ -363,8 +366,44 @@ def gamma_fit_cmd(
             if "e_Th_before_pct" in row
             else " " * 16
         )
+        key = "e_Th" if "e_Th_before_pct" in row else "e_T"
+        flag = ""
+        if row["samples"] < floor:
+            flag = f"  (under {floor} samples: not checked)"
+        elif row[f"{key}_after_pct"]["mean"] > row[f"{key}_before_pct"]["mean"]:
+            flag = "  WORSE after γ"
+        elif tuple(row["voltage_v"]) in worse_at:
+            flag = "  (worse with the degree not used)"
         click.echo(
             f"  {lo:6.2f}..{hi:6.2f} {row['samples']:6d} {row['gamma']['mean']:6.4f}  {eth}"
             f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
+            + flag
         )
+    # the no-worse check on stdout too (its warnings also went to stderr): which bin and why
+    metric = g.get("metric", "e_Th")
+    for r in g.get("rejected", []):
+        bins = "; ".join(
+            f"{w['voltage_v'][0]:.2f}..{w['voltage_v'][1]:.2f} V ({w['samples']} samples) "
+            f"{w['before_pct']:.3f} → {w['after_pct']:.3f} %"
+            for w in r["worse"]
+        )
+        click.echo(f"no-worse check: degree {r['degree']} makes {metric} worse at {bins}")
+    if m["by_voltage"]:
+        worse_now = [
+            row
+            for row in m["by_voltage"]
+            if row["samples"] >= floor
+            and row[f"{metric}_after_pct"]["mean"] > row[f"{metric}_before_pct"]["mean"]
+        ]
+        head = f"no-worse check ({metric}, bins with {floor}+ samples): "
+        if not fit.corrected:
+            click.echo(
+                head + "every γ(B) tried was worse somewhere: kept the uncorrected map (γ = 1)"
+            )
+        elif worse_now:
+            click.echo(
+                head + f"the requested degree {fit.degree} is worse in the bins marked WORSE"
+            )
+        else:
+            click.echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
     click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))

@@ -8,7 +8,14 @@ held-out error is within one standard error (over the folds) of the best one, so
 degree must be clearly better, not just better on this draw (the paper settled on degree 2
 for the same reason). A degree needs ``MIN_SAMPLES_PER_COEF`` samples per coefficient, and a
 slope needs ``MIN_SLOPE_SPAN_V`` of battery span: on a narrower span the automatic choice is
-degree 0 and a warning says why. Flights with different mass or rotor count are not pooled
+degree 0 and a warning says why.
+
+γ never makes the map worse: the rule above chooses among the degrees whose corrected map is no
+worse than the uncorrected one in any voltage bin with ``MIN_BIN_SAMPLES`` Df samples (in e_Th
+when the map is given, else e_T). A degree that fails is reported with its bins and numbers
+(``GammaFit.guard``); when none passes, γ = 1 is kept (the map stays as it was) and a warning
+says why. A degree given explicitly is kept, its worse bins reported. Flights with different
+mass or rotor count are not pooled
 unless asked (``allow_mixed``): their γ need not be the same function of B.
 
 Metrics (per sample, then mean ± std, overall and binned by voltage):
@@ -44,6 +51,9 @@ DEFAULT_BLOCKS = 5
 MIN_SAMPLES_PER_COEF = 10
 #: battery-voltage span below which a γ slope cannot be told from noise and drift
 MIN_SLOPE_SPAN_V = 0.5
+#: a voltage bin with at least this many Df samples is populated: the corrected map may not be
+#: worse than the uncorrected one there
+MIN_BIN_SAMPLES = 20
 
 
 @dataclass
@@ -57,6 +67,10 @@ class GammaFit:
     metrics: dict[str, Any] = field(default_factory=dict)
     heldout_se: dict[int, float] = field(default_factory=dict)  # standard error over folds
     warnings: list[str] = field(default_factory=list)
+    # the no-worse check: per degree tried, the populated bins where the corrected map was
+    # worse than the uncorrected one; ``corrected`` False when no γ(B) passed (γ = 1 kept)
+    guard: dict[str, Any] = field(default_factory=dict)
+    corrected: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -66,7 +80,11 @@ class GammaFit:
             "voltage_v": self.correction.voltage_v.to_list(),
             "heldout_error": {str(k): v for k, v in self.heldout.items()},
             "heldout_standard_error": {str(k): v for k, v in self.heldout_se.items()},
-            "degree_rule": "one standard error over the held-out folds",
+            "degree_rule": "one standard error over the held-out folds, among the degrees whose "
+            f"corrected map is no worse than the uncorrected one in any voltage bin with "
+            f"{MIN_BIN_SAMPLES}+ samples",
+            "corrected": self.corrected,
+            "no_worse_check": self.guard,
             "warnings": self.warnings,
             "validation": self.validation,
             "samples": self.samples,
@@ -202,8 +220,6 @@ def fit_gamma(
     if no_voltage and degree is not None and degree > 0:
         raise ConfigError(f"the Df has no battery voltage: a degree-{degree} γ(B) needs B")
     t_cmd, t_src = thrust_command_n(table, side, tmap, rotors)
-    if tmap is not None:
-        rotors = _rotors(table, side, rotors)
     force = table["force_n"].to_numpy(float)
     volt = table["voltage_v"].to_numpy(float)
     ok = np.isfinite(t_cmd) & np.isfinite(force) & (force > 0) & (t_cmd > 0)
@@ -260,18 +276,70 @@ def fit_gamma(
         heldout[d] = _error(res[np.isfinite(res)], loss) if np.isfinite(res).any() else np.inf
         k = len(per_fold)
         heldout_se[d] = float(np.std(per_fold, ddof=1) / np.sqrt(k)) if k >= 2 else np.inf
-    if degree is None:
-        best = min(heldout, key=lambda d: heldout[d])
-        limit = heldout[best] + (heldout_se[best] if np.isfinite(heldout_se[best]) else 0.0)
-        chosen = min(d for d, e in heldout.items() if e <= limit)
-    else:
-        chosen = degree
-    for w in warnings:
-        log.warning("γ fit: %s", w)
-    coef = _fit_poly(b, gam, chosen, loss)
     vbox = Box(float(b.min()), float(b.max()))
     if no_voltage:  # γ is constant: its voltage box only records where it may be applied
         vbox = tmap.validity.voltage_v if tmap is not None else Box(0.0, 0.0)
+    if tmap is not None:
+        rotors = _rotors(table, side, rotors)
+
+    def metrics_of(corr: GammaCorrection) -> dict[str, Any]:
+        return flight_metrics(
+            table[ok], side, None if no_voltage else tmap, corr, t_cmd[ok], voltage_bins, rotors
+        )
+
+    # The no-worse check: each degree's corrected map against the uncorrected one, per
+    # populated voltage bin (in the Table-4 metric the output shows).
+    tried: dict[int, tuple[tuple[float, ...], dict[str, Any], list[dict[str, Any]]]] = {}
+    for d in candidates:
+        c = _fit_poly(b, gam, d, loss)
+        mets = metrics_of(GammaCorrection(coefficients=c, voltage_v=vbox, loss=loss))
+        tried[d] = (c, mets, worse_bins(mets))
+    if degree is None:
+        by_heldout = _one_se(heldout, heldout_se, list(heldout))
+        passing = [d for d in heldout if not tried[d][2]]
+        chosen = _one_se(heldout, heldout_se, passing) if passing else by_heldout
+    else:
+        chosen = by_heldout = degree
+    corrected = not tried[chosen][2]
+    guard: dict[str, Any] = {
+        "min_bin_samples": MIN_BIN_SAMPLES,
+        "metric": tried[chosen][2][0]["metric"] if tried[chosen][2] else _guard_metric(tried),
+        "rejected": [
+            {
+                "degree": d,
+                "worse": w,
+                "by_voltage_after": [_after_of(row) for row in tried[d][1].get("by_voltage", [])],
+            }
+            for d, (_, _, w) in sorted(tried.items())
+            if w
+        ],
+    }
+    if degree is None and chosen != by_heldout:
+        warnings.append(
+            f"degree {by_heldout} (the held-out choice) not used: {_worse_text(tried[by_heldout][2])}; "
+            f"kept degree {chosen}, which is no worse in any bin with {MIN_BIN_SAMPLES}+ samples"
+        )
+    if not corrected:
+        if degree is None:
+            warnings.append(
+                "no γ(B) of degree "
+                + ", ".join(map(str, sorted(tried)))
+                + " keeps the corrected map no worse than the uncorrected one in every voltage "
+                f"bin with {MIN_BIN_SAMPLES}+ samples ({_worse_text(tried[chosen][2])}): "
+                "kept the uncorrected map (γ = 1)"
+            )
+        else:
+            warnings.append(
+                f"the requested degree-{degree} γ(B) makes the map worse than uncorrected: "
+                f"{_worse_text(tried[chosen][2])}"
+            )
+    for w in warnings:
+        log.warning("γ fit: %s", w)
+    if corrected or degree is not None:
+        coef = tried[chosen][0]
+    else:
+        coef, chosen = (1.0,), 0  # the simpler choice: no correction
+    guard["kept"] = f"degree {chosen}" if corrected or degree is not None else "γ = 1 (none)"
     correction = GammaCorrection(coefficients=coef, voltage_v=vbox, loss=loss)
     if tmap is not None and rotors:
         outside = map_extrapolation(
@@ -283,9 +351,10 @@ def fit_gamma(
     fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
     fit.heldout_se = heldout_se
     fit.warnings = warnings
-    fit.metrics = flight_metrics(
-        table[ok], side, None if no_voltage else tmap, correction, t_cmd[ok], voltage_bins, rotors
-    )
+    fit.guard = guard
+    fit.corrected = corrected or degree is not None
+    fit.metrics = metrics_of(correction)
+    fit.metrics["no_worse_check"] = guard
     if no_voltage:
         fit.metrics["voltage_unknown"] = (
             "no battery voltage in the Df: γ fitted as a constant; e_Th (which needs B) not "
@@ -299,6 +368,63 @@ def fit_gamma(
         metrics={"degree": chosen, "heldout_error": heldout, "validation": how, **fit.metrics},
     )
     return fit
+
+
+def _one_se(heldout: dict[int, float], se: dict[int, float], among: list[int]) -> int:
+    """The simplest degree among ``among`` whose held-out error is within one standard error
+    of the best of them."""
+    best = min(among, key=lambda d: heldout[d])
+    limit = heldout[best] + (se[best] if np.isfinite(se.get(best, np.inf)) else 0.0)
+    return min(d for d in among if heldout[d] <= limit)
+
+
+def _metric_key(row: dict[str, Any]) -> str:
+    """The Table-4 error the no-worse check reads: e_Th (the map's throttle) when the fit had
+    the map, else e_T (thrust, % of F_m)."""
+    return "e_Th" if "e_Th_before_pct" in row else "e_T"
+
+
+def _after_of(row: dict[str, Any]) -> float:
+    return float(row[f"{_metric_key(row)}_after_pct"]["mean"])
+
+
+def _guard_metric(tried: dict[int, Any]) -> str:
+    for _, mets, _ in tried.values():
+        for row in mets.get("by_voltage", []):
+            return _metric_key(row)
+    return "e_Th"
+
+
+def worse_bins(metrics: dict[str, Any], min_samples: int = MIN_BIN_SAMPLES) -> list[dict[str, Any]]:
+    """Populated voltage bins (``min_samples``+) where the corrected map's mean error is above
+    the uncorrected one's."""
+    out = []
+    for row in metrics.get("by_voltage", []):
+        if row["samples"] < min_samples:
+            continue
+        key = _metric_key(row)
+        before = float(row[f"{key}_before_pct"]["mean"])
+        after = float(row[f"{key}_after_pct"]["mean"])
+        if after > before:
+            out.append(
+                {
+                    "voltage_v": list(row["voltage_v"]),
+                    "samples": int(row["samples"]),
+                    "metric": key,
+                    "before_pct": before,
+                    "after_pct": after,
+                }
+            )
+    return out
+
+
+def _worse_text(worse: list[dict[str, Any]]) -> str:
+    """'worse at 11.04..11.22 V (53 samples): e_Th 1.449 → 1.569 %; ...'."""
+    return "corrected map worse than uncorrected at " + "; ".join(
+        f"{w['voltage_v'][0]:.2f}..{w['voltage_v'][1]:.2f} V ({w['samples']} samples): "
+        f"{w['metric']} {w['before_pct']:.3f} → {w['after_pct']:.3f} %"
+        for w in worse
+    )
 
 
 def _voltage_rows(table: pd.DataFrame, warnings: list[str]) -> tuple[pd.DataFrame, bool]:

@@ -14,13 +14,26 @@ extraction).
 Sensors, not samples: a load cell that updates every ~10 samples and holds its value in between
 (sample-and-hold, e.g. the Crazyflie system-id stand) is detected from its exact repeats, and
 settling, noise and plateau length are judged on its UPDATES. A plateau whose kept part still
-trends (the means of its two halves differ beyond the noise) is dropped. Stairs too short to
-settle (fewer than ``min_plateau_samples`` sensor updates) are paired: on a staircase up and
-back down, the level on the up-leg and the same command on the adjacent down-leg lag in
-opposite directions, so their mean cancels the lag (no time column needed); a pair where one leg
-reads next to nothing (under ``stall_fraction`` of the other above the rest reading: a rotor that
-had not started on the way up) is dropped. Points where the rotor is stopped (command at the bottom of the scale, or rpm zero where
-the log has rpm) read the load cell's offset: tare information, reported. A positive command
+trends (the means of its two halves differ beyond the noise) is dropped.
+
+Quasi-static staircases: a command held for about one sensor update per step (the Crazyflie
+system-id deck: 10 ms rows, a new command every 100 ms, a load cell converting at ~10 SPS) is a
+slow ramp seen through the sensor, not a staircase of unsettled plateaus. A pair of adjacent
+legs (up then down, or down then up; at least ``min_stair_legs`` stairs each) is treated so
+when its stairs last fewer than ``quasi_static_updates`` sensor updates or less than
+``quasi_static_lags`` times the lag seen between the legs (the transient never dies out inside
+a stair). Each up stair is paired with the down leg read at the same command (interpolated, so
+the levels need not match): the rotor and a held load cell lag low going up and high coming
+down, in proportion to how fast each leg moves, so the two readings weighted by the other
+leg's rate cancel the lag to first order (no time column needed; with one, the lag left
+between the legs is reported in seconds). The turning stair has no counterpart and is dropped
+unless it was held long enough to settle. A pair whose voltages differ by more than
+``pair_voltage_rel`` (the battery sagged between the legs) is dropped, and so is a pair where
+one leg reads next to nothing (under ``stall_fraction`` of the other above the rest reading: a
+rotor that had not started on the way up). ``describe`` says in one line what was kept.
+
+Points where the rotor is stopped (command at the bottom of the scale, or rpm zero where the
+log has rpm) read the load cell's offset: tare information, reported. A positive command
 that did not turn the rotor (ESC dead band, rotor not started) is not a map point and is dropped;
 zero-command points are dropped too with ``drop_tare_points``.
 Logs recorded by thrustmap say where each step begins and where the runner saw it settle: those
@@ -60,6 +73,11 @@ class Selection:
     stall_fraction: float = 0.1  # a staircase leg under this share of the other (above the
     # load cell's rest reading) had a rotor that was not turning: the pair is dropped
     min_stair_legs: int = 3  # stairs in a leg before up/down pairing is tried
+    # A staircase whose stairs last fewer sensor updates than this (median) is a quasi-static
+    # ramp: too short to drop a transient and still average, so its legs are paired instead.
+    quasi_static_updates: float = 8.0
+    quasi_static_lags: float = 10.0  # ... or that last less than this many lag time constants
+    pair_voltage_rel: float = 0.05  # up/down readings paired only this close in voltage
     # Zero-command points (rotor at rest: thrust is the load cell's offset) are reported as tare
     # information; True also drops them from the map. Off by default: the default 'motor' model
     # pins its offset on the zero-command point (xNova by-file 0.51 % with it, 1.44 % without).
@@ -76,8 +94,15 @@ class Selection:
             "lag_budget_pct": self.lag_budget_pct,
             "trend_rel": self.trend_rel,
             "stall_fraction": self.stall_fraction,
+            "quasi_static_updates": self.quasi_static_updates,
+            "quasi_static_lags": self.quasi_static_lags,
+            "pair_voltage_rel": self.pair_voltage_rel,
             "drop_tare_points": self.drop_tare_points,
         }
+
+
+#: per-sample roles (``Points.roles``)
+ROLE_OTHER, ROLE_PLATEAU, ROLE_SETTLING, ROLE_STAIR_PAIR, ROLE_RAMP = 0, 1, 2, 3, 4
 
 
 @dataclass(frozen=True)
@@ -90,6 +115,9 @@ class Points:
     throttle_pct: FloatArray
     kind: npt.NDArray[np.str_]  # "plateau", "ramp-pair", "ramp", "step-summary" or "sample"
     report: dict[str, Any] = field(default_factory=dict)
+    # per SAMPLE of the file (before the range filters): what steady-state extraction did with
+    # it (ROLE_* codes); None for step summaries and raw samples
+    roles: npt.NDArray[np.int8] | None = None
 
     def __len__(self) -> int:
         return len(self.thrust_n)
@@ -104,6 +132,7 @@ def _in_range(x: FloatArray, rng: tuple[float, float] | None) -> npt.NDArray[np.
 def select(ds: Dataset, sel: Selection) -> Points:
     """Apply steady-state extraction (unless ``all_samples``) and the range filters."""
     report: dict[str, Any] = {"file": ds.name, "samples": len(ds)}
+    roles = None
     if sel.all_samples:
         t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
         kind = np.full(len(ds), "sample")
@@ -115,7 +144,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
             kind = np.full(len(ds), "step-summary")
             report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
         else:
-            t, b, th, kind, stopped, info = _steady_state(ds, sel, _rotor_stopped(ds, sel))
+            t, b, th, kind, stopped, info, roles = _steady_state(ds, sel, _rotor_stopped(ds, sel))
             report.update(info)
         if stopped.any():
             # The rotor was not turning: the load cell reads its offset (tare information).
@@ -139,6 +168,18 @@ def select(ds: Dataset, sel: Selection) -> Points:
     )
     report["kept_points"] = int(keep.sum())
     report["dropped_by_range"] = int((~keep).sum())
+    stair = report.get("quasi_static_staircase")
+    if isinstance(stair, dict) and keep.any() and len(ds):
+        # how much of the thrust the file reached the kept points span (from its rest reading)
+        rest = float(report.get("tare_offset_n", 0.0))
+        top = float(np.nanmax(ds.thrust_n)) - rest
+        if top > 0:
+            span = float(t[keep].max()) - max(float(t[keep].min()), rest)
+            stair["kept_thrust_n"] = [
+                round(float(t[keep].min()), 6),
+                round(float(t[keep].max()), 6),
+            ]
+            stair["thrust_range_kept_pct"] = round(100.0 * span / top, 1)
     return Points(
         source=ds.name,
         thrust_n=t[keep],
@@ -146,6 +187,52 @@ def select(ds: Dataset, sel: Selection) -> Points:
         throttle_pct=ds.throttle_scale.to_pct(th[keep]),
         kind=kind[keep],
         report=report,
+        roles=roles,
+    )
+
+
+def describe(report: dict[str, Any]) -> str | None:
+    """One line on a quasi-static staircase (what was paired and kept), or None."""
+    q = report.get("quasi_static_staircase")
+    if not isinstance(q, dict):
+        n = report.get("quasi_static_legs_unpaired", 0)
+        if n:
+            return (
+                f"quasi-static staircase: {n} leg{'s' if n > 1 else ''} of stairs too short to "
+                "settle, with no opposite leg to pair with: the lag cannot be cancelled and "
+                "those stairs were dropped (run the staircase up and back down)"
+            )
+        return None
+    if "dwell_s" in q:
+        dwell = f"stairs of {q['dwell_s']:.3f} s"
+    else:
+        dwell = f"stairs of {q.get('dwell_samples', 0):g} samples"
+    dwell += f" = {q.get('dwell_sensor_updates', 0):g} sensor updates"
+    if "sensor_update_s" in q:
+        dwell += f" (one every {q['sensor_update_s']:.3f} s)"
+    lag = f", lag between the legs {q['lag_s'] * 1000:.0f} ms" if "lag_s" in q else ""
+    kept = ""
+    if "kept_thrust_n" in q:
+        lo, hi = q["kept_thrust_n"]
+        kept = f", kept {lo:.3f}..{hi:.3f} N ({q.get('thrust_range_kept_pct', 0):g} % of the thrust reached)"
+    dropped = [
+        f"{report[k]} {what}"
+        for k, what in (
+            ("stair_pairs_dropped_stalled", "with the rotor not turning on one leg"),
+            ("stair_pairs_dropped_voltage_apart", "with the legs' voltages apart"),
+        )
+        if report.get(k)
+    ]
+    unpaired = report.get("quasi_static_legs_unpaired", 0)
+    if unpaired:
+        dropped.append(
+            f"{unpaired} leg{'s' if unpaired > 1 else ''} without an opposite leg (lag not "
+            "cancelled: run the staircase up and back down)"
+        )
+    return (
+        f"quasi-static staircase: {dwell}{lag}; {q.get('legs', 0)} legs paired up/down at equal "
+        f"command so the lag cancels: {report.get('stair_pairs', 0)} points{kept}"
+        + (f"; dropped {', '.join(dropped)}" if dropped else "")
     )
 
 
@@ -303,31 +390,122 @@ def _trends(y: FloatArray, sel: Selection) -> bool:
     return bool(drift > max(4.0 * noise * np.sqrt(2.0 / half), floor))
 
 
-def _stair_pairs(
-    stairs: list[tuple[float, float, float, npt.NDArray[np.int64]]], tol: float, min_legs: int
-) -> list[tuple[int, int]]:
-    """Index pairs (up-leg stair, down-leg stair) at equal command, from adjacent legs of
-    consecutive stairs (``stairs``: command, thrust, voltage, samples — in file order)."""
-    legs: list[tuple[int, list[int]]] = []  # (direction, stair indices)
+@dataclass(frozen=True)
+class _Stair:
+    """One command level: [a, b), its command, row-mean thrust and voltage, fresh updates and
+    dwell (s when the log has time, else rows)."""
+
+    a: int
+    b: int
+    command: float
+    thrust_n: float
+    voltage_v: float
+    updates: int
+    dwell: float
+
+
+def _stair_legs(stairs: list[_Stair], tol: float, min_legs: int) -> list[tuple[int, list[int]]]:
+    """Monotone runs of contiguous stairs (direction, stair indices), at least ``min_legs``
+    long; adjacent legs share their turning stair."""
+    legs: list[tuple[int, list[int]]] = []
     for i in range(1, len(stairs)):
-        step = stairs[i][0] - stairs[i - 1][0]
+        step = stairs[i].command - stairs[i - 1].command
         d = 0 if abs(step) <= tol else (1 if step > 0 else -1)
-        contiguous = stairs[i][3][0] - stairs[i - 1][3][-1] <= 1
+        contiguous = stairs[i].a <= stairs[i - 1].b
         if d and contiguous and legs and legs[-1][0] == d and legs[-1][1][-1] == i - 1:
             legs[-1][1].append(i)
         elif d and contiguous:
             legs.append((d, [i - 1, i]))
-    legs = [(d, leg) for d, leg in legs if len(leg) >= min_legs]
-    pairs: list[tuple[int, int]] = []
-    for (d1, l1), (d2, l2) in zip(legs, legs[1:], strict=False):
-        if d1 == d2 or l1[-1] != l2[0] and l2[0] - l1[-1] > 1:
-            continue
-        up, down = (l1, l2) if d1 > 0 else (l2, l1)
-        for u in up:
-            match = [w for w in down if abs(stairs[w][0] - stairs[u][0]) <= tol and w != u]
-            if match:
-                pairs.append((u, match[0]))
-    return pairs
+    return [(d, leg) for d, leg in legs if len(leg) >= min_legs]
+
+
+def _leg_rate(stairs: list[_Stair], leg: list[int]) -> float:
+    """How fast a leg moves: median command step over median dwell (per s, or per row)."""
+    steps = [abs(stairs[j].command - stairs[i].command) for i, j in zip(leg, leg[1:], strict=False)]
+    dwell = float(np.median([stairs[i].dwell for i in leg[1:-1] or leg]))
+    return float(np.median(steps)) / max(dwell, 1e-9)
+
+
+@dataclass
+class _Paired:
+    """Up/down leg pairs at equal command: points and what the pairing saw."""
+
+    thrust_n: list[float] = field(default_factory=list)
+    voltage_v: list[float] = field(default_factory=list)
+    command: list[float] = field(default_factory=list)
+    stairs: list[tuple[int, int]] = field(default_factory=list)  # (up stair, down stair near)
+    used: set[int] = field(default_factory=set)
+    stalled: int = 0
+    voltage_apart: int = 0
+    lag_s: list[float] = field(default_factory=list)
+
+
+def _pair_legs(
+    stairs: list[_Stair],
+    up: list[int],
+    down: list[int],
+    turn: int,
+    rest_n: float,
+    sel: Selection,
+    at_rest: npt.NDArray[np.bool_],
+) -> _Paired:
+    """Pair each up-leg stair with the adjacent down leg read at the same command.
+
+    Rotor and load cell lag low on the way up and high on the way down. With a first-order lag
+    the error is proportional to how fast the leg moves, so the two readings are weighted by the
+    other leg's rate (equal rates: the plain mean) and the lag cancels to first order. The down
+    leg is interpolated at the up stair's command (its levels need not match); the turning stair
+    has no counterpart and is not paired with itself. The down leg is later, so the battery has
+    sagged further: a pair whose voltages differ by more than ``pair_voltage_rel`` is dropped.
+    The lag left between the legs is reported (s, when the log has time)."""
+    out = _Paired()
+    for _ in (0,):
+        up_i = [i for i in up if i != turn]
+        down_i = sorted((i for i in down if i != turn), key=lambda i: stairs[i].command)
+        if len(down_i) < 2 or not up_i:
+            break
+        dc = np.array([stairs[i].command for i in down_i])
+        dt = np.array([stairs[i].thrust_n for i in down_i])
+        dv = np.array([stairs[i].voltage_v for i in down_i])
+        r_up, r_dn = _leg_rate(stairs, up), _leg_rate(stairs, down)
+        w_up = r_dn / (r_up + r_dn) if r_up + r_dn > 0 else 0.5
+        uc = np.array([stairs[i].command for i in up_i])
+        ut = np.array([stairs[i].thrust_n for i in up_i])
+        slope = np.gradient(ut, uc) if len(up_i) >= 2 else np.zeros(len(up_i))  # dT/dcommand
+        for k, u in enumerate(up_i):
+            c = stairs[u].command
+            if c < dc[0] - 1e-9 or c > dc[-1] + 1e-9:
+                continue
+            out.used.add(u)
+            t_dn = float(np.interp(c, dc, dt))
+            v_dn = float(np.interp(c, dc, dv))
+            lo, hi = sorted((stairs[u].thrust_n - rest_n, t_dn - rest_n))
+            # (a rotor the log shows stopped is kept here: select() drops it, saying why)
+            if not at_rest[u] and (hi <= 0 or lo <= sel.stall_fraction * hi):
+                out.stalled += 1
+                continue
+            v_up = stairs[u].voltage_v
+            if abs(v_up - v_dn) > sel.pair_voltage_rel * 0.5 * (v_up + v_dn):
+                out.voltage_apart += 1
+                continue
+            out.thrust_n.append(w_up * stairs[u].thrust_n + (1.0 - w_up) * t_dn)
+            out.voltage_v.append(w_up * v_up + (1.0 - w_up) * v_dn)
+            out.command.append(c)
+            near = down_i[int(np.argmin(np.abs(dc - c)))]
+            out.stairs.append((u, near))
+            if slope[k] > 0:  # T_dn - T_up = tau * dT/dc * (rate_up + rate_down)
+                out.lag_s.append((t_dn - stairs[u].thrust_n) / (slope[k] * (r_up + r_dn)))
+        out.used.update(i for i in down_i if dc[0] <= stairs[i].command <= dc[-1])
+    return out
+
+
+def _row_period(ds: Dataset) -> float:
+    """The log's median sample period (s), 0 without time."""
+    if ds.time_s is None or len(ds) < 2:
+        return 0.0
+    d = np.diff(ds.time_s)
+    d = d[d > 0]
+    return float(np.median(d)) if d.size else 0.0
 
 
 def _steady_state(
@@ -339,8 +517,10 @@ def _steady_state(
     np.ndarray[Any, Any],
     npt.NDArray[np.bool_],
     dict[str, Any],
+    npt.NDArray[np.int8],
 ]:
-    """Points, their kinds, whether each was taken with the rotor mostly stopped, and a report."""
+    """Points, their kinds, whether each was taken with the rotor mostly stopped, a report, and
+    each sample's role."""
     th = ds.throttle_native
     tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
     known = ds.meta.get("thrust_sensor") == SAMPLE_AND_HOLD
@@ -353,20 +533,128 @@ def _steady_state(
     n_plateau_samples = n_settle_dropped = n_ramp_kept = 0
     n_runner_settled = n_trending = n_unsettled = 0
     in_plateau = np.zeros(len(ds), dtype=bool)
-    stairs: list[tuple[float, float, float, npt.NDArray[np.int64]]] = []
-    for a, b, settled_from in _levels(ds, tol):
+    roles = np.zeros(len(ds), dtype=np.int8)
+    levels = _levels(ds, tol)
+    # per-level sums from cumulative sums: one pass, however many levels a file has
+    period = _row_period(ds)
+    bounds = np.array([(a, b) for a, b, _ in levels], dtype=np.int64).reshape(-1, 2)
+    lo_i, hi_i = bounds[:, 0], bounds[:, 1]
+    rows_n = np.maximum(hi_i - lo_i, 1)
+
+    def level_mean(x: npt.ArrayLike) -> FloatArray:
+        c = np.concatenate([[0.0], np.cumsum(np.asarray(x, dtype=float))])
+        return np.asarray((c[hi_i] - c[lo_i]) / rows_n, dtype=float)
+
+    cmd_m, t_m, v_m = level_mean(th), level_mean(ds.thrust_n), level_mean(ds.voltage_v)
+    n_upd = level_mean(fresh) * rows_n
+    if ds.time_s is not None and len(levels):
+        dwells = ds.time_s[hi_i - 1] - ds.time_s[lo_i] + period
+    else:
+        dwells = (hi_i - lo_i).astype(float)
+    stairs = [
+        _Stair(
+            a=int(lo_i[k]),
+            b=int(hi_i[k]),
+            command=float(cmd_m[k]),
+            # row mean of what the sensor showed (a held reading counts for as long as it held)
+            thrust_n=float(t_m[k]),
+            voltage_v=float(v_m[k]),
+            updates=int(round(n_upd[k])),
+            dwell=float(dwells[k]),
+        )
+        for k in range(len(levels))
+    ]
+    at_rest_n = [
+        st.thrust_n
+        for st in stairs
+        if ds.throttle_scale.to_pct(st.command) <= sel.plateau_tolerance_pct
+    ]
+    rest_n = float(np.median(at_rest_n)) if at_rest_n else 0.0
+    # Quasi-static staircases: legs whose stairs last only a few sensor updates (too short to
+    # settle and average) are a slow ramp seen through the sensor: pair up and down legs.
+    candidates = [i for i, st in enumerate(stairs) if st.b - st.a >= 2]
+    sub = [stairs[i] for i in candidates]
+    # A leg pair is quasi-static when its stairs last fewer sensor updates than
+    # ``quasi_static_updates`` or less than ``quasi_static_lags`` times the lag seen between its
+    # legs (rotor + sensor): the transient never dies out inside a stair.
+    all_legs = _stair_legs(sub, tol, sel.min_stair_legs)
+    sub_at_rest = np.array([bool(stopped[st.a : st.b].mean() > 0.5) for st in sub], dtype=bool)
+    legpairs = _Paired()
+    legs: list[list[int]] = []
+    lags: list[float] = []
+    n_turns = 0
+    for (d1, l1), (d2, l2) in zip(all_legs, all_legs[1:], strict=False):
+        if d1 == d2 or l2[0] - l1[-1] > 1:
+            continue
+        up_leg, down_leg = (l1, l2) if d1 > 0 else (l2, l1)
+        one = _pair_legs(sub, up_leg, down_leg, l1[-1], rest_n, sel, sub_at_rest)
+        both = up_leg + down_leg
+        updates = float(np.median([sub[i].updates for i in both]))
+        dwell = float(np.median([sub[i].dwell for i in both]))
+        lag = float(np.median(one.lag_s)) if one.lag_s else 0.0
+        row_lag = lag if ds.time_s is not None else 0.0
+        if updates >= sel.quasi_static_updates and not dwell < sel.quasi_static_lags * row_lag:
+            continue
+        legs += [up_leg, down_leg]
+        turn = sub[l1[-1]]
+        if turn.updates < sel.quasi_static_updates or turn.dwell < sel.quasi_static_lags * row_lag:
+            # the turning stair has no counterpart and too short a hold to settle: unsettled
+            one.used.add(l1[-1])
+            n_turns += 1
+        lags += one.lag_s
+        legpairs.thrust_n += one.thrust_n
+        legpairs.voltage_v += one.voltage_v
+        legpairs.command += one.command
+        legpairs.stairs += one.stairs
+        legpairs.used |= one.used
+        legpairs.stalled += one.stalled
+        legpairs.voltage_apart += one.voltage_apart
+    legpairs.lag_s = lags
+    paired_starts = {leg[0] for leg in legs}
+    # legs of a staircase too short to settle that had no opposite leg to pair with: their lag
+    # cannot be cancelled (run the staircase up and back down)
+    n_unpaired = sum(
+        1
+        for _, leg in all_legs
+        if leg[0] not in paired_starts
+        and float(np.median([sub[i].updates for i in leg])) < sel.quasi_static_updates
+    )
+    used = {candidates[i] for i in legpairs.used}
+    for (u, w), t, v, c in zip(
+        legpairs.stairs, legpairs.thrust_n, legpairs.voltage_v, legpairs.command, strict=True
+    ):
+        t_out.append(t)
+        b_out.append(v)
+        th_out.append(c)
+        kinds.append("stair-pair")
+        su, sw = sub[u], sub[w]
+        rows = np.r_[su.a : su.b, sw.a : sw.b]
+        point_at_rest.append(bool(stopped[rows].mean() > 0.5))
+        roles[rows] = ROLE_STAIR_PAIR
+    for i in used:
+        in_plateau[stairs[i].a : stairs[i].b] = True
+    n_stair_samples = sum(stairs[i].b - stairs[i].a for i in used)
+    n_stair_pairs = len(legpairs.thrust_n)
+    staircase: dict[str, Any] = {}
+    if legs:
+        leg_stairs = [sub[i] for leg in legs for i in leg]
+        dwell = float(np.median([st.dwell for st in leg_stairs]))
+        per_update = len(ds) / max(int(fresh.sum()), 1)
+        staircase = {
+            "dwell_s" if ds.time_s is not None else "dwell_samples": round(dwell, 4),
+            "dwell_sensor_updates": round(float(np.median([st.updates for st in leg_stairs])), 1),
+            "legs": len(legs),
+        }
+        if ds.time_s is not None:
+            staircase["sensor_update_s"] = round(per_update * period, 4)
+        if legpairs.lag_s and ds.time_s is not None:
+            # rotor + sensor lag seen between the legs (a first-order time constant)
+            staircase["lag_s"] = round(float(np.median(legpairs.lag_s)), 4)
+    for li, (a, b, settled_from) in enumerate(levels):
+        if li in used:
+            continue
         upd = a + np.flatnonzero(fresh[a:b])  # samples with a new thrust reading
         if len(upd) < sel.min_plateau_samples:
-            if b - a >= 2 and len(upd):
-                # a stair too short for the sensor to settle: a candidate for leg pairing
-                stairs.append(
-                    (
-                        float(np.mean(th[a:b])),
-                        float(np.mean(ds.thrust_n[upd])),
-                        float(np.mean(ds.voltage_v[a:b])),
-                        np.arange(a, b),
-                    )
-                )
             continue
         in_plateau[a:b] = True
         if settled_from is not None:
@@ -384,34 +672,14 @@ def _steady_state(
             continue
         n_plateau_samples += b - a
         n_settle_dropped += start - a
+        roles[a:start] = ROLE_SETTLING
+        roles[start:b] = ROLE_PLATEAU
         t_out.append(float(np.mean(ds.thrust_n[kept])))
         b_out.append(float(np.mean(ds.voltage_v[start:b])))
         th_out.append(float(np.mean(th[start:b])))
         kinds.append("plateau")
         point_at_rest.append(bool(stopped[start:b].mean() > 0.5))
-    # Staircases too fast for the sensor: pair each up-leg stair with the down-leg stair at the
-    # same command; the rotor (and a held load cell) lags low going up and high coming down.
-    n_stair_pairs = n_stalled = 0
-    at_rest = [
-        t for c, t, _, _ in stairs if ds.throttle_scale.to_pct(c) <= sel.plateau_tolerance_pct
-    ]
-    rest_n = float(np.median(at_rest)) if at_rest else 0.0
-    for u, w in _stair_pairs(stairs, tol, sel.min_stair_legs):
-        cu, tu, vu, su = stairs[u]
-        cw, tw, vw, sw = stairs[w]
-        mean_t = (tu + tw) / 2.0
-        lo, hi = sorted((tu - rest_n, tw - rest_n))
-        if hi <= 0 or lo <= sel.stall_fraction * hi:
-            n_stalled += 1
-            continue
-        t_out.append(mean_t)
-        b_out.append((vu + vw) / 2.0)
-        th_out.append((cu + cw) / 2.0)
-        kinds.append("stair-pair")
-        point_at_rest.append(bool(stopped[np.concatenate([su, sw])].mean() > 0.5))
-        in_plateau[su] = True
-        in_plateau[sw] = True
-        n_stair_pairs += 1
+    n_stalled = legpairs.stalled
     # Ramps: pair each up-ramp with the down-ramp next to it (at the same throttle the rotor
     # lags below on the way up and above on the way down, so the mean cancels the lag to first
     # order); keep unpaired ramp samples only where the slew makes lag cheaper than the budget.
@@ -441,8 +709,11 @@ def _steady_state(
             n_paired += int(inside.sum())
             paired[up[inside]] = True
             paired[down] = True
+            roles[up[inside]] = ROLE_RAMP
+            roles[down] = ROLE_RAMP
         quasi = on_ramp & ~paired & (slew_pct_s * sel.ramp_lag_s <= sel.lag_budget_pct)
         idx = np.flatnonzero(quasi)
+        roles[idx] = ROLE_RAMP
         n_ramp_kept = len(idx) + int(paired.sum())
         t_out.extend(ds.thrust_n[idx].tolist())
         b_out.extend(ds.voltage_v[idx].tolist())
@@ -450,9 +721,16 @@ def _steady_state(
         kinds.extend(["ramp"] * len(idx))
         point_at_rest.extend(stopped[idx].tolist())
     if not t_out:
+        why = (
+            f"; {n_unpaired} staircase leg{'s' if n_unpaired > 1 else ''} of stairs too short to "
+            "settle had no opposite leg to cancel the lag (run it up and back down)"
+            if n_unpaired
+            else ""
+        )
         raise FitError(
             "no steady-state points found (no throttle plateau of "
-            f"{sel.min_plateau_samples}+ samples, no slow ramp); use --all-samples to fit raw samples",
+            f"{sel.min_plateau_samples}+ samples, no slow ramp{why}); use --all-samples to fit "
+            "raw samples",
             file=ds.path,
         )
     info = {
@@ -462,7 +740,8 @@ def _steady_state(
         "settling_samples_dropped": n_settle_dropped,
         "ramp_samples_kept": n_ramp_kept,
         "ramp_pair_points": n_paired,
-        "transient_samples_dropped": len(ds) - n_plateau_samples - n_ramp_kept,
+        "stair_pair_samples": n_stair_samples,
+        "transient_samples_dropped": len(ds) - n_plateau_samples - n_ramp_kept - n_stair_samples,
         **held,
     }
     rules = {
@@ -470,10 +749,22 @@ def _steady_state(
         "plateaus_dropped_unsettled": n_unsettled,
         "stair_pairs": n_stair_pairs,
         "stair_pairs_dropped_stalled": n_stalled,
+        "stair_pairs_dropped_voltage_apart": legpairs.voltage_apart,
+        "turning_stairs_dropped_unsettled": n_turns,
+        "quasi_static_legs_unpaired": n_unpaired,
     }
     info.update({k: v for k, v in rules.items() if v})
-    if at_rest:  # zero-command stairs too short to be points: still the rest reading
-        info["tare_points"] = len(at_rest)
+    if staircase:
+        info["quasi_static_staircase"] = staircase
+    short_rest = [
+        st
+        for i, st in enumerate(stairs)
+        if i not in used
+        and st.updates < sel.min_plateau_samples
+        and ds.throttle_scale.to_pct(st.command) <= sel.plateau_tolerance_pct
+    ]
+    if short_rest:  # zero-command stairs too short to be points: still the rest reading
+        info["tare_points"] = len(short_rest)
         info["tare_offset_n"] = round(rest_n, 6)
     return (
         np.asarray(t_out),
@@ -482,4 +773,5 @@ def _steady_state(
         np.asarray(kinds),
         np.asarray(point_at_rest, dtype=bool),
         info,
+        roles,
     )

@@ -22,7 +22,13 @@ from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 from thrustmap.fitting.models import PolyModel
 from thrustmap.fitting.names import DEFAULT_MODEL, Loss
-from thrustmap.fitting.selection import Selection, _settle_index, plateaus
+from thrustmap.fitting.selection import (
+    ROLE_PLATEAU,
+    ROLE_SETTLING,
+    ROLE_STAIR_PAIR,
+    Selection,
+    select,
+)
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +45,8 @@ class SweepMask:
     kept: npt.NDArray[np.bool_]  # settled plateau samples (averaged into points) or all samples
     settling: npt.NDArray[np.bool_]  # plateau samples dropped while the rotor settled
     other: npt.NDArray[np.bool_]  # ramps and transitions (ramp pairs are used per the report)
+    # stairs of a quasi-static staircase, paired up/down at equal command
+    stair_pair: npt.NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -149,29 +157,41 @@ def selection_of(tmap: ThrustMap) -> Selection:
         "thrust_range": rng("thrust_range"),
         "all_samples": bool(s.get("all_samples", False)),
     }
-    for key in ("plateau_tolerance_pct", "settle_sigmas", "lag_budget_pct"):
-        if key in s:
+    for key in (
+        "plateau_tolerance_pct",
+        "settle_sigmas",
+        "lag_budget_pct",
+        "trend_rel",
+        "stall_fraction",
+        "quasi_static_updates",
+        "quasi_static_lags",
+        "pair_voltage_rel",
+    ):
+        if isinstance(s.get(key), int | float) and not isinstance(s.get(key), bool):
             kw[key] = float(s[key])
+    if isinstance(s.get("drop_tare_points"), bool):
+        kw["drop_tare_points"] = s["drop_tare_points"]
     return Selection(**kw)
 
 
 def sweep_mask(ds: Dataset, sel: Selection) -> SweepMask:
-    """Which samples steady-state selection averaged, which it dropped while settling."""
+    """Which samples steady-state selection averaged, which it dropped while settling, and
+    which it paired on the legs of a quasi-static staircase: the selection's own record."""
     n = len(ds)
     kept = np.zeros(n, bool)
     settling = np.zeros(n, bool)
     if sel.all_samples:
         return SweepMask(np.ones(n, bool), settling, np.zeros(n, bool))
-    tol = sel.plateau_tolerance_pct / 100.0 * ds.throttle_scale.span
-    for a, b in plateaus(ds.throttle_native, tol):
-        if b - a < sel.min_plateau_samples:
-            continue
-        k = _settle_index(ds.thrust_n[a:b], sel.settle_sigmas)
-        if b - a - k < 2:
-            continue
-        settling[a : a + k] = True
-        kept[a + k : b] = True
-    return SweepMask(kept, settling, ~(kept | settling))
+    try:
+        roles = select(ds, sel).roles
+    except ThrustmapError:  # nothing steady in this file: every sample is "other"
+        roles = None
+    if roles is None:
+        return SweepMask(kept, settling, ~kept)
+    kept = roles == ROLE_PLATEAU
+    settling = roles == ROLE_SETTLING
+    paired = roles == ROLE_STAIR_PAIR
+    return SweepMask(kept, settling, ~(kept | settling | paired), paired)
 
 
 # -- uncertainty ---------------------------------------------------------------------------------

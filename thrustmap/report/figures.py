@@ -75,6 +75,14 @@ def sweep(rd: ReportData) -> Figure:
         )
         ax.plot(x, part(mask.settling), color="tab:red", lw=1.6, label="dropped: settling")
         ax.plot(x, part(mask.kept), color="tab:blue", lw=1.6, label="kept: settled plateau")
+        if mask.stair_pair is not None and mask.stair_pair.any():
+            ax.plot(
+                x,
+                part(mask.stair_pair),
+                color="tab:purple",
+                lw=1.6,
+                label="kept: stairs paired up/down",
+            )
         ax.set_ylabel("T (N)")
         ax.set_title(ds.name, loc="left")
         tw = ax.twinx()
@@ -86,7 +94,7 @@ def sweep(rd: ReportData) -> Figure:
         *axes[0].get_legend_handles_labels(),
         loc="upper center",
         ncol=4,
-        bbox_to_anchor=(0.5, 0.04),
+        bbox_to_anchor=(0.5, -0.02),
         frameon=False,
     )
     return fig
@@ -237,35 +245,77 @@ def gamma(rd: ReportData) -> Figure:
 
 
 def errors_by_voltage(rd: ReportData) -> Figure:
-    """e_Th and e_T by voltage bin, before and after γ (paper Figs. 8-9)."""
+    """e_Th and e_T by voltage bin, uncorrected and corrected (paper Figs. 8-9).
+
+    Both maps are drawn in every bin; a bin with too few samples for the no-worse check is
+    drawn hollow, a bin where the corrected map is worse is ringed in red, and a γ degree that
+    the check rejected is drawn dashed in the metric it was rejected on."""
     g = rd.gamma
     if g is None:
         raise ValueError("the map has no γ correction")
     bins = g.metrics.get("by_voltage", [])
-    fig = _fig(7.5, 3.2)
+    check = g.metrics.get("no_worse_check") or {}
+    floor = int(check.get("min_bin_samples", 20))
+    fig = _fig(7.5, 3.4)
     a1, a2 = fig.subplots(1, 2)
-    fig.subplots_adjust(wspace=0.25)
+    fig.subplots_adjust(wspace=0.25, bottom=0.2)
     mid = np.array([0.5 * (r["voltage_v"][0] + r["voltage_v"][1]) for r in bins])
+    few = np.array([r["samples"] < floor for r in bins], dtype=bool)
+    kept = str(check.get("kept", ""))
+    after_label = "map + γ(B)" + (f", {kept}" if kept else "")
     for ax, key, title in ((a1, "e_Th", "e_Th (% throttle)"), (a2, "e_T", "e_T (% of F_m)")):
+        series: dict[str, np.ndarray] = {}
         for when, color, off in (("before", "tab:orange", -0.02), ("after", "tab:blue", 0.02)):
             k = f"{key}_{when}_pct"
             if not bins or k not in bins[0]:
                 continue
             m = np.array([r[k]["mean"] for r in bins])
             s = np.array([r[k]["std"] for r in bins])
+            series[when] = m
             ax.errorbar(
                 mid + off,
                 m,
                 yerr=s,
-                fmt="o-",
-                ms=4,
+                fmt="-",
                 capsize=3,
                 color=color,
-                label=f"{'map' if when == 'before' else 'map + γ(B)'}",
+                label="map (uncorrected)" if when == "before" else after_label,
             )
+            ax.plot(mid[~few] + off, m[~few], "o", ms=5, color=color)
+            ax.plot(mid[few] + off, m[few], "o", ms=5, mfc="white", color=color)
+        if "before" in series and "after" in series:
+            worse = (series["after"] > series["before"]) & ~few
+            if worse.any():
+                ax.plot(
+                    mid[worse] + 0.02,
+                    series["after"][worse],
+                    "o",
+                    ms=11,
+                    mfc="none",
+                    mec="tab:red",
+                    mew=1.5,
+                    label="corrected worse",
+                )
+        if check.get("metric") == key:
+            for r in check.get("rejected", []):
+                after = r.get("by_voltage_after") or []
+                if len(after) == len(mid) and f"degree {r['degree']}" != kept:
+                    ax.plot(
+                        mid,
+                        after,
+                        "x--",
+                        color="tab:gray",
+                        label=f"degree {r['degree']} (not kept: worse in {len(r['worse'])} bin"
+                        + ("s)" if len(r["worse"]) != 1 else ")"),
+                    )
+        if few.any():
+            ax.plot([], [], "o", mfc="white", color="black", label=f"under {floor} samples")
         ax.set_xlabel(B)
         ax.set_title(title)
-        ax.legend()
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+        else:
+            ax.text(0.5, 0.5, "not computed", ha="center", va="center", transform=ax.transAxes)
     return fig
 
 

@@ -412,6 +412,24 @@ def _gamma(rd: ReportData) -> str:
         ],
     )
     out += "<h3>Errors by voltage (Figs. 8–9)</h3>" + _img("errors-by-voltage", rd, "errors")
+    check = m.get("no_worse_check") or {}
+    if check:
+        floor = check.get("min_bin_samples", 20)
+        said = [
+            f"Degree {r['degree']} was worse than the uncorrected map at "
+            + "; ".join(
+                f"{w['voltage_v'][0]:.2f}..{w['voltage_v'][1]:.2f} V ({w['samples']} samples, "
+                f"{w['metric']} {w['before_pct']:.3f} → {w['after_pct']:.3f} %)"
+                for w in r["worse"]
+            )
+            for r in check.get("rejected", [])
+        ]
+        out += (
+            f'<p class="note">No-worse check ({_e(check.get("metric", ""))}, voltage bins with '
+            f"{floor}+ samples): kept {_e(check.get('kept', ''))}."
+            + (" " + _e(". ".join(said)) + "." if said else "")
+            + "</p>"
+        )
     rows = []
     for i, b in enumerate(m.get("by_voltage", [])):
         cells = [
