@@ -18,7 +18,7 @@ import numpy as np
 from thrustmap.core.errors import ConfigError, FitError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import Dataset, FloatArray
-from thrustmap.fitting.interval import advice, learn_interval
+from thrustmap.fitting.interval import Region, advice, interval_range, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import ErrorStats, error_stats
 from thrustmap.fitting.models import Identification, Model, get_model
@@ -143,6 +143,10 @@ def fit_map(
         c = fit_coefficients(m, t, b, th, loss)
         return lambda tq, bq: m.evaluate(c, tq, bq)
 
+    region = Region.from_points(data.thrust_n, data.voltage_v)
+    covariance = parameter_covariance(
+        m, coef, data.thrust_n, data.voltage_v, data.throttle_pct, ident
+    )
     interval = learn_interval(
         data.thrust_n,
         data.voltage_v,
@@ -150,9 +154,14 @@ def fit_map(
         data.file_index,
         predictor,
         np.abs(pred - data.throttle_pct),
+        region,
+        covariance,
     )
+    over_region = None if interval is None else interval_range(interval, m.design)
     trust, more_data = advice(
         interval,
+        region,
+        over_region,
         data.thrust_n,
         data.voltage_v,
         physics_voltage=ident is not None and bool(ident.fixed),
@@ -179,7 +188,10 @@ def fit_map(
         selection={**selection.to_dict(), "report": [p.report for p in data.points]},
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
-        interval={} if interval is None else interval.to_dict(),
+        interval={}
+        if interval is None or over_region is None
+        else {**interval.to_dict(), "over_region_pct": list(over_region)},
+        supported=region,
     )
     if ident is not None:
         log.info("%s: %s", m.name, ident.reason)
@@ -189,20 +201,71 @@ def fit_map(
     return FitOutcome(tmap, data, warnings, trust, more_data)
 
 
+def parameter_covariance(
+    model: Model,
+    coef: FloatArray,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    ident: Identification | None,
+) -> FloatArray | None:
+    """Covariance of the raw coefficients (least-squares, linearised at the fit): residual
+    variance × (XᵀX)⁻¹ over the coefficients the data determined; a coefficient held by
+    physics or resting on its bound contributes nothing. None when it cannot be computed."""
+    if len(t) <= 1:
+        return None
+    design, to_raw = model.conditioned(t, b)
+    k = model.n_coefficients
+    free = np.ones(k, bool)
+    if ident is not None and ident.fixed:
+        names = list(model.term_names)
+        for name in ident.fixed:
+            if name in names:
+                free[names.index(name)] = False
+    lower = model.lower()
+    upper = model.upper()
+    for i in range(k):
+        if (
+            lower is not None
+            and np.isfinite(lower[i])
+            and abs(coef[i] - lower[i]) <= 1e-9 * (1.0 + abs(lower[i]))
+        ):
+            free[i] = False
+        if (
+            upper is not None
+            and np.isfinite(upper[i])
+            and abs(coef[i] - upper[i]) <= 1e-9 * (1.0 + abs(upper[i]))
+        ):
+            free[i] = False
+    if design.shape[1] != k or not free.any():
+        return None
+    resid = model.evaluate(coef, t, b) - th
+    dof = len(t) - int(free.sum())
+    if dof <= 0:
+        return None
+    s2 = float(np.sum(resid**2) / dof)
+    x = design[:, free]
+    try:
+        inv = np.linalg.pinv(x.T @ x)
+    except np.linalg.LinAlgError:
+        return None
+    cov_c = np.zeros((k, k))
+    cov_c[np.ix_(free, free)] = s2 * inv
+    jac = np.column_stack([to_raw(e) for e in np.eye(k)])  # raw = J @ conditioned
+    cov = jac @ cov_c @ jac.T
+    return np.asarray(0.5 * (cov + cov.T), dtype=float) if np.all(np.isfinite(cov)) else None
+
+
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
     """Warnings a user must see: not monotone in T inside the box, ill-conditioned fit."""
     out: list[str] = []
-    v = tmap.validity
-    tt, bb = np.meshgrid(
-        np.linspace(v.thrust_n.lo, v.thrust_n.hi, 200),
-        np.linspace(v.voltage_v.lo, v.voltage_v.hi, 25),
-    )
+    tt, bb = tmap.supported_region().grid(101)  # rows: one voltage each, thrust ascending
     th = tmap.throttle_pct(tt, bb, corrected=False)
     d = np.diff(th, axis=1)
     if (d < -1e-9).any():
         i, j = np.unravel_index(int(np.argmin(d)), d.shape)
         out.append(
-            f"map '{tmap.model}' is not monotone in thrust inside its validity box "
+            f"map '{tmap.model}' is not monotone in thrust over its supported region "
             f"(throttle falls near T={tt[i, j]:.2f} N, B={bb[i, j]:.2f} V): more thrust would be "
             "commanded with less throttle"
         )
@@ -267,10 +330,11 @@ def _row(
 def _in_box(
     t: FloatArray, b: FloatArray, t_tr: FloatArray, b_tr: FloatArray, uses_voltage: bool
 ) -> Any:
-    ok = (t >= t_tr.min()) & (t <= t_tr.max())
+    """Inside the training points' supported region (their thrust range for a model that
+    ignores voltage)."""
     if uses_voltage:
-        ok &= (b >= b_tr.min()) & (b <= b_tr.max())
-    return ok
+        return Region.from_points(t_tr, b_tr).contains(t, b)
+    return (t >= t_tr.min()) & (t <= t_tr.max())
 
 
 def validate(

@@ -52,6 +52,7 @@ class Model:
     term_names: tuple[str, ...]
     uses_voltage: bool
     lower_bounds: tuple[float, ...] = field(default=())
+    upper_bounds: tuple[float, ...] = field(default=())
 
     @property
     def n_coefficients(self) -> int:
@@ -88,6 +89,9 @@ class Model:
 
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
+
+    def upper(self) -> FloatArray | None:
+        return np.array(self.upper_bounds, float) if self.upper_bounds else None
 
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
