@@ -293,6 +293,9 @@ def test_xnova_by_file_inside_and_all_points(
     main(["compare", str(sr / "xNova-SR-steps.csv"), str(sr / "xNova-SR-steps-up.csv"),
           "--models", "motor", "--validate", "by-file", "--json"])  # fmt: skip
     (row,) = json.loads(capsys.readouterr().out)["rows"]
-    assert row["inside_box"]["mean_pct"] <= 0.6
+    # physical maps (issue 18): these two files disagree with any motor's voltage dependence
+    # (tests/test_fitting_paper.py), so the held-out floor is ~1.1 %, not the 0.5 % that a
+    # negative no-load term bought by crossing the voltage slices
+    assert row["inside_box"]["mean_pct"] <= 1.2
     assert row["n"] == row["inside_box"]["n"] + row["outside_box"]["n"]
-    assert row["mean_pct"] <= 0.7  # all held-out points, the headline
+    assert row["mean_pct"] <= 1.15  # all held-out points, the headline

@@ -254,6 +254,8 @@ def fit_cmd(
     ident = out.map.identification
     if ident:
         click.echo(f"identification: {ident['reason']}")
+        if ident.get("voltage_scaling"):
+            click.echo(f"voltage scaling: {ident['voltage_scaling']}")
     click.echo(out.trust)
     click.echo(out.more_data)
     for w in out.warnings:

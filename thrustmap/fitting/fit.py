@@ -337,6 +337,21 @@ def _in_box(
     return (t >= t_tr.min()) & (t <= t_tr.max())
 
 
+def _conditioned_bounds(
+    m: Model, to_raw: Callable[[FloatArray], FloatArray]
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """The model's bounds in its conditioned basis. A bounded model's conditioning is a column
+    scaling (raw = conditioned × s), so each bound divides by its column's s."""
+    lower, upper = m.lower(), m.upper()
+    if lower is None and upper is None:
+        return None, None
+    scale = to_raw(np.ones(m.n_coefficients))
+    with np.errstate(invalid="ignore"):
+        lo = None if lower is None else np.where(np.isfinite(lower), lower / scale, lower)
+        hi = None if upper is None else np.where(np.isfinite(upper), upper / scale, upper)
+    return lo, hi
+
+
 def validate(
     data: Pool, model: str, validation: Validation, loss: Loss = "l2", folds: int = 5, seed: int = 0
 ) -> Row:
@@ -366,6 +381,7 @@ def validate(
         # One conditioned design for all points; each fold's fit comes from sums of per-split
         # normal equations, so k folds cost one pass over the samples, not k.
         design, to_raw = m.conditioned(data.thrust_n, data.voltage_v)
+        lower_c, upper_c = _conditioned_bounds(m, to_raw)
         gram_all = design.T @ design
         rhs_all = design.T @ data.throttle_pct
     for train, test in splits:
@@ -379,10 +395,12 @@ def validate(
             else:
                 gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht
             cols = m.free_columns(t, b)
-            lower = m.lower()
             coef_c = np.zeros(m.n_coefficients)
             coef_c[cols] = solve_gram(
-                gram[np.ix_(cols, cols)], rhs[cols], None if lower is None else lower[cols]
+                gram[np.ix_(cols, cols)],
+                rhs[cols],
+                None if lower_c is None else lower_c[cols],
+                None if upper_c is None else upper_c[cols],
             )
             pred = dt @ coef_c
         else:
