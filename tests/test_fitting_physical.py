@@ -125,3 +125,74 @@ def test_held_out_folds_use_the_same_bounds() -> None:
         pred = MODELS["motor"].evaluate(coef, te.thrust_n, te.voltage_v)
         errs.append(np.abs(pred - te.throttle_scale.to_pct(te.throttle_native)))
     assert fast.all.mean_pct == pytest.approx(float(np.mean(np.concatenate(errs))), rel=1e-6)
+
+
+# -- the voltage scaling from the stand's rpm and current ---------------------------------------
+
+
+def motor_file(voltage_v: float, name: str, *, i0_a: float = 3.0, r_ohm: float = 0.15):
+    """A motor whose no-load drop R·I0 is large (a 1/B term k0 = 0 cannot hold it), logged
+    with rpm and current as most stands do: 11 averaged steps."""
+    from thrustmap.core.units import SCALES
+    from thrustmap.fitting.dataset import Dataset
+
+    kv_rad = 2400.0 * 2 * np.pi / 60.0
+    kt = 2.5e-6
+    thrust = np.linspace(0.2, 4.0, 11)
+    omega = np.sqrt(thrust / kt)
+    current = i0_a + kt * 0.012 * omega**2 * kv_rad
+    volts = voltage_v - 0.01 * current
+    th = -5.0 + 100.0 * (omega / kv_rad + r_ohm * current) / volts
+    rng = np.random.default_rng(int(voltage_v * 10))  # sensor noise: 0.3 % throttle, 1 % rpm
+    th = th + rng.normal(0, 0.3, len(th))
+    omega = omega * (1 + rng.normal(0, 0.01, len(th)))
+    current = current * (1 + rng.normal(0, 0.01, len(th)))
+    return Dataset(
+        path=name,
+        format="synthetic",
+        throttle_scale=SCALES["pwm"],
+        throttle_native=SCALES["pwm"].from_pct(th),
+        thrust_n=thrust,
+        voltage_v=volts,
+        line=np.arange(11, dtype=np.int64) + 2,
+        current_a=current,
+        rpm=omega * 60 / (2 * np.pi) * 7,  # electrical rpm (7 pole pairs): any scale will do
+    )
+
+
+def test_backemf_scaling_is_kept_where_held_out_error_confirms_it() -> None:
+    from thrustmap.fitting.fit import evaluate
+    from thrustmap.fitting.models import SCALING_BACKEMF
+    from thrustmap.fitting.selection import Selection
+
+    sel = Selection(all_samples=True)
+    train = [motor_file(7.4, "2s.csv"), motor_file(11.1, "3s.csv")]
+    out = fit_map(train, selection=sel)
+    ident = out.map.identification
+    assert ident["form"] == "back-EMF" and ident["voltage_scaling"] == SCALING_BACKEMF
+    assert ident["evidence"]["held_out_backemf_pct"] < ident["evidence"]["held_out_thrust_form_pct"]
+    assert out.map.coefficients[1] > 0  # k0 = R·I0 measured, not assumed 0
+    assert_physical(out.map, "back-EMF map")
+    # and it carries to a voltage it never saw better than the thrust-only identification
+    from dataclasses import replace
+
+    test = motor_file(14.8, "4s.csv")
+    (row,) = evaluate(out.map, [test], sel)
+    plain = fit_map([replace(d, rpm=None) for d in train], selection=sel)  # no rpm logged
+    assert "back-EMF" not in plain.map.identification["voltage_scaling"]
+    (row_plain,) = evaluate(plain.map, [test], sel)
+    assert row.all.mean_pct < 0.5 * row_plain.all.mean_pct, (row.all, row_plain.all)
+
+
+def test_backemf_scaling_not_kept_on_a_real_pair_and_said(shared_data: Path) -> None:
+    folder = shared_data / "third-party-stands" / "strawson-5inch"
+    ds = load_datasets([str(folder / "b2_7.csv"), str(folder / "b2_11.csv")])
+    ident = fit_map(ds).map.identification
+    assert ident["form"] != "back-EMF"
+    assert (
+        "back-EMF scaling from the logged rpm and current tried and not kept"
+        in (ident["voltage_scaling"])
+    )
+    # one voltage: nothing could confirm it, and the map says so
+    (one,) = load_datasets([str(folder / "b2_7.csv")])
+    assert "not tried" in fit_map([one]).map.identification["voltage_scaling"]

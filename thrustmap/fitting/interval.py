@@ -240,10 +240,13 @@ def learn_interval(
     in_sample_abs_err: FloatArray,
     region: Region | None = None,
     covariance: FloatArray | None = None,
+    file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
 ) -> Interval | None:
     """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor;
-    ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term).
-    None when the data is too small to hold anything out."""
+    ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term);
+    ``file_fit(f)``, when given, is the predictor fitted without file f (by-file folds of a
+    map identified from more than the points, e.g. the stand's rpm and current). None when the
+    data is too small to hold anything out."""
     n = len(thrust_n)
     region = region or Region.from_points(thrust_n, voltage_v)
     t_unit = region.thrust_span_n
@@ -255,8 +258,10 @@ def learn_interval(
         note = f", estimated on every {int(np.ceil(n / MAX_POINTS))}th point"
     t, b, th, fi = thrust_n[idx], voltage_v[idx], throttle_pct[idx], file_index[idx]
     files = np.unique(fi)
+    fold_files: list[int | None] = []
     if len(files) >= 2:
         splits = [fi == f for f in files]
+        fold_files = [int(f) for f in files]
         how = "by-file"
     else:
         k = min(KFOLDS, len(t) // 2)
@@ -264,15 +269,19 @@ def learn_interval(
             return None
         fold = np.random.default_rng(0).permutation(len(t)) % k
         splits = [fold == i for i in range(k)]
+        fold_files = [None] * k
         how = f"{k}-fold"
     resid: list[FloatArray] = []
     dist: list[FloatArray] = []
-    for test in splits:
+    for test, held in zip(splits, fold_files, strict=True):
         train = ~test
         if train.sum() < 4 or test.sum() == 0:
             continue
         try:
-            predict = fit(t[train], b[train], th[train])
+            if file_fit is not None and held is not None:
+                predict = file_fit(held)
+            else:
+                predict = fit(t[train], b[train], th[train])
         except (ThrustmapError, np.linalg.LinAlgError, ValueError):
             continue  # a fold the model cannot be fitted on contributes nothing
         resid.append(np.abs(predict(t[test], b[test]) - th[test]))

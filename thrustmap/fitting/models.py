@@ -371,6 +371,57 @@ def _unphysical(coef: FloatArray, thrust_n: FloatArray) -> str:
     return ""
 
 
+SCALING_BACKEMF = (
+    "1/B from back-EMF and winding loss measured by the stand (B·d = Ke·ω + R·I from the "
+    "logged rpm and current)"
+)
+#: fewest spinning rows with rpm and current before the back-EMF scaling is tried
+MIN_BACKEMF_ROWS = 8
+
+
+def backemf_coefficients(
+    throttle_pct: FloatArray,
+    thrust_n: FloatArray,
+    voltage_v: FloatArray,
+    rpm: FloatArray,
+    current_a: FloatArray,
+) -> FloatArray | None:
+    """``motor`` coefficients identified from the stand's rpm and current rather than assumed.
+
+    The ESC's duty d = (Th − c)/100 drives B·d = Ke·ω + R·I (back-EMF and winding loss), so
+    Th = c + a·ω/B + r·I/B is fitted on the spinning rows (a = 100·Ke, r = 100·R ≥ 0, c in its
+    band). The propeller fixes ω(T) = w1·√T + w2·T and the motor I(T) = i0 + i1·√T + i2·T
+    (all ≥ 0, voltage-free), so the map is Th = c + (r·i0 + (a·w1 + r·i1)·√T + (a·w2 + r·i2)·T)/B:
+    the ``motor`` form with k0 = R·I0 measured, physical by construction. None when the rows
+    cannot support it (too few spinning rows with rpm and current)."""
+    w = np.abs(np.asarray(rpm, float))
+    i = np.abs(np.asarray(current_a, float))
+    t = np.asarray(thrust_n, float)
+    b = np.asarray(voltage_v, float)
+    th = np.asarray(throttle_pct, float)
+    ok = np.isfinite(w) & np.isfinite(i) & np.isfinite(t) & np.isfinite(b) & np.isfinite(th)
+    if not ok.any():
+        return None
+    ok &= (w > 0.02 * float(np.max(w[ok]))) & (t > 0) & (b > 0)
+    if int(ok.sum()) < MIN_BACKEMF_ROWS:
+        return None
+    w, i, t, b, th = w[ok], i[ok], t[ok], b[ok], th[ok]
+    try:
+        c, a, r = solve(
+            np.stack([np.ones_like(b), w / b, i / b], axis=1),
+            th,
+            lower=np.array([OFFSET_RANGE_PCT[0], 0.0, 0.0]),
+            upper=np.array([OFFSET_RANGE_PCT[1], np.inf, np.inf]),
+        )
+        st = np.sqrt(t)
+        w1, w2 = solve(np.stack([st, t], axis=1), w, lower=np.zeros(2))
+        i0, i1, i2 = solve(np.stack([np.ones_like(t), st, t], axis=1), i, lower=np.zeros(3))
+    except FitError:
+        return None
+    coef = np.array([c, r * i0, a * w1 + r * i1, a * w2 + r * i2], dtype=float)
+    return coef if np.all(np.isfinite(coef)) else None
+
+
 def motor_forward(
     coefficients: npt.ArrayLike, throttle_pct: FloatArray, voltage_v: FloatArray
 ) -> FloatArray:
