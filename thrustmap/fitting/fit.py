@@ -215,7 +215,7 @@ def fit_map(
 Predictor = Callable[[FloatArray, FloatArray], FloatArray]
 
 
-def _backemf_rows(ds: Dataset, sel: Selection) -> tuple[FloatArray, ...] | None:
+def backemf_rows(ds: Dataset, sel: Selection) -> tuple[FloatArray, ...] | None:
     """(throttle %, thrust, voltage, rpm, current) of a file's rows inside the selection's
     ranges; None when the file logged no rpm or no current."""
     if ds.rpm is None or ds.current_a is None:
@@ -246,7 +246,7 @@ def _try_backemf(
     predicted by both identifications fitted on the other files. Needs files at two or more
     voltages; otherwise the map keeps its identification and says the trial could not be
     judged. Returns the coefficients, the identification and, when kept, the by-file refit."""
-    rows = [_backemf_rows(d, sel) for d in datasets]
+    rows = [backemf_rows(d, sel) for d in datasets]
     if ident is None or any(r is None for r in rows):
         return coef, ident, None
     have = [r for r in rows if r is not None]
