@@ -213,3 +213,25 @@ def test_grams_read_as_newtons_are_questioned(
         ["fit", str(p), "-o", str(tmp_path / "g.json"), *COLS, "--thrust-unit", "gf"], capsys
     )
     assert code == 0
+
+
+def test_a_gamma_corrected_map_judges_its_region_at_gamma_times_thrust(
+    two_voltage_map: tuple[Path, str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from thrustmap.fitting.mapfile import Box, GammaCorrection
+
+    m, _ = two_voltage_map
+    tmap = ThrustMap.load(m)
+    corrected = tmap.with_correction(GammaCorrection((1.2,), Box(7.0, 11.5)))
+    c_path = m.with_name("corrected.json")
+    corrected.save(c_path)
+    _, hi = tmap.supported_region().thrust_range(9.0)
+    t = float(hi) / 1.1  # inside for the bench map, outside once γ = 1.2 scales it
+    args = ["--thrust-n", f"{t:.4f}", "--voltage-v", "9.0", "--json"]
+    code, out, _ = run(["predict", str(c_path), *args, "--no-correction"], capsys)
+    assert code == 0 and json.loads(out)["inside_supported_region"]
+    code, out, err = run(["predict", str(c_path), *args], capsys)
+    doc = json.loads(out)
+    assert code == 0 and doc["corrected"] and not doc["inside_supported_region"]
+    assert doc["supported_thrust_n"][1] == pytest.approx(float(hi) / 1.2)
+    assert "outside the map's supported region" in err

@@ -393,7 +393,8 @@ def predict_cmd(
         t = float(tmap.thrust_n(pct, voltage_v, corrected=corrected))
     if not (math.isfinite(pct) and math.isfinite(t)):
         raise ConfigError(f"the map gives no finite answer at T={t:g} N, B={voltage_v:g} V")
-    inside = bool(tmap.in_box(t, voltage_v))
+    # the region is where the bench map's data are: a γ-corrected map evaluates it at γ(B)·T
+    inside = bool(tmap.in_box(tmap.model_thrust(t, voltage_v, corrected=corrected), voltage_v))
     interval = tmap.prediction_interval()
     parts = tmap.interval_parts(t, voltage_v, corrected=corrected)
     half = base = factor = dist = None
@@ -401,7 +402,8 @@ def predict_cmd(
         base, factor, dist = (float(x) for x in parts)
         half = base * factor
     region = tmap.supported_region()
-    r_lo, r_hi = (float(x) for x in region.thrust_range(voltage_v))
+    g = float(tmap.model_thrust(1.0, voltage_v, corrected=corrected))  # γ(B), 1 uncorrected
+    r_lo, r_hi = (float(x) / g for x in region.thrust_range(voltage_v))
     common = {
         "thrust_n": t,
         "voltage_v": voltage_v,
