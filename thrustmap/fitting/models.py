@@ -8,10 +8,12 @@ exactly, so the narrow voltage range does not make the solve ill-conditioned.
 ω = Kv·(d·B − R·I) with current I = I0 + Q/Kt and propeller torque Q = kq·ω², and the propeller
 pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·√T + k2·T, so
 
-    Th = c + (k0 + k1·√T + k2·T) / B,   with k1, k2 ≥ 0
+    Th = c + (k0 + k1·√T + k2·T) / B,   with k0, k1, k2 ≥ 0 and c in ``OFFSET_RANGE_PCT``
 
-(c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
-with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+(c absorbs the ESC's throttle-to-duty offset). The bounds are imposed by the solver (bounded
+least squares, or bounded LP for L1), so every fitted map rises with T and never rises with B
+for T ≥ 0 (∂Th/∂B = −(k0 + k1·√T + k2·T)/B² ≤ 0): physical by construction. It scales with 1/B
+as a motor does and has four coefficients, so it extrapolates sanely.
 
 Identification. At one battery voltage B0, c and k0/B0 are one number, so the data alone cannot
 say how the map scales with B. Physics can: k0 is the resistive drop of the no-load current
@@ -20,9 +22,12 @@ throttle offset (dead band / idle), which does not scale with voltage. ``motor``
 the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
 span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
 points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
-throttle, and enough data at several voltages measures that), and only if that fit can be a
-motor (offset within ±50 % of the range, throttle falling with voltage mid-range). The choice
-and its reason are reported (:class:`Identification`).
+throttle, and enough data at several voltages measures that). A free fit (c and k0 unbounded)
+that would break the physics (a negative no-load term, an offset outside its band) is named
+in the reason and the bounded fit kept. Where the stand logged rpm and current,
+``backemf_coefficients`` identifies the same form from B·d = Ke·ω + R·I instead (fit.py keeps
+it only when by-file held-out error at another voltage confirms it). The choice, its reason
+and the voltage scaling the map rests on are reported (:class:`Identification`).
 """
 
 from __future__ import annotations
