@@ -23,15 +23,18 @@ import numpy as np
 
 from thrustmap.core.errors import FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import evaluate, fit_map
+from thrustmap.fitting.fit import backemf_rows, evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets
-from thrustmap.fitting.metrics import ErrorStats
+from thrustmap.fitting.metrics import ErrorStats, error_stats
+from thrustmap.fitting.models import MODELS as MODEL_DEFS
+from thrustmap.fitting.models import backemf_coefficients
 from thrustmap.fitting.names import DEFAULT_MODEL
 from thrustmap.fitting.selection import Selection, select
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 BASELINES = ("la", "linear", "poly2", "poly2-trunc", "poly3")
 MODELS = (DEFAULT_MODEL, *BASELINES)
+BACKEMF = "back-EMF"  # motor form identified from the training file's rpm and current
 
 
 @dataclass
@@ -68,6 +71,19 @@ def score(train: Dataset, test: Dataset, model: str) -> tuple[ErrorStats | None,
     return row.all, note, fb_train or fb_test
 
 
+def score_backemf(train: Dataset, test: Dataset) -> ErrorStats | None:
+    """The ``motor`` form identified from the training file's rpm and current (B·d = Ke·ω + R·I)
+    instead of from thrust alone, scored like the default: what ``fit`` would get if it used
+    the back-EMF scaling from one voltage (it does not: nothing held out could confirm it)."""
+    rows = backemf_rows(train, Selection())
+    coef = None if rows is None else backemf_coefficients(*rows)
+    if coef is None:
+        return None
+    sel, _ = _selection_for(test)
+    p = select(test, sel)
+    return error_stats(MODEL_DEFS["motor"].evaluate(coef, p.thrust_n, p.voltage_v), p.throttle_pct)
+
+
 def cross_voltage(folder: Path) -> list[Direction]:
     out: list[Direction] = []
     for low in sorted(folder.glob("*_7.csv")):
@@ -82,6 +98,7 @@ def cross_voltage(folder: Path) -> list[Direction]:
                 d.errors[model] = stats
                 if model == DEFAULT_MODEL:
                     d.note, d.fallback = note, fb
+            d.errors[BACKEMF] = score_backemf(train, test)
             out.append(d)
     return out
 
@@ -134,12 +151,12 @@ def main() -> int:
         return 2
     dirs = cross_voltage(folder)
     if args.per_pair:
-        head = f"{'train':<9} {'test':<9}" + "".join(f" {m:>11}" for m in MODELS)
+        head = f"{'train':<9} {'test':<9}" + "".join(f" {m:>11}" for m in (*MODELS, BACKEMF))
         print(head)
         for d in dirs:
             cells = "".join(
                 f" {'fail':>11}" if (s := d.errors[m]) is None else f" {s.mean_pct:>11.2f}"
-                for m in MODELS
+                for m in (*MODELS, BACKEMF)
             )
             print(f"{d.train:<9} {d.test:<9}{cells}{'  (all samples)' if d.fallback else ''}")
             print(f"    {DEFAULT_MODEL}: {d.note}")
@@ -149,11 +166,17 @@ def main() -> int:
         "points of the other), mean e_Th % per direction:"
     )
     print(f"  {'model':<12} {'median':>7} {'p90':>7} {'max':>7} {'failed':>6}")
-    for m in MODELS:
+    for m in (*MODELS, BACKEMF):
         vals = [s.mean_pct for d in dirs if (s := d.errors[m]) is not None]
         failed = sum(1 for d in dirs if d.errors[m] is None)
         mx = f"{max(vals):7.2f}" if vals else "      -"
-        tag = " (default)" if m == DEFAULT_MODEL else ""
+        tag = (
+            " (default)"
+            if m == DEFAULT_MODEL
+            else " (motor from rpm+current; not used by fit at one voltage)"
+            if m == BACKEMF
+            else ""
+        )
         print(f"  {m:<12} {summary(vals)} {mx} {failed:>6}{tag}")
     n_fb = sum(d.fallback for d in dirs)
     if n_fb:

@@ -6,12 +6,16 @@ them skip with a clear reason when the folder is absent (a fresh clone elsewhere
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
-SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+#: THRUSTMAP_SHARED_DATA points elsewhere (a git worktree is not beside ../shared)
+SHARED_DATA = Path(
+    os.environ.get("THRUSTMAP_SHARED_DATA") or PROJECT_ROOT.parent / "shared" / "data"
+)
 FIXTURES = PROJECT_ROOT / "fixtures"
 
 

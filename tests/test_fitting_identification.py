@@ -165,7 +165,9 @@ def test_fit_cli_says_what_it_identified_and_where_to_trust(
     outside = json.loads(captured.out)
     assert inside["inside_validity_box"] and not outside["inside_validity_box"]
     assert 0 < inside["interval_pct"] < outside["interval_pct"]
-    assert "outside the map's validity box" in captured.err and "interval widened" in captured.err
+    assert (
+        "outside the map's supported region" in captured.err and "interval widened" in captured.err
+    )
     main(["predict", str(out_map), "--thrust-n", "2.0", "--voltage-v", "7.35"])
     assert " ± " in capsys.readouterr().out
     with pytest.raises(SystemExit) as exc:
@@ -291,6 +293,9 @@ def test_xnova_by_file_inside_and_all_points(
     main(["compare", str(sr / "xNova-SR-steps.csv"), str(sr / "xNova-SR-steps-up.csv"),
           "--models", "motor", "--validate", "by-file", "--json"])  # fmt: skip
     (row,) = json.loads(capsys.readouterr().out)["rows"]
-    assert row["inside_box"]["mean_pct"] <= 0.6
+    # physical maps (issue 18): these two files disagree with any motor's voltage dependence
+    # (tests/test_fitting_paper.py), so the held-out floor is ~1.1 %, not the 0.5 % that a
+    # negative no-load term bought by crossing the voltage slices
+    assert row["inside_box"]["mean_pct"] <= 1.2
     assert row["n"] == row["inside_box"]["n"] + row["outside_box"]["n"]
-    assert row["mean_pct"] <= 0.7  # all held-out points, the headline
+    assert row["mean_pct"] <= 1.15  # all held-out points, the headline

@@ -124,3 +124,49 @@ def test_a_map_with_nan_is_never_written(tmp_path: Path) -> None:
     bad_gamma = m.with_correction(GammaCorrection((math.nan,), Box(21.0, 25.0)))
     with pytest.raises(FitError, match="correction.coefficients"):
         bad_gamma.dumps()
+
+
+def _region_doc() -> dict[str, Any]:
+    d = doc()
+    d["supported_region"] = {
+        "voltage_v": [21.0, 23.0, 25.0],
+        "thrust_lo_n": [0.0, 0.0, 0.1],
+        "thrust_hi_n": [6.0, 8.0, 9.0],
+        "voltage_lo_v": 21.0,
+        "voltage_hi_v": 25.0,
+    }
+    d["interval"] = {
+        "half_width_pct": 1.0,
+        "growth_per_span": 1.0,
+        "parameter_covariance": [[0.0] * 4 for _ in range(4)],
+    }
+    return d
+
+
+def test_supported_region_round_trips_and_decides_validity() -> None:
+    tmap = ThrustMap.from_dict(_region_doc(), source="m.json")
+    assert tmap.supported is not None
+    assert bool(tmap.in_box(7.0, 24.0)) and not bool(tmap.in_box(7.0, 21.5))
+    back = ThrustMap.from_dict(json.loads(tmap.dumps()), source="m.json")
+    assert back.supported == tmap.supported
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "field"),
+    [
+        ("supported_region.voltage_v", [25.0, 23.0, 21.0], "supported_region.voltage_v"),
+        ("supported_region.thrust_hi_n", [6.0, 8.0], "supported_region.voltage_v"),
+        ("supported_region.thrust_lo_n", [7.0, 0.0, 0.1], "supported_region.thrust_lo_n"),
+        ("supported_region.voltage_hi_v", float("nan"), "supported_region.voltage_hi_v"),
+        ("interval.parameter_covariance", [[1.0, 2.0]] * 4, "interval.parameter_covariance"),
+        ("interval.parameter_covariance", [[0.0] * 3] * 3, "interval"),
+        ("interval.parameter_covariance", [[float("nan")] * 4] * 4, "interval.parameter_cov"),
+    ],
+)
+def test_bad_regions_and_covariances_are_rejected_naming_the_field(
+    path: str, value: Any, field: str
+) -> None:
+    d = _region_doc()
+    _set(d, path, value)
+    with pytest.raises(DataFormatError, match=f"field '{field}"):
+        ThrustMap.from_dict(d, source="m.json")

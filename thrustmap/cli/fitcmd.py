@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -233,7 +234,6 @@ def fit_cmd(
     out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
     atomic_write_text(output, out.map.dumps())
     s = out.map.metrics["in_sample"]
-    v = out.map.validity
     for p in out.pool.points:
         r = p.report
         click.echo(
@@ -253,11 +253,14 @@ def fit_cmd(
         f"max {s['max_pct']:.3f} %, n={s['n']}"
     )
     click.echo(
-        f"valid for T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V"
+        f"supported region (where the data are; outside it the map extrapolates): "
+        f"{out.map.supported_region().describe()}"
     )
     ident = out.map.identification
     if ident:
         click.echo(f"identification: {ident['reason']}")
+        if ident.get("voltage_scaling"):
+            click.echo(f"voltage scaling: {ident['voltage_scaling']}")
     click.echo(out.trust)
     click.echo(out.more_data)
     for w in out.warnings:
@@ -370,39 +373,105 @@ def predict_cmd(
             raise ConfigError(f"{opt}: expected a finite number, got {value}")
     if voltage_v <= 0:
         raise ConfigError(f"--voltage-v: expected a positive battery voltage, got {voltage_v:g}")
+    for opt, value in (("--thrust-n", thrust_n), ("--throttle-pct", throttle_pct)):
+        if value is not None and value < 0:
+            raise ConfigError(f"{opt}: expected a value >= 0, got {value:g}")
     sc = tmap.throttle_scale
     corrected = not no_correction
+    if thrust_n is None:
+        pct_in = float(throttle_pct if throttle_pct is not None else sc.to_pct(throttle_native))  # type: ignore[arg-type]
+        if not -1e-9 <= pct_in <= 100.0 + 1e-9:
+            given_as = (
+                f"--throttle-pct {throttle_pct:g}"
+                if throttle_pct is not None
+                else f"--throttle {throttle_native:g} ({pct_in:.1f} %)"
+            )
+            raise ConfigError(
+                f"{given_as}: expected 0..100 % of the map's throttle scale "
+                f"({sc.lo:g}..{sc.hi:g} {sc.unit_label})"
+            )
     if thrust_n is not None:
         pct = float(tmap.throttle_pct(thrust_n, voltage_v, corrected=corrected))
         t = thrust_n
     else:
-        pct = float(throttle_pct if throttle_pct is not None else sc.to_pct(throttle_native))  # type: ignore[arg-type]
+        pct = pct_in
         t = float(tmap.thrust_n(pct, voltage_v, corrected=corrected))
-    native = float(sc.from_pct(pct))
-    inside = bool(tmap.in_box(t, voltage_v))
-    interval = tmap.prediction_interval()
-    half = None if interval is None else float(interval.half_width(t, voltage_v))
     if not (math.isfinite(pct) and math.isfinite(t)):
         raise ConfigError(f"the map gives no finite answer at T={t:g} N, B={voltage_v:g} V")
-    result = {
+    # the region is where the bench map's data are: a γ-corrected map evaluates it at γ(B)·T
+    inside = bool(tmap.in_box(tmap.model_thrust(t, voltage_v, corrected=corrected), voltage_v))
+    interval = tmap.prediction_interval()
+    parts = tmap.interval_parts(t, voltage_v, corrected=corrected)
+    half = base = factor = dist = None
+    if parts is not None:
+        base, factor, dist = (float(x) for x in parts)
+        half = base * factor
+    region = tmap.supported_region()
+    g = float(tmap.model_thrust(1.0, voltage_v, corrected=corrected))  # γ(B), 1 uncorrected
+    r_lo, r_hi = (float(x) / g for x in region.thrust_range(voltage_v))
+    common = {
         "thrust_n": t,
         "voltage_v": voltage_v,
+        "throttle_unit": sc.unit,
+        # inside the supported region (where the map's data are); the historical key is kept
+        "inside_supported_region": inside,
+        "inside_validity_box": inside,
+        "supported_thrust_n": [r_lo, r_hi]
+        if region.voltage_lo_v <= voltage_v <= region.voltage_hi_v
+        else None,
+        "corrected": corrected and tmap.correction is not None,
+    }
+    if thrust_n is not None and not 0.0 <= pct <= 100.0:
+        # not an answer: the motor cannot make this thrust at this voltage (per the map)
+        edge = 100.0 if pct > 100.0 else 0.0
+        nearest = float(tmap.thrust_n(edge, voltage_v, corrected=corrected))
+        result = {
+            **common,
+            "reachable": False,
+            "throttle_pct": None,
+            "throttle_native": None,
+            "required_throttle_pct": pct,
+            "nearest_reachable_thrust_n": nearest,
+            "nearest_reachable_throttle_pct": edge,
+        }
+        if as_json:
+            click.echo(_json(result))
+        else:
+            click.echo(
+                f"unreachable: T={t:.4f} N at {voltage_v:.2f} V would need "
+                f"{'more than 100' if edge else 'less than 0'} % of the throttle scale "
+                f"({pct:.1f} % by the map); the nearest reachable thrust at {voltage_v:.2f} V is "
+                f"{nearest:.4f} N (throttle {edge:.0f} %)"
+            )
+        sys.exit(1)  # exit 1: no answer (as spin and sweep exit 1 when a limit stops them)
+    native = float(sc.from_pct(pct))
+    result = {
+        **common,
+        "reachable": True,
         "throttle_pct": pct,
         "throttle_native": native,
-        "throttle_unit": sc.unit,
-        "inside_validity_box": inside,
-        "corrected": corrected and tmap.correction is not None,
         # half-width of the map's prediction interval in throttle % (None: the map has none)
         "interval_pct": half,
         "interval_native": None if half is None else half * sc.span / 100.0,
         "interval_level": None if interval is None else interval.level,
+        # how much the interval widened for the distance outside the supported region
+        "interval_widening": factor,
+        "interval_at_region_pct": base,
     }
     if not inside:
-        v = tmap.validity
+        where = (
+            f"at {voltage_v:.2f} V the data reach T {r_lo:.3f}..{r_hi:.3f} N"
+            if region.voltage_lo_v <= voltage_v <= region.voltage_hi_v
+            else f"the data span B {region.voltage_lo_v:.2f}..{region.voltage_hi_v:.2f} V"
+        )
+        widened = (
+            ""
+            if half is None or base is None or factor is None
+            else f"; interval widened ×{factor:.2f}, from ±{base:.2f} % to ±{half:.2f} %"
+        )
         click.echo(
-            f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's validity box "
-            f"(T {v.thrust_n.lo:.3f}..{v.thrust_n.hi:.3f} N, B {v.voltage_v.lo:.2f}..{v.voltage_v.hi:.2f} V): "
-            "extrapolated" + ("" if half is None else f", interval widened to ±{half:.2f} %"),
+            f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's supported region "
+            f"({where}): extrapolated{widened}",
             err=True,
         )
     if as_json:

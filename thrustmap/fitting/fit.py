@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -18,10 +18,17 @@ import numpy as np
 from thrustmap.core.errors import ConfigError, FitError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import Dataset, FloatArray
-from thrustmap.fitting.interval import advice, learn_interval
+from thrustmap.fitting.interval import Region, advice, interval_range, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import ErrorStats, error_stats
-from thrustmap.fitting.models import Identification, Model, get_model
+from thrustmap.fitting.models import (
+    MIN_RELATIVE_SPAN,
+    SCALING_BACKEMF,
+    Identification,
+    Model,
+    backemf_coefficients,
+    get_model,
+)
 from thrustmap.fitting.names import DEFAULT_MODEL, VALIDATIONS, Loss, Validation
 from thrustmap.fitting.selection import Points, Selection, select
 from thrustmap.fitting.solve import condition_number, solve_gram
@@ -134,6 +141,9 @@ def fit_map(
     coef, ident = identify_coefficients(
         m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
     )
+    file_fit = None
+    if m.name == "motor":
+        coef, ident, file_fit = _try_backemf(datasets, data, selection, m, loss, coef, ident)
     pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
     stats = error_stats(pred, data.throttle_pct)
 
@@ -143,6 +153,10 @@ def fit_map(
         c = fit_coefficients(m, t, b, th, loss)
         return lambda tq, bq: m.evaluate(c, tq, bq)
 
+    region = Region.from_points(data.thrust_n, data.voltage_v)
+    covariance = parameter_covariance(
+        m, coef, data.thrust_n, data.voltage_v, data.throttle_pct, ident
+    )
     interval = learn_interval(
         data.thrust_n,
         data.voltage_v,
@@ -150,9 +164,15 @@ def fit_map(
         data.file_index,
         predictor,
         np.abs(pred - data.throttle_pct),
+        region,
+        covariance,
+        file_fit,
     )
+    over_region = None if interval is None else interval_range(interval, m.design)
     trust, more_data = advice(
         interval,
+        region,
+        over_region,
         data.thrust_n,
         data.voltage_v,
         physics_voltage=ident is not None and bool(ident.fixed),
@@ -179,7 +199,10 @@ def fit_map(
         selection={**selection.to_dict(), "report": [p.report for p in data.points]},
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
-        interval={} if interval is None else interval.to_dict(),
+        interval={}
+        if interval is None or over_region is None
+        else {**interval.to_dict(), "over_region_pct": list(over_region)},
+        supported=region,
         spin_up=spin_up_block(datasets),
     )
     if ident is not None:
@@ -197,20 +220,169 @@ def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
     return spin_up(datasets).to_dict()
 
 
+Predictor = Callable[[FloatArray, FloatArray], FloatArray]
+
+
+def backemf_rows(ds: Dataset, sel: Selection) -> tuple[FloatArray, ...] | None:
+    """(throttle %, thrust, voltage, rpm, current) of a file's rows inside the selection's
+    ranges; None when the file logged no rpm or no current."""
+    if ds.rpm is None or ds.current_a is None:
+        return None
+    keep = np.ones(len(ds), bool)
+    for rng, x in (
+        (sel.throttle_range, ds.throttle_native),
+        (sel.voltage_range, ds.voltage_v),
+        (sel.thrust_range, ds.thrust_n),
+    ):
+        if rng is not None:
+            keep &= (x > rng[0]) & (x < rng[1])
+    pct = ds.throttle_scale.to_pct(ds.throttle_native)
+    return (pct[keep], ds.thrust_n[keep], ds.voltage_v[keep], ds.rpm[keep], ds.current_a[keep])
+
+
+def _try_backemf(
+    datasets: Sequence[Dataset],
+    data: Pool,
+    sel: Selection,
+    m: Model,
+    loss: Loss,
+    coef: FloatArray,
+    ident: Identification | None,
+) -> tuple[FloatArray, Identification | None, Callable[[int], Predictor] | None]:
+    """Where every file logged rpm and current, try the back-EMF scaling (models.
+    backemf_coefficients) and keep it only if by-file held-out error confirms it: each file is
+    predicted by both identifications fitted on the other files. Needs files at two or more
+    voltages; otherwise the map keeps its identification and says the trial could not be
+    judged. Returns the coefficients, the identification and, when kept, the by-file refit."""
+    rows = [backemf_rows(d, sel) for d in datasets]
+    if ident is None or any(r is None for r in rows):
+        return coef, ident, None
+    have = [r for r in rows if r is not None]
+
+    def bemf(files: Sequence[int]) -> FloatArray | None:
+        cols = [np.concatenate([have[f][k] for f in files]) for k in range(5)]
+        return backemf_coefficients(*cols)
+
+    means = np.array([float(np.mean(d.voltage_v)) for d in datasets])
+    spread = float(np.ptp(means)) / float(np.mean(means)) if len(means) else 0.0
+    if len(datasets) < 2 or spread < MIN_RELATIVE_SPAN:
+        note = (
+            "; rpm and current logged: the back-EMF scaling (B·d = Ke·ω + R·I) was not tried, "
+            "as only files at another voltage could confirm it held out"
+        )
+        return coef, replace(ident, scaling=ident.scaling + note), None
+    err_t: list[FloatArray] = []
+    err_b: list[FloatArray] = []
+    for i in range(len(datasets)):
+        test = data.file_index == i
+        others = [f for f in range(len(datasets)) if f != i]
+        t, b, th = data.take(~test)
+        tt, bt, tht = data.take(test)
+        cb = bemf(others)
+        if cb is None or len(t) < m.n_coefficients:
+            return coef, ident, None
+        try:
+            ct = fit_coefficients(m, t, b, th, loss)
+        except FitError:
+            return coef, ident, None
+        err_t.append(np.abs(m.evaluate(ct, tt, bt) - tht))
+        err_b.append(np.abs(m.evaluate(cb, tt, bt) - tht))
+    e_t = float(np.mean(np.concatenate(err_t)))
+    e_b = float(np.mean(np.concatenate(err_b)))
+    full = bemf(range(len(datasets)))
+    evidence = {"held_out_backemf_pct": e_b, "held_out_thrust_form_pct": e_t}
+    if full is None or not e_b < e_t:
+        note = (
+            f"; back-EMF scaling from the logged rpm and current tried and not kept (held-out "
+            f"by file {e_b:.3f} % against {e_t:.3f} %)"
+        )
+        return (
+            coef,
+            replace(ident, scaling=ident.scaling + note, evidence={**ident.evidence, **evidence}),
+            None,
+        )
+    reason = (
+        f"{ident.reason}; rpm and current logged: the back-EMF scaling held out better by file "
+        f"({e_b:.3f} % against {e_t:.3f} %) and is used (k0 = R·I0 = {full[1]:.3g} measured)"
+    )
+    kept = Identification(
+        "back-EMF", reason, ident.voltage_span_v, (), evidence, "", SCALING_BACKEMF
+    )
+
+    def file_fit(held: int) -> Predictor:
+        cb = bemf([f for f in range(len(datasets)) if f != held])
+        if cb is None:
+            raise FitError("back-EMF fold could not be fitted")
+        return lambda tq, bq: m.evaluate(cb, tq, bq)
+
+    return full, kept, file_fit
+
+
+def parameter_covariance(
+    model: Model,
+    coef: FloatArray,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    ident: Identification | None,
+) -> FloatArray | None:
+    """Covariance of the raw coefficients (least-squares, linearised at the fit): residual
+    variance × (XᵀX)⁻¹ over the coefficients the data determined; a coefficient held by
+    physics or resting on its bound contributes nothing. None when it cannot be computed."""
+    if len(t) <= 1:
+        return None
+    design, to_raw = model.conditioned(t, b)
+    k = model.n_coefficients
+    free = np.ones(k, bool)
+    if ident is not None and ident.fixed:
+        names = list(model.term_names)
+        for name in ident.fixed:
+            if name in names:
+                free[names.index(name)] = False
+    lower = model.lower()
+    upper = model.upper()
+    for i in range(k):
+        if (
+            lower is not None
+            and np.isfinite(lower[i])
+            and abs(coef[i] - lower[i]) <= 1e-9 * (1.0 + abs(lower[i]))
+        ):
+            free[i] = False
+        if (
+            upper is not None
+            and np.isfinite(upper[i])
+            and abs(coef[i] - upper[i]) <= 1e-9 * (1.0 + abs(upper[i]))
+        ):
+            free[i] = False
+    if design.shape[1] != k or not free.any():
+        return None
+    resid = model.evaluate(coef, t, b) - th
+    dof = len(t) - int(free.sum())
+    if dof <= 0:
+        return None
+    s2 = float(np.sum(resid**2) / dof)
+    x = design[:, free]
+    try:
+        inv = np.linalg.pinv(x.T @ x)
+    except np.linalg.LinAlgError:
+        return None
+    cov_c = np.zeros((k, k))
+    cov_c[np.ix_(free, free)] = s2 * inv
+    jac = np.column_stack([to_raw(e) for e in np.eye(k)])  # raw = J @ conditioned
+    cov = jac @ cov_c @ jac.T
+    return np.asarray(0.5 * (cov + cov.T), dtype=float) if np.all(np.isfinite(cov)) else None
+
+
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
     """Warnings a user must see: not monotone in T inside the box, ill-conditioned fit."""
     out: list[str] = []
-    v = tmap.validity
-    tt, bb = np.meshgrid(
-        np.linspace(v.thrust_n.lo, v.thrust_n.hi, 200),
-        np.linspace(v.voltage_v.lo, v.voltage_v.hi, 25),
-    )
+    tt, bb = tmap.supported_region().grid(101)  # rows: one voltage each, thrust ascending
     th = tmap.throttle_pct(tt, bb, corrected=False)
     d = np.diff(th, axis=1)
     if (d < -1e-9).any():
         i, j = np.unravel_index(int(np.argmin(d)), d.shape)
         out.append(
-            f"map '{tmap.model}' is not monotone in thrust inside its validity box "
+            f"map '{tmap.model}' is not monotone in thrust over its supported region "
             f"(throttle falls near T={tt[i, j]:.2f} N, B={bb[i, j]:.2f} V): more thrust would be "
             "commanded with less throttle"
         )
@@ -275,10 +447,26 @@ def _row(
 def _in_box(
     t: FloatArray, b: FloatArray, t_tr: FloatArray, b_tr: FloatArray, uses_voltage: bool
 ) -> Any:
-    ok = (t >= t_tr.min()) & (t <= t_tr.max())
+    """Inside the training points' supported region (their thrust range for a model that
+    ignores voltage)."""
     if uses_voltage:
-        ok &= (b >= b_tr.min()) & (b <= b_tr.max())
-    return ok
+        return Region.from_points(t_tr, b_tr).contains(t, b)
+    return (t >= t_tr.min()) & (t <= t_tr.max())
+
+
+def _conditioned_bounds(
+    m: Model, to_raw: Callable[[FloatArray], FloatArray]
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """The model's bounds in its conditioned basis. A bounded model's conditioning is a column
+    scaling (raw = conditioned × s), so each bound divides by its column's s."""
+    lower, upper = m.lower(), m.upper()
+    if lower is None and upper is None:
+        return None, None
+    scale = to_raw(np.ones(m.n_coefficients))
+    with np.errstate(invalid="ignore"):
+        lo = None if lower is None else np.where(np.isfinite(lower), lower / scale, lower)
+        hi = None if upper is None else np.where(np.isfinite(upper), upper / scale, upper)
+    return lo, hi
 
 
 def validate(
@@ -310,6 +498,7 @@ def validate(
         # One conditioned design for all points; each fold's fit comes from sums of per-split
         # normal equations, so k folds cost one pass over the samples, not k.
         design, to_raw = m.conditioned(data.thrust_n, data.voltage_v)
+        lower_c, upper_c = _conditioned_bounds(m, to_raw)
         gram_all = design.T @ design
         rhs_all = design.T @ data.throttle_pct
     for train, test in splits:
@@ -323,10 +512,12 @@ def validate(
             else:
                 gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht
             cols = m.free_columns(t, b)
-            lower = m.lower()
             coef_c = np.zeros(m.n_coefficients)
             coef_c[cols] = solve_gram(
-                gram[np.ix_(cols, cols)], rhs[cols], None if lower is None else lower[cols]
+                gram[np.ix_(cols, cols)],
+                rhs[cols],
+                None if lower_c is None else lower_c[cols],
+                None if upper_c is None else upper_c[cols],
             )
             pred = dt @ coef_c
         else:

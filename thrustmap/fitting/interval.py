@@ -1,17 +1,26 @@
-"""Prediction intervals learned from held-out residuals, widening with distance from the data.
+"""The supported region of a map, and its one prediction interval.
 
-A map fitted by ``fit_map`` is re-fitted with part of its data held out (by file when there are
-several files, else k-fold) and the held-out errors are collected with how far each held-out
-point lay from the training points' box. The interval at a query (T, B) is
+**Supported region.** Where the selected points are in (T, B): the voltages they span (with a
+margin of ``VOLTAGE_MARGIN`` of the mean voltage) and, at each voltage B, the thrusts the data
+reached there. A motor that reached thrust T at voltage B1 can reach it at any higher voltage
+(it needs less throttle), and one that made a low thrust at B1 can make it at any lower voltage,
+so the reached range at B is [min thrust of points at or above B, max thrust of points at or
+below B], each widened by ``THRUST_MARGIN`` of the top thrust. A map answers inside it from data,
+outside it by extrapolation. It replaces the (T, B) bounding box, whose corners may hold no
+data at all (a motor fitted on 2S and 3S does not reach its 3S thrust on 2S).
 
-    half_width(T, B) = q_inside · (1 + growth · d(T, B))
+**The interval** (one computation, used by fit, predict, the map file and the report):
 
-where ``q_inside`` is the 95th percentile of |held-out error| inside the training box, ``d`` is
-the distance outside the map's validity box in units of the box's size (thrust span; voltage
-span, but at least ``MIN_VOLTAGE_UNIT`` of the mean voltage) and ``growth`` is the median
-relative excess error of held-out points that lay outside their training box per unit distance.
-When no held-out point lay outside, ``growth`` is 1 (the interval doubles one box-size out), and
-it is never below ``MIN_GROWTH``: assumptions, and the interval's ``basis`` says when they apply.
+    half_width(T, B) = √(q² + (z·σ_p(T, B))²) · (1 + growth · d(T, B))
+
+``q`` is the 95th percentile of |held-out error| of points inside their training region (by
+file when there are several files, else k-fold; never below what the map misses on its own
+data); ``σ_p`` is the standard error of the fitted map at (T, B) from the coefficients'
+covariance (zero for coefficients held by physics or at a bound), ``z`` its 95 % quantile;
+``d`` is the distance outside the supported region in units of its size (thrust span; voltage
+span, but at least ``MIN_VOLTAGE_UNIT`` of the mean voltage), and ``growth`` is the median
+relative excess error per unit distance of held-out points that lay outside their training
+region (1 when none did, never below ``MIN_GROWTH``); the interval's ``basis`` says which.
 """
 
 from __future__ import annotations
@@ -29,37 +38,161 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 LEVEL = 0.95
+Z_LEVEL = 1.959964  # two-sided 95 % normal quantile (the coefficients' error)
 MIN_VOLTAGE_UNIT = 0.1  # a voltage distance is measured in at least 10 % of the mean voltage
 DEFAULT_GROWTH = 1.0
-MIN_GROWTH = 0.5  # extrapolation is never assumed free: at least +50 % per box-size outside
+MIN_GROWTH = 0.5  # extrapolation is never assumed free: at least +50 % per region-size outside
 MAX_POINTS = 20_000  # above this, residuals are estimated on an even subsample
 KFOLDS = 5
+THRUST_MARGIN = 0.03  # of the top thrust reached
+VOLTAGE_MARGIN = 0.01  # of the mean voltage
+REGION_KNOTS = 24  # voltages at which the reached thrust range is stored
+
+
+@dataclass(frozen=True)
+class Region:
+    """The supported region: at each knot voltage, the thrust range the data reached there
+    (margins included); linear between knots, outside [voltage_lo_v, voltage_hi_v] nothing."""
+
+    voltage_v: tuple[float, ...]
+    thrust_lo_n: tuple[float, ...]
+    thrust_hi_n: tuple[float, ...]
+    voltage_lo_v: float
+    voltage_hi_v: float
+
+    @classmethod
+    def from_points(cls, thrust_n: FloatArray, voltage_v: FloatArray) -> Region:
+        t = np.asarray(thrust_n, float)
+        b = np.asarray(voltage_v, float)
+        mean_b = float(np.mean(b))
+        m_b = VOLTAGE_MARGIN * mean_b
+        m_t = THRUST_MARGIN * max(float(np.max(np.abs(t))), 1e-9)
+        b_lo, b_hi = float(b.min()) - m_b, float(b.max()) + m_b
+        knots = np.linspace(b_lo, b_hi, REGION_KNOTS if b_hi > b_lo else 1)
+        hi = np.array([np.max(t[b <= k + m_b], initial=-np.inf) for k in knots])
+        lo = np.array([np.min(t[b >= k - m_b], initial=np.inf) for k in knots])
+        # at the ends a knot may see no point: take its neighbour's reach
+        hi = np.maximum.accumulate(np.where(np.isfinite(hi), hi, float(t.min())))
+        lo = np.minimum.accumulate(np.where(np.isfinite(lo), lo, float(t.max()))[::-1])[::-1]
+        return cls(
+            voltage_v=tuple(float(x) for x in knots),
+            thrust_lo_n=tuple(float(x) for x in np.maximum(lo - m_t, 0.0)),
+            thrust_hi_n=tuple(float(x) for x in hi + m_t),
+            voltage_lo_v=b_lo,
+            voltage_hi_v=b_hi,
+        )
+
+    @classmethod
+    def box(cls, t_lo: float, t_hi: float, b_lo: float, b_hi: float) -> Region:
+        """A rectangle: the region of a map written before regions were recorded."""
+        return cls((b_lo, b_hi), (t_lo, t_lo), (t_hi, t_hi), b_lo, b_hi)
+
+    def thrust_range(self, voltage_v: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        b = np.clip(np.asarray(voltage_v, float), self.voltage_lo_v, self.voltage_hi_v)
+        k = np.asarray(self.voltage_v)
+        lo = np.interp(b, k, np.asarray(self.thrust_lo_n))
+        hi = np.interp(b, k, np.asarray(self.thrust_hi_n))
+        return np.asarray(lo, float), np.asarray(hi, float)
+
+    @property
+    def thrust_span_n(self) -> float:
+        return max(max(self.thrust_hi_n) - min(self.thrust_lo_n), 1e-6)
+
+    @property
+    def voltage_unit_v(self) -> float:
+        return _voltage_unit(self.voltage_lo_v, self.voltage_hi_v)
+
+    def distance(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, t_unit: float, b_unit: float
+    ) -> FloatArray:
+        """Distance outside the region (0 inside), in units of t_unit / b_unit."""
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        lo, hi = self.thrust_range(b)
+        dt = np.maximum(np.maximum(lo - t, t - hi), 0.0) / t_unit
+        db = np.maximum(np.maximum(self.voltage_lo_v - b, b - self.voltage_hi_v), 0.0) / b_unit
+        return np.asarray(np.hypot(dt, db), dtype=float)
+
+    def contains(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> BoolArray:
+        return np.asarray(self.distance(thrust_n, voltage_v, 1.0, 1.0) <= 0.0)
+
+    def grid(self, n: int = 41) -> tuple[FloatArray, FloatArray]:
+        """An n × n grid of (T, B) points covering the region (every point inside it)."""
+        b = np.linspace(self.voltage_lo_v, self.voltage_hi_v, n)
+        lo, hi = self.thrust_range(b)
+        s = np.linspace(0.0, 1.0, n)
+        tt = lo[:, None] + (hi - lo)[:, None] * s[None, :]
+        return np.asarray(tt, float), np.asarray(np.repeat(b[:, None], n, axis=1), float)
+
+    def describe(self) -> str:
+        lo_a, hi_a = self.thrust_range(self.voltage_lo_v)
+        lo_b, hi_b = self.thrust_range(self.voltage_hi_v)
+        return (
+            f"B {self.voltage_lo_v:.2f}..{self.voltage_hi_v:.2f} V; T {float(lo_a):.3f}.."
+            f"{float(hi_a):.3f} N at {self.voltage_lo_v:.2f} V, {float(lo_b):.3f}.."
+            f"{float(hi_b):.3f} N at {self.voltage_hi_v:.2f} V"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "meaning": "per voltage, the thrust the selected points reached (with a margin); "
+            "linear between knots, nothing outside voltage_lo_v..voltage_hi_v",
+            "voltage_v": list(self.voltage_v),
+            "thrust_lo_n": list(self.thrust_lo_n),
+            "thrust_hi_n": list(self.thrust_hi_n),
+            "voltage_lo_v": self.voltage_lo_v,
+            "voltage_hi_v": self.voltage_hi_v,
+        }
+
+
+def _voltage_unit(lo: float, hi: float) -> float:
+    return max(hi - lo, MIN_VOLTAGE_UNIT * 0.5 * (lo + hi), 1e-6)
 
 
 @dataclass(frozen=True)
 class Interval:
-    half_width_pct: float  # at the data (inside the box), % throttle
-    growth_per_span: float  # relative widening per box-size of distance outside the box
+    half_width_pct: float  # q: held-out residual quantile inside the training region, % throttle
+    growth_per_span: float  # relative widening per region-size of distance outside the region
     thrust_unit_n: float
     voltage_unit_v: float
-    thrust_box: tuple[float, float]
-    voltage_box: tuple[float, float]
+    region: Region
     basis: str
     level: float = LEVEL
+    #: covariance of the raw coefficients (rows × cols), empty: no parameter term
+    covariance: tuple[tuple[float, ...], ...] = ()
+    z: float = Z_LEVEL
 
     def distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
-        return _distance(
-            np.asarray(thrust_n, float),
-            np.asarray(voltage_v, float),
-            self.thrust_box,
-            self.voltage_box,
-            self.thrust_unit_n,
-            self.voltage_unit_v,
+        return self.region.distance(thrust_n, voltage_v, self.thrust_unit_n, self.voltage_unit_v)
+
+    def parameter_sigma(self, design: FloatArray | None) -> FloatArray | float:
+        """Standard error of the fitted map at the design rows (0 without a covariance)."""
+        if design is None or not self.covariance:
+            return 0.0
+        cov = np.asarray(self.covariance, float)
+        x = np.asarray(design, float)
+        var = np.einsum("ij,jk,ik->i", x, cov, x)
+        return np.asarray(np.sqrt(np.clip(var, 0.0, None)), dtype=float)
+
+    def parts(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, design: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(half-width at the data's distance 0, widening factor, distance outside the region),
+        each shaped like the broadcast query. ``design``: the model's rows at the query, flat."""
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        sig = np.reshape(np.broadcast_to(self.parameter_sigma(design), t.size), t.shape)
+        base = np.sqrt(self.half_width_pct**2 + (self.z * sig) ** 2)
+        d = self.distance(t, b)
+        return (
+            np.asarray(base, float),
+            np.asarray(1.0 + self.growth_per_span * d, float),
+            np.asarray(d, float),
         )
 
-    def half_width(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
-        d = self.distance(thrust_n, voltage_v)
-        return np.asarray(self.half_width_pct * (1.0 + self.growth_per_span * d), dtype=float)
+    def half_width(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, design: FloatArray | None = None
+    ) -> FloatArray:
+        base, factor, _ = self.parts(thrust_n, voltage_v, design)
+        return np.asarray(base * factor, dtype=float)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -68,44 +201,29 @@ class Interval:
             "growth_per_span": self.growth_per_span,
             "thrust_unit_n": self.thrust_unit_n,
             "voltage_unit_v": self.voltage_unit_v,
-            "formula": "half_width = half_width_pct * (1 + growth_per_span * d), d = distance "
-            "outside the validity box in units of thrust_unit_n / voltage_unit_v",
+            "z": self.z,
+            "parameter_covariance": [list(r) for r in self.covariance],
+            "formula": "half_width = sqrt(half_width_pct^2 + (z * sqrt(x' C x))^2) * "
+            "(1 + growth_per_span * d); x = the model's terms at (T, B), C = "
+            "parameter_covariance, d = distance outside supported_region in units of "
+            "thrust_unit_n / voltage_unit_v",
             "basis": self.basis,
         }
 
     @classmethod
-    def from_dict(
-        cls, d: dict[str, Any], thrust_box: tuple[float, float], voltage_box: tuple[float, float]
-    ) -> Interval:
+    def from_dict(cls, d: dict[str, Any], region: Region) -> Interval:
+        cov = d.get("parameter_covariance") or []
         return cls(
             half_width_pct=float(d["half_width_pct"]),
             growth_per_span=float(d["growth_per_span"]),
-            thrust_unit_n=float(d.get("thrust_unit_n") or 0.0)
-            or max(thrust_box[1] - thrust_box[0], 1e-6),
-            voltage_unit_v=float(d.get("voltage_unit_v") or 0.0)
-            or _voltage_unit(voltage_box[0], voltage_box[1]),
-            thrust_box=thrust_box,
-            voltage_box=voltage_box,
+            thrust_unit_n=float(d.get("thrust_unit_n") or 0.0) or region.thrust_span_n,
+            voltage_unit_v=float(d.get("voltage_unit_v") or 0.0) or region.voltage_unit_v,
+            region=region,
             basis=str(d.get("basis", "")),
             level=float(d.get("level", LEVEL)),
+            covariance=tuple(tuple(float(x) for x in row) for row in cov),
+            z=float(d.get("z", Z_LEVEL)),
         )
-
-
-def _voltage_unit(lo: float, hi: float) -> float:
-    return max(hi - lo, MIN_VOLTAGE_UNIT * 0.5 * (lo + hi), 1e-6)
-
-
-def _distance(
-    t: FloatArray,
-    b: FloatArray,
-    t_box: tuple[float, float],
-    b_box: tuple[float, float],
-    t_unit: float,
-    b_unit: float,
-) -> FloatArray:
-    dt = np.maximum(np.maximum(t_box[0] - t, t - t_box[1]), 0.0) / t_unit
-    db = np.maximum(np.maximum(b_box[0] - b, b - b_box[1]), 0.0) / b_unit
-    return np.asarray(np.maximum(dt, db), dtype=float)
 
 
 Fitter = Callable[
@@ -120,14 +238,19 @@ def learn_interval(
     file_index: npt.NDArray[np.int64],
     fit: Fitter,
     in_sample_abs_err: FloatArray,
+    region: Region | None = None,
+    covariance: FloatArray | None = None,
+    file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
 ) -> Interval | None:
-    """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor.
-    None when the data is too small to hold anything out."""
+    """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor;
+    ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term);
+    ``file_fit(f)``, when given, is the predictor fitted without file f (by-file folds of a
+    map identified from more than the points, e.g. the stand's rpm and current). None when the
+    data is too small to hold anything out."""
     n = len(thrust_n)
-    t_box = (float(thrust_n.min()), float(thrust_n.max()))
-    b_box = (float(voltage_v.min()), float(voltage_v.max()))
-    t_unit = max(t_box[1] - t_box[0], 1e-6)
-    b_unit = _voltage_unit(*b_box)
+    region = region or Region.from_points(thrust_n, voltage_v)
+    t_unit = region.thrust_span_n
+    b_unit = region.voltage_unit_v
     idx = np.arange(n)
     note = ""
     if n > MAX_POINTS:
@@ -135,8 +258,10 @@ def learn_interval(
         note = f", estimated on every {int(np.ceil(n / MAX_POINTS))}th point"
     t, b, th, fi = thrust_n[idx], voltage_v[idx], throttle_pct[idx], file_index[idx]
     files = np.unique(fi)
+    fold_files: list[int | None] = []
     if len(files) >= 2:
         splits = [fi == f for f in files]
+        fold_files = [int(f) for f in files]
         how = "by-file"
     else:
         k = min(KFOLDS, len(t) // 2)
@@ -144,22 +269,27 @@ def learn_interval(
             return None
         fold = np.random.default_rng(0).permutation(len(t)) % k
         splits = [fold == i for i in range(k)]
+        fold_files = [None] * k
         how = f"{k}-fold"
     resid: list[FloatArray] = []
     dist: list[FloatArray] = []
-    for test in splits:
+    for test, held in zip(splits, fold_files, strict=True):
         train = ~test
         if train.sum() < 4 or test.sum() == 0:
             continue
         try:
-            predict = fit(t[train], b[train], th[train])
+            if file_fit is not None and held is not None:
+                predict = file_fit(held)
+            else:
+                predict = fit(t[train], b[train], th[train])
         except (ThrustmapError, np.linalg.LinAlgError, ValueError):
             continue  # a fold the model cannot be fitted on contributes nothing
         resid.append(np.abs(predict(t[test], b[test]) - th[test]))
-        tb = (float(t[train].min()), float(t[train].max()))
-        bb = (float(b[train].min()), float(b[train].max()))
+        fold_region = Region.from_points(t[train], b[train])
         dist.append(
-            _distance(t[test], b[test], tb, bb, max(tb[1] - tb[0], 1e-6), _voltage_unit(*bb))
+            fold_region.distance(
+                t[test], b[test], fold_region.thrust_span_n, fold_region.voltage_unit_v
+            )
         )
     if not resid:
         return None
@@ -176,22 +306,38 @@ def learn_interval(
     out = ~inside
     if out.sum() >= 3:
         growth = float(np.median(np.maximum(r[out] / q - 1.0, 0.0) / d[out]))
-        g_note = f"growth from {int(out.sum())} held-out points outside their training box"
+        g_note = f"growth from {int(out.sum())} held-out points outside their training region"
         if growth < MIN_GROWTH:
             growth = MIN_GROWTH
             g_note += f" (raised to the assumed minimum {MIN_GROWTH:g})"
     else:
         growth = DEFAULT_GROWTH
-        g_note = "growth assumed (no held-out point lay outside its training box)"
+        g_note = "growth assumed (no held-out point lay outside its training region)"
+    cov: tuple[tuple[float, ...], ...] = ()
+    p_note = "; no parameter term"
+    if covariance is not None and np.all(np.isfinite(covariance)):
+        cov = tuple(tuple(float(x) for x in row) for row in np.asarray(covariance, float))
+        p_note = "; combined with the coefficients' uncertainty at each point"
     basis = (
         f"{how} held-out residuals, {int(inside.sum())} inside and {int(out.sum())} outside "
-        f"the training box{note}; {g_note}"
+        f"the training region{note}; {g_note}{p_note}"
     )
-    return Interval(q, growth, t_unit, b_unit, t_box, b_box, basis)
+    return Interval(q, growth, t_unit, b_unit, region, basis, LEVEL, cov)
+
+
+def interval_range(
+    interval: Interval, design: Callable[[FloatArray, FloatArray], FloatArray]
+) -> tuple[float, float]:
+    """The interval's smallest and largest half-width over its supported region (a grid)."""
+    tt, bb = interval.region.grid()
+    half = interval.half_width(tt, bb, design(tt.ravel(), bb.ravel()))
+    return float(np.min(half)), float(np.max(half))
 
 
 def advice(
     interval: Interval | None,
+    region: Region,
+    over_region: tuple[float, float] | None,
     thrust_n: FloatArray,
     voltage_v: FloatArray,
     physics_voltage: bool,
@@ -200,27 +346,21 @@ def advice(
     """Two lines for ``fit``: where the map can be trusted, and where data would help most."""
     t_lo, t_hi = float(thrust_n.min()), float(thrust_n.max())
     b_lo, b_hi = float(voltage_v.min()), float(voltage_v.max())
-    if interval is None:
+    if interval is None or over_region is None:
         trust = (
-            f"trustworthy only at the data (T {t_lo:.3f}..{t_hi:.3f} N, B {b_lo:.2f}..{b_hi:.2f} V);"
-            " too few points to learn a prediction interval"
+            f"trustworthy only at the data ({region.describe()}); too few points to learn a "
+            "prediction interval"
         )
     else:
-        q, g = interval.half_width_pct, interval.growth_per_span
-        # distance at which the interval has doubled
-        reach = 1.0 / g if g > 0 else float("inf")
-        if np.isfinite(reach):
-            ext_t = reach * interval.thrust_unit_n
-            ext_b = reach * interval.voltage_unit_v
-            doubled = (
-                f"; it doubles by T {max(t_lo - ext_t, 0):.3f}..{t_hi + ext_t:.3f} N, "
-                f"B {max(b_lo - ext_b, 0):.2f}..{b_hi + ext_b:.2f} V"
-            )
-        else:
-            doubled = ""
+        lo, hi = over_region
+        g = interval.growth_per_span
+        widen = (
+            f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
+            f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
+        )
         trust = (
-            f"trustworthy to ±{q:.2f} % ({100 * interval.level:.0f} % interval) for "
-            f"T {t_lo:.3f}..{t_hi:.3f} N, B {b_lo:.2f}..{b_hi:.2f} V{doubled}"
+            f"trustworthy to ±{lo:.2f}..{hi:.2f} % ({100 * interval.level:.0f} % prediction "
+            f"interval) over the supported region{widen}"
         )
     if physics_voltage and few_points:
         more = (
@@ -243,7 +383,7 @@ def advice(
             )
         else:
             more = (
-                f"more data would help most beyond the box: above T {t_hi:.3f} N or outside "
-                f"B {b_lo:.2f}..{b_hi:.2f} V, where the map extrapolates"
+                f"more data would help most where the data stop: higher thrust at the lower "
+                f"voltages, or outside B {b_lo:.2f}..{b_hi:.2f} V, where the map extrapolates"
             )
     return trust, more

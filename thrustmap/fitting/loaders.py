@@ -308,7 +308,7 @@ def _finish(
     if table.notes:
         meta["read_notes"] = list(table.notes)
     thrust_n = _normalise_sign(thrust_n, throttle, meta, table.path)
-    _check_thrust(table, thrust_n, voltage_v, current_a)
+    _check_thrust(table, thrust_n, voltage_v, current_a, rotors_on_esc)
     if step is None and "layout" not in meta and is_step_summary(throttle, time_s, scale):
         meta["layout"] = STEP_SUMMARY
         log.info(
@@ -368,6 +368,10 @@ BATTERY_V = (2.5, 63.0)
 THRUST_PER_WATT_GF = (0.2, 60.0)
 #: Per-rotor thrust no multirotor stand measures (about 200 kgf).
 MAX_ROTOR_THRUST_N = 2000.0
+#: Thrust per rotor per volt of battery no motor reaches: full-throttle speed grows with the
+#: voltage, and the heaviest-lift motors make ~3-7 N per volt (36 kgf on 12S is 7 N/V); 5-inch
+#: racers ~1 N/V, a Crazyflie ~0.04 N/V. A gram column read as newtons gives 30-100 N/V.
+MAX_THRUST_PER_VOLT_N = 20.0
 
 
 def _check_voltage(table: _Table, voltage_v: FloatArray, meta: dict[str, Any]) -> FloatArray:
@@ -394,9 +398,14 @@ def _check_voltage(table: _Table, voltage_v: FloatArray, meta: dict[str, Any]) -
 
 
 def _check_thrust(
-    table: _Table, thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray | None
+    table: _Table,
+    thrust_n: FloatArray,
+    voltage_v: FloatArray,
+    current_a: FloatArray | None,
+    rotors_on_esc: int | None = None,
 ) -> None:
-    """Thrust against what a rotor can make: absolute size, and per electrical watt."""
+    """Thrust against what a rotor can make: absolute size, per volt of battery, and per
+    electrical watt."""
     big = np.flatnonzero(np.abs(thrust_n) > MAX_ROTOR_THRUST_N)
     if big.size:
         k = int(big[0])
@@ -406,8 +415,27 @@ def _check_thrust(
             file=table.path,
             line=table.lines[k],
         )
-    if current_a is None:
-        return
+    if current_a is not None:
+        _check_thrust_per_watt(table, thrust_n, voltage_v, current_a)
+    rotors = max(rotors_on_esc or 1, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_volt = np.abs(thrust_n) / rotors / voltage_v
+    over = np.flatnonzero(np.isfinite(per_volt) & (per_volt > MAX_THRUST_PER_VOLT_N))
+    if over.size >= max(3, 0.01 * len(thrust_n)):  # a stray spike alone is not a wrong unit
+        k = int(over[0])
+        raise DataFormatError(
+            f"thrust {thrust_n[k] / rotors:g} N per rotor at {voltage_v[k]:.2f} V is "
+            f"{per_volt[k]:.1f} N per volt of battery; no motor makes more than "
+            f"{MAX_THRUST_PER_VOLT_N:g} N/V (~{MAX_THRUST_PER_VOLT_N * 3.7:.0f} N per cell): "
+            "is the thrust unit right (grams read as newtons?)",
+            file=table.path,
+            line=table.lines[k],
+        )
+
+
+def _check_thrust_per_watt(
+    table: _Table, thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray
+) -> None:
     power_w = np.abs(voltage_v * current_a)  # some stands log the current negative
     ok = np.isfinite(power_w) & (power_w > max(5.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
     if ok.sum() < 3:

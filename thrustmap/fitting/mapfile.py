@@ -26,7 +26,7 @@ from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.interval import Interval
+from thrustmap.fitting.interval import Interval, Region, interval_range
 from thrustmap.fitting.models import Model, get_model, motor_forward
 
 log = logging.getLogger(__name__)
@@ -122,6 +122,8 @@ class ThrustMap:
     interval: dict[str, Any] = field(default_factory=dict)
     #: lowest reliably spinning command measured on the stand (see fitting.spinup)
     spin_up: dict[str, Any] = field(default_factory=dict)
+    #: where the selected points are in (T, B) (None: a map written before; its box is used)
+    supported: Region | None = None
     tool_version: str = __version__
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -176,17 +178,63 @@ class ThrustMap:
         t = 0.5 * (lo + hi)
         return np.where(th <= f_lo, 0.0, t)
 
+    def supported_region(self) -> Region:
+        """Where the data are (T, B); the validity box for a map written before regions."""
+        if self.supported is not None:
+            return self.supported
+        v = self.validity
+        return Region.box(v.thrust_n.lo, v.thrust_n.hi, v.voltage_v.lo, v.voltage_v.hi)
+
     def prediction_interval(self) -> Interval | None:
         """The map's prediction interval (None for a map without one, e.g. an older file)."""
         if not self.interval:
             return None
-        v = self.validity
-        return Interval.from_dict(
-            self.interval, (v.thrust_n.lo, v.thrust_n.hi), (v.voltage_v.lo, v.voltage_v.hi)
+        return Interval.from_dict(self.interval, self.supported_region())
+
+    def model_thrust(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray:
+        """The thrust the bench map is evaluated at: γ(B)·T with a correction, else T."""
+        t = np.asarray(thrust_n, float)
+        if corrected and self.correction is not None:
+            t = self.correction.gamma(voltage_v) * t
+        return np.asarray(t, dtype=float)
+
+    def interval_parts(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """The prediction interval at (T, B) in parts: (half-width before widening, widening
+        factor, distance outside the supported region). None: the map has no interval."""
+        iv = self.prediction_interval()
+        if iv is None:
+            return None
+        t, b = np.broadcast_arrays(
+            self.model_thrust(thrust_n, voltage_v, corrected=corrected),
+            np.asarray(voltage_v, float),
         )
+        design = self.model_def.design(t.ravel(), b.ravel())
+        return iv.parts(t, b, design)
+
+    def interval_pct(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+    ) -> FloatArray | None:
+        """Half-width of the map's prediction interval, % throttle: the one interval every
+        command and the report use. None: the map has no interval."""
+        parts = self.interval_parts(thrust_n, voltage_v, corrected=corrected)
+        if parts is None:
+            return None
+        return np.asarray(parts[0] * parts[1], dtype=float)
+
+    def interval_over_region(self) -> tuple[float, float] | None:
+        """Smallest and largest half-width over the supported region (None: no interval)."""
+        iv = self.prediction_interval()
+        if iv is None:
+            return None
+        return interval_range(iv, self.model_def.design)
 
     def in_box(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-        return self.validity.contains(thrust_n, voltage_v)
+        """Inside the map's supported region (where its data are; the box for older maps)."""
+        return self.supported_region().contains(thrust_n, voltage_v)
 
     def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
         return replace(self, correction=correction)
@@ -212,6 +260,9 @@ class ThrustMap:
             "rotors_on_esc": self.rotors_on_esc,
             "thrust_meaning": self.thrust_meaning,
             "validity": self.validity.to_dict(),
+            **(
+                {"supported_region": self.supported.to_dict()} if self.supported is not None else {}
+            ),
             "metrics": self.metrics,
             "selection": self.selection,
             "sources": list(self.sources),
@@ -269,6 +320,13 @@ class ThrustMap:
                 f"model '{model.name}' needs {model.n_coefficients} coefficients, got {len(coefs)}",
                 "coefficients",
             )
+        cov = f.sub("interval").obj.get("parameter_covariance") if f.has("interval") else None
+        if isinstance(cov, list) and cov and len(cov) != model.n_coefficients:
+            raise f.error(
+                f"parameter_covariance is {len(cov)}x{len(cov)}; model '{model.name}' has "
+                f"{model.n_coefficients} coefficients",
+                "interval",
+            )
         vf = f.sub("validity")
         box = ValidityBox(
             thrust_n=_box(vf, "thrust_n", minimum=0.0),
@@ -318,6 +376,7 @@ class ThrustMap:
             identification=_dict(f, "identification"),
             interval=_interval(f),
             spin_up=_dict(f, "spin_up"),
+            supported=_region(f),
             tool_version=f.string("tool_version", ""),
             created_utc=f.string("created_utc", ""),
         )
@@ -363,7 +422,36 @@ def _interval(f: Fields) -> dict[str, Any]:
     out = dict(sub.obj)
     for key in ("half_width_pct", "growth_per_span"):
         out[key] = sub.number(key, minimum=0.0)
+    if sub.has("z"):
+        out["z"] = sub.number("z", minimum=0.0)
+    cov = sub.obj.get("parameter_covariance") or []
+    if not isinstance(cov, list) or not all(
+        isinstance(row, list)
+        and len(row) == len(cov)
+        and all(isinstance(x, (int, float)) and math.isfinite(x) for x in row)
+        for row in cov
+    ):
+        raise sub.error("expected a square matrix of finite numbers", "parameter_covariance")
     return out
+
+
+def _region(f: Fields) -> Region | None:
+    """The supported region: knots ascending in voltage, thrust ranges ordered, all finite."""
+    if not f.has("supported_region") or not f.raw("supported_region"):
+        return None
+    sub = f.sub("supported_region")
+    knots = sub.numbers("voltage_v")
+    lo = sub.numbers("thrust_lo_n")
+    hi = sub.numbers("thrust_hi_n")
+    if not knots or len(lo) != len(knots) or len(hi) != len(knots):
+        raise sub.error("expected voltage_v, thrust_lo_n, thrust_hi_n of one length", "voltage_v")
+    if any(b <= 0 for b in knots) or any(k2 < k1 for k1, k2 in zip(knots, knots[1:], strict=False)):
+        raise sub.error("expected positive voltages in ascending order", "voltage_v")
+    if any(a < 0 or a > b for a, b in zip(lo, hi, strict=True)):
+        raise sub.error("expected 0 <= thrust_lo_n <= thrust_hi_n at every knot", "thrust_lo_n")
+    b_lo = sub.number("voltage_lo_v", minimum=0.0)
+    b_hi = sub.number("voltage_hi_v", minimum=b_lo)
+    return Region(tuple(knots), tuple(lo), tuple(hi), b_lo, b_hi)
 
 
 def _non_finite_path(obj: Any, path: str = "") -> str | None:

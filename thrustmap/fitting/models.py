@@ -8,10 +8,12 @@ exactly, so the narrow voltage range does not make the solve ill-conditioned.
 ω = Kv·(d·B − R·I) with current I = I0 + Q/Kt and propeller torque Q = kq·ω², and the propeller
 pushes T = kt·ω². Eliminating ω = √(T/kt) gives the duty d·B = k0 + k1·√T + k2·T, so
 
-    Th = c + (k0 + k1·√T + k2·T) / B,   with k1, k2 ≥ 0
+    Th = c + (k0 + k1·√T + k2·T) / B,   with k0, k1, k2 ≥ 0 and c in ``OFFSET_RANGE_PCT``
 
-(c absorbs the ESC's throttle-to-duty offset). It is monotone in T by construction, scales
-with 1/B as a motor does, and has four coefficients, so it extrapolates sanely.
+(c absorbs the ESC's throttle-to-duty offset). The bounds are imposed by the solver (bounded
+least squares, or bounded LP for L1), so every fitted map rises with T and never rises with B
+for T ≥ 0 (∂Th/∂B = −(k0 + k1·√T + k2·T)/B² ≤ 0): physical by construction. It scales with 1/B
+as a motor does and has four coefficients, so it extrapolates sanely.
 
 Identification. At one battery voltage B0, c and k0/B0 are one number, so the data alone cannot
 say how the map scales with B. Physics can: k0 is the resistive drop of the no-load current
@@ -20,9 +22,12 @@ throttle offset (dead band / idle), which does not scale with voltage. ``motor``
 the physics form with k0 = 0 unless the data can identify k0: only when the training voltages
 span at least ``MIN_RELATIVE_SPAN`` of their mean over at least ``MIN_POINTS_PER_COEFFICIENT``
 points per coefficient is k0 fitted (a real ESC's duty is not exactly proportional to
-throttle, and enough data at several voltages measures that), and only if that fit can be a
-motor (offset within ±50 % of the range, throttle falling with voltage mid-range). The choice
-and its reason are reported (:class:`Identification`).
+throttle, and enough data at several voltages measures that). A free fit (c and k0 unbounded)
+that would break the physics (a negative no-load term, an offset outside its band) is named
+in the reason and the bounded fit kept. Where the stand logged rpm and current,
+``backemf_coefficients`` identifies the same form from B·d = Ke·ω + R·I instead (fit.py keeps
+it only when by-file held-out error at another voltage confirms it). The choice, its reason
+and the voltage scaling the map rests on are reported (:class:`Identification`).
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ class Model:
     term_names: tuple[str, ...]
     uses_voltage: bool
     lower_bounds: tuple[float, ...] = field(default=())
+    upper_bounds: tuple[float, ...] = field(default=())
 
     @property
     def n_coefficients(self) -> int:
@@ -89,6 +95,9 @@ class Model:
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
 
+    def upper(self) -> FloatArray | None:
+        return np.array(self.upper_bounds, float) if self.upper_bounds else None
+
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
     ) -> FloatArray:
@@ -112,9 +121,11 @@ class Identification:
     fixed: tuple[str, ...] = ()  # coefficients set by physics, not fitted
     evidence: dict[str, float] = field(default_factory=dict)  # figures behind the choice
     limited_by: str = ""  # "voltage span", "points", "physical sense" (full fit rejected), ""
+    scaling: str = ""  # what the map's voltage scaling rests on
 
     def to_dict(self) -> dict[str, object]:
         return {
+            **({"voltage_scaling": self.scaling} if self.scaling else {}),
             "form": self.form,
             "reason": self.reason,
             "voltage_span_v": self.voltage_span_v,
@@ -234,25 +245,39 @@ MIN_RELATIVE_SPAN = 0.05
 MIN_POINTS_PER_COEFFICIENT = 8
 
 
+#: the ESC's throttle offset (where its duty reaches zero), % of the range: an ESC whose duty is
+#: a fifth of full at zero command, or that stays off over half its range, is not a motor's ESC
+OFFSET_RANGE_PCT = (-20.0, 50.0)
+
+SCALING_PHYSICS = "1/B from motor physics (duty × voltage sets speed; k0 = R·I0 ≈ 0 assumed)"
+SCALING_FITTED = "1/B with the no-load term k0 fitted from the data's voltage spread"
+
+
 @dataclass(frozen=True)
 class MotorModel(FeatureModel):
-    """``motor``, fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
+    """``motor``, physical by construction: k0, k1, k2 ≥ 0 (so throttle rises with thrust and
+    does not rise with voltage anywhere T ≥ 0) and the ESC offset c within ``OFFSET_RANGE_PCT``;
+    fitted with k0 = 0 (physics) unless the data identifies k0 (see module doc)."""
 
     voltage_from_physics = True
 
     def _fit_form(
         self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, full: bool
     ) -> FloatArray:
-        design, to_raw = self.conditioned(t, b)
-        lower = self.lower()
-        assert lower is not None
-        if full:
-            return to_raw(solve(design, th, loss=loss, lower=lower))
-        keep = [0, 2, 3]
-        sub = solve(design[:, keep], th, loss=loss, lower=lower[keep])
+        """The bounded fit in the raw basis (the solver scales columns itself)."""
+        design = self.design(t, b)
+        lower, upper = self.lower(), self.upper()
+        assert lower is not None and upper is not None
+        keep = [0, 1, 2, 3] if full else [0, 2, 3]
         coef = np.zeros(4)
-        coef[keep] = sub
-        return to_raw(coef)
+        coef[keep] = solve(design[:, keep], th, loss=loss, lower=lower[keep], upper=upper[keep])
+        return coef
+
+    def _free_fit(self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss) -> FloatArray:
+        """What the data alone say: c and k0 unconstrained (k1, k2 ≥ 0), for the report."""
+        design = self.design(t, b)
+        lower = np.array([-np.inf, -np.inf, 0.0, 0.0])
+        return solve(design, th, loss=loss, lower=lower)
 
     def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
         """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""
@@ -287,42 +312,119 @@ class MotorModel(FeatureModel):
             coef = self._fit_form(t, b, th, loss, False)
             evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
             return coef, Identification(
-                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit
+                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit, SCALING_PHYSICS
             )
         mean_b = float(np.mean(b))
-        full = self._fit_form(t, b, th, loss, True)
-        unphysical = _unphysical(full, t)
+        free = self._free_fit(t, b, th, loss)
+        unphysical = _unphysical(free, t)
+        coef = self._fit_form(t, b, th, loss, True)
         if unphysical:
-            reason = (
-                f"voltage span {span:.2f} V over {len(b)} points, but fitting k0 gave {unphysical}:"
-                " 1/B scaling from motor physics (k0 = 0) kept"
+            k0_zero = coef[1] <= 0.0
+            kept = (
+                "1/B scaling from motor physics (k0 = 0) kept"
+                if k0_zero
+                else f"fitted within physics (k0 = {coef[1]:.3g} ≥ 0, c = {coef[0]:.1f} % in "
+                f"{OFFSET_RANGE_PCT[0]:g}..{OFFSET_RANGE_PCT[1]:g} %)"
             )
-            coef = self._fit_form(t, b, th, loss, False)
+            reason = (
+                f"voltage span {span:.2f} V over {len(b)} points, but fitting k0 freely gave "
+                f"{unphysical}: {kept}"
+            )
             return coef, Identification(
-                "k0 fixed (physics)", reason, span, ("1/B",), {}, "physical sense"
+                "k0 fixed (physics)" if k0_zero else "full",
+                reason,
+                span,
+                ("1/B",) if k0_zero else (),
+                {"free_c_pct": float(free[0]), "free_k0": float(free[1])},
+                "physical sense",
+                SCALING_PHYSICS if k0_zero else SCALING_FITTED,
             )
         reason = (
             f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V) over "
             f"{len(b)} points: 1/B term fitted from the data"
         )
-        return full, Identification("full", reason, span)
-
-
-#: where the ESC's duty reaches zero must lie near the bottom of the throttle range
-OFFSET_RANGE_PCT = (-50.0, 50.0)
+        return coef, Identification("full", reason, span, scaling=SCALING_FITTED)
 
 
 def _unphysical(coef: FloatArray, thrust_n: FloatArray) -> str:
-    """Why a full ``motor`` fit cannot be a motor ('' when it can): the throttle offset far
-    outside the range, or more voltage needing MORE throttle over the upper half of the thrust
-    range (where a multirotor hovers and manoeuvres; near idle a real ESC may be flat in B)."""
+    """Why a free ``motor`` fit cannot be a motor ('' when it can): the throttle offset outside
+    its band, or a negative no-load term k0 (then throttle rises with voltage at low thrust,
+    and the voltage slices cross)."""
     c, k0, k1, k2 = (float(x) for x in coef)
     if not OFFSET_RANGE_PCT[0] <= c <= OFFSET_RANGE_PCT[1]:
-        return f"a throttle offset c = {c:.0f} %"
-    t_mid = 0.5 * (float(np.min(thrust_n)) + float(np.max(thrust_n)))
-    if k0 + k1 * np.sqrt(max(t_mid, 0.0)) + k2 * t_mid <= 0:
-        return f"throttle rising with voltage at {t_mid:.3g} N"
+        return (
+            f"a throttle offset c = {c:.1f} % (outside {OFFSET_RANGE_PCT[0]:g}.."
+            f"{OFFSET_RANGE_PCT[1]:g} %)"
+        )
+    if k0 < 0:
+        # where k0 + k1·√T + k2·T crosses zero: below it more voltage would need more throttle
+        s = (
+            (-k1 + math.sqrt(k1 * k1 - 4 * k2 * k0)) / (2 * k2)
+            if k2 > 0
+            else (-k0 / k1 if k1 > 0 else math.inf)
+        )
+        t_top = float(np.max(thrust_n)) if len(thrust_n) else 0.0
+        below = (
+            f"below {s * s:.3g} N"
+            if math.isfinite(s) and s * s < t_top
+            else "over the whole thrust range"
+        )
+        return (
+            f"k0 = {k0:.1f}, c = {c:.1f} % (a negative no-load term: throttle rising with "
+            f"voltage {below})"
+        )
     return ""
+
+
+SCALING_BACKEMF = (
+    "1/B from back-EMF and winding loss measured by the stand (B·d = Ke·ω + R·I from the "
+    "logged rpm and current)"
+)
+#: fewest spinning rows with rpm and current before the back-EMF scaling is tried
+MIN_BACKEMF_ROWS = 8
+
+
+def backemf_coefficients(
+    throttle_pct: FloatArray,
+    thrust_n: FloatArray,
+    voltage_v: FloatArray,
+    rpm: FloatArray,
+    current_a: FloatArray,
+) -> FloatArray | None:
+    """``motor`` coefficients identified from the stand's rpm and current rather than assumed.
+
+    The ESC's duty d = (Th − c)/100 drives B·d = Ke·ω + R·I (back-EMF and winding loss), so
+    Th = c + a·ω/B + r·I/B is fitted on the spinning rows (a = 100·Ke, r = 100·R ≥ 0, c in its
+    band). The propeller fixes ω(T) = w1·√T + w2·T and the motor I(T) = i0 + i1·√T + i2·T
+    (all ≥ 0, voltage-free), so the map is Th = c + (r·i0 + (a·w1 + r·i1)·√T + (a·w2 + r·i2)·T)/B:
+    the ``motor`` form with k0 = R·I0 measured, physical by construction. None when the rows
+    cannot support it (too few spinning rows with rpm and current)."""
+    w = np.abs(np.asarray(rpm, float))
+    i = np.abs(np.asarray(current_a, float))
+    t = np.asarray(thrust_n, float)
+    b = np.asarray(voltage_v, float)
+    th = np.asarray(throttle_pct, float)
+    ok = np.isfinite(w) & np.isfinite(i) & np.isfinite(t) & np.isfinite(b) & np.isfinite(th)
+    if not ok.any():
+        return None
+    ok &= (w > 0.02 * float(np.max(w[ok]))) & (t > 0) & (b > 0)
+    if int(ok.sum()) < MIN_BACKEMF_ROWS:
+        return None
+    w, i, t, b, th = w[ok], i[ok], t[ok], b[ok], th[ok]
+    try:
+        c, a, r = solve(
+            np.stack([np.ones_like(b), w / b, i / b], axis=1),
+            th,
+            lower=np.array([OFFSET_RANGE_PCT[0], 0.0, 0.0]),
+            upper=np.array([OFFSET_RANGE_PCT[1], np.inf, np.inf]),
+        )
+        st = np.sqrt(t)
+        w1, w2 = solve(np.stack([st, t], axis=1), w, lower=np.zeros(2))
+        i0, i1, i2 = solve(np.stack([np.ones_like(t), st, t], axis=1), i, lower=np.zeros(3))
+    except FitError:
+        return None
+    coef = np.array([c, r * i0, a * w1 + r * i1, a * w2 + r * i2], dtype=float)
+    return coef if np.all(np.isfinite(coef)) else None
 
 
 def motor_forward(
@@ -360,12 +462,14 @@ MODELS: dict[str, Model] = {
         _poly("poly3-trunc", _PAPER_TRUNC3, "seed paper's 3rd-degree truncated form"),
         MotorModel(
             name="motor",
-            formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k1, k2 >= 0",
+            formula="Th = c + (k0 + k1*sqrt(T) + k2*T) / B,  k0, k1, k2 >= 0, -20 <= c <= 50",
             description="physics-informed: duty x voltage drives rotor speed, thrust ~ speed^2; "
-            "monotone in T, scales as 1/B; k0 = 0 unless the data spans enough voltage to fit it",
+            "rises with T and never with B by construction; k0 = 0 unless the data spans "
+            "enough voltage to fit it",
             term_names=("1", "1/B", "sqrt(T)/B", "T/B"),
             uses_voltage=True,
-            lower_bounds=(-np.inf, -np.inf, 0.0, 0.0),
+            lower_bounds=(OFFSET_RANGE_PCT[0], 0.0, 0.0, 0.0),
+            upper_bounds=(OFFSET_RANGE_PCT[1], np.inf, np.inf, np.inf),
             features=_motor_features,
         ),
     )

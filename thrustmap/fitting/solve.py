@@ -21,11 +21,12 @@ def solve(
     *,
     loss: Loss = "l2",
     lower: FloatArray | None = None,
+    upper: FloatArray | None = None,
 ) -> FloatArray:
     """Coefficients c minimising ||design @ c - target|| in the L2 or L1 sense.
 
-    ``lower`` gives per-coefficient lower bounds (-inf for none); used to keep physics models
-    monotone. Column scaling is applied internally so the bounds are in the caller's units.
+    ``lower`` / ``upper`` give per-coefficient bounds (∓inf for none); used to keep physics
+    models physical. Column scaling is applied internally so the bounds are in the caller's units.
     """
     import scipy.optimize as opt  # scipy loads when a fit runs (~1.5 s of imports)
 
@@ -35,30 +36,27 @@ def solve(
     norms = np.linalg.norm(design, axis=0)
     norms[norms == 0] = 1.0
     scaled = design / norms
-    lo = None if lower is None else np.asarray(lower, dtype=float) * norms
-    bounded = lo is not None and bool(np.isfinite(lo).any())
+    lo = np.full(k, -np.inf) if lower is None else np.asarray(lower, dtype=float) * norms
+    hi = np.full(k, np.inf) if upper is None else np.asarray(upper, dtype=float) * norms
     if loss == "l2":
-        if not bounded:
-            coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
-        else:
-            assert lo is not None
-            coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
-            if np.any(coef < lo):
-                # Bounded least squares on the k x k triangular factor: same optimum, as
-                # ||A c - y||² = ||R c - Qᵀy||² + const, and independent of the sample count.
-                q, r = np.linalg.qr(scaled)
-                res = opt.lsq_linear(
-                    r, q.T @ target, bounds=(lo, np.full(k, np.inf)), method="bvls"
-                )
-                coef = res.x
+        coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
+        if np.any(coef < lo) or np.any(coef > hi):
+            # Bounded least squares on the k x k triangular factor: same optimum, as
+            # ||A c - y||² = ||R c - Qᵀy||² + const, and independent of the sample count.
+            q, r = np.linalg.qr(scaled)
+            res = opt.lsq_linear(r, q.T @ target, bounds=(lo, hi), method="bvls")
+            coef = res.x
     elif loss == "l1":
-        coef = _lad(scaled, target, lo)
+        coef = _lad(scaled, target, lo, hi)
     else:
         raise FitError(f"unknown loss '{loss}'; expected one of: {', '.join(LOSSES)}")
-    return np.asarray(coef / norms, dtype=float)
+    # the bounds hold exactly in the caller's units (unscaling may leave -1e-14 below 0)
+    return np.asarray(np.clip(coef / norms, lo / norms, hi / norms), dtype=float)
 
 
-def _lad(a: FloatArray, y: FloatArray, lower: FloatArray | None) -> FloatArray:
+def _lad(
+    a: FloatArray, y: FloatArray, lower: FloatArray | None, upper: FloatArray | None = None
+) -> FloatArray:
     """Least absolute deviations as an LP: min sum(u+v) s.t. A c + u - v = y, u, v >= 0."""
     import scipy.optimize as opt
     import scipy.sparse as sp
@@ -68,9 +66,11 @@ def _lad(a: FloatArray, y: FloatArray, lower: FloatArray | None) -> FloatArray:
     eye = sp.identity(n, format="csr")
     a_eq = sp.hstack([sp.csr_matrix(a), eye, -eye], format="csr")
     lo = np.full(k, -np.inf) if lower is None else lower
-    bounds = [(None if not np.isfinite(b) else float(b), None) for b in lo] + [(0.0, None)] * (
-        2 * n
-    )
+    hi = np.full(k, np.inf) if upper is None else upper
+    bounds = [
+        (None if not np.isfinite(b) else float(b), None if not np.isfinite(u) else float(u))
+        for b, u in zip(lo, hi, strict=True)
+    ] + [(0.0, None)] * (2 * n)
     res = opt.linprog(cost, A_eq=a_eq, b_eq=y, bounds=bounds, method="highs")
     if res.status != 0:
         raise FitError(f"least-absolute-deviations LP did not solve: {res.message}")
@@ -89,8 +89,13 @@ def gram_condition_number(gram: FloatArray) -> float:
     return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
 
 
-def solve_gram(gram: FloatArray, rhs: FloatArray, lower: FloatArray | None = None) -> FloatArray:
-    """Least squares from the normal equations G c = h (G = AᵀA, h = Aᵀy), with lower bounds.
+def solve_gram(
+    gram: FloatArray,
+    rhs: FloatArray,
+    lower: FloatArray | None = None,
+    upper: FloatArray | None = None,
+) -> FloatArray:
+    """Least squares from the normal equations G c = h (G = AᵀA, h = Aᵀy), with bounds.
 
     Lets validation fit many folds from per-file sums without touching the samples again.
     """
@@ -102,11 +107,12 @@ def solve_gram(gram: FloatArray, rhs: FloatArray, lower: FloatArray | None = Non
     gs = gram / np.outer(d, d)
     hs = rhs / d
     coef, *_ = np.linalg.lstsq(gs, hs, rcond=None)
-    lo = None if lower is None else np.asarray(lower, float) * d
-    if lo is not None and np.any(coef < lo):
+    lo = np.full(k, -np.inf) if lower is None else np.asarray(lower, float) * d
+    hi = np.full(k, np.inf) if upper is None else np.asarray(upper, float) * d
+    if np.any(coef < lo) or np.any(coef > hi):
         chol = np.linalg.cholesky(
             gs + 1e-14 * np.eye(k)
         )  # gs = L Lᵀ; ||Ac-y||² = ||Lᵀc - L⁻¹h||² + const
         target = np.linalg.solve(chol, hs)
-        coef = opt.lsq_linear(chol.T, target, bounds=(lo, np.full(k, np.inf)), method="bvls").x
-    return np.asarray(coef / d, dtype=float)
+        coef = opt.lsq_linear(chol.T, target, bounds=(lo, hi), method="bvls").x
+    return np.asarray(np.clip(coef / d, lo / d, hi / d), dtype=float)

@@ -20,7 +20,6 @@ from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
-from thrustmap.fitting.models import PolyModel
 from thrustmap.fitting.names import DEFAULT_MODEL, Loss
 from thrustmap.fitting.selection import (
     ROLE_PLATEAU,
@@ -197,36 +196,27 @@ def sweep_mask(ds: Dataset, sel: Selection) -> SweepMask:
 # -- uncertainty ---------------------------------------------------------------------------------
 
 
-def _design(tmap: ThrustMap, t: FloatArray, b: FloatArray, ref: Pool) -> FloatArray:
-    """The map model's design in a basis conditioned on the fit points (same span as raw)."""
-    m = tmap.model_def
-    if isinstance(m, PolyModel):
-        ts = float(np.max(np.abs(ref.thrust_n))) or 1.0
-        bc = float(np.mean(ref.voltage_v)) if m.uses_voltage else 0.0
-        bs = (float(np.std(ref.voltage_v)) if m.uses_voltage else 1.0) or 1.0
-        return m.design(t / ts, (b - bc) / bs)
-    d_ref = m.design(ref.thrust_n, ref.voltage_v)
-    norms = np.linalg.norm(d_ref, axis=0)
-    norms[norms == 0] = 1.0
-    return np.asarray(m.design(t, b) / norms, dtype=float)
+def prediction_interval(tmap: ThrustMap, t: FloatArray, b: FloatArray) -> FloatArray:
+    """The map's own 95 % prediction-interval half-width (% throttle) at (t, b): the interval
+    fit, predict and the map file give (held-out residuals and the coefficients' uncertainty,
+    widening outside the supported region). NaN everywhere for a map without one."""
+    half = tmap.interval_pct(t, b, corrected=False)
+    if half is None:
+        return np.full(np.shape(t), np.nan)
+    return np.asarray(half, dtype=float)
 
 
-def prediction_interval(
-    tmap: ThrustMap, data: Pool, residual: FloatArray, t: FloatArray, b: FloatArray
-) -> FloatArray:
-    """95 % prediction-interval half-width (% throttle) of an ordinary least-squares fit of the
-    map's model to these points (linearised: active coefficient bounds are ignored)."""
-    from scipy.special import stdtrit  # Student-t quantile (scipy.stats imports slowly)
-
-    x = _design(tmap, data.thrust_n, data.voltage_v, data)
-    n, p = x.shape
-    dof = max(n - p, 1)
-    s = float(np.sqrt(np.sum(residual**2) / dof))
-    xtx_inv = np.linalg.pinv(x.T @ x)
-    x0 = _design(tmap, t.ravel(), b.ravel(), data)
-    lever = np.einsum("ij,jk,ik->i", x0, xtx_inv, x0)
-    half = float(stdtrit(dof, 0.975)) * s * np.sqrt(1.0 + lever)
-    return np.asarray(np.reshape(half, t.shape), dtype=float)
+def where_to_test(
+    tmap: ThrustMap, t: FloatArray, b: FloatArray, th: FloatArray, pi: FloatArray
+) -> tuple[float, float] | None:
+    """The grid point with the widest interval among those the motor can reach (the map's
+    throttle within 0..100 % of the scale there); None when no such point has an interval."""
+    ok = np.isfinite(pi) & np.isfinite(th) & (th >= 0.0) & (th <= 100.0)
+    if not ok.any():
+        return None
+    masked = np.where(ok, pi, -np.inf)
+    i, j = np.unravel_index(int(np.argmax(masked)), masked.shape)
+    return float(t[i, j]), float(b[i, j])
 
 
 # -- γ ------------------------------------------------------------------------------------------
@@ -366,11 +356,9 @@ def build(
         np.linspace(v.voltage_v.lo, v.voltage_v.hi, GRID_N),
     )
     gth = tmap.throttle_pct(gt, gb, corrected=False)
-    try:
-        pi = prediction_interval(tmap, data, residual, gt, gb)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        notes.append(f"prediction interval not computed: {exc}")
-        pi = np.full_like(gt, np.nan)
+    pi = prediction_interval(tmap, gt, gb)
+    if not np.isfinite(pi).any():
+        notes.append("the map records no prediction interval (fitted by an older thrustmap)")
     count, _, _ = np.histogram2d(
         data.voltage_v,
         data.thrust_n,
@@ -379,10 +367,7 @@ def build(
             np.linspace(v.thrust_n.lo, v.thrust_n.hi, 9),
         ],
     )
-    suggestion = None
-    if np.isfinite(pi).any():
-        i, j = np.unravel_index(int(np.nanargmax(pi)), pi.shape)
-        suggestion = (float(gt[i, j]), float(gb[i, j]))
+    suggestion = where_to_test(tmap, gt, gb, gth, pi)
     validation: dict[str, list[Row]] = {}
     if with_validation:
         for mode in ("in-sample", "by-file", "kfold"):

@@ -211,6 +211,14 @@ def coverage(rd: ReportData) -> Figure:
             pad = 0.05 * (max(hi, x) - min(lo, x) or 1.0)
             setter(min(lo, x - pad), max(hi, x + pad))
     a2.set_title("prediction interval")
+    region = rd.tmap.supported_region()
+    rb = np.linspace(region.voltage_lo_v, region.voltage_hi_v, 50)
+    r_lo, r_hi = region.thrust_range(rb)
+    outline_t = np.concatenate([r_lo, r_hi[::-1], r_lo[:1]])
+    outline_b = np.concatenate([rb, rb[::-1], rb[:1]])
+    for ax in (a1, a2):
+        ax.plot(outline_t, outline_b, "--", color="tab:green", lw=1.2, label="supported region")
+    a1.legend(loc="upper left", fontsize="small")
     for ax in (a1, a2):
         ax.set_xlabel(T)
     a1.set_ylabel(B)

@@ -358,16 +358,20 @@ def _validation(rd: ReportData) -> str:
 def _coverage(rd: ReportData) -> str:
     pi = rd.grid_pi_pct
     txt = ""
-    if np.isfinite(pi).any():
+    over = rd.tmap.interval_over_region()
+    if over is not None and np.isfinite(pi).any():
         txt = (
-            f"<p>95 % prediction interval of the {_e(rd.tmap.model)} fit over the box: "
-            f"{np.nanmin(pi):.3f}..{np.nanmax(pi):.3f} % throttle (ordinary least squares, "
-            "linearised; coefficient bounds ignored)."
+            f"<p>95 % prediction interval of the {_e(rd.tmap.model)} map over its supported "
+            f"region (where the data are): ±{over[0]:.2f}..{over[1]:.2f} % throttle; over the "
+            f"whole box ±{np.nanmin(pi):.2f}..{np.nanmax(pi):.2f} %, wider outside the region "
+            "(the same interval as <code>thrustmap fit</code> and <code>predict</code>: held-out "
+            "residuals and the coefficients' uncertainty at each point)."
         )
         if rd.suggestion:
             txt += (
-                f" Widest at T = {rd.suggestion[0]:.2f} N, B = {rd.suggestion[1]:.2f} V: "
-                "one more test there would help most."
+                f" Widest where the motor can reach (throttle within 0..100 %) at "
+                f"T = {rd.suggestion[0]:.2f} N, B = {rd.suggestion[1]:.2f} V: one more test "
+                "there would help most."
             )
         txt += "</p>"
     return _img("coverage", rd, "coverage and prediction interval") + txt
