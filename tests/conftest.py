@@ -11,6 +11,12 @@ from pathlib import Path
 
 import pytest
 
+# With pyarrow installed (the fleet extra), pandas keeps strings in Arrow, whose default
+# allocators (mimalloc/jemalloc) reserve large address ranges up front, so the fuzz suite's
+# children (run under RLIMIT_AS) fail a 384-byte malloc. The system allocator makes that limit
+# measure what a command uses. Set before anything imports pandas (and so pyarrow).
+os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 #: THRUSTMAP_SHARED_DATA points elsewhere (a git worktree is not beside ../shared)
 SHARED_DATA = Path(

@@ -420,6 +420,7 @@ def warm() -> None:
 
     from thrustmap.cli import COMMANDS
 
+    # (tests/conftest.py sets ARROW_DEFAULT_MEMORY_POOL=system, for the children's RLIMIT_AS)
     for target in set(COMMANDS.values()):
         importlib.import_module("thrustmap.cli." + target.split(":")[0])
     for name in ("pandas", "scipy.optimize", "pyulog", "pymavlink.mavutil"):
