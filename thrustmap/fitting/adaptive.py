@@ -161,7 +161,15 @@ class MapChooser:
         lo = float(positive.min()) if len(positive) else 0.0
         return lo, float(t.max())
 
-    def assess(self, points: Sequence[PointLike], voltage_v: float) -> Verdict:
+    def assess(
+        self,
+        points: Sequence[PointLike],
+        voltage_v: float,
+        throttle_range_pct: tuple[float, float] | None = None,
+    ) -> Verdict:
+        """The verdict at the voltage now. ``throttle_range_pct``: the plan's range; the
+        envelope is judged (and measured) only where the map says that range reaches, so a
+        thrust the sagging battery can no longer give inside it is not chased."""
         usable = [p for p in points if p.voltage_v is not None and math.isfinite(p.thrust_n)]
         th = np.array([p.throttle_pct for p in usable], float)
         t = np.array([p.thrust_n for p in usable], float)
@@ -178,7 +186,15 @@ class MapChooser:
         b_lo, b_hi = float(b.min()), float(b.max())
         grid_b = np.unique(np.array([b_lo, 0.5 * (b_lo + b_hi), b_hi, voltage_v]))
         tt, bb = np.meshgrid(grid_t, grid_b)
-        worst_all = float(np.max(fitted.half_width_pct(tt, bb)))
+        hw = fitted.half_width_pct(tt, bb)
+        if throttle_range_pct is not None:
+            # one hold's worth of slack: the range's ends themselves are reachable
+            lo_pct, hi_pct = throttle_range_pct
+            th_grid = fitted.throttle_pct(tt, bb)
+            inside = (th_grid >= lo_pct - 0.5) & (th_grid <= hi_pct + 0.5)
+            if inside.any():
+                hw = np.where(inside, hw, -np.inf)
+        worst_all = float(np.max(hw))
         worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
         note = ""
         span = b_hi - b_lo
@@ -204,6 +220,13 @@ class MapChooser:
         el = np.array([p.elapsed_s for p in usable], float)
         cand_b = _voltage_model(t, el, b, grid_t, float(el.max()), voltage_v)
         pi_now = fitted.half_width_pct(grid_t, cand_b)
+        if throttle_range_pct is not None:
+            th_now = fitted.throttle_pct(grid_t, cand_b)
+            inside_now = (th_now >= throttle_range_pct[0] - 0.5) & (
+                th_now <= throttle_range_pct[1] + 0.5
+            )
+            if inside_now.any():
+                pi_now = np.where(inside_now, pi_now, -np.inf)
         # gap: distance to the nearest point in thrust (envelope units) and voltage (units of
         # the span that identifies the voltage scaling, 5 % of the mean)
         span_t = max(t_hi - t_lo, 1e-9)

@@ -337,7 +337,12 @@ class Chooser(Protocol):
 
     target_pi_pct: float
 
-    def assess(self, points: Sequence[SettledPoint], voltage_v: float) -> Assessment: ...
+    def assess(
+        self,
+        points: Sequence[SettledPoint],
+        voltage_v: float,
+        throttle_range_pct: tuple[float, float] | None = None,
+    ) -> Assessment: ...
 
     def to_dict(self) -> dict[str, Any]: ...
 
@@ -478,7 +483,7 @@ class AdaptiveDriver:
             self._check_headroom(point, caps or {})
         voltage = self._voltage_now()
         a = (
-            self.chooser.assess(self.points, voltage)
+            self.chooser.assess(self.points, voltage, (self.lo_pct, self.hi_pct))
             if voltage is not None and self.points
             else None
         )
