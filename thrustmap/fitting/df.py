@@ -780,6 +780,58 @@ def write_df(df: Df, path: str | Path) -> Path:
     return side
 
 
+def _positive_int(value: Any) -> bool:
+    """A count: an integer ≥ 1 (a JSON 4.0 is accepted, 4.5, "four", true are not)."""
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int):
+        return value >= 1
+    return isinstance(value, float) and value.is_integer() and value >= 1
+
+
+def _check_sidecar(side: dict[str, Any], path: str) -> None:
+    """Refuse sidecar fields the γ fit relies on when they cannot be what they name."""
+    flights = side.get("flights", {})
+    if not isinstance(flights, dict):
+        raise DataFormatError(
+            "Df sidecar: 'flights' must be an object", file=path, column="flights"
+        )
+    for fid, meta in flights.items():
+        if not isinstance(meta, dict):
+            raise DataFormatError(
+                "Df sidecar: expected an object per flight", file=path, column=f"flights.{fid}"
+            )
+        for key in ("rotors", "mass_kg"):
+            value = meta.get(key)
+            if value is None:
+                continue
+            if key == "rotors" and not _positive_int(value):
+                raise DataFormatError(
+                    f"Df sidecar: rotor count {value!r} is not a whole number ≥ 1",
+                    file=path,
+                    column=f"flights.{fid}.rotors",
+                )
+            if key == "mass_kg" and (
+                isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e5
+            ):
+                raise DataFormatError(
+                    f"Df sidecar: mass {value!r} is not a positive number of kg",
+                    file=path,
+                    column=f"flights.{fid}.mass_kg",
+                )
+    opts = side.get("options")
+    if (
+        isinstance(opts, dict)
+        and opts.get("rotors") is not None
+        and not _positive_int(opts["rotors"])
+    ):
+        raise DataFormatError(
+            f"Df sidecar: rotor count {opts['rotors']!r} is not a whole number ≥ 1",
+            file=path,
+            column="options.rotors",
+        )
+
+
 def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
     p = Path(path)
@@ -823,6 +875,7 @@ def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
         if not isinstance(loaded, dict):
             raise DataFormatError("Df sidecar: expected a JSON object", file=str(sp))
         side = loaded
+        _check_sidecar(side, str(sp))
     if "flight" not in table.columns:
         table.insert(0, "flight", p.name)
     return table, side
