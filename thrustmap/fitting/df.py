@@ -58,12 +58,18 @@ class DfOptions:
     settle_s: float = 2.0  # dropped after takeoff and before landing
     max_gap_s: float = 1.0
     steady_tol: float = 0.15  # keep |cmd − running median| ≤ this fraction of the median
-    steady_window_s: float = 3.0
+    steady_window_s: float = 5.0  # longer than a command dip (≤ 1.5 s seen) twice over
     accel_smooth_s: float = 0.5  # centred running mean of a_up (IMU vibration, aliasing)
     min_height_m: float = 0.5  # airborne only this far above the takeoff level (spool-up, ramp)
     climb_max_mps: float = 1.0  # keep |climb rate| ≤ this (takeoff ramp, climbs, descents)
     liftoff_frac: float = 0.9  # airborne from when the command first reaches this × hover
     thrust_source: str = "auto"  # auto | log (thrust_cmd_n) | motors | norm
+    # supported on the ground: the command below this × hover while a_up stays at g ...
+    ground_cmd_frac: float = 0.7
+    ground_min_s: float = 2.0  # ... (or the altitude back at the ground level) this long
+    height_window_s: float = 5.0  # takeoff level judged this near takeoff, landing level landing
+    level_disagree_m: float = 1.0  # warn when takeoff and landing levels differ by more
+    rotor_lag_s: float = 0.1  # drop this near a command change larger than steady_tol
 
     def __post_init__(self) -> None:
         if self.mass_kg is not None and not self.mass_kg > 0:
@@ -286,6 +292,123 @@ def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
     return None
 
 
+def _long_runs(mask: BoolArray, min_len: int) -> BoolArray:
+    """``mask`` with its True runs shorter than ``min_len`` bins cleared."""
+    out = np.zeros(len(mask), bool)
+    for a, b in _runs(mask):
+        if b - a >= min_len:
+            out[a:b] = True
+    return out
+
+
+def _dilate(mask: BoolArray, radius: int) -> BoolArray:
+    """True within ``radius`` bins of a True bin."""
+    if radius <= 0 or not mask.any():
+        return mask
+    c = np.concatenate([[0], np.cumsum(mask.astype(np.int64))])
+    n = len(mask)
+    idx = np.arange(n)
+    lo = np.clip(idx - radius, 0, n)
+    hi = np.clip(idx + radius + 1, 0, n)
+    return np.asarray((c[hi] - c[lo]) > 0)
+
+
+def _supported(
+    cmd: FloatArray,
+    a_up: FloatArray,
+    est: FloatArray | None,
+    stretches: list[tuple[int, int]],
+    opts: DfOptions,
+) -> BoolArray:
+    """Bins where the vehicle rests on the ground anywhere in a stretch, by physics: in free
+    flight the upward specific force follows the thrust (a command well below hover gives
+    a_up well below g); a vehicle carried by the ground reads g whatever the command. Hover is
+    the autopilot's estimate when it has one (same units as ``cmd``), else the stretch's
+    median command. Only runs of at least ``ground_min_s`` count (a brief dip in the command
+    is the rotor lag and the accelerometer smoothing, not a touchdown)."""
+    n = len(cmd)
+    sup = np.zeros(n, bool)
+    at_g = np.abs(np.nan_to_num(a_up, nan=0.0) - G0) <= opts.accel_tol_mps2
+    for a, b in stretches:
+        c = cmd[a:b]
+        if not np.isfinite(c).any():
+            continue
+        level = float("nan")
+        if est is not None and np.isfinite(est[a:b]).any():
+            level = float(np.nanmedian(est[a:b]))
+        if not level > 0:
+            level = float(np.nanmedian(c))
+        if not level > 0:
+            continue
+        with np.errstate(invalid="ignore"):
+            low = np.nan_to_num(c, nan=np.inf) < opts.ground_cmd_frac * level
+        sup[a:b] = low & at_g[a:b]
+    return _long_runs(sup, max(1, int(round(opts.ground_min_s * opts.rate_hz))))
+
+
+def _height_rule(
+    height: FloatArray,
+    stays: list[tuple[int, int]],
+    stretches: list[tuple[int, int]],
+    centres: FloatArray,
+    opts: DfOptions,
+    apply: Any,
+    warnings: list[str],
+    origin: str,
+) -> None:
+    """Airborne by altitude, with references that survive drift: near takeoff the level the
+    vehicle left, near landing the level it came back to (each only within
+    ``height_window_s`` of its end, so a drifted reference never cuts the middle of a
+    flight); in between, back at the ground level (both levels agree) for ``ground_min_s``
+    counts as supported. Levels that disagree by more than ``level_disagree_m`` are reported
+    and then only judge their own end."""
+    n = len(height)
+    ok = np.ones(n, bool)
+    mid = np.ones(n, bool)
+    win = max(1, int(round(opts.height_window_s * opts.rate_hz)))
+    min_len = max(1, int(round(opts.ground_min_s * opts.rate_hz)))
+    drift_noted = False
+    for a, b in stretches:
+        before = [st for st in stays if st[1] <= a]
+        after = [st for st in stays if st[0] >= b]
+        lvl0 = lvl1 = float("nan")
+        if before:
+            sa, sb = before[-1]
+            lvl0 = _ground_level(height, (max(sa, sb - 10), sb))
+        if after:
+            sa, sb = after[0]
+            lvl1 = _ground_level(height, (sa, min(sb, sa + 10)))
+        h = height[a:b]
+        if np.isfinite(lvl0):
+            w = min(win, b - a)
+            up = np.flatnonzero(h[:w] - lvl0 >= opts.min_height_m)
+            ok[a : a + (int(up[0]) if len(up) else w)] = False
+        if np.isfinite(lvl1):
+            w = min(win, b - a)
+            up = np.flatnonzero(h[b - a - w :] - lvl1 >= opts.min_height_m)
+            ok[(b - w + int(up[-1]) + 1 if len(up) else b - w) : b] = False
+        if np.isfinite(lvl0) and np.isfinite(lvl1) and abs(lvl1 - lvl0) > opts.level_disagree_m:
+            if not drift_noted:
+                warnings.append(
+                    f"{origin}: landing level {lvl1 - lvl0:+.1f} m from the takeoff level at "
+                    f"t = {centres[b - 1]:.0f} s (altitude drift): each level judges only "
+                    f"{opts.height_window_s:g} s near its own end"
+                )
+                drift_noted = True
+            continue
+        levels = [x for x in (lvl0, lvl1) if np.isfinite(x)]
+        if not levels:
+            continue
+        ref = max(levels)
+        with np.errstate(invalid="ignore"):
+            down = np.nan_to_num(h, nan=np.inf) - ref < 0.5 * opts.min_height_m
+        mid[a:b] &= ~_long_runs(down, min_len)
+    apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or after "
+          f"leaving {opts.min_height_m:g} m above the landing level ({origin})", ok)  # fmt: skip
+    apply("ground-altitude", f"back at the ground level for ≥ {opts.ground_min_s:g} s between "
+          f"takeoff and landing, no land flag needed ({origin})", mid)  # fmt: skip
+
+
 def _in_air_evidence(
     flight: FlightLog,
     centres: FloatArray,
@@ -294,6 +417,8 @@ def _in_air_evidence(
     apply: Any,
     warnings: list[str],
     cmd_pct: FloatArray | None,
+    cmd_any: FloatArray | None = None,
+    a_up: FloatArray | None = None,
 ) -> None:
     """Drop spool-up on the ground and the takeoff ramp with the autopilot's own in-air evidence.
 
@@ -334,22 +459,8 @@ def _in_air_evidence(
             warnings.append(f"{hs.origin if hs else 'altitude'} not used: {why}")
             height = None
     if height is not None and opts.min_height_m > 0:
-        ok = np.ones(n, bool)
-        for a, b in stretches:
-            before = [st for st in stays if st[1] <= a]
-            after = [st for st in stays if st[0] >= b]
-            if before:
-                sa, sb = before[-1]
-                lvl = _ground_level(height, (max(sa, sb - 10), sb))
-                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
-                ok[a : a + (int(up[0]) if len(up) else b - a)] = False
-            if after:
-                sa, sb = after[0]
-                lvl = _ground_level(height, (sa, min(sb, sa + 10)))
-                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
-                ok[(a + int(up[-1]) + 1 if len(up) else a) : b] = False
-        apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or "
-              f"after leaving it before landing ({hs.origin if hs else ''})", ok)  # fmt: skip
+        _height_rule(height, stays, stretches, centres, opts, apply, warnings,
+                     hs.origin if hs else "altitude")  # fmt: skip
     if cmd_pct is not None and opts.liftoff_frac > 0:
         ok = np.ones(n, bool)
         hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
@@ -372,6 +483,21 @@ def _in_air_evidence(
             ok[a + int(up[-1]) + 1 : b] = False
         apply("liftoff", f"command below {opts.liftoff_frac:.0%} of the hover command before "
               "liftoff or after touchdown (spool-up / spool-down on the ground)", ok)  # fmt: skip
+    if cmd_any is not None and opts.ground_cmd_frac > 0 and a_up is not None:
+        hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
+        est = rs(hover) * 100.0 if hover is not None and cmd_pct is not None else None
+        apply(
+            "ground-physics",
+            f"supported on the ground: command below {opts.ground_cmd_frac:.0%} of hover while "
+            f"a_up stays at g for ≥ {opts.ground_min_s:g} s (no land flag needed)",
+            ~_supported(
+                cmd_pct if cmd_pct is not None and est is not None else cmd_any,
+                a_up,
+                est,
+                stretches,
+                opts,
+            ),  # fmt: skip
+        )
     cs = ex.get("climb_mps")
     if cs is not None and len(cs) and opts.climb_max_mps > 0:
         climb = rs(cs)
@@ -550,7 +676,7 @@ def extract_flight(
         cmd_pct = cmd_pct * 100.0
     _in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
-        cmd_pct if flight.thrust_cmd_n is None else None,
+        cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,
     )  # fmt: skip
     # takeoff / landing transients: trim settle_s from both ends of every airborne run
     settled = np.zeros(nbins, bool)
@@ -588,10 +714,20 @@ def extract_flight(
         )
     if cmd_for_steady is not None and opts.steady_tol > 0:
         window = int(round(opts.steady_window_s * opts.rate_hz))
+        steady = _steady(cmd_for_steady, window, opts.steady_tol)
         apply(
             "steady",
             f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
-            _steady(cmd_for_steady, window, opts.steady_tol),
+            steady,
+        )
+        # the rotor answers a command step within its lag; the bins straddling the step hold a
+        # partial command and a_up is a centred running mean: drop those around every change
+        lag = opts.rotor_lag_s + 0.5 * opts.accel_smooth_s + 1.0 / opts.rate_hz
+        apply(
+            "transient",
+            f"within {lag:.2g} s of a command change > {opts.steady_tol:.0%} (rotor lag "
+            f"{opts.rotor_lag_s:g} s, a_up smoothing, one bin)",
+            ~_dilate(~steady & np.isfinite(cmd_for_steady), int(np.ceil(lag * opts.rate_hz))),
         )
     if tilt is not None:
         apply(
