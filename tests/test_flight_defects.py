@@ -5,12 +5,15 @@ of its samples off the steady command/force ratio, at least 90 % of the steady f
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
 from support import flight_defects as fd
 
 from thrustmap.fitting.df import DfOptions, extract
+from thrustmap.fitting.flightlogs.detect import read_log
 
 
 def _judge(sim: fd.DefectFlight, t: pd.DataFrame) -> tuple[float, float]:
@@ -65,3 +68,22 @@ def test_command_dips_are_dropped_with_the_rotor_lag() -> None:
     dips = sim.time_s[np.diff(sim.log.thrust_cmd_norm.values, prepend=0.0) < -0.03]  # type: ignore[union-attr]
     # no Df sample within the rotor lag of a dip's start
     assert np.min(np.abs(t[:, None] - dips[None, :])) > 0.1
+
+
+def test_untimed_events_with_paused_logging(tmp_path: Path) -> None:
+    """ArduCopter 3.3-dev: EV without time stamps, logging paused while disarmed, the events
+    of each pause written on resuming. Armed state from the motor outputs, pauses as flight
+    boundaries, a warning that events were untimed; every flight gives clean Df."""
+    path = tmp_path / "copter33_paused.bin"
+    flights = fd.write_copter33_paused(str(path))
+    (fl,) = read_log(path)
+    assert fl.armed is not None and "motor outputs" in fl.armed.origin
+    df = extract([fl], DfOptions(mass_kg=1.0))
+    assert any("events untimed" in w for w in df.reports[0].warnings)
+    t = df.table
+    for start, sim in flights:
+        rows = t[(t["time_s"] >= start) & (t["time_s"] <= start + sim.time_s[-1])]
+        shifted = rows.assign(time_s=rows["time_s"] - start)
+        off, kept = _judge(sim, shifted)
+        assert len(rows) >= 100
+        assert off <= 0.03 and kept >= 0.90, (start, off, kept)

@@ -134,3 +134,65 @@ def kept_of_steady(table_t: FloatArray, sim: DefectFlight, rate_hz: float = 10.0
     idx = np.clip(np.searchsorted(centres, table_t - 0.25 / rate_hz), 0, len(centres) - 1)
     kept[idx] = True
     return float((kept & steady).sum() / max(int(steady.sum()), 1))
+
+
+def write_copter33_paused(
+    path: str, *, flights: int = 4, seed: int = 11
+) -> list[tuple[float, DefectFlight]]:
+    """An ArduCopter 3.3-style DataFlash log (TimeMS, CURR, EV without any time stamp) holding
+    ``flights`` hover flights, logging paused while disarmed between them. As the firmware
+    does, the events of the pause are written when logging resumes: the new ARMED before any
+    timestamped message (timed by its neighbours: at the end of the previous flight), the
+    previous flight's DISARMED flushed just after the first samples (so a reconstruction from
+    the events holds the whole flight disarmed)."""
+    from support.flightlog_writers import DataFlashWriter
+
+    lo, hi, spin_armed = 1000.0, 2000.0, 70.0
+    sims = [simulate("clean", duration_s=60.0 + 25.0 * k, seed=seed + k) for k in range(flights)]
+    with open(path, "wb") as f:
+        w = DataFlashWriter(f)
+        w.define("PARM", "INf", "TimeMS,Name,Value")
+        w.define("MSG", "IZ", "TimeMS,Message")
+        w.define("IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ")
+        w.define("CURR", "IhhhHf", "TimeMS,Throttle,Volt,Curr,Vcc,CurrTot")
+        w.define("CTUN", "Ihhfff", "TimeMS,ThrIn,AngBst,ThrOut,DAlt,Alt")
+        w.define("RCOU", "Ihhhhhhhh", "TimeMS," + ",".join(f"Ch{i}" for i in range(1, 9)))
+        w.define("EV", "B", "Id")
+        w.write("MSG", 0, b"APM:Copter V3.3-dev (thrustmap simulate)")
+        for name, value in (("RC3_MIN", lo), ("RC3_MAX", hi), ("MOT_SPIN_ARMED", spin_armed),
+                            ("FRAME", 1.0)):  # fmt: skip
+            w.write("PARM", 0, name.encode(), value)
+        t_start = 5.0
+        out = []
+        for k, s in enumerate(sims):
+            out.append((t_start, s))
+            fl = s.log
+            assert fl.thrust_cmd_norm is not None and fl.accel_up_mps2 is not None
+            assert fl.voltage_v is not None
+            w.write("EV", 10)  # ARMED (this flight), before any timestamped message
+            t = s.time_s
+            cmd = fl.thrust_cmd_norm.values
+            h = fl.extras["height_m"].values
+            landed = fl.landed.hold(t) if fl.landed is not None else np.zeros(len(t))
+            armed = fl.armed.hold(t) if fl.armed is not None else np.ones(len(t))
+            ev_prev = landed[0]
+            for i in range(len(t)):
+                if landed[i] != ev_prev:
+                    w.write("EV", 18 if landed[i] > 0.5 else 28)
+                    ev_prev = landed[i]
+                ms = int(round((t_start + t[i]) * 1e3))
+                w.write("IMU", ms, 0.0, 0.0, 0.0, 0.0, 0.0, -float(fl.accel_up_mps2.values[i]))
+                if i % 5 == 0:
+                    v = float(fl.voltage_v.values[i])
+                    w.write("CURR", ms, 0, int(round(v * 100)), 0, 5000, 0.0)
+                w.write("CTUN", ms, 0, 0, float(cmd[i]) * 1000.0, 0.0, float(h[i]))
+                if armed[i] > 0.5:
+                    pwm = max(lo + spin_armed, lo + float(cmd[i]) * (hi - lo))
+                    ch = [int(round(pwm + d)) for d in (3, -3, 2, -2)]
+                else:
+                    ch = [int(lo)] * 4
+                w.write("RCOU", ms, *ch, 0, 0, 0, 0)
+                if i == 2 and k > 0:  # the previous flight's DISARMED, flushed after resuming
+                    w.write("EV", 11)
+            t_start += float(t[-1]) + 40.0  # paused 40 s while disarmed
+    return out
