@@ -16,22 +16,28 @@ why; ``write_df()`` writes the CSV plus a JSON sidecar naming the origin of ever
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
+import warnings as _warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-import pandas as pd
 
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import load_json
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
-from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
+
+if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
+    import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)
+
+    from thrustmap.fitting.mapfile import ThrustMap
 
 log = logging.getLogger(__name__)
 
@@ -108,11 +114,50 @@ class FlightReport:
         return asdict(self)
 
 
-@dataclass
+Columns = dict[str, npt.NDArray[Any]]
+
+
 class Df:
-    table: pd.DataFrame
-    sources: dict[str, Any]
-    reports: list[FlightReport]
+    """The Df table, its sidecar (``sources``) and the per-flight reports.
+
+    ``table`` is a pandas DataFrame, built from the extracted columns on first use (the
+    extraction itself and ``write_df`` need no pandas); ``Df(table, sources, reports)``
+    still takes a DataFrame."""
+
+    def __init__(
+        self,
+        table: pd.DataFrame | None = None,
+        sources: dict[str, Any] | None = None,
+        reports: list[FlightReport] | None = None,
+        *,
+        columns: Columns | None = None,
+    ) -> None:
+        self._table = table
+        self._columns = columns
+        self.sources: dict[str, Any] = sources if sources is not None else {}
+        self.reports: list[FlightReport] = reports if reports is not None else []
+
+    @property
+    def table(self) -> pd.DataFrame:
+        if self._table is None:
+            import pandas as pd
+
+            self._table = pd.DataFrame(self._columns or {})
+            self._columns = None
+        return self._table
+
+    @table.setter
+    def table(self, value: pd.DataFrame) -> None:
+        self._table, self._columns = value, None
+
+    def __len__(self) -> int:
+        if self._table is not None:
+            return len(self._table)
+        cols = self._columns or {}
+        return len(next(iter(cols.values()))) if cols else 0
+
+    def __repr__(self) -> str:
+        return f"Df({len(self)} samples, {len(self.reports)} flight(s))"
 
 
 # -- resampling ----------------------------------------------------------------------------------
@@ -145,10 +190,32 @@ def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: flo
     return out if sig.values.ndim == 2 else out[:, 0]
 
 
+def _windows(x: FloatArray, window: int) -> FloatArray:
+    """Centred windows of ``window`` bins (NaN beyond the ends), one row per bin; the same
+    alignment as pandas' ``rolling(window, center=True)``."""
+    before = window // 2
+    padded = np.concatenate([np.full(before, np.nan), x, np.full(window - 1 - before, np.nan)])
+    return np.lib.stride_tricks.sliding_window_view(padded, window)
+
+
+def _running_median(x: FloatArray, window: int) -> FloatArray:
+    """Centred running median over ``window`` bins, NaN-aware (NaN only where all are)."""
+    window = max(window, 1)
+    if window == 1:
+        return np.asarray(x, float)
+    out = np.full(len(x), np.nan)
+    views = _windows(np.asarray(x, float), window)  # a view: no copy
+    step = max(1, 2_000_000 // window)  # nanmedian copies: bounded chunks
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows stay NaN
+        for a in range(0, len(x), step):
+            out[a : a + step] = nanmedian(views[a : a + step], axis=1)
+    return out
+
+
 def _steady(cmd: FloatArray, window: int, tol: float) -> BoolArray:
     """True where the command is within ``tol`` (relative) of its centred running median."""
-    series = pd.Series(cmd)
-    med = series.rolling(max(window, 1), center=True, min_periods=1).median().to_numpy(float)
+    med = _running_median(np.asarray(cmd, float), window)
     with np.errstate(invalid="ignore"):
         return np.asarray(np.abs(cmd - med) <= tol * np.abs(med))
 
@@ -157,8 +224,16 @@ def _smooth(x: FloatArray, window: int) -> FloatArray:
     """Centred running mean (NaN-aware) over ``window`` bins."""
     if window <= 1:
         return x
-    series = pd.Series(x)
-    return series.rolling(window, center=True, min_periods=1).mean().to_numpy(float)
+    before = window // 2
+    fin = np.isfinite(x)
+    v = np.concatenate([[0.0], np.cumsum(np.where(fin, x, 0.0))])
+    c = np.concatenate([[0], np.cumsum(fin.astype(np.int64))])
+    idx = np.arange(len(x))
+    lo = np.clip(idx - before, 0, len(x))
+    hi = np.clip(idx - before + window, 0, len(x))
+    n = c[hi] - c[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(n > 0, (v[hi] - v[lo]) / np.maximum(n, 1), np.nan), float)
 
 
 def _runs(mask: BoolArray) -> list[tuple[int, int]]:
@@ -274,7 +349,7 @@ def _ground_level(height: FloatArray, stay: tuple[int, int]) -> float:
     second when it is the stay after a landing (callers pass the slice they mean)."""
     a, b = stay
     seg = height[a:b]
-    return float(np.nanmedian(seg)) if np.isfinite(seg).any() else float("nan")
+    return float(nanmedian(seg)) if np.isfinite(seg).any() else float("nan")
 
 
 def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
@@ -286,7 +361,8 @@ def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
         seg = height[a:b]
         seg = seg[np.isfinite(seg)]
         if len(seg) >= 10:
-            lo, hi = np.percentile(seg, [5, 95])
+            ranked = np.sort(seg)  # 5th and 95th percentiles (linear), without np.percentile's
+            lo, hi = np.interp([0.05, 0.95], np.linspace(0.0, 1.0, len(ranked)), ranked)  # imports
             if hi - lo > GROUND_HEIGHT_SPREAD_M:
                 return f"altitude moves {hi - lo:.1f} m while the vehicle stands on the ground"
     return None
@@ -335,9 +411,9 @@ def _supported(
             continue
         level = float("nan")
         if est is not None and np.isfinite(est[a:b]).any():
-            level = float(np.nanmedian(est[a:b]))
+            level = float(nanmedian(est[a:b]))
         if not level > 0:
-            level = float(np.nanmedian(c))
+            level = float(nanmedian(c))
         if not level > 0:
             continue
         with np.errstate(invalid="ignore"):
@@ -470,9 +546,9 @@ def _in_air_evidence(
             if not np.isfinite(c).any():
                 continue
             level = (
-                float(np.nanmedian(est[a:b]))
+                float(nanmedian(est[a:b]))
                 if est is not None and np.isfinite(est[a:b]).any()
-                else float(np.nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
+                else float(nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
             )
             with np.errstate(invalid="ignore"):
                 up = np.flatnonzero(c >= opts.liftoff_frac * level)
@@ -587,6 +663,17 @@ def _voltage_missing(flight: FlightLog) -> str | None:
 def extract_flight(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
+    """One flight's Df table (pandas), its sidecar entry and its filter report."""
+    import pandas as pd
+
+    columns, meta, report = extract_flight_columns(flight, opts, tmap)
+    return pd.DataFrame(columns), meta, report
+
+
+def extract_flight_columns(
+    flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
+) -> tuple[Columns, dict[str, Any], FlightReport]:
+    """As ``extract_flight``, the table as columns of numpy arrays (no pandas needed)."""
     flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
     if flight.accel_up_mps2 is None or not len(flight.accel_up_mps2):
@@ -706,7 +793,7 @@ def extract_flight(
     if sat_what:
         apply("saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat)
     if cmd_for_steady is not None and keep.any():
-        level = float(np.nanmedian(cmd_for_steady[keep]))
+        level = float(nanmedian(cmd_for_steady[keep]))
         with np.errstate(invalid="ignore"):
             near = np.abs(cmd_for_steady - level) <= 0.5 * abs(level)
         apply(
@@ -834,16 +921,16 @@ def extract_flight(
     if cmd is not None:
         valid &= np.isfinite(cmd) & (cmd > 0)
     apply("values", "missing or non-positive voltage, acceleration or command", valid)
-    table = pd.DataFrame({"flight": fid, "time_s": centres})
+    table: Columns = {"flight": np.full(int(keep.sum()), fid, dtype=object),
+                      "time_s": centres[keep]}  # fmt: skip
     for k, v in cols.items():
-        table[k] = v
-    table = table[keep].reset_index(drop=True)
-    if tmap is not None and len(table) and rotors:
+        table[k] = np.asarray(v, float)[keep]
+    if tmap is not None and int(keep.sum()) and rotors:
         warnings.extend(
             map_extrapolation(
                 tmap,
-                table["voltage_v"].to_numpy(float),
-                table["force_n"].to_numpy(float) / rotors,
+                table["voltage_v"],
+                table["force_n"] / rotors,
                 "per-rotor thrust (F_m / rotors)",
             )
         )
@@ -874,17 +961,17 @@ def extract_flight(
 
 def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = None) -> Df:
     """Df from every flight; each keeps its own id in the ``flight`` column."""
-    tables, reports = [], []
+    tables: list[Columns] = []
+    reports = []
     sources: dict[str, Any] = {}
     per_flight: dict[str, Any] = {}
     for fl in flights:
-        table, meta, report = extract_flight(fl, opts, tmap)
+        table, meta, report = extract_flight_columns(fl, opts, tmap)
         tables.append(table)
         reports.append(report)
         per_flight[report.flight] = meta
         for k, v in meta["sources"].items():
             sources.setdefault(k, v)
-    table = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
     side = {
         "format": DF_FORMAT,
         "version": 1,
@@ -895,7 +982,54 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
         "reports": [r.to_dict() for r in reports],
     }
-    return Df(table, side, reports)
+    return Df(None, side, reports, columns=_concat(tables))
+
+
+def _concat(tables: list[Columns]) -> Columns:
+    """Rows of every flight, columns in order of first appearance, NaN where a flight lacks one
+    (as pandas.concat)."""
+    names: list[str] = []
+    for t in tables:
+        names.extend(k for k in t if k not in names)
+    out: Columns = {}
+    for k in names:
+        parts = []
+        for t in tables:
+            n = len(t["time_s"])
+            if k in t:
+                parts.append(t[k])
+            else:
+                parts.append(
+                    np.full(
+                        n, np.nan if k != "flight" else "", dtype=object if k == "flight" else float
+                    )
+                )
+        out[k] = np.concatenate(parts) if parts else np.zeros(0)
+    return out
+
+
+def _csv_text(columns: Columns) -> str:
+    """The Df CSV as pandas writes it (``float_format='%.6g'``, NaN as an empty field)."""
+    buf = io.StringIO()
+    names = list(columns)
+    if not names:
+        return "\n"
+    csv.writer(buf, lineterminator="\n").writerow(names)
+    cells = []
+    for k in names:
+        v = columns[k]
+        if v.dtype == object or v.dtype.kind in "US":
+            cells.append([_csv_cell(str(x)) for x in v])
+        else:
+            cells.append(["" if x != x else f"{x:.6g}" for x in np.asarray(v, float).tolist()])
+    buf.writelines(",".join(row) + "\n" for row in zip(*cells, strict=True))
+    return buf.getvalue()
+
+
+def _csv_cell(text: str) -> str:
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def sidecar_path(csv_path: str | Path) -> Path:
@@ -911,7 +1045,11 @@ def write_df(df: Df, path: str | Path) -> Path:
             f"the Df output needs a name its sidecar ({side.name}) does not share; use .csv",
             file=str(p),
         )
-    atomic_write_text(p, df.table.to_csv(index=False, float_format="%.6g"))
+    if df._table is not None:  # a table given (or touched) as pandas: written by pandas
+        text = df._table.to_csv(index=False, float_format="%.6g")
+    else:
+        text = _csv_text(df._columns or {})
+    atomic_write_text(p, text)
     atomic_write_text(side, json.dumps(df.sources, indent=2, default=str) + "\n")
     return side
 
@@ -970,6 +1108,8 @@ def _check_sidecar(side: dict[str, Any], path: str) -> None:
 
 def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
+    import pandas as pd
+
     p = Path(path)
     try:
         table = pd.read_csv(p, dtype=str, keep_default_na=False, engine="c")
@@ -1022,4 +1162,4 @@ def hover_throttle(table: pd.DataFrame) -> float:
     if "thrust_cmd_norm" not in table.columns or not len(table):
         raise DataFormatError("Df has no normalised thrust command to estimate hover throttle")
     ratio = table["thrust_cmd_norm"].to_numpy(float) * G0 / table["accel_up_mps2"].to_numpy(float)
-    return float(np.nanmedian(ratio))
+    return float(nanmedian(ratio))

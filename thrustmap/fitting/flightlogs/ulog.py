@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ def _pwm_outputs(
             n = rotors
         elif n < 3:
             continue
-        med = float(np.median(active[:, :n]))
+        med = nanmedian(active[:, :n])
         if 800.0 <= med <= 2200.0:
             scale = SCALES["pwm"]
         elif 0.0 < med <= 8191.0 and float(np.max(active[:, :n])) <= 8191.0 and med > 2200.0:
