@@ -333,10 +333,20 @@ def _gen_tag8_4s16_v2(selector: int) -> Callable[[bytes, int], tuple[list[int], 
     return reader
 
 
+class _SelectorReaders(dict[int, Callable[[bytes, int], tuple[list[int], int]]]):
+    """One straight-line reader per selector byte (the decoder's hottest path), compiled on the
+    selector's first use: a log uses a few dozen of the 256, and compiling all of them cost
+    every process ~0.1 s before the first frame."""
+
+    def __missing__(self, selector: int) -> Callable[[bytes, int], tuple[list[int], int]]:
+        reader = _gen_tag8_4s16_v2(selector)
+        self[selector] = reader
+        return reader
+
+
 @functools.cache
-def _tag8_4s16_v2_table() -> list[Callable[[bytes, int], tuple[list[int], int]]]:
-    """One straight-line reader per selector byte (the decoder's hottest path), built once."""
-    return [_gen_tag8_4s16_v2(sel) for sel in range(256)]
+def _tag8_4s16_v2_table() -> _SelectorReaders:
+    return _SelectorReaders()
 
 
 def _read_tag8_4s16_v1(d: bytes, p: int) -> tuple[list[int], int]:
@@ -416,13 +426,15 @@ def compile_frame(
     data_version: int,
     motor0: int = -1,
     wrap: bool = True,
+    keep: frozenset[int] | None = None,
 ) -> FrameParser:
     """A function ``(d, p, prev, prev2, skipped, last_time, home) -> (values, new_p)``.
 
     ``wrap=False`` leaves out the per-field 32-bit wrap-around: the values are then exact
     whenever none leaves the 32-bit range, which :func:`decode_log` checks afterwards (it
     decodes again with the wraps when one does). Fields are local variables, not list items:
-    both save most of the per-field cost of the pure-Python decoder."""
+    both save most of the per-field cost of the pure-Python decoder. ``keep``: the only fields
+    whose values are computed (the others are parsed for their length and read as 0)."""
     n = len(fd.names)
     enc = list(fd.encoding) + [ENC_NULL] * (n - len(fd.encoding))
     pred = list(fd.predictor) + [PRED_ZERO] * (n - len(fd.predictor))
@@ -430,6 +442,9 @@ def compile_frame(
     for i in range(1, n):  # home coordinates come in (lat, lon) pairs sharing one predictor id
         if pred[i - 1] == PRED_HOME_COORD and pred[i] == PRED_HOME_COORD:
             pred[i] = PRED_HOME_COORD_1
+    if keep is not None and motor0 >= 0 and any(pred[i] == PRED_MOTOR_0 for i in keep):
+        keep = keep | {motor0}  # a kept field predicted from motor[0] needs its value
+    live = [keep is None or i in keep for i in range(n)]
     lines = [
         "def parse(d, p, prev, prev2, skipped, last_time, home):\n",
         f"    f = [0] * {n}\n",
@@ -437,8 +452,9 @@ def compile_frame(
     i = 0
     while i < n:
         if pred[i] == PRED_INC:
-            lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
-            lines.append(_wrap(i, bool(signed[i])))
+            if live[i]:
+                lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
+                lines.append(_wrap(i, bool(signed[i])))
             i += 1
             continue
         e = enc[i]
@@ -466,6 +482,8 @@ def compile_frame(
                 )
                 group = list(range(i, min(i + 4, n)))
             for k, fi in enumerate(group):
+                if not live[fi]:
+                    continue
                 pe = _prediction(fi, pred[fi], constants, motor0)
                 lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
                 if pe != "0":
@@ -482,6 +500,9 @@ def compile_frame(
             lines.append("    v = 0\n")
         else:
             raise CorruptFrame(f"unsupported field encoding {e} for field '{fd.names[i]}'")
+        if not live[i]:
+            i += 1
+            continue
         pe = _prediction(i, pred[i], constants, motor0)
         if pe == "0":
             lines.append(f"    f[{i}] = v\n")
@@ -495,7 +516,9 @@ def compile_frame(
         lines = [ln for ln in lines if "0xFFFFFFFF" not in ln or "f[" not in ln.split("=")[0]]
     lines = [re.sub(r"\bf\[(\d+)\]", r"f\1", ln) for ln in lines[2:]]
     lines.insert(0, "def parse(d, p, prev, prev2, skipped, last_time, home):\n")
-    lines.append("    return [" + ", ".join(f"f{i}" for i in range(n)) + "], p\n")
+    lines.append(
+        "    return [" + ", ".join(f"f{i}" if live[i] else "0" for i in range(n)) + "], p\n"
+    )
     namespace: dict[str, Any] = {
         "_uvb_tail": _read_uvb_tail,
         "_tag8_8svb": _read_tag8_8svb,
@@ -589,20 +612,36 @@ def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
     return [min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval)]
 
 
-def decode_log(section: bytes, index: int = 0, offset: int = 0) -> DecodedLog:
+def decode_log(
+    section: bytes,
+    index: int = 0,
+    offset: int = 0,
+    *,
+    keep_field: Callable[[str], bool] | None = None,
+) -> DecodedLog:
     """Decode one log (``section`` starts at its ``H Product`` line).
 
     Main frames are decoded first without the per-field 32-bit wrap-around (the pure-Python
     decoder's largest avoidable cost); when any decoded value lies outside the 32-bit range of
     its field the wrap mattered, and the log is decoded again with it, so the result is always
-    what the firmware's 32-bit arithmetic gives."""
+    what the firmware's 32-bit arithmetic gives.
+
+    ``keep_field``: decode only the main-frame fields it accepts (and loopIteration and time):
+    the others are still parsed for their length, but their values are neither predicted nor
+    stored, and ``main_fields`` lists only the kept ones (a reader needing a handful of the
+    40-odd fields saves most of the decoding)."""
     try:
-        fast = _decode_log(section, index, offset, wrap=False)
+        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field)
     except OverflowError:  # a value beyond int64: certainly out of range
-        return _decode_log(section, index, offset, wrap=True)
-    if _in_32bit_range(fast):
+        fast = None
+    if fast is None or not _in_32bit_range(fast):
+        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field)
+    if keep_field is None:
         return fast
-    return _decode_log(section, index, offset, wrap=True)
+    cols = [k for k, name in enumerate(fast.main_fields) if k < 2 or keep_field(name)]
+    fast.main_fields = [fast.main_fields[k] for k in cols]
+    fast.main = np.ascontiguousarray(fast.main[:, cols])
+    return fast
 
 
 def _in_32bit_range(log: DecodedLog) -> bool:
@@ -625,7 +664,14 @@ def _main_signed(headers: dict[str, str], n: int) -> list[int]:
     return (signed + [0] * n)[:n]
 
 
-def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> DecodedLog:
+def _decode_log(
+    section: bytes,
+    index: int,
+    offset: int,
+    *,
+    wrap: bool,
+    keep_field: Callable[[str], bool] | None = None,
+) -> DecodedLog:
     headers, defs, pos = parse_headers(section)
     warnings: list[str] = []
     idef = defs.get("I")
@@ -643,12 +689,18 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
         "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
     }
     version = header_int(headers, "Data version", 2)
+    keep = (
+        None
+        if keep_field is None
+        else frozenset(k for k, name in enumerate(names) if k < 2 or keep_field(name))
+    )
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
             parsers[ord(marker)] = compile_frame(
-                fd, constants=constants, data_version=version, motor0=motor0, wrap=wrap
-            )
+                fd, constants=constants, data_version=version, motor0=motor0, wrap=wrap,
+                keep=keep,
+            )  # fmt: skip
     for marker in "SGH":
         if marker in defs and defs[marker].names and defs[marker].encoding:
             parsers[ord(marker)] = compile_frame(

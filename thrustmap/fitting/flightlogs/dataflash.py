@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -448,7 +448,7 @@ def _motor_channels(rcou: dict[str, npt.NDArray[Any]], active: npt.NDArray[np.bo
     chosen: list[str] = []
     for c in names:
         v = np.asarray(rcou[c], float)[active] if active.any() else np.asarray(rcou[c], float)
-        if len(v) and 800 <= float(np.median(v)) <= 2200 and float(np.std(v)) > 0.5:
+        if len(v) and 800 <= float(nanmedian(v)) <= 2200 and float(np.std(v)) > 0.5:
             chosen.append(c)
         else:
             break
