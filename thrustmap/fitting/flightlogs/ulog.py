@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, ThrottleScale
+from thrustmap.fitting.flightlogs import ulog_fast
 from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
@@ -336,21 +337,25 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         raise DataFormatError(f"cannot read ULog: {exc.strerror}", file=str(path)) from None
     if not raw.startswith(MAGIC) or len(raw) < 16:
         raise DataFormatError("not a ULog file (expected the 'ULog' header)", file=str(path))
-    intact = walk(raw)
-    problem = intact.problem
-    chatter = io.StringIO()
-    try:  # pyulog prints its diagnostics: keep them off stdout (it carries --json output)
-        with contextlib.redirect_stdout(chatter):
-            ulog = ULog(
-                io.BytesIO(raw[: intact.good_end]),
-                message_name_filter_list=TOPICS,
-                disable_str_exceptions=True,
-            )
-    except Exception as exc:  # pyulog raises bare exceptions on malformed headers
-        raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
-    finally:
-        for line in chatter.getvalue().splitlines()[:5]:
-            log.debug("%s: pyulog: %s", path, line)
+    ulog: Any = ulog_fast.parse(raw, TOPICS)  # vectorised; None: something pyulog must handle
+    if ulog is not None:
+        problem = ulog.problem
+    else:
+        intact = walk(raw)
+        problem = intact.problem
+        chatter = io.StringIO()
+        try:  # pyulog prints its diagnostics: keep them off stdout (it carries --json output)
+            with contextlib.redirect_stdout(chatter):
+                ulog = ULog(
+                    io.BytesIO(raw[: intact.good_end]),
+                    message_name_filter_list=TOPICS,
+                    disable_str_exceptions=True,
+                )
+        except Exception as exc:  # pyulog raises bare exceptions on malformed headers
+            raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
+        finally:
+            for line in chatter.getvalue().splitlines()[:5]:
+                log.debug("%s: pyulog: %s", path, line)
     if problem is not None:
         warnings.append(problem)
     elif getattr(ulog, "file_corruption", False):
