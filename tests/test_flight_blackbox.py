@@ -360,3 +360,24 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
         assert out.read_text() == df.table.to_csv(index=False, float_format="%.6g")
         assert isinstance(df.table, pd.DataFrame) and len(df.table) == len(df)
         assert len(df) > 50 or name.endswith(".bbl")  # the blackbox fixture is too short
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_used_fields_decode_matches_on_damaged_logs(seed: int) -> None:
+    """Skipping the unused fields' bytes must resynchronise, flag and cut exactly as decoding
+    them does: flipped bytes and a truncated tail give the same kept values and statistics."""
+    from thrustmap.fitting.flightlogs.blackbox import used_field
+
+    rng = np.random.default_rng(seed)
+    data = bytearray((FIXTURES / "bb_hover_sim.bbl").read_bytes())
+    (a, b), *_ = bd.split_logs(bytes(data))
+    body = a + 2000  # past the headers
+    for k in rng.integers(body, b, 12):
+        data[int(k)] = int(rng.integers(0, 256))
+    cut = bytes(data[: int(rng.integers(body + 5000, b))])
+    for lo, hi in bd.split_logs(cut):
+        full = bd.decode_log(cut[lo:hi])
+        part = bd.decode_log(cut[lo:hi], keep_field=used_field)
+        idx = [full.main_fields.index(n) for n in part.main_fields]
+        assert np.array_equal(full.main[:, idx], part.main)
+        assert part.stats == full.stats and part.warnings == full.warnings

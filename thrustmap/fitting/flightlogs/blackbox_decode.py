@@ -206,6 +206,37 @@ def _read_uvb_tail(d: bytes, p: int, first: int) -> tuple[int, int]:
     raise CorruptFrame("variable-byte integer longer than 5 bytes")
 
 
+#: bits set in each byte value
+_POPCOUNT = [bin(v).count("1") for v in range(256)]
+#: bytes a TAG2_3S32 group takes, by its lead byte (the lead included)
+_TAG2_3S32_LEN = [
+    (1, 2, 3)[lead >> 6]
+    if lead >> 6 < 3
+    else 1 + sum(((lead >> (2 * i)) & 3) + 1 for i in range(3))
+    for lead in range(256)
+]
+#: bytes a TAG8_4S16 group (data version 2) takes after its selector: nibbles 0/1/2/4 per field
+_TAG8_4S16_V2_LEN = [
+    (sum((0, 1, 2, 4)[(sel >> (2 * i)) & 3] for i in range(4)) + 1) // 2 for sel in range(256)
+]
+
+
+def _skip_vb(d: bytes, p: int, count: int) -> int:
+    """Past ``count`` variable-byte integers (their values are not needed)."""
+    chunk = d[p : p + count]
+    if len(chunk) == count and max(chunk) < 0x80:  # the usual case: one byte each
+        return p + count
+    for _ in range(count):
+        for _ in range(5):
+            b = d[p]
+            p += 1
+            if b < 0x80:
+                break
+        else:
+            raise CorruptFrame("variable-byte integer longer than 5 bytes")
+    return p
+
+
 def _sext(value: int, bits: int) -> int:
     sign = 1 << (bits - 1)
     return (value & (sign - 1)) - (value & sign)
@@ -464,6 +495,15 @@ def compile_frame(
                 j = i + 1
                 while j < min(i + 8, n) and enc[j] == ENC_TAG8_8SVB:
                     j += 1
+                if not any(live[i:j]):  # no value needed: skip the set fields' varints
+                    if j - i == 1:
+                        lines.append("    p = _skip_vb(d, p, 1)\n")
+                    else:
+                        lines.append(
+                            f"    p = _skip_vb(d, p + 1, _popcount[d[p] & {(1 << (j - i)) - 1}])\n"
+                        )
+                    i = j
+                    continue
                 if j - i == 1:
                     lines.append("    g, p = _tag8_8svb(d, p, 1)\n")
                 else:  # most groups are all zero: one header byte of 0
@@ -473,9 +513,18 @@ def compile_frame(
                     )
                 group = list(range(i, j))
             elif e == ENC_TAG2_3S32:
-                lines.append("    g, p = _tag2_3s32(d, p)\n")
                 group = list(range(i, min(i + 3, n)))
+                if not any(live[k] for k in group):
+                    lines.append("    p += _t2len[d[p]]\n")
+                    i = group[-1] + 1
+                    continue
+                lines.append("    g, p = _tag2_3s32(d, p)\n")
             else:
+                group = list(range(i, min(i + 4, n)))
+                if data_version >= 2 and not any(live[k] for k in group):
+                    lines.append("    p += 1 + _t4len[d[p]]\n")
+                    i = group[-1] + 1
+                    continue
                 call = "_t4v2[d[p]](d, p + 1)" if data_version >= 2 else "_tag8_4s16_v1(d, p)"
                 lines.append(
                     f"    if d[p] == 0:\n        g = _zeros; p += 1\n    else:\n        g, p = {call}\n"
@@ -489,6 +538,26 @@ def compile_frame(
                 if pe != "0":
                     lines.append(_wrap(fi, bool(signed[fi])))
             i = group[-1] + 1
+            continue
+        if not live[i] and e in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL):
+            j = i  # a run of fields not kept: their varints are skipped, not decoded
+            while (
+                j < n
+                and not live[j]
+                and pred[j] != PRED_INC
+                and enc[j] in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL)
+            ):
+                j += 1
+            count = sum(1 for k in range(i, j) if enc[k] != ENC_NULL)
+            if 0 < count <= 6:  # inline: most residuals are one byte each
+                test = " and ".join(f"d[p + {k}] < 128" for k in range(count))
+                lines.append(
+                    f"    if {test}:\n        p += {count}\n"
+                    f"    else:\n        p = _skip_vb(d, p, {count})\n"
+                )
+            elif count:
+                lines.append(f"    p = _skip_vb(d, p, {count})\n")
+            i = j
             continue
         if e == ENC_SIGNED_VB:
             lines.append(_UVB + "    v = (u >> 1) ^ -(u & 1)\n")
@@ -515,12 +584,22 @@ def compile_frame(
     if not wrap:
         lines = [ln for ln in lines if "0xFFFFFFFF" not in ln or "f[" not in ln.split("=")[0]]
     lines = [re.sub(r"\bf\[(\d+)\]", r"f\1", ln) for ln in lines[2:]]
+    if keep is not None:  # rows hold the kept fields only: prev/prev2 are compact too
+        slot = {fi: k for k, fi in enumerate(i for i in range(n) if live[i])}
+        lines = [
+            re.sub(r"\b(prev2?)\[(\d+)\]", lambda m: f"{m.group(1)}[{slot[int(m.group(2))]}]", ln)
+            for ln in lines
+        ]
     lines.insert(0, "def parse(d, p, prev, prev2, skipped, last_time, home):\n")
-    lines.append(
-        "    return [" + ", ".join(f"f{i}" if live[i] else "0" for i in range(n)) + "], p\n"
-    )
+    if keep is not None:  # a skipped group is not read: a frame cut short must still raise
+        lines.append("    if p > len(d):\n        raise IndexError('frame past end of data')\n")
+    lines.append("    return [" + ", ".join(f"f{i}" for i in range(n) if live[i]) + "], p\n")
     namespace: dict[str, Any] = {
         "_uvb_tail": _read_uvb_tail,
+        "_skip_vb": _skip_vb,
+        "_popcount": _POPCOUNT,
+        "_t2len": _TAG2_3S32_LEN,
+        "_t4len": _TAG8_4S16_V2_LEN,
         "_tag8_8svb": _read_tag8_8svb,
         "_tag2_3s32": _read_tag2_3s32,
         "_tag8_4s16_v1": _read_tag8_4s16_v1,
@@ -636,11 +715,6 @@ def decode_log(
         fast = None
     if fast is None or not _in_32bit_range(fast):
         fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field)
-    if keep_field is None:
-        return fast
-    cols = [k for k, name in enumerate(fast.main_fields) if k < 2 or keep_field(name)]
-    fast.main_fields = [fast.main_fields[k] for k in cols]
-    fast.main = np.ascontiguousarray(fast.main[:, cols])
     return fast
 
 
@@ -648,12 +722,13 @@ def _in_32bit_range(log: DecodedLog) -> bool:
     """True when every main-frame value (but time, kept with its rollovers) fits its field."""
     if not len(log.main):
         return True
-    signed = _main_signed(log.headers, len(log.main_fields))
-    for k in range(log.main.shape[1]):
+    names = [x.strip() for x in log.headers.get("Field I name", "").split(",")]
+    sign_of = dict(zip(names, _main_signed(log.headers, len(names)), strict=True))
+    for k, name in enumerate(log.main_fields):
         if k == 1:
             continue
         col = log.main[:, k]
-        lo, hi = (-(1 << 31), (1 << 31) - 1) if signed[k] else (0, (1 << 32) - 1)
+        lo, hi = (-(1 << 31), (1 << 31) - 1) if sign_of.get(name, 0) else (0, (1 << 32) - 1)
         if int(col.min()) < lo or int(col.max()) > hi:
             return False
     return True
@@ -694,6 +769,16 @@ def _decode_log(
         if keep_field is None
         else frozenset(k for k, name in enumerate(names) if k < 2 or keep_field(name))
     )
+    if keep is not None and motor0 >= 0:  # a kept field predicted from motor[0] needs it
+        preds = list(idef.predictor) + list(pdef.predictor)
+        width = len(idef.predictor)
+        if any(
+            preds[k] == PRED_MOTOR_0
+            or (width + k < len(preds) and preds[width + k] == PRED_MOTOR_0)
+            for k in keep
+            if k < width
+        ):
+            keep = keep | {motor0}
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
@@ -875,8 +960,8 @@ def _decode_log(
     return DecodedLog(
         index=index,
         headers=headers,
-        main_fields=list(names),
-        main=table(main_rows, nfields),
+        main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
+        main=table(main_rows, nfields if keep is None else len(keep)),
         slow_fields=list(sdef.names),
         slow=table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
