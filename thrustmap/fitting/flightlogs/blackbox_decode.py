@@ -829,9 +829,47 @@ def _decode_log(
     widths[mark_i] = widths[mark_p] = max(nfields, 1)
     budget = WORK_PER_BYTE * n + 100_000
     out_of_budget = -1
+    parse_p = parsers.get(mark_p)
+    width_main = widths[mark_p]
+    append = main_rows.append
 
     while pos < n:
         m = d[pos]
+        if m == mark_p and prev is not None and parse_p is not None and budget > width_main:
+            # the common case, an inter frame after a good frame: the general path below, with
+            # every check, in one place; anything unusual falls through to it (and is re-read)
+            try:
+                vals, p = parse_p(
+                    d, pos + 1, prev, prev2, skip_table[last_iter % i_interval], last_time, home
+                )
+            except (IndexError, CorruptFrame):
+                p = -1
+            if p > pos and p - pos - 1 <= MAX_FRAME_BYTES and (p >= n or d[p] in markers):
+                t = (vals[1] & 0xFFFFFFFF) + rollover
+                roll = 0
+                if (
+                    last_time >= 0
+                    and t < last_time
+                    and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US
+                ):
+                    roll = 1 << 32
+                    t += roll
+                it = vals[0]
+                if (
+                    last_iter <= it < last_iter + MAX_ITERATION_JUMP
+                    and last_time <= t < last_time + MAX_TIME_JUMP_US
+                ):
+                    budget -= width_main
+                    rollover += roll
+                    vals[1] = t
+                    stats["P"] += 1
+                    append(vals)
+                    prev2 = prev
+                    prev = vals
+                    last_iter, last_time = it, t
+                    garbage_run = False
+                    pos = p
+                    continue
         if m not in markers or m not in parsers and m != mark_e:
             stats["skipped_bytes"] += 1
             if not garbage_run and main_rows:
