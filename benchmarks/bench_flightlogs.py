@@ -185,7 +185,8 @@ def _timed(cmd: list[str]) -> float:
     res = subprocess.run(cmd, capture_output=True, env=_env(), check=False, timeout=600)
     dt = time.perf_counter() - t
     if res.returncode not in (0,):
-        raise RuntimeError(f"{cmd[:4]} exited {res.returncode}: {res.stderr.decode()[-300:]}")
+        last = (res.stderr.decode(errors="replace").strip().splitlines() or ["?"])[-1]
+        raise RuntimeError(f"exited {res.returncode}: {last[:120]}")
     return dt
 
 
@@ -215,14 +216,16 @@ def whole_process(path: Path, label: str, baseline: tuple[str, str] | None, repe
         print(f"  {name:42s} {t:7.3f} s {mb / t:7.2f} MB/s{ratio}")
 
 
-def main_whole_process(repeat: int) -> None:
+def main_whole_process(repeat: int, shared: Path) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         logs: list[tuple[Path, str, tuple[str, str] | None]] = []
         for rel, kind in (("px4/sitl_v1.15_sample_px4_events.ulg", "ulog"),
                           ("ardupilot/copter3.4_pxf_3s.bin", "bin"),
                           ("betaflight/bf4.2.8_4s.bbl", "bbl")):  # fmt: skip
-            if (SHARED / rel).exists():
-                logs.append((SHARED / rel, f"shared real log ({kind})", None))
+            if (shared / rel).exists():
+                logs.append((shared / rel, f"shared real log ({kind})", None))
+            else:
+                print(f"shared log not found at {shared / rel}; skipped (--shared DIR)")
         # a ULog as large as the one in issue 21 (3.8 MB): a simulated 200 Hz hover
         flight = simulate.simulate_hover(simulate.HoverSim(duration_s=150.0, rate_hz=200.0))
         synth = Path(tmp) / "synthetic_hover.ulg"
@@ -247,9 +250,10 @@ def main() -> None:
     ap.add_argument(
         "--whole-process", action="store_true", help="fresh interpreters, as a user runs them"
     )
+    ap.add_argument("--shared", type=Path, default=SHARED, help="folder of the shared real logs")
     args = ap.parse_args()
     if args.whole_process:
-        main_whole_process(args.repeat)
+        main_whole_process(args.repeat, args.shared)
         return
     for name in ("sitl_v1.15_sample_px4_events.ulg", "fmuv3_v1.9_esc_status.ulg"):
         p = SHARED / "px4" / name
