@@ -14,6 +14,7 @@ from support import flight_defects as fd
 
 from thrustmap.fitting.df import DfOptions, extract
 from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.flightlogs.series import Signal
 
 
 def _judge(sim: fd.DefectFlight, t: pd.DataFrame) -> tuple[float, float]:
@@ -87,3 +88,21 @@ def test_untimed_events_with_paused_logging(tmp_path: Path) -> None:
         off, kept = _judge(sim, shifted)
         assert len(rows) >= 100
         assert off <= 0.03 and kept >= 0.90, (start, off, kept)
+
+
+def test_range_sensor_judges_height_where_valid() -> None:
+    """With a valid range sensor the drifting altitude is not used at all (no drift warning);
+    one valid for too little of the flight is reported and the altitude is used."""
+    sim = fd.simulate("drift")
+    hs = sim.log.extras["height_m"]
+    z = np.clip(hs.values - np.interp(hs.time_s, [0, 104, 116], [0, 0, 1.2]), 0.0, None) + 0.1
+    sim.log.extras["range_m"] = Signal(hs.time_s, z, "m", "sim RFND.Dist")
+    df = extract([sim.log], DfOptions(mass_kg=1.0))
+    assert not any("landing level" in w for w in df.reports[0].warnings)
+    assert "sim RFND.Dist" in next(s.reason for s in df.reports[0].steps if s.name == "height")
+    off, kept = _judge(sim, df.table)
+    assert off <= 0.03 and kept >= 0.90
+    patchy = np.where((hs.time_s % 10.0) < 5.0, np.nan, z)
+    sim.log.extras["range_m"] = Signal(hs.time_s, patchy, "m", "sim RFND.Dist")
+    df = extract([sim.log], DfOptions(mass_kg=1.0))
+    assert any("sim RFND.Dist not used" in w for w in df.reports[0].warnings)

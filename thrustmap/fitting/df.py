@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 G0 = 9.80665
 #: an altitude signal whose 5-95 % spread exceeds this while standing on the ground is not used
 GROUND_HEIGHT_SPREAD_M = 3.0
+#: a range sensor judges height when it is valid for at least this share of the airborne time
+RANGE_COVERAGE = 0.8
 #: an accelerometer logged slower than this aliases vibration into a_up (the report says so)
 MIN_ACCEL_RATE_HZ = 20.0
 #: fewer Df samples than this are too few for a γ fit (the report says why)
@@ -528,6 +530,17 @@ def _in_air_evidence(
     stays = _runs(ground)
     stretches = _runs(~ground)
     hs = ex.get("height_m")
+    rg = ex.get("range_m")
+    if rg is not None and len(rg):  # height above the ground itself: no drift, where valid
+        r = rs(rg)
+        air = ~ground
+        if r is not None and air.any() and np.isfinite(r[air]).mean() >= RANGE_COVERAGE:
+            hs = rg
+        elif r is not None:
+            warnings.append(
+                f"{rg.origin} not used: valid for only {np.isfinite(r[air]).mean():.0%} of the "
+                f"airborne time (needs {RANGE_COVERAGE:.0%}); altitude used instead"
+            )
     height = rs(hs) if hs is not None and len(hs) else None
     if height is not None:
         why = _height_trusted(height, ground)

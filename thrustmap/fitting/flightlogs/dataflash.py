@@ -590,6 +590,22 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         if "CRt" in c:
             crt = np.asarray(c["CRt"], float)
             flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
+    if df.has("RFND"):  # range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)
+        c = df.columns("RFND")
+        keep = _instance0(c)
+        t = df.time_s("RFND")[keep]
+        if "Dist" in c:
+            dist = np.asarray(c["Dist"], float)[keep]
+            good = np.asarray(c["Stat"])[keep] == 4 if "Stat" in c else dist > 0
+            origin = "RFND.Dist (Stat 4 good only)" if "Stat" in c else "RFND.Dist"
+        elif "Dist1" in c:
+            dist = np.asarray(c["Dist1"], float)[keep] / 100.0
+            good, origin = dist > 0, "RFND.Dist1/100"
+        else:
+            dist = np.zeros(0)
+            good, origin = np.zeros(0, bool), ""
+        if good.any():
+            flight.extras["range_m"] = _signal(t, np.where(good, dist, np.nan), "m", origin)
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))

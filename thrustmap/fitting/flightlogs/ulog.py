@@ -449,6 +449,16 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         flight.extras["height_m"] = _signal(
             t_lp[ok], -np.asarray(lp["z"], float)[ok], "m", "-vehicle_local_position.z"
         )
+        if "dist_bottom" in lp and "dist_bottom_valid" in lp:  # range sensor (or terrain est.)
+            rng = np.where(
+                np.asarray(lp["dist_bottom_valid"], bool),
+                np.asarray(lp["dist_bottom"], float),
+                np.nan,
+            )
+            if np.isfinite(rng).any():
+                flight.extras["range_m"] = _signal(
+                    t_lp, rng, "m", "vehicle_local_position.dist_bottom (valid only)"
+                )
         if "vz" in lp:
             flight.extras["climb_mps"] = _signal(
                 t_lp[ok], -np.asarray(lp["vz"], float)[ok], "m/s", "-vehicle_local_position.vz"
