@@ -106,3 +106,19 @@ def test_range_sensor_judges_height_where_valid() -> None:
     sim.log.extras["range_m"] = Signal(hs.time_s, patchy, "m", "sim RFND.Dist")
     df = extract([sim.log], DfOptions(mass_kg=1.0))
     assert any("sim RFND.Dist not used" in w for w in df.reports[0].warnings)
+
+
+def test_low_hover_with_drift_under_a_metre_is_not_taken_for_ground() -> None:
+    """A hover at 0.6-0.9 m whose altitude drifts 0.8 m toward landing: the levels agree
+    within a metre, yet no stretch of the flight may read as back on the ground."""
+    sim = fd.simulate("clean")
+    hs = sim.log.extras["height_m"]
+    t = hs.time_s
+    drift = 0.8 * np.clip((t - 4.0) / 112.0, 0.0, 1.0)
+    low = np.clip(hs.values, 0.0, None) * 0.6 + drift
+    sim.log.extras["height_m"] = Signal(t, low, "m", "sim CTUN.Alt (low, drifting)")
+    df = extract([sim.log], DfOptions(mass_kg=1.0))
+    steps = {s.name: s.dropped_s for s in df.reports[0].steps}
+    assert steps.get("ground-altitude", 0.0) == 0.0, steps
+    off, kept = _judge(sim, df.table)
+    assert off <= 0.03 and kept >= 0.90

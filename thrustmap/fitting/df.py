@@ -477,7 +477,8 @@ def _height_rule(
         levels = [x for x in (lvl0, lvl1) if np.isfinite(x)]
         if not levels:
             continue
-        ref = max(levels)
+        ref = min(levels)  # the lower level: a drift can then hide a touchdown (physics still
+        # sees it), never turn a low hover into one
         with np.errstate(invalid="ignore"):
             down = np.nan_to_num(h, nan=np.inf) - ref < 0.5 * opts.min_height_m
         mid[a:b] &= ~_long_runs(down, min_len)
