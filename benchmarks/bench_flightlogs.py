@@ -10,8 +10,17 @@ Files: the shared real logs (../shared/data/flightlogs, skipped when absent) and
 flights written by the test-fixture generators in tests/support.
 
     .venv/bin/python benchmarks/bench_flightlogs.py [--minutes 5] [--repeat 3] [--profile]
+    .venv/bin/python benchmarks/bench_flightlogs.py --whole-process [--repeat 5]
 
 ``--profile`` adds a cProfile of the blackbox decoder (where its time goes).
+
+``--whole-process`` measures what a user waits for: a fresh interpreter running
+``thrustmap flightlog extract LOG -o df.csv`` beside a fresh interpreter that only loads the same
+log with pyulog (ULog) or pymavlink's DFReader (DataFlash), and the blackbox MB/s. Each command
+runs ``--repeat`` times, interleaved, after one warm-up (bytecode caches written, files in the
+page cache); the best time of each is printed. Targets (issue 21): ULog → Df ≤ 1.2× the
+pyulog load, Betaflight blackbox ≥ 4 MB/s. On a shared, loaded machine the times scatter:
+compare the ratio, not the seconds.
 """
 
 from __future__ import annotations
@@ -147,12 +156,105 @@ def bench_blackbox(path: Path, label: str, repeat: int, profile: bool) -> None:
         stats.sort_stats("tottime").print_stats(8)
 
 
+# -- whole process ---------------------------------------------------------------------------------
+
+PYULOG_LOAD = "import sys\nfrom pyulog import ULog\nULog(sys.argv[1])\n"
+DFREADER_LOAD = (
+    "import sys\nfrom pymavlink import DFReader\nr = DFReader.DFReader_binary(sys.argv[1])\n"
+    "while r.recv_msg() is not None:\n    pass\n"
+)
+ORANGEBOX_LOAD = (
+    "import sys\nfrom orangebox import Parser\np = Parser.load(sys.argv[1])\n"
+    "for _ in p.frames():\n    pass\n"
+)
+
+
+def _env() -> dict[str, str]:
+    import os
+
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # as installed: compiled modules are cached
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _timed(cmd: list[str]) -> float:
+    import subprocess
+
+    t = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, env=_env(), check=False, timeout=600)
+    dt = time.perf_counter() - t
+    if res.returncode not in (0,):
+        last = (res.stderr.decode(errors="replace").strip().splitlines() or ["?"])[-1]
+        raise RuntimeError(f"exited {res.returncode}: {last[:120]}")
+    return dt
+
+
+def whole_process(path: Path, label: str, baseline: tuple[str, str] | None, repeat: int) -> None:
+    mb = path.stat().st_size / 1e6
+    with tempfile.TemporaryDirectory() as tmp:
+        ours = [sys.executable, "-m", "thrustmap", "flightlog", "extract", str(path),
+                "--mass-kg", "1.0", "-o", str(Path(tmp) / "df.csv")]  # fmt: skip
+        cmds = {"thrustmap flightlog extract (→ Df CSV)": ours}
+        if baseline is not None:
+            cmds[baseline[0]] = [sys.executable, "-c", baseline[1], str(path)]
+        best: dict[str, float] = {}
+        for name, cmd in cmds.items():
+            try:
+                _timed(cmd)  # warm-up
+            except RuntimeError as exc:
+                print(f"  {name}: not measured ({exc})")
+                continue
+            best[name] = float("inf")
+        for _ in range(max(repeat, 1)):
+            for name in best:
+                best[name] = min(best[name], _timed(cmds[name]))
+    print(f"{label}: {path.name}, {mb:.2f} MB, whole process (best of {repeat})")
+    base_t = best.get(baseline[0]) if baseline else None
+    for name, t in best.items():
+        ratio = f"  {t / base_t:.2f}× the baseline" if base_t and name != baseline[0] else ""
+        print(f"  {name:42s} {t:7.3f} s {mb / t:7.2f} MB/s{ratio}")
+
+
+def main_whole_process(repeat: int, shared: Path) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        logs: list[tuple[Path, str, tuple[str, str] | None]] = []
+        for rel, kind in (("px4/sitl_v1.15_sample_px4_events.ulg", "ulog"),
+                          ("ardupilot/copter3.4_pxf_3s.bin", "bin"),
+                          ("betaflight/bf4.2.8_4s.bbl", "bbl")):  # fmt: skip
+            if (shared / rel).exists():
+                logs.append((shared / rel, f"shared real log ({kind})", None))
+            else:
+                print(f"shared log not found at {shared / rel}; skipped (--shared DIR)")
+        # a ULog as large as the one in issue 21 (3.8 MB): a simulated 200 Hz hover
+        flight = simulate.simulate_hover(simulate.HoverSim(duration_s=150.0, rate_hz=200.0))
+        synth = Path(tmp) / "synthetic_hover.ulg"
+        simulate.write_ulog(flight, synth)
+        logs.append((synth, "synthetic 150 s hover at 200 Hz", None))
+        logs.append((ROOT / "fixtures/flightlogs/bb_hover_sim.bbl", "fixture", None))
+        for path, label, _ in logs:
+            if path.suffix == ".ulg":
+                base: tuple[str, str] | None = ("pyulog load (baseline)", PYULOG_LOAD)
+            elif path.suffix == ".bin":
+                base = ("pymavlink DFReader, every message (baseline)", DFREADER_LOAD)
+            else:
+                base = ("orangebox, every frame (baseline)", ORANGEBOX_LOAD)
+            whole_process(path, label, base, repeat)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--minutes", type=float, default=5.0, help="synthetic flight length")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--profile", action="store_true", help="profile the blackbox decoder")
+    ap.add_argument(
+        "--whole-process", action="store_true", help="fresh interpreters, as a user runs them"
+    )
+    ap.add_argument("--shared", type=Path, default=SHARED, help="folder of the shared real logs")
     args = ap.parse_args()
+    if args.whole_process:
+        main_whole_process(args.repeat, args.shared)
+        return
     for name in ("sitl_v1.15_sample_px4_events.ulg", "fmuv3_v1.9_esc_status.ulg"):
         p = SHARED / "px4" / name
         if p.exists():

@@ -103,7 +103,7 @@ def test_hover_throttle_agrees_with_px4_estimate_sitl(shared_data: Path) -> None
     """
     path = shared_data / "flightlogs/px4/sitl_v1.15_sample_px4_events.ulg"
     df = extract(read_log(path), DfOptions(mass_kg=1.5, settle_s=0.5))
-    assert df.reports[0].kept_s > 2.0
+    assert df.reports[0].kept_s > 1.5  # the rotor-lag margin (issue 21) trims a few bins
     est = float(np.nanmedian(df.table["hover_thrust_est"]))
     assert 0.48 < est < 0.50
     assert hover_throttle(df.table) == pytest.approx(est, abs=0.01)
@@ -114,7 +114,7 @@ def test_real_logs_extract_near_hover(shared_data: Path) -> None:
         read_log(shared_data / "flightlogs/ardupilot/copter3.4_pxf_3s.bin"), DfOptions(mass_kg=1.2)
     )
     rep = ap.reports[0]
-    assert rep.kept_s > 100.0  # of ~20 min with long logging gaps between arm cycles
+    assert rep.kept_s > 90.0  # of ~20 min with long logging gaps between arm cycles
     names = {s.name: s.dropped_s for s in rep.steps}
     assert names["data"] > 600.0  # logging stops while disarmed
     assert ap.table["voltage_v"].min() >= 10.3 and ap.table["voltage_v"].max() <= 12.4

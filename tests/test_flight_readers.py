@@ -180,3 +180,51 @@ def test_fixtures_regenerate_to_the_same_values(tmp_path: Path) -> None:
         assert np.array_equal(a.voltage_v.values, b.voltage_v.values), name
         assert a.accel_up_mps2 is not None and b.accel_up_mps2 is not None
         assert np.array_equal(a.accel_up_mps2.values, b.accel_up_mps2.values), name
+
+
+def _ulogs() -> list[Path]:
+    fixtures = sorted(
+        (Path(__file__).resolve().parent.parent / "fixtures/flightlogs").glob("*.ulg")
+    )
+    shared = Path(__file__).resolve().parent.parent.parent / "shared/data/flightlogs/px4"
+    return fixtures + (sorted(shared.glob("*.ulg")) if shared.is_dir() else [])
+
+
+@pytest.mark.parametrize("path", _ulogs(), ids=lambda p: p.name)
+def test_vectorised_ulog_parse_equals_pyulog(path: Path) -> None:
+    """The vectorised ULog path gives pyulog's topics, fields, dtypes, values, parameters and
+    info exactly (or declines, e.g. for appended data, and pyulog is used)."""
+    import contextlib
+    import io
+
+    from pyulog import ULog
+
+    from thrustmap.fitting.flightlogs import ulog, ulog_fast
+
+    raw = path.read_bytes()
+    fast = ulog_fast.parse(raw, ulog.TOPICS)
+    if fast is None:
+        assert "appended" in path.name  # the only shared/fixture log pyulog must handle
+        return
+    with contextlib.redirect_stdout(io.StringIO()):
+        ref = ULog(io.BytesIO(raw), message_name_filter_list=ulog.TOPICS)
+    mine = {(d.name, d.multi_id): d.data for d in fast.data_list}
+    theirs = {(d.name, d.multi_id): d.data for d in ref.data_list}
+    assert mine.keys() == theirs.keys() and mine
+    for key, cols in mine.items():
+        assert cols.keys() == theirs[key].keys()
+        for c, v in cols.items():
+            assert v.dtype == theirs[key][c].dtype
+            assert np.array_equal(v, theirs[key][c], equal_nan=True), (key, c)
+    assert (fast.start_timestamp, fast.last_timestamp) == (ref.start_timestamp, ref.last_timestamp)
+    assert fast.initial_parameters == ref.initial_parameters
+    assert fast.msg_info_dict == ref.msg_info_dict
+
+
+def test_vectorised_ulog_parse_reports_a_truncated_tail(tmp_path: Path) -> None:
+    from thrustmap.fitting.flightlogs import ulog, ulog_fast
+
+    raw = (FL / "sim_hover.ulg").read_bytes()
+    fast = ulog_fast.parse(raw[: len(raw) - 5], ulog.TOPICS)
+    assert fast is not None and fast.problem is not None and "truncated" in fast.problem
+    assert ulog_fast.parse(raw[:20] + b"\xff" * 40, ulog.TOPICS) is None  # corrupt: pyulog

@@ -182,7 +182,6 @@ def extract_cmd(
     from thrustmap.core.files import check_output_path
     from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
     from thrustmap.fitting.flightlogs.detect import read_log
-    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     inputs = [*logs, *([map_path] if map_path else [])]
     plan = check_output_path(output, inputs=inputs, what="Df output")
@@ -204,17 +203,21 @@ def extract_cmd(
         climb_max_mps=climb_max,
         thrust_source=thrust_source,
     )
-    tmap = ThrustMap.load(map_path) if map_path else None
+    tmap = None
+    if map_path:  # the map module (models, version metadata) only when a map is given
+        from thrustmap.fitting.mapfile import ThrustMap
+
+        tmap = ThrustMap.load(map_path)
     flights: list[FlightLog] = []
     for path in logs:
         flights.extend(read_log(path, format=fmt))
     df = extract(flights, opts, tmap)
-    df.sources["logs"] = [{"path": str(p), "sha256": file_sha256(p)} for p in logs if p.is_file()]
+    df.sources["logs"] = [{"path": str(p), "sha256": _sha256(p)} for p in logs if p.is_file()]
     side = write_df(df, output)
     for r in df.reports:
         if r.voltage_unknown is not None:
             click.echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
-    if not len(df.table):
+    if not len(df):
         click.echo(
             "warning: no steady flight to extract (0 samples; too short for a Df), wrote an "
             "empty Df: " + "; ".join(_summary(r) for r in df.reports),
@@ -230,9 +233,20 @@ def extract_cmd(
                 click.echo(f"  warning: {w}")
     replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
     click.echo(
-        f"wrote {len(df.table)} samples to {output} (sources in {side})"
+        f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
     )
+
+
+def _sha256(path: Path) -> str:
+    """The file's SHA-256 (as mapfile.file_sha256, without importing the map module)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _summary(r: Any) -> str:

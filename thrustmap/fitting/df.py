@@ -16,28 +16,36 @@ why; ``write_df()`` writes the CSV plus a JSON sidecar naming the origin of ever
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
+import warnings as _warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-import pandas as pd
 
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import load_json
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
-from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
+
+if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
+    import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)
+
+    from thrustmap.fitting.mapfile import ThrustMap
 
 log = logging.getLogger(__name__)
 
 G0 = 9.80665
 #: an altitude signal whose 5-95 % spread exceeds this while standing on the ground is not used
 GROUND_HEIGHT_SPREAD_M = 3.0
+#: a range sensor judges height when it is valid for at least this share of the airborne time
+RANGE_COVERAGE = 0.8
 #: an accelerometer logged slower than this aliases vibration into a_up (the report says so)
 MIN_ACCEL_RATE_HZ = 20.0
 #: fewer Df samples than this are too few for a γ fit (the report says why)
@@ -58,12 +66,18 @@ class DfOptions:
     settle_s: float = 2.0  # dropped after takeoff and before landing
     max_gap_s: float = 1.0
     steady_tol: float = 0.15  # keep |cmd − running median| ≤ this fraction of the median
-    steady_window_s: float = 3.0
+    steady_window_s: float = 5.0  # longer than a command dip (≤ 1.5 s seen) twice over
     accel_smooth_s: float = 0.5  # centred running mean of a_up (IMU vibration, aliasing)
     min_height_m: float = 0.5  # airborne only this far above the takeoff level (spool-up, ramp)
     climb_max_mps: float = 1.0  # keep |climb rate| ≤ this (takeoff ramp, climbs, descents)
     liftoff_frac: float = 0.9  # airborne from when the command first reaches this × hover
     thrust_source: str = "auto"  # auto | log (thrust_cmd_n) | motors | norm
+    # supported on the ground: the command below this × hover while a_up stays at g ...
+    ground_cmd_frac: float = 0.7
+    ground_min_s: float = 2.0  # ... (or the altitude back at the ground level) this long
+    height_window_s: float = 5.0  # takeoff level judged this near takeoff, landing level landing
+    level_disagree_m: float = 1.0  # warn when takeoff and landing levels differ by more
+    rotor_lag_s: float = 0.1  # drop this near a command change larger than steady_tol
 
     def __post_init__(self) -> None:
         if self.mass_kg is not None and not self.mass_kg > 0:
@@ -102,11 +116,50 @@ class FlightReport:
         return asdict(self)
 
 
-@dataclass
+Columns = dict[str, npt.NDArray[Any]]
+
+
 class Df:
-    table: pd.DataFrame
-    sources: dict[str, Any]
-    reports: list[FlightReport]
+    """The Df table, its sidecar (``sources``) and the per-flight reports.
+
+    ``table`` is a pandas DataFrame, built from the extracted columns on first use (the
+    extraction itself and ``write_df`` need no pandas); ``Df(table, sources, reports)``
+    still takes a DataFrame."""
+
+    def __init__(
+        self,
+        table: pd.DataFrame | None = None,
+        sources: dict[str, Any] | None = None,
+        reports: list[FlightReport] | None = None,
+        *,
+        columns: Columns | None = None,
+    ) -> None:
+        self._table = table
+        self._columns = columns
+        self.sources: dict[str, Any] = sources if sources is not None else {}
+        self.reports: list[FlightReport] = reports if reports is not None else []
+
+    @property
+    def table(self) -> pd.DataFrame:
+        if self._table is None:
+            import pandas as pd
+
+            self._table = pd.DataFrame(self._columns or {})
+            self._columns = None
+        return self._table
+
+    @table.setter
+    def table(self, value: pd.DataFrame) -> None:
+        self._table, self._columns = value, None
+
+    def __len__(self) -> int:
+        if self._table is not None:
+            return len(self._table)
+        cols = self._columns or {}
+        return len(next(iter(cols.values()))) if cols else 0
+
+    def __repr__(self) -> str:
+        return f"Df({len(self)} samples, {len(self.reports)} flight(s))"
 
 
 # -- resampling ----------------------------------------------------------------------------------
@@ -139,10 +192,32 @@ def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: flo
     return out if sig.values.ndim == 2 else out[:, 0]
 
 
+def _windows(x: FloatArray, window: int) -> FloatArray:
+    """Centred windows of ``window`` bins (NaN beyond the ends), one row per bin; the same
+    alignment as pandas' ``rolling(window, center=True)``."""
+    before = window // 2
+    padded = np.concatenate([np.full(before, np.nan), x, np.full(window - 1 - before, np.nan)])
+    return np.lib.stride_tricks.sliding_window_view(padded, window)
+
+
+def _running_median(x: FloatArray, window: int) -> FloatArray:
+    """Centred running median over ``window`` bins, NaN-aware (NaN only where all are)."""
+    window = max(window, 1)
+    if window == 1:
+        return np.asarray(x, float)
+    out = np.full(len(x), np.nan)
+    views = _windows(np.asarray(x, float), window)  # a view: no copy
+    step = max(1, 2_000_000 // window)  # nanmedian copies: bounded chunks
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows stay NaN
+        for a in range(0, len(x), step):
+            out[a : a + step] = nanmedian(views[a : a + step], axis=1)
+    return out
+
+
 def _steady(cmd: FloatArray, window: int, tol: float) -> BoolArray:
     """True where the command is within ``tol`` (relative) of its centred running median."""
-    series = pd.Series(cmd)
-    med = series.rolling(max(window, 1), center=True, min_periods=1).median().to_numpy(float)
+    med = _running_median(np.asarray(cmd, float), window)
     with np.errstate(invalid="ignore"):
         return np.asarray(np.abs(cmd - med) <= tol * np.abs(med))
 
@@ -151,8 +226,16 @@ def _smooth(x: FloatArray, window: int) -> FloatArray:
     """Centred running mean (NaN-aware) over ``window`` bins."""
     if window <= 1:
         return x
-    series = pd.Series(x)
-    return series.rolling(window, center=True, min_periods=1).mean().to_numpy(float)
+    before = window // 2
+    fin = np.isfinite(x)
+    v = np.concatenate([[0.0], np.cumsum(np.where(fin, x, 0.0))])
+    c = np.concatenate([[0], np.cumsum(fin.astype(np.int64))])
+    idx = np.arange(len(x))
+    lo = np.clip(idx - before, 0, len(x))
+    hi = np.clip(idx - before + window, 0, len(x))
+    n = c[hi] - c[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(n > 0, (v[hi] - v[lo]) / np.maximum(n, 1), np.nan), float)
 
 
 def _runs(mask: BoolArray) -> list[tuple[int, int]]:
@@ -268,7 +351,7 @@ def _ground_level(height: FloatArray, stay: tuple[int, int]) -> float:
     second when it is the stay after a landing (callers pass the slice they mean)."""
     a, b = stay
     seg = height[a:b]
-    return float(np.nanmedian(seg)) if np.isfinite(seg).any() else float("nan")
+    return float(nanmedian(seg)) if np.isfinite(seg).any() else float("nan")
 
 
 def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
@@ -280,10 +363,129 @@ def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
         seg = height[a:b]
         seg = seg[np.isfinite(seg)]
         if len(seg) >= 10:
-            lo, hi = np.percentile(seg, [5, 95])
+            ranked = np.sort(seg)  # 5th and 95th percentiles (linear), without np.percentile's
+            lo, hi = np.interp([0.05, 0.95], np.linspace(0.0, 1.0, len(ranked)), ranked)  # imports
             if hi - lo > GROUND_HEIGHT_SPREAD_M:
                 return f"altitude moves {hi - lo:.1f} m while the vehicle stands on the ground"
     return None
+
+
+def _long_runs(mask: BoolArray, min_len: int) -> BoolArray:
+    """``mask`` with its True runs shorter than ``min_len`` bins cleared."""
+    out = np.zeros(len(mask), bool)
+    for a, b in _runs(mask):
+        if b - a >= min_len:
+            out[a:b] = True
+    return out
+
+
+def _dilate(mask: BoolArray, radius: int) -> BoolArray:
+    """True within ``radius`` bins of a True bin."""
+    if radius <= 0 or not mask.any():
+        return mask
+    c = np.concatenate([[0], np.cumsum(mask.astype(np.int64))])
+    n = len(mask)
+    idx = np.arange(n)
+    lo = np.clip(idx - radius, 0, n)
+    hi = np.clip(idx + radius + 1, 0, n)
+    return np.asarray((c[hi] - c[lo]) > 0)
+
+
+def _supported(
+    cmd: FloatArray,
+    a_up: FloatArray,
+    est: FloatArray | None,
+    stretches: list[tuple[int, int]],
+    opts: DfOptions,
+) -> BoolArray:
+    """Bins where the vehicle rests on the ground anywhere in a stretch, by physics: in free
+    flight the upward specific force follows the thrust (a command well below hover gives
+    a_up well below g); a vehicle carried by the ground reads g whatever the command. Hover is
+    the autopilot's estimate when it has one (same units as ``cmd``), else the stretch's
+    median command. Only runs of at least ``ground_min_s`` count (a brief dip in the command
+    is the rotor lag and the accelerometer smoothing, not a touchdown)."""
+    n = len(cmd)
+    sup = np.zeros(n, bool)
+    at_g = np.abs(np.nan_to_num(a_up, nan=0.0) - G0) <= opts.accel_tol_mps2
+    for a, b in stretches:
+        c = cmd[a:b]
+        if not np.isfinite(c).any():
+            continue
+        level = float("nan")
+        if est is not None and np.isfinite(est[a:b]).any():
+            level = float(nanmedian(est[a:b]))
+        if not level > 0:
+            level = float(nanmedian(c))
+        if not level > 0:
+            continue
+        with np.errstate(invalid="ignore"):
+            low = np.nan_to_num(c, nan=np.inf) < opts.ground_cmd_frac * level
+        sup[a:b] = low & at_g[a:b]
+    return _long_runs(sup, max(1, int(round(opts.ground_min_s * opts.rate_hz))))
+
+
+def _height_rule(
+    height: FloatArray,
+    stays: list[tuple[int, int]],
+    stretches: list[tuple[int, int]],
+    centres: FloatArray,
+    opts: DfOptions,
+    apply: Any,
+    warnings: list[str],
+    origin: str,
+) -> None:
+    """Airborne by altitude, with references that survive drift: near takeoff the level the
+    vehicle left, near landing the level it came back to (each only within
+    ``height_window_s`` of its end, so a drifted reference never cuts the middle of a
+    flight); in between, back at the ground level (both levels agree) for ``ground_min_s``
+    counts as supported. Levels that disagree by more than ``level_disagree_m`` are reported
+    and then only judge their own end."""
+    n = len(height)
+    ok = np.ones(n, bool)
+    mid = np.ones(n, bool)
+    win = max(1, int(round(opts.height_window_s * opts.rate_hz)))
+    min_len = max(1, int(round(opts.ground_min_s * opts.rate_hz)))
+    drift_noted = False
+    for a, b in stretches:
+        before = [st for st in stays if st[1] <= a]
+        after = [st for st in stays if st[0] >= b]
+        lvl0 = lvl1 = float("nan")
+        if before:
+            sa, sb = before[-1]
+            lvl0 = _ground_level(height, (max(sa, sb - 10), sb))
+        if after:
+            sa, sb = after[0]
+            lvl1 = _ground_level(height, (sa, min(sb, sa + 10)))
+        h = height[a:b]
+        if np.isfinite(lvl0):
+            w = min(win, b - a)
+            up = np.flatnonzero(h[:w] - lvl0 >= opts.min_height_m)
+            ok[a : a + (int(up[0]) if len(up) else w)] = False
+        if np.isfinite(lvl1):
+            w = min(win, b - a)
+            up = np.flatnonzero(h[b - a - w :] - lvl1 >= opts.min_height_m)
+            ok[(b - w + int(up[-1]) + 1 if len(up) else b - w) : b] = False
+        if np.isfinite(lvl0) and np.isfinite(lvl1) and abs(lvl1 - lvl0) > opts.level_disagree_m:
+            if not drift_noted:
+                warnings.append(
+                    f"{origin}: landing level {lvl1 - lvl0:+.1f} m from the takeoff level at "
+                    f"t = {centres[b - 1]:.0f} s (altitude drift): each level judges only "
+                    f"{opts.height_window_s:g} s near its own end"
+                )
+                drift_noted = True
+            continue
+        levels = [x for x in (lvl0, lvl1) if np.isfinite(x)]
+        if not levels:
+            continue
+        ref = min(levels)  # the lower level: a drift can then hide a touchdown (physics still
+        # sees it), never turn a low hover into one
+        with np.errstate(invalid="ignore"):
+            down = np.nan_to_num(h, nan=np.inf) - ref < 0.5 * opts.min_height_m
+        mid[a:b] &= ~_long_runs(down, min_len)
+    apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or after "
+          f"leaving {opts.min_height_m:g} m above the landing level ({origin})", ok)  # fmt: skip
+    apply("ground-altitude", f"back at the ground level for ≥ {opts.ground_min_s:g} s between "
+          f"takeoff and landing, no land flag needed ({origin})", mid)  # fmt: skip
 
 
 def _in_air_evidence(
@@ -294,6 +496,8 @@ def _in_air_evidence(
     apply: Any,
     warnings: list[str],
     cmd_pct: FloatArray | None,
+    cmd_any: FloatArray | None = None,
+    a_up: FloatArray | None = None,
 ) -> None:
     """Drop spool-up on the ground and the takeoff ramp with the autopilot's own in-air evidence.
 
@@ -327,6 +531,17 @@ def _in_air_evidence(
     stays = _runs(ground)
     stretches = _runs(~ground)
     hs = ex.get("height_m")
+    rg = ex.get("range_m")
+    if rg is not None and len(rg):  # height above the ground itself: no drift, where valid
+        r = rs(rg)
+        air = ~ground
+        if r is not None and air.any() and np.isfinite(r[air]).mean() >= RANGE_COVERAGE:
+            hs = rg
+        elif r is not None:
+            warnings.append(
+                f"{rg.origin} not used: valid for only {np.isfinite(r[air]).mean():.0%} of the "
+                f"airborne time (needs {RANGE_COVERAGE:.0%}); altitude used instead"
+            )
     height = rs(hs) if hs is not None and len(hs) else None
     if height is not None:
         why = _height_trusted(height, ground)
@@ -334,22 +549,8 @@ def _in_air_evidence(
             warnings.append(f"{hs.origin if hs else 'altitude'} not used: {why}")
             height = None
     if height is not None and opts.min_height_m > 0:
-        ok = np.ones(n, bool)
-        for a, b in stretches:
-            before = [st for st in stays if st[1] <= a]
-            after = [st for st in stays if st[0] >= b]
-            if before:
-                sa, sb = before[-1]
-                lvl = _ground_level(height, (max(sa, sb - 10), sb))
-                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
-                ok[a : a + (int(up[0]) if len(up) else b - a)] = False
-            if after:
-                sa, sb = after[0]
-                lvl = _ground_level(height, (sa, min(sb, sa + 10)))
-                up = np.flatnonzero(height[a:b] - lvl >= opts.min_height_m)
-                ok[(a + int(up[-1]) + 1 if len(up) else a) : b] = False
-        apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or "
-              f"after leaving it before landing ({hs.origin if hs else ''})", ok)  # fmt: skip
+        _height_rule(height, stays, stretches, centres, opts, apply, warnings,
+                     hs.origin if hs else "altitude")  # fmt: skip
     if cmd_pct is not None and opts.liftoff_frac > 0:
         ok = np.ones(n, bool)
         hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
@@ -359,9 +560,9 @@ def _in_air_evidence(
             if not np.isfinite(c).any():
                 continue
             level = (
-                float(np.nanmedian(est[a:b]))
+                float(nanmedian(est[a:b]))
                 if est is not None and np.isfinite(est[a:b]).any()
-                else float(np.nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
+                else float(nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
             )
             with np.errstate(invalid="ignore"):
                 up = np.flatnonzero(c >= opts.liftoff_frac * level)
@@ -372,6 +573,21 @@ def _in_air_evidence(
             ok[a + int(up[-1]) + 1 : b] = False
         apply("liftoff", f"command below {opts.liftoff_frac:.0%} of the hover command before "
               "liftoff or after touchdown (spool-up / spool-down on the ground)", ok)  # fmt: skip
+    if cmd_any is not None and opts.ground_cmd_frac > 0 and a_up is not None:
+        hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
+        est = rs(hover) * 100.0 if hover is not None and cmd_pct is not None else None
+        apply(
+            "ground-physics",
+            f"supported on the ground: command below {opts.ground_cmd_frac:.0%} of hover while "
+            f"a_up stays at g for ≥ {opts.ground_min_s:g} s (no land flag needed)",
+            ~_supported(
+                cmd_pct if cmd_pct is not None and est is not None else cmd_any,
+                a_up,
+                est,
+                stretches,
+                opts,
+            ),  # fmt: skip
+        )
     cs = ex.get("climb_mps")
     if cs is not None and len(cs) and opts.climb_max_mps > 0:
         climb = rs(cs)
@@ -461,6 +677,17 @@ def _voltage_missing(flight: FlightLog) -> str | None:
 def extract_flight(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[pd.DataFrame, dict[str, Any], FlightReport]:
+    """One flight's Df table (pandas), its sidecar entry and its filter report."""
+    import pandas as pd
+
+    columns, meta, report = extract_flight_columns(flight, opts, tmap)
+    return pd.DataFrame(columns), meta, report
+
+
+def extract_flight_columns(
+    flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
+) -> tuple[Columns, dict[str, Any], FlightReport]:
+    """As ``extract_flight``, the table as columns of numpy arrays (no pandas needed)."""
     flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
     if flight.accel_up_mps2 is None or not len(flight.accel_up_mps2):
@@ -550,7 +777,7 @@ def extract_flight(
         cmd_pct = cmd_pct * 100.0
     _in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
-        cmd_pct if flight.thrust_cmd_n is None else None,
+        cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,
     )  # fmt: skip
     # takeoff / landing transients: trim settle_s from both ends of every airborne run
     settled = np.zeros(nbins, bool)
@@ -580,7 +807,7 @@ def extract_flight(
     if sat_what:
         apply("saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat)
     if cmd_for_steady is not None and keep.any():
-        level = float(np.nanmedian(cmd_for_steady[keep]))
+        level = float(nanmedian(cmd_for_steady[keep]))
         with np.errstate(invalid="ignore"):
             near = np.abs(cmd_for_steady - level) <= 0.5 * abs(level)
         apply(
@@ -588,10 +815,20 @@ def extract_flight(
         )
     if cmd_for_steady is not None and opts.steady_tol > 0:
         window = int(round(opts.steady_window_s * opts.rate_hz))
+        steady = _steady(cmd_for_steady, window, opts.steady_tol)
         apply(
             "steady",
             f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
-            _steady(cmd_for_steady, window, opts.steady_tol),
+            steady,
+        )
+        # the rotor answers a command step within its lag; the bins straddling the step hold a
+        # partial command and a_up is a centred running mean: drop those around every change
+        lag = opts.rotor_lag_s + 0.5 * opts.accel_smooth_s + 1.0 / opts.rate_hz
+        apply(
+            "transient",
+            f"within {lag:.2g} s of a command change > {opts.steady_tol:.0%} (rotor lag "
+            f"{opts.rotor_lag_s:g} s, a_up smoothing, one bin)",
+            ~_dilate(~steady & np.isfinite(cmd_for_steady), int(np.ceil(lag * opts.rate_hz))),
         )
     if tilt is not None:
         apply(
@@ -698,16 +935,16 @@ def extract_flight(
     if cmd is not None:
         valid &= np.isfinite(cmd) & (cmd > 0)
     apply("values", "missing or non-positive voltage, acceleration or command", valid)
-    table = pd.DataFrame({"flight": fid, "time_s": centres})
+    table: Columns = {"flight": np.full(int(keep.sum()), fid, dtype=object),
+                      "time_s": centres[keep]}  # fmt: skip
     for k, v in cols.items():
-        table[k] = v
-    table = table[keep].reset_index(drop=True)
-    if tmap is not None and len(table) and rotors:
+        table[k] = np.asarray(v, float)[keep]
+    if tmap is not None and int(keep.sum()) and rotors:
         warnings.extend(
             map_extrapolation(
                 tmap,
-                table["voltage_v"].to_numpy(float),
-                table["force_n"].to_numpy(float) / rotors,
+                table["voltage_v"],
+                table["force_n"] / rotors,
                 "per-rotor thrust (F_m / rotors)",
             )
         )
@@ -738,17 +975,17 @@ def extract_flight(
 
 def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = None) -> Df:
     """Df from every flight; each keeps its own id in the ``flight`` column."""
-    tables, reports = [], []
+    tables: list[Columns] = []
+    reports = []
     sources: dict[str, Any] = {}
     per_flight: dict[str, Any] = {}
     for fl in flights:
-        table, meta, report = extract_flight(fl, opts, tmap)
+        table, meta, report = extract_flight_columns(fl, opts, tmap)
         tables.append(table)
         reports.append(report)
         per_flight[report.flight] = meta
         for k, v in meta["sources"].items():
             sources.setdefault(k, v)
-    table = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
     side = {
         "format": DF_FORMAT,
         "version": 1,
@@ -759,7 +996,54 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
         "reports": [r.to_dict() for r in reports],
     }
-    return Df(table, side, reports)
+    return Df(None, side, reports, columns=_concat(tables))
+
+
+def _concat(tables: list[Columns]) -> Columns:
+    """Rows of every flight, columns in order of first appearance, NaN where a flight lacks one
+    (as pandas.concat)."""
+    names: list[str] = []
+    for t in tables:
+        names.extend(k for k in t if k not in names)
+    out: Columns = {}
+    for k in names:
+        parts = []
+        for t in tables:
+            n = len(t["time_s"])
+            if k in t:
+                parts.append(t[k])
+            else:
+                parts.append(
+                    np.full(
+                        n, np.nan if k != "flight" else "", dtype=object if k == "flight" else float
+                    )
+                )
+        out[k] = np.concatenate(parts) if parts else np.zeros(0)
+    return out
+
+
+def _csv_text(columns: Columns) -> str:
+    """The Df CSV as pandas writes it (``float_format='%.6g'``, NaN as an empty field)."""
+    buf = io.StringIO()
+    names = list(columns)
+    if not names:
+        return "\n"
+    csv.writer(buf, lineterminator="\n").writerow(names)
+    cells = []
+    for k in names:
+        v = columns[k]
+        if v.dtype == object or v.dtype.kind in "US":
+            cells.append([_csv_cell(str(x)) for x in v])
+        else:
+            cells.append(["" if x != x else f"{x:.6g}" for x in np.asarray(v, float).tolist()])
+    buf.writelines(",".join(row) + "\n" for row in zip(*cells, strict=True))
+    return buf.getvalue()
+
+
+def _csv_cell(text: str) -> str:
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def sidecar_path(csv_path: str | Path) -> Path:
@@ -775,13 +1059,71 @@ def write_df(df: Df, path: str | Path) -> Path:
             f"the Df output needs a name its sidecar ({side.name}) does not share; use .csv",
             file=str(p),
         )
-    atomic_write_text(p, df.table.to_csv(index=False, float_format="%.6g"))
+    if df._table is not None:  # a table given (or touched) as pandas: written by pandas
+        text = df._table.to_csv(index=False, float_format="%.6g")
+    else:
+        text = _csv_text(df._columns or {})
+    atomic_write_text(p, text)
     atomic_write_text(side, json.dumps(df.sources, indent=2, default=str) + "\n")
     return side
 
 
+def _positive_int(value: Any) -> bool:
+    """A count: an integer ≥ 1 (a JSON 4.0 is accepted, 4.5, "four", true are not)."""
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int):
+        return value >= 1
+    return isinstance(value, float) and value.is_integer() and value >= 1
+
+
+def _check_sidecar(side: dict[str, Any], path: str) -> None:
+    """Refuse sidecar fields the γ fit relies on when they cannot be what they name."""
+    flights = side.get("flights", {})
+    if not isinstance(flights, dict):
+        raise DataFormatError(
+            "Df sidecar: 'flights' must be an object", file=path, column="flights"
+        )
+    for fid, meta in flights.items():
+        if not isinstance(meta, dict):
+            raise DataFormatError(
+                "Df sidecar: expected an object per flight", file=path, column=f"flights.{fid}"
+            )
+        for key in ("rotors", "mass_kg"):
+            value = meta.get(key)
+            if value is None:
+                continue
+            if key == "rotors" and not _positive_int(value):
+                raise DataFormatError(
+                    f"Df sidecar: rotor count {value!r} is not a whole number ≥ 1",
+                    file=path,
+                    column=f"flights.{fid}.rotors",
+                )
+            if key == "mass_kg" and (
+                isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e5
+            ):
+                raise DataFormatError(
+                    f"Df sidecar: mass {value!r} is not a positive number of kg",
+                    file=path,
+                    column=f"flights.{fid}.mass_kg",
+                )
+    opts = side.get("options")
+    if (
+        isinstance(opts, dict)
+        and opts.get("rotors") is not None
+        and not _positive_int(opts["rotors"])
+    ):
+        raise DataFormatError(
+            f"Df sidecar: rotor count {opts['rotors']!r} is not a whole number ≥ 1",
+            file=path,
+            column="options.rotors",
+        )
+
+
 def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
+    import pandas as pd
+
     p = Path(path)
     try:
         table = pd.read_csv(p, dtype=str, keep_default_na=False, engine="c")
@@ -823,6 +1165,7 @@ def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
         if not isinstance(loaded, dict):
             raise DataFormatError("Df sidecar: expected a JSON object", file=str(sp))
         side = loaded
+        _check_sidecar(side, str(sp))
     if "flight" not in table.columns:
         table.insert(0, "flight", p.name)
     return table, side
@@ -833,4 +1176,4 @@ def hover_throttle(table: pd.DataFrame) -> float:
     if "thrust_cmd_norm" not in table.columns or not len(table):
         raise DataFormatError("Df has no normalised thrust command to estimate hover throttle")
     ratio = table["thrust_cmd_norm"].to_numpy(float) * G0 / table["accel_up_mps2"].to_numpy(float)
-    return float(np.nanmedian(ratio))
+    return float(nanmedian(ratio))

@@ -121,7 +121,7 @@ def read_table(path: str | Path) -> _Table:
             file=name,
             line=first + 1,
         )
-    parsed = list(csv.reader(lines[first:], delimiter=delimiter))
+    parsed = _parse_rows(lines[first:], delimiter, name, first)
     header = [h.strip() for h in parsed[0]]
     while header and header[-1] == "":  # RCbenchmark's trailing comma
         header.pop()
@@ -143,6 +143,29 @@ def read_table(path: str | Path) -> _Table:
     if not rows:
         raise DataFormatError("header only, no data rows", file=name, line=first + 1)
     return _Table(name, header, keys, rows, numbers, delimiter, notes)
+
+
+#: a stand log's field is a number or a short label: a longer one is not a stand CSV
+MAX_FIELD_CHARS = 10_000
+
+
+def _parse_rows(lines: list[str], delimiter: str, name: str, first: int) -> list[list[str]]:
+    """CSV rows; a field too long to be a number or a label is refused with its line."""
+    for k, ln in enumerate(lines):
+        if len(ln) > MAX_FIELD_CHARS and any(len(f) > MAX_FIELD_CHARS for f in ln.split(delimiter)):
+            raise DataFormatError(
+                f"a field of {max(len(f) for f in ln.split(delimiter))} characters; expected "
+                f"numbers or short labels (at most {MAX_FIELD_CHARS})",
+                file=name,
+                line=first + k + 1,
+            )
+    reader = csv.reader(lines, delimiter=delimiter)
+    try:
+        return list(reader)
+    except csv.Error as exc:
+        raise DataFormatError(
+            f"not a CSV row: {exc}", file=name, line=first + reader.line_num
+        ) from None
 
 
 def _torn(rows: list[list[str]], always: bool) -> bool:

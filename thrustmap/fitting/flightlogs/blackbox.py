@@ -29,7 +29,7 @@ import numpy.typing as npt
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.flightlogs import blackbox_decode as bd
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.fitting.flightlogs.series import FlightLog, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def read(
         notes.append(f"{ranges[0][0]} bytes before the first log header ignored")
     for i, (a, b) in enumerate(ranges):
         try:
-            decoded = bd.decode_log(data[a:b], index=i, offset=a)
+            decoded = bd.decode_log(data[a:b], index=i, offset=a, keep_field=used_field)
         except bd.CorruptFrame as exc:
             notes.append(f"log {i + 1} of {len(ranges)} skipped: {exc}")
             continue
@@ -110,12 +110,22 @@ def read(
     return flights
 
 
+#: the main-frame fields a flight log is built from (to_flightlog); the decoder skips the rest
+USED_FIELDS = re.compile(
+    r"vbatLatest|amperageLatest|accSmooth\[[012]\]|motor\[\d+\]|rcCommand\[3\]"
+)
+
+
+def used_field(name: str) -> bool:
+    return USED_FIELDS.fullmatch(name) is not None
+
+
 def table_from_decoded(d: bd.DecodedLog) -> BlackboxTable:
     cols = {name: d.main[:, k].astype(float) for k, name in enumerate(d.main_fields)}
     time_us = cols.pop("time")
     # slow frames and events sit between main frames: time them at the next main frame (one
     # frame interval after the last one when they follow it)
-    step = float(np.median(np.diff(time_us))) if len(time_us) > 1 else 0.0
+    step = float(nanmedian(np.diff(time_us))) if len(time_us) > 1 else 0.0
     frame_time = np.append(time_us, time_us[-1] + step)
     n = len(time_us)
     mode_t: FloatArray | None = None
@@ -181,9 +191,9 @@ def decide_vbat_scale(
         candidates = [1e-3, 1e-4]
     else:
         raise DataFormatError(f"vbatLatest in unknown unit '{unit}'", column="vbatLatest")
-    if len(good) == 0 or float(np.median(good)) * max(candidates) < 1.0:
+    if len(good) == 0 or float(nanmedian(good)) * max(candidates) < 1.0:
         return None, "no battery voltage sensed (vbatLatest ~ 0)"
-    med = float(np.median(good))
+    med = float(nanmedian(good))
     plausible = [c for c in candidates if plausible_pack_voltage(med * c)]
     vbatref = bd.header_int(headers, "vbatref", 0)
     ref_v = None
@@ -207,7 +217,7 @@ def decide_vbat_scale(
 
 def infer_acc_1g(ax: FloatArray, ay: FloatArray, az: FloatArray) -> float:
     """acc_1G from the median accelerometer magnitude, snapped to a power of two within 10 %."""
-    mag = float(np.median(np.sqrt(ax * ax + ay * ay + az * az)))
+    mag = float(nanmedian(np.sqrt(ax * ax + ay * ay + az * az)))
     if not mag > 0:
         raise DataFormatError(
             "cannot infer acc_1G: the accelerometer reads zero", column="accSmooth"

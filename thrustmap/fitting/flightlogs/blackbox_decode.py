@@ -206,6 +206,37 @@ def _read_uvb_tail(d: bytes, p: int, first: int) -> tuple[int, int]:
     raise CorruptFrame("variable-byte integer longer than 5 bytes")
 
 
+#: bits set in each byte value
+_POPCOUNT = [bin(v).count("1") for v in range(256)]
+#: bytes a TAG2_3S32 group takes, by its lead byte (the lead included)
+_TAG2_3S32_LEN = [
+    (1, 2, 3)[lead >> 6]
+    if lead >> 6 < 3
+    else 1 + sum(((lead >> (2 * i)) & 3) + 1 for i in range(3))
+    for lead in range(256)
+]
+#: bytes a TAG8_4S16 group (data version 2) takes after its selector: nibbles 0/1/2/4 per field
+_TAG8_4S16_V2_LEN = [
+    (sum((0, 1, 2, 4)[(sel >> (2 * i)) & 3] for i in range(4)) + 1) // 2 for sel in range(256)
+]
+
+
+def _skip_vb(d: bytes, p: int, count: int) -> int:
+    """Past ``count`` variable-byte integers (their values are not needed)."""
+    chunk = d[p : p + count]
+    if len(chunk) == count and max(chunk) < 0x80:  # the usual case: one byte each
+        return p + count
+    for _ in range(count):
+        for _ in range(5):
+            b = d[p]
+            p += 1
+            if b < 0x80:
+                break
+        else:
+            raise CorruptFrame("variable-byte integer longer than 5 bytes")
+    return p
+
+
 def _sext(value: int, bits: int) -> int:
     sign = 1 << (bits - 1)
     return (value & (sign - 1)) - (value & sign)
@@ -333,10 +364,20 @@ def _gen_tag8_4s16_v2(selector: int) -> Callable[[bytes, int], tuple[list[int], 
     return reader
 
 
+class _SelectorReaders(dict[int, Callable[[bytes, int], tuple[list[int], int]]]):
+    """One straight-line reader per selector byte (the decoder's hottest path), compiled on the
+    selector's first use: a log uses a few dozen of the 256, and compiling all of them cost
+    every process ~0.1 s before the first frame."""
+
+    def __missing__(self, selector: int) -> Callable[[bytes, int], tuple[list[int], int]]:
+        reader = _gen_tag8_4s16_v2(selector)
+        self[selector] = reader
+        return reader
+
+
 @functools.cache
-def _tag8_4s16_v2_table() -> list[Callable[[bytes, int], tuple[list[int], int]]]:
-    """One straight-line reader per selector byte (the decoder's hottest path), built once."""
-    return [_gen_tag8_4s16_v2(sel) for sel in range(256)]
+def _tag8_4s16_v2_table() -> _SelectorReaders:
+    return _SelectorReaders()
 
 
 def _read_tag8_4s16_v1(d: bytes, p: int) -> tuple[list[int], int]:
@@ -416,13 +457,15 @@ def compile_frame(
     data_version: int,
     motor0: int = -1,
     wrap: bool = True,
+    keep: frozenset[int] | None = None,
 ) -> FrameParser:
     """A function ``(d, p, prev, prev2, skipped, last_time, home) -> (values, new_p)``.
 
     ``wrap=False`` leaves out the per-field 32-bit wrap-around: the values are then exact
     whenever none leaves the 32-bit range, which :func:`decode_log` checks afterwards (it
     decodes again with the wraps when one does). Fields are local variables, not list items:
-    both save most of the per-field cost of the pure-Python decoder."""
+    both save most of the per-field cost of the pure-Python decoder. ``keep``: the only fields
+    whose values are computed (the others are parsed for their length and read as 0)."""
     n = len(fd.names)
     enc = list(fd.encoding) + [ENC_NULL] * (n - len(fd.encoding))
     pred = list(fd.predictor) + [PRED_ZERO] * (n - len(fd.predictor))
@@ -430,6 +473,9 @@ def compile_frame(
     for i in range(1, n):  # home coordinates come in (lat, lon) pairs sharing one predictor id
         if pred[i - 1] == PRED_HOME_COORD and pred[i] == PRED_HOME_COORD:
             pred[i] = PRED_HOME_COORD_1
+    if keep is not None and motor0 >= 0 and any(pred[i] == PRED_MOTOR_0 for i in keep):
+        keep = keep | {motor0}  # a kept field predicted from motor[0] needs its value
+    live = [keep is None or i in keep for i in range(n)]
     lines = [
         "def parse(d, p, prev, prev2, skipped, last_time, home):\n",
         f"    f = [0] * {n}\n",
@@ -437,8 +483,9 @@ def compile_frame(
     i = 0
     while i < n:
         if pred[i] == PRED_INC:
-            lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
-            lines.append(_wrap(i, bool(signed[i])))
+            if live[i]:
+                lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
+                lines.append(_wrap(i, bool(signed[i])))
             i += 1
             continue
         e = enc[i]
@@ -448,6 +495,15 @@ def compile_frame(
                 j = i + 1
                 while j < min(i + 8, n) and enc[j] == ENC_TAG8_8SVB:
                     j += 1
+                if not any(live[i:j]):  # no value needed: skip the set fields' varints
+                    if j - i == 1:
+                        lines.append("    p = _skip_vb(d, p, 1)\n")
+                    else:
+                        lines.append(
+                            f"    p = _skip_vb(d, p + 1, _popcount[d[p] & {(1 << (j - i)) - 1}])\n"
+                        )
+                    i = j
+                    continue
                 if j - i == 1:
                     lines.append("    g, p = _tag8_8svb(d, p, 1)\n")
                 else:  # most groups are all zero: one header byte of 0
@@ -457,20 +513,51 @@ def compile_frame(
                     )
                 group = list(range(i, j))
             elif e == ENC_TAG2_3S32:
-                lines.append("    g, p = _tag2_3s32(d, p)\n")
                 group = list(range(i, min(i + 3, n)))
+                if not any(live[k] for k in group):
+                    lines.append("    p += _t2len[d[p]]\n")
+                    i = group[-1] + 1
+                    continue
+                lines.append("    g, p = _tag2_3s32(d, p)\n")
             else:
+                group = list(range(i, min(i + 4, n)))
+                if data_version >= 2 and not any(live[k] for k in group):
+                    lines.append("    p += 1 + _t4len[d[p]]\n")
+                    i = group[-1] + 1
+                    continue
                 call = "_t4v2[d[p]](d, p + 1)" if data_version >= 2 else "_tag8_4s16_v1(d, p)"
                 lines.append(
                     f"    if d[p] == 0:\n        g = _zeros; p += 1\n    else:\n        g, p = {call}\n"
                 )
                 group = list(range(i, min(i + 4, n)))
             for k, fi in enumerate(group):
+                if not live[fi]:
+                    continue
                 pe = _prediction(fi, pred[fi], constants, motor0)
                 lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
                 if pe != "0":
                     lines.append(_wrap(fi, bool(signed[fi])))
             i = group[-1] + 1
+            continue
+        if not live[i] and e in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL):
+            j = i  # a run of fields not kept: their varints are skipped, not decoded
+            while (
+                j < n
+                and not live[j]
+                and pred[j] != PRED_INC
+                and enc[j] in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL)
+            ):
+                j += 1
+            count = sum(1 for k in range(i, j) if enc[k] != ENC_NULL)
+            if 0 < count <= 6:  # inline: most residuals are one byte each
+                test = " and ".join(f"d[p + {k}] < 128" for k in range(count))
+                lines.append(
+                    f"    if {test}:\n        p += {count}\n"
+                    f"    else:\n        p = _skip_vb(d, p, {count})\n"
+                )
+            elif count:
+                lines.append(f"    p = _skip_vb(d, p, {count})\n")
+            i = j
             continue
         if e == ENC_SIGNED_VB:
             lines.append(_UVB + "    v = (u >> 1) ^ -(u & 1)\n")
@@ -482,6 +569,9 @@ def compile_frame(
             lines.append("    v = 0\n")
         else:
             raise CorruptFrame(f"unsupported field encoding {e} for field '{fd.names[i]}'")
+        if not live[i]:
+            i += 1
+            continue
         pe = _prediction(i, pred[i], constants, motor0)
         if pe == "0":
             lines.append(f"    f[{i}] = v\n")
@@ -494,10 +584,22 @@ def compile_frame(
     if not wrap:
         lines = [ln for ln in lines if "0xFFFFFFFF" not in ln or "f[" not in ln.split("=")[0]]
     lines = [re.sub(r"\bf\[(\d+)\]", r"f\1", ln) for ln in lines[2:]]
+    if keep is not None:  # rows hold the kept fields only: prev/prev2 are compact too
+        slot = {fi: k for k, fi in enumerate(i for i in range(n) if live[i])}
+        lines = [
+            re.sub(r"\b(prev2?)\[(\d+)\]", lambda m: f"{m.group(1)}[{slot[int(m.group(2))]}]", ln)
+            for ln in lines
+        ]
     lines.insert(0, "def parse(d, p, prev, prev2, skipped, last_time, home):\n")
-    lines.append("    return [" + ", ".join(f"f{i}" for i in range(n)) + "], p\n")
+    if keep is not None:  # a skipped group is not read: a frame cut short must still raise
+        lines.append("    if p > len(d):\n        raise IndexError('frame past end of data')\n")
+    lines.append("    return [" + ", ".join(f"f{i}" for i in range(n) if live[i]) + "], p\n")
     namespace: dict[str, Any] = {
         "_uvb_tail": _read_uvb_tail,
+        "_skip_vb": _skip_vb,
+        "_popcount": _POPCOUNT,
+        "_t2len": _TAG2_3S32_LEN,
+        "_t4len": _TAG8_4S16_V2_LEN,
         "_tag8_8svb": _read_tag8_8svb,
         "_tag2_3s32": _read_tag2_3s32,
         "_tag8_4s16_v1": _read_tag8_4s16_v1,
@@ -589,32 +691,44 @@ def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
     return [min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval)]
 
 
-def decode_log(section: bytes, index: int = 0, offset: int = 0) -> DecodedLog:
+def decode_log(
+    section: bytes,
+    index: int = 0,
+    offset: int = 0,
+    *,
+    keep_field: Callable[[str], bool] | None = None,
+) -> DecodedLog:
     """Decode one log (``section`` starts at its ``H Product`` line).
 
     Main frames are decoded first without the per-field 32-bit wrap-around (the pure-Python
     decoder's largest avoidable cost); when any decoded value lies outside the 32-bit range of
     its field the wrap mattered, and the log is decoded again with it, so the result is always
-    what the firmware's 32-bit arithmetic gives."""
+    what the firmware's 32-bit arithmetic gives.
+
+    ``keep_field``: decode only the main-frame fields it accepts (and loopIteration and time):
+    the others are still parsed for their length, but their values are neither predicted nor
+    stored, and ``main_fields`` lists only the kept ones (a reader needing a handful of the
+    40-odd fields saves most of the decoding)."""
     try:
-        fast = _decode_log(section, index, offset, wrap=False)
+        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field)
     except OverflowError:  # a value beyond int64: certainly out of range
-        return _decode_log(section, index, offset, wrap=True)
-    if _in_32bit_range(fast):
-        return fast
-    return _decode_log(section, index, offset, wrap=True)
+        fast = None
+    if fast is None or not _in_32bit_range(fast):
+        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field)
+    return fast
 
 
 def _in_32bit_range(log: DecodedLog) -> bool:
     """True when every main-frame value (but time, kept with its rollovers) fits its field."""
     if not len(log.main):
         return True
-    signed = _main_signed(log.headers, len(log.main_fields))
-    for k in range(log.main.shape[1]):
+    names = [x.strip() for x in log.headers.get("Field I name", "").split(",")]
+    sign_of = dict(zip(names, _main_signed(log.headers, len(names)), strict=True))
+    for k, name in enumerate(log.main_fields):
         if k == 1:
             continue
         col = log.main[:, k]
-        lo, hi = (-(1 << 31), (1 << 31) - 1) if signed[k] else (0, (1 << 32) - 1)
+        lo, hi = (-(1 << 31), (1 << 31) - 1) if sign_of.get(name, 0) else (0, (1 << 32) - 1)
         if int(col.min()) < lo or int(col.max()) > hi:
             return False
     return True
@@ -625,7 +739,14 @@ def _main_signed(headers: dict[str, str], n: int) -> list[int]:
     return (signed + [0] * n)[:n]
 
 
-def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> DecodedLog:
+def _decode_log(
+    section: bytes,
+    index: int,
+    offset: int,
+    *,
+    wrap: bool,
+    keep_field: Callable[[str], bool] | None = None,
+) -> DecodedLog:
     headers, defs, pos = parse_headers(section)
     warnings: list[str] = []
     idef = defs.get("I")
@@ -643,12 +764,28 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
         "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
     }
     version = header_int(headers, "Data version", 2)
+    keep = (
+        None
+        if keep_field is None
+        else frozenset(k for k, name in enumerate(names) if k < 2 or keep_field(name))
+    )
+    if keep is not None and motor0 >= 0:  # a kept field predicted from motor[0] needs it
+        preds = list(idef.predictor) + list(pdef.predictor)
+        width = len(idef.predictor)
+        if any(
+            preds[k] == PRED_MOTOR_0
+            or (width + k < len(preds) and preds[width + k] == PRED_MOTOR_0)
+            for k in keep
+            if k < width
+        ):
+            keep = keep | {motor0}
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
             parsers[ord(marker)] = compile_frame(
-                fd, constants=constants, data_version=version, motor0=motor0, wrap=wrap
-            )
+                fd, constants=constants, data_version=version, motor0=motor0, wrap=wrap,
+                keep=keep,
+            )  # fmt: skip
     for marker in "SGH":
         if marker in defs and defs[marker].names and defs[marker].encoding:
             parsers[ord(marker)] = compile_frame(
@@ -692,9 +829,47 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
     widths[mark_i] = widths[mark_p] = max(nfields, 1)
     budget = WORK_PER_BYTE * n + 100_000
     out_of_budget = -1
+    parse_p = parsers.get(mark_p)
+    width_main = widths[mark_p]
+    append = main_rows.append
 
     while pos < n:
         m = d[pos]
+        if m == mark_p and prev is not None and parse_p is not None and budget > width_main:
+            # the common case, an inter frame after a good frame: the general path below, with
+            # every check, in one place; anything unusual falls through to it (and is re-read)
+            try:
+                vals, p = parse_p(
+                    d, pos + 1, prev, prev2, skip_table[last_iter % i_interval], last_time, home
+                )
+            except (IndexError, CorruptFrame):
+                p = -1
+            if p > pos and p - pos - 1 <= MAX_FRAME_BYTES and (p >= n or d[p] in markers):
+                t = (vals[1] & 0xFFFFFFFF) + rollover
+                roll = 0
+                if (
+                    last_time >= 0
+                    and t < last_time
+                    and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US
+                ):
+                    roll = 1 << 32
+                    t += roll
+                it = vals[0]
+                if (
+                    last_iter <= it < last_iter + MAX_ITERATION_JUMP
+                    and last_time <= t < last_time + MAX_TIME_JUMP_US
+                ):
+                    budget -= width_main
+                    rollover += roll
+                    vals[1] = t
+                    stats["P"] += 1
+                    append(vals)
+                    prev2 = prev
+                    prev = vals
+                    last_iter, last_time = it, t
+                    garbage_run = False
+                    pos = p
+                    continue
         if m not in markers or m not in parsers and m != mark_e:
             stats["skipped_bytes"] += 1
             if not garbage_run and main_rows:
@@ -813,7 +988,7 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
     def table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
         if not rows:
             return np.zeros((0, width), dtype=np.int64)
-        if any(len(r) != width for r in rows):  # ragged: let numpy say so
+        if sum(map(len, rows)) != len(rows) * width:  # ragged: let numpy say so
             return np.array(rows, dtype=np.int64)
         flat = itertools.chain.from_iterable(rows)  # ~1.7x faster than np.array on lists
         return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
@@ -823,8 +998,8 @@ def _decode_log(section: bytes, index: int, offset: int, *, wrap: bool) -> Decod
     return DecodedLog(
         index=index,
         headers=headers,
-        main_fields=list(names),
-        main=table(main_rows, nfields),
+        main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
+        main=table(main_rows, nfields if keep is None else len(keep)),
         slow_fields=list(sdef.names),
         slow=table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),

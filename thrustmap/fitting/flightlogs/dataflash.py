@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -448,7 +448,7 @@ def _motor_channels(rcou: dict[str, npt.NDArray[Any]], active: npt.NDArray[np.bo
     chosen: list[str] = []
     for c in names:
         v = np.asarray(rcou[c], float)[active] if active.any() else np.asarray(rcou[c], float)
-        if len(v) and 800 <= float(np.median(v)) <= 2200 and float(np.std(v)) > 0.5:
+        if len(v) and 800 <= float(nanmedian(v)) <= 2200 and float(np.std(v)) > 0.5:
             chosen.append(c)
         else:
             break
@@ -474,6 +474,65 @@ def pwm_scale(params: dict[str, float]) -> tuple[ThrottleScale, str]:
     if spin is not None:
         src += f"; MOT_SPIN_MIN {spin:g} (idle in flight = {lo + spin * (hi - lo):.0f} us)"
     return ThrottleScale("pwm", float(lo), float(hi), "us"), src
+
+
+#: a stretch without samples longer than this is the log pausing (Copter logs only while armed)
+LOG_PAUSE_S = 2.0
+
+
+def armed_spin_us(params: dict[str, float], scale: ThrottleScale) -> tuple[float, str]:
+    """The output the motors hold when armed at zero throttle (µs above the scale's low end):
+    MOT_SPIN_ARMED (Copter ≤ 3.3, µs above the minimum) or MOT_SPIN_ARM (3.4+, fraction of the
+    range); 3 % of the range when the log gives neither."""
+    span = scale.hi - scale.lo
+    if (v := params.get("MOT_SPIN_ARMED")) is not None and v > 0:
+        return float(v), f"MOT_SPIN_ARMED {v:g} us"
+    if (v := params.get("MOT_SPIN_ARM")) is not None and v > 0:
+        return float(v) * span, f"MOT_SPIN_ARM {v:g}"
+    return 0.03 * span, "assumed 3 % of the output range (no MOT_SPIN_ARMED/MOT_SPIN_ARM)"
+
+
+def _untimed_events(df: DataFlashLog, flight: FlightLog, params: dict[str, float]) -> None:
+    """Copter ≤ 3.3 writes EV without a time stamp, and a log that pauses while disarmed writes
+    the events of the pause when it resumes: timed by their neighbours they land at the wrong
+    flight. Then the armed state comes from the motor outputs (every motor at or above half
+    the armed spin), each pause is a flight boundary (disarmed), and the land detector's events
+    are not used (ground contact is judged from physics)."""
+    ev = df.by_name.get("EV")
+    if ev is None or not df.has("EV") or {"TimeUS", "TimeMS"} & set(ev.columns):
+        return
+    ref = flight.accel_up_mps2 or flight.motor_outputs
+    if ref is None or len(ref) < 2:
+        return
+    pauses = np.flatnonzero(np.diff(ref.time_s) > LOG_PAUSE_S)
+    if not len(pauses):
+        return  # written as they happened: their neighbours time them
+    mo, sc = flight.motor_outputs, flight.motor_output_scale
+    if mo is None or sc is None or mo.values.ndim != 2:
+        flight.warnings.append(
+            "EV has no time stamps and the log pauses: the arming events cannot be timed and "
+            "there are no motor outputs to tell armed state from"
+        )
+        return
+    spin, spin_src = armed_spin_us(params, sc)
+    spinning = np.nanmin(mo.values, axis=1) >= sc.lo + 0.5 * spin
+    t = mo.time_s
+    gap_t = ref.time_s[pauses] + 1e-3  # disarmed from just after the last sample of a stretch
+    times = np.concatenate([t, gap_t])
+    vals = np.concatenate([spinning.astype(float), np.zeros(len(gap_t))])
+    order = np.argsort(times, kind="stable")
+    flight.armed = Signal(
+        times[order],
+        vals[order],
+        "bool",
+        f"motor outputs ≥ half the armed spin ({spin_src}); log pauses disarmed",
+    )
+    flight.landed = None
+    flight.warnings.append(
+        f"events untimed: EV has no time stamps and the log pauses {len(pauses)} time(s), so "
+        "the arming events written on resuming cannot be placed; armed state taken from the "
+        "motor outputs, each pause a flight boundary, ground contact judged from physics"
+    )
 
 
 def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> list[FlightLog]:
@@ -531,6 +590,22 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         if "CRt" in c:
             crt = np.asarray(c["CRt"], float)
             flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
+    if df.has("RFND"):  # range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)
+        c = df.columns("RFND")
+        keep = _instance0(c)
+        t = df.time_s("RFND")[keep]
+        if "Dist" in c:
+            dist = np.asarray(c["Dist"], float)[keep]
+            good = np.asarray(c["Stat"])[keep] == 4 if "Stat" in c else dist > 0
+            origin = "RFND.Dist (Stat 4 good only)" if "Stat" in c else "RFND.Dist"
+        elif "Dist1" in c:
+            dist = np.asarray(c["Dist1"], float)[keep] / 100.0
+            good, origin = dist > 0, "RFND.Dist1/100"
+        else:
+            dist = np.zeros(0)
+            good, origin = np.zeros(0, bool), ""
+        if good.any():
+            flight.extras["range_m"] = _signal(t, np.where(good, dist, np.nan), "m", origin)
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))
@@ -577,6 +652,7 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             )  # fmt: skip
         else:
             flight.warnings.append("no RCOU channel looks like a motor output")
+    _untimed_events(df, flight, params)
     flight.metadata["params"] = {
         k: v for k, v in params.items() if k.startswith(("MOT_", "RC3_", "FRAME", "BATT_"))
     }

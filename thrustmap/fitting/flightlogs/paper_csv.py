@@ -28,7 +28,12 @@ import pandas as pd
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, scale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.flightlogs.series import (
+    FlightLog,
+    FloatArray,
+    Signal,
+    question_specific_force,
+)
 
 log = logging.getLogger(__name__)
 
@@ -189,11 +194,11 @@ def read(path: Path, **options: Any) -> list[FlightLog]:
     def sig(col: str, unit: str) -> Signal:
         return Signal(time_s, _column(df, col, path)[idx], unit, col)
 
-    accel = sig("Acc (m/s²)", "m/s^2")
-    if float(np.nanmedian(np.abs(accel.values))) < 3.0:
-        # Gravity removed from this column: put it back so it is specific force again.
-        accel = Signal(time_s, accel.values + G0, "m/s^2", "Acc (m/s²) + g0")
-        warnings.append("Acc (m/s²) looks gravity-compensated (median |a| < 3); added g0")
+    # in g (mean ≈ 1): converted; gravity removed (mean ≈ 0): g0 put back; else refused
+    accel, why = question_specific_force(
+        sig("Acc (m/s²)", "m/s^2"), str(path), gravity_removed=True
+    )
+    warnings.extend(why)
     flight = FlightLog(
         path=str(path),
         format="paper-csv",
@@ -256,11 +261,15 @@ def read_generic(
             return None
         return Signal(time_s, _column(df, cmap[key], path)[idx] * factor, unit, cmap[key])
 
+    accel = sig("accel_up_mps2", "m/s^2", accel_scale)
+    assert accel is not None
+    accel, why = question_specific_force(accel, str(path))
+    warnings.extend(why)
     flight = FlightLog(
         path=str(path),
         format="csv",
         voltage_v=sig("voltage_v", "V"),
-        accel_up_mps2=sig("accel_up_mps2", "m/s^2", accel_scale),
+        accel_up_mps2=accel,
         thrust_cmd_n=sig("thrust_cmd_n", "N"),
         thrust_cmd_norm=sig("thrust_cmd_norm", "1"),
         armed=sig("armed", "bool"),

@@ -75,3 +75,62 @@ class FlightLog:
     metadata: dict[str, Any] = field(default_factory=dict)  # firmware, version, params, ...
     warnings: list[str] = field(default_factory=list)  # e.g. "corrupt tail at byte N, ignored"
     index: int = 0  # which flight within a multi-flight file (blackbox)
+
+
+#: standard gravity, m/s²
+G0_MPS2 = 9.80665
+
+
+def question_specific_force(
+    sig: Signal, path: str, *, gravity_removed: bool = False
+) -> tuple[Signal, list[str]]:
+    """Check that an upward specific force is in m/s²: over a log (ground and flight alike)
+    its mean must be near g. A column in g (mean ≈ 1) is converted with a warning; one with
+    gravity removed (mean ≈ 0) gets g back when ``gravity_removed`` is allowed; anything else
+    (a downward axis, another unit) is refused: a force that cannot be physical is not used."""
+    from thrustmap.core.errors import DataFormatError
+
+    v = sig.values[np.isfinite(sig.values)]
+    if not len(v):
+        return sig, []
+    mean = float(np.mean(v))
+    if 7.0 <= mean <= 13.0:
+        return sig, []
+    if 0.7 <= mean <= 1.3:
+        return Signal(sig.time_s, sig.values * G0_MPS2, "m/s^2", f"{sig.origin} (g → m/s²)"), [
+            f"{sig.origin}: mean upward specific force {mean:.3g}, expected ≈ 9.81 m/s²: "
+            "taken as g and converted to m/s²"
+        ]
+    if gravity_removed and abs(mean) < 0.5:
+        return Signal(sig.time_s, sig.values + G0_MPS2, "m/s^2", f"{sig.origin} + g0"), [
+            f"{sig.origin} looks gravity-compensated (mean {mean:.2g} m/s²); added g0"
+        ]
+    hint = " (a downward axis? map it with accel_scale=-1)" if -13.0 <= mean <= -7.0 else ""
+    raise DataFormatError(
+        f"mean upward specific force {mean:.4g}; expected ≈ 9.81 m/s² over a flight (at rest "
+        f"and in hover), or ≈ 1 for a column in g{hint}",
+        file=path,
+        column=sig.origin,
+    )
+
+
+def nanmedian(x: Any, axis: int | None = None) -> Any:
+    """Median ignoring NaN (NaN where nothing is finite), for 1-D data or along ``axis`` 1 of
+    2-D data. np.median/np.nanmedian import numpy.ma on first use (~20 ms of a CLI run)."""
+    a = np.asarray(x, float)
+    if axis is None:
+        v = np.sort(a[np.isfinite(a)], axis=None)
+        if not len(v):
+            return float("nan")
+        m = len(v)
+        return float(0.5 * (v[(m - 1) // 2] + v[m // 2]))
+    if axis != 1 or a.ndim != 2:
+        raise ValueError("nanmedian: 1-D data, or 2-D along axis 1")
+    s = np.sort(np.where(np.isfinite(a), a, np.inf), axis=1)  # non-finite last
+    n = np.isfinite(a).sum(axis=1)
+    rows = np.arange(a.shape[0])
+    lo = np.clip((n - 1) // 2, 0, max(a.shape[1] - 1, 0))
+    hi = np.clip(n // 2, 0, max(a.shape[1] - 1, 0))
+    with np.errstate(invalid="ignore"):
+        med = 0.5 * (s[rows, lo] + s[rows, hi])
+    return np.where(n > 0, med, np.nan)

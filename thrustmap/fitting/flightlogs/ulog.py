@@ -25,7 +25,8 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.fitting.flightlogs import ulog_fast
+from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +122,7 @@ def _pwm_outputs(
             n = rotors
         elif n < 3:
             continue
-        med = float(np.median(active[:, :n]))
+        med = nanmedian(active[:, :n])
         if 800.0 <= med <= 2200.0:
             scale = SCALES["pwm"]
         elif 0.0 < med <= 8191.0 and float(np.max(active[:, :n])) <= 8191.0 and med > 2200.0:
@@ -336,21 +337,25 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         raise DataFormatError(f"cannot read ULog: {exc.strerror}", file=str(path)) from None
     if not raw.startswith(MAGIC) or len(raw) < 16:
         raise DataFormatError("not a ULog file (expected the 'ULog' header)", file=str(path))
-    intact = walk(raw)
-    problem = intact.problem
-    chatter = io.StringIO()
-    try:  # pyulog prints its diagnostics: keep them off stdout (it carries --json output)
-        with contextlib.redirect_stdout(chatter):
-            ulog = ULog(
-                io.BytesIO(raw[: intact.good_end]),
-                message_name_filter_list=TOPICS,
-                disable_str_exceptions=True,
-            )
-    except Exception as exc:  # pyulog raises bare exceptions on malformed headers
-        raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
-    finally:
-        for line in chatter.getvalue().splitlines()[:5]:
-            log.debug("%s: pyulog: %s", path, line)
+    ulog: Any = ulog_fast.parse(raw, TOPICS)  # vectorised; None: something pyulog must handle
+    if ulog is not None:
+        problem = ulog.problem
+    else:
+        intact = walk(raw)
+        problem = intact.problem
+        chatter = io.StringIO()
+        try:  # pyulog prints its diagnostics: keep them off stdout (it carries --json output)
+            with contextlib.redirect_stdout(chatter):
+                ulog = ULog(
+                    io.BytesIO(raw[: intact.good_end]),
+                    message_name_filter_list=TOPICS,
+                    disable_str_exceptions=True,
+                )
+        except Exception as exc:  # pyulog raises bare exceptions on malformed headers
+            raise DataFormatError(f"not a readable ULog file: {exc}", file=str(path)) from None
+        finally:
+            for line in chatter.getvalue().splitlines()[:5]:
+                log.debug("%s: pyulog: %s", path, line)
     if problem is not None:
         warnings.append(problem)
     elif getattr(ulog, "file_corruption", False):
@@ -444,6 +449,16 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         flight.extras["height_m"] = _signal(
             t_lp[ok], -np.asarray(lp["z"], float)[ok], "m", "-vehicle_local_position.z"
         )
+        if "dist_bottom" in lp and "dist_bottom_valid" in lp:  # range sensor (or terrain est.)
+            rng = np.where(
+                np.asarray(lp["dist_bottom_valid"], bool),
+                np.asarray(lp["dist_bottom"], float),
+                np.nan,
+            )
+            if np.isfinite(rng).any():
+                flight.extras["range_m"] = _signal(
+                    t_lp, rng, "m", "vehicle_local_position.dist_bottom (valid only)"
+                )
         if "vz" in lp:
             flight.extras["climb_mps"] = _signal(
                 t_lp[ok], -np.asarray(lp["vz"], float)[ok], "m/s", "-vehicle_local_position.vz"
