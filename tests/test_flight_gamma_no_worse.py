@@ -140,7 +140,9 @@ def _end_to_end(
 
 def _check_bins(fit: dict, output: str) -> None:
     populated = [r for r in fit["metrics"]["by_voltage"] if r["samples"] >= MIN_BIN_SAMPLES]
-    assert populated
+    if not populated:  # nothing to judge: the output must say so, not claim a pass
+        assert "no voltage bin has 20+ samples, so none could be judged" in output
+        return
     for r in populated:
         before, after = r["e_Th_before_pct"]["mean"], r["e_Th_after_pct"]["mean"]
         if after > before:  # allowed only when the output names the bin and the numbers

@@ -410,7 +410,13 @@ def gamma_fit_cmd(
             and row[f"{metric}_after_pct"]["mean"] > row[f"{metric}_before_pct"]["mean"]
         ]
         head = f"no-worse check ({metric}, bins with {floor}+ samples): "
-        if not fit.corrected:
+        populated = [row for row in m["by_voltage"] if row["samples"] >= floor]
+        if not populated:
+            click.echo(
+                head + f"no voltage bin has {floor}+ samples, so none could be judged: degree "
+                f"{fit.degree} rests on held-out error alone (too little data per voltage)"
+            )
+        elif not fit.corrected:
             click.echo(
                 head + "every γ(B) tried was worse somewhere: kept the uncorrected map (γ = 1)"
             )
