@@ -1,0 +1,175 @@
+"""`fleet extract` on Dask: a local cluster interrupted leaves no process; a separately started
+`dask scheduler` + `dask worker` gives the same table as the plain serial loop."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from support.fleet_gen import Fleet, make_fleet
+
+from thrustmap.cli import main
+from thrustmap.fleet.table import read_table
+
+pytest.importorskip("distributed")
+psutil = pytest.importorskip("psutil")
+
+ROOT = Path(__file__).resolve().parent.parent
+#: what differs between two runs of the same fleet (timing, and whether it was reused)
+VOLATILE = ("seconds", "reused")
+
+
+def env() -> dict[str, str]:
+    e = dict(os.environ)
+    e["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "tests"), e.get("PYTHONPATH", "")])
+    return e
+
+
+def comparable(table: Path) -> list[dict[str, Any]]:
+    rows = []
+    for o in read_table(table):
+        d = o.to_dict()
+        for k in VOLATILE:
+            d.pop(k)
+        rows.append(json.loads(json.dumps(d, default=str).replace("NaN", "null")))
+    return rows
+
+
+def args(fleet: Fleet, out: Path, *extra: str) -> list[str]:
+    return ["fleet", "extract", str(fleet.folder), "-o", str(out), "--masses",
+            str(fleet.masses_csv), "--map", str(fleet.stand_map), *extra]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Fleet:
+    return make_fleet(tmp_path_factory.mktemp("fleet"), 30)
+
+
+@pytest.fixture(scope="module")
+def serial_table(fleet: Fleet, tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, Any]]:
+    out = tmp_path_factory.mktemp("serial")
+    main(args(fleet, out, "--workers", "0", "--quiet"))
+    return comparable(out / "fleet.parquet")
+
+
+def alive(p: Any) -> bool:
+    try:
+        return bool(p.is_running() and p.status() != psutil.STATUS_ZOMBIE)
+    except psutil.Error:
+        return False
+
+
+def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
+    proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+    seen: set[Any] = set()
+    try:
+        assert proc.stderr is not None
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:  # wait until the workers are busy with logs
+            if line.startswith("progress:"):
+                break
+            assert time.monotonic() < deadline, "no progress in 120 s"
+        parent = psutil.Process(proc.pid)
+        seen = set(parent.children(recursive=True))
+        assert len(seen) >= 2  # the two worker processes (and their nannies)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "run the same command again to resume" in err
+    deadline = time.monotonic() + 10
+    while any(alive(p) for p in seen) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [p.pid for p in seen if alive(p)]
+    for pid in left:  # never leave them behind, even when the test fails
+        os.kill(pid, signal.SIGKILL)
+    assert left == []
+    partial = read_table(out / "fleet.parquet")
+    assert 0 < len(partial) < len(serial_table)
+    # the same command again resumes: what was done is reused, the table is whole
+    main(args(fleet, out, "--workers", "2", "--quiet"))
+    whole = read_table(out / "fleet.parquet")
+    assert sum(o.reused for o in whole) >= len(partial)
+    assert comparable(out / "fleet.parquet") == serial_table
+
+
+def test_an_existing_scheduler_gives_the_same_table(
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    sched_file = tmp_path / "scheduler.json"
+    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    started: list[subprocess.Popen[bytes]] = []
+    try:
+        started.append(
+            subprocess.Popen(
+                [
+                    *dask,
+                    "--scheduler-file",
+                    str(sched_file),
+                    "--port",
+                    "0",
+                    "--dashboard-address",
+                    ":0",
+                    "--host",
+                    "127.0.0.1",
+                ],  # fmt: skip
+                env=env(),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+        )
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        started.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "distributed.cli.dask_worker",
+                    address,
+                    "--nworkers",
+                    "2",
+                    "--nthreads",
+                    "1",
+                    "--memory-limit",
+                    "1GiB",
+                    "--no-dashboard",
+                ],  # fmt: skip
+                env=env(),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+        )
+        from distributed import Client
+
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=90)
+        out = tmp_path / "out"
+        main(args(fleet, out, "--scheduler", address, "--quiet"))
+        assert comparable(out / "fleet.parquet") == serial_table
+    finally:
+        for p in reversed(started):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(started):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
