@@ -191,3 +191,51 @@ def test_a_log_over_the_size_limit_is_refused_unread(
     assert o.status == "refused" and "over the per-log limit of 1 MiB" in o.reason
     assert o.sha256 == ""  # not even hashed
     assert os.listdir(out / "df") == []
+
+
+def test_fleet_gamma_is_gamma_fit_per_airframe_with_the_default_loss(
+    small_fleet: Fleet, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    out = tmp_path / "out"
+    assert run_cli(extract_args(small_fleet, out), capsys)[0] == 0
+    code, stdout, err = run_cli(
+        [
+            "fleet",
+            "gamma",
+            str(out),
+            "--map",
+            str(small_fleet.stand_map),
+            "--min-logs",
+            "2",
+            "--json",
+        ],  # fmt: skip
+        capsys,
+    )
+    assert code == 0, err
+    groups = json.loads(stdout)
+    assert len(groups) == 4 and all(g["status"] == "fitted" for g in groups)
+    for g in groups:
+        code, alone, err = run_cli(
+            [
+                "gamma",
+                "fit",
+                *g["df"],
+                "--map",
+                str(small_fleet.stand_map),
+                "-o",
+                str(tmp_path / f"{g['key']}.json"),
+                "--json",
+            ],  # fmt: skip
+            capsys,
+        )
+        assert code == 0, err
+        fit = json.loads(alone)
+        assert g["gamma"]["loss"] == fit["loss"] == "l1"
+        assert g["gamma"]["coefficients"] == pytest.approx(fit["coefficients"], abs=1e-9, rel=0)
+    # with the default of 3 logs a group, two logs each are too few: reported, not fitted
+    code, stdout, _ = run_cli(["fleet", "gamma", str(out)], capsys)
+    assert code == 0
+    assert stdout.count("too small: 2 logs") == 4 and "0 of 4 groups fitted" in stdout
+    assert (out / "fleet-report.html").is_file()

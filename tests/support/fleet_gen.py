@@ -22,6 +22,8 @@ class Airframe:
     writer: str  # ulog | ulog-legacy | dataflash | dataflash-old
     mass_kg: float
     gamma: tuple[float, ...]
+    start_v: tuple[float, float] = (22.6, 25.2)  # each log starts at a voltage in this range
+    drop_v: tuple[float, float] = (0.8, 1.6)  # and flies its battery down by this much
 
 
 AIRFRAMES = (
@@ -30,6 +32,9 @@ AIRFRAMES = (
     Airframe("apquad", "dataflash", 1.2, sim.default_gamma(25.0)),
     Airframe("copter3", "dataflash-old", 0.9, (1.6, -0.02)),
 )
+#: an airframe flown on one battery level only (a γ slope cannot be fitted), and a small one
+NARROW = Airframe("narrow", "dataflash", 2.0, (1.1,), start_v=(23.0, 23.02), drop_v=(0.05, 0.1))
+FEW = Airframe("few", "ulog", 0.7, (1.2,))
 SUFFIX = {"ulog": ".ulg", "ulog-legacy": ".ulg", "dataflash": ".bin", "dataflash-old": ".bin"}
 #: files that are not flight logs, and the reason they must be refused for (a word in it)
 CORRUPT = {
@@ -71,6 +76,7 @@ def make_fleet(
     duration_s: float = 24.0,
     rate_hz: float = 12.5,
     airframes: tuple[Airframe, ...] = AIRFRAMES,
+    extra: dict[Airframe, int] | None = None,
     corrupt: bool = True,
     no_mass: int = 1,
     seed: int = 0,
@@ -84,18 +90,19 @@ def make_fleet(
     tmap.save(fleet.stand_map)
     rng = np.random.default_rng(seed)
     lines = ["pattern,mass_kg"]
-    for ai, af in enumerate(airframes):
+    counts = [(af, logs_per_airframe) for af in airframes] + list((extra or {}).items())
+    for ai, (af, count) in enumerate(counts):
         sub = folder / af.name
         sub.mkdir(exist_ok=True)
         lines.append(f"{af.name}-*,{af.mass_kg}")
-        for k in range(logs_per_airframe):
-            start = float(rng.uniform(22.6, 25.2))
+        for k in range(count):
+            start = float(rng.uniform(*af.start_v))
             hs = sim.HoverSim(
                 mass_kg=af.mass_kg,
                 duration_s=duration_s,
                 rate_hz=rate_hz,
                 voltage_start_v=start,
-                voltage_end_v=start - float(rng.uniform(0.8, 1.6)),
+                voltage_end_v=start - float(rng.uniform(*af.drop_v)),
                 gamma=af.gamma,
                 seed=seed * 100_000 + ai * 10_000 + k,
             )

@@ -220,3 +220,96 @@ def extract_cmd(
     if len(refused) > SHOW_REFUSED:
         click.echo(f"  ... and {len(refused) - SHOW_REFUSED} more refused (see the table)")
     click.echo(f"wrote {result.table_path}")
+
+
+@fleet_group.command("gamma")
+@click.argument("out_dir", type=click.Path(path_type=Path))
+@click.option("--map", "map_path", type=click.Path(path_type=Path),
+              help="Stand map: each fitted group also gets OUT_DIR/gamma/KEY.map.json, the "
+              "map with that group's γ block (as `gamma fit -o`).")  # fmt: skip
+@click.option("--loss", type=click.Choice(["l1", "l2"]), default="l1", show_default=True)
+@click.option("--min-logs", type=int, default=3, show_default=True,
+              help="Groups with fewer logs are reported, not fitted.")  # fmt: skip
+@click.option("--min-samples", type=int, default=100, show_default=True,
+              help="Groups with fewer Df samples are reported, not fitted.")  # fmt: skip
+@click.option("--min-span-v", type=float, default=0.5, show_default=True,
+              help="Groups whose flown voltage spans less are reported, not fitted.")  # fmt: skip
+@click.option("-o", "--report", "report_path", type=click.Path(path_type=Path),
+              help="Fleet HTML report (default: OUT_DIR/fleet-report.html).")  # fmt: skip
+@click.option("--json", "as_json", is_flag=True, help="Print the groups as JSON.")
+def gamma_cmd(
+    out_dir: Path,
+    map_path: Path | None,
+    loss: str,
+    min_logs: int,
+    min_samples: int,
+    min_span_v: float,
+    report_path: Path | None,
+    as_json: bool,
+) -> None:
+    """Group the logs of OUT_DIR by airframe and fit γ(B) per group (the rule of `gamma fit`).
+
+    Writes OUT_DIR/fleet-gamma.json, the HTML report and, with --map, one corrected map per
+    fitted group. Groups too small or too narrow in voltage are reported, not fitted.
+    """
+    import json
+
+    from thrustmap.core.files import atomic_write_text, check_output_path
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+    from thrustmap.fleet.groups import fleet_gamma
+    from thrustmap.fleet.report import gamma_formula, write_fleet_report
+    from thrustmap.fleet.table import TABLE_NAME, read_table
+
+    if min_logs < 1 or min_samples < 10 or min_span_v < 0:
+        raise ConfigError("--min-logs ≥ 1, --min-samples ≥ 10 and --min-span-v ≥ 0 expected")
+    report = report_path or out_dir / "fleet-report.html"
+    check_output_path(report, inputs=[*([map_path] if map_path else [])], what="fleet report")
+    outcomes = read_table(out_dir / TABLE_NAME)
+    tmap = ThrustMap.load(map_path) if map_path else None
+    groups = fleet_gamma(
+        outcomes,
+        out_dir,
+        tmap,
+        loss=loss,
+        min_logs=min_logs,
+        min_samples=min_samples,
+        min_span_v=min_span_v,
+    )
+    if tmap is not None:
+        from thrustmap.fitting.gamma import corrected_map
+
+        (out_dir / "gamma").mkdir(exist_ok=True)
+        for g in groups:
+            if g.fit is not None:
+                sources = [{"path": str(p), "sha256": file_sha256(p)} for p in g.df_paths]
+                out_map = corrected_map(tmap, g.fit, sources)
+                atomic_write_text(out_dir / "gamma" / f"{g.key}.map.json", out_map.dumps())
+    summary = [g.to_dict() for g in groups]
+    atomic_write_text(
+        out_dir / "fleet-gamma.json", json.dumps(summary, indent=2, default=float) + "\n"
+    )
+    write_fleet_report(outcomes, groups, report)
+    if as_json:
+        click.echo(json.dumps(summary, indent=2, default=float))
+        return
+    for g in groups:
+        head = f"{g.label}: {len(g.logs)} logs, {g.samples} samples"
+        if g.voltage_v is not None:
+            head += f", {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V"
+        if g.fit is None:
+            click.echo(f"{head}: {g.status}: {g.reason}")
+            continue
+        band = (
+            "" if g.band is None else f", 95 % of samples within {g.band[0]:+.4f}/{g.band[1]:+.4f}"
+        )
+        click.echo(
+            f"{head}: γ(B) = {gamma_formula(g.fit.correction.coefficients)} (degree "
+            f"{g.fit.degree}{band})"
+        )
+    refused = sum(o.status == "refused" for o in outcomes)
+    click.echo(
+        f"{sum(g.fit is not None for g in groups)} of {len(groups)} groups fitted; "
+        f"{refused} logs refused (by reason in the report); wrote {report} and "
+        f"{out_dir / 'fleet-gamma.json'}"
+        + (f" and the corrected maps in {out_dir / 'gamma'}" if tmap is not None else "")
+    )

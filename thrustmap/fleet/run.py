@@ -21,7 +21,7 @@ import json
 import logging
 import os
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,14 +55,19 @@ class FleetResult:
 
 
 def rules_fingerprint() -> str:
-    """A hash of the extraction rules' source (Df filters and every reader): a change to them
-    makes every log's options key change, so a re-run re-extracts instead of reusing."""
-    import thrustmap.fitting.df as df_mod
-    import thrustmap.fitting.flightlogs as readers
+    """A hash of the extraction rules' source (Df filters and their defaults, every reader): a
+    change to them changes every log's options key, so a re-run re-extracts instead of reusing.
+    Found without importing them (a re-run with nothing new stays fast)."""
+    import importlib.util
 
     h = hashlib.sha256()
-    files = [Path(df_mod.__file__)]
-    files += sorted(Path(next(iter(readers.__path__))).glob("*.py"))
+    files: list[Path] = []
+    for name in ("thrustmap.fitting.df", "thrustmap.fitting.flightlogs"):
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
+            raise ConfigError(f"cannot find {name}")
+        origin = Path(spec.origin)
+        files += sorted(origin.parent.glob("*.py")) if origin.name == "__init__.py" else [origin]
     for f in files:
         h.update(f.name.encode())
         h.update(f.read_bytes())
@@ -122,9 +127,10 @@ def options_key(
 def plan(
     paths: Iterable[Path], config: FleetConfig, previous: dict[str, Outcome]
 ) -> tuple[list[LogTask], list[Outcome]]:
-    """The tasks still to run, and the outcomes reused from the previous table."""
-    from thrustmap.fitting.df import DfOptions
+    """The tasks still to run, and the outcomes reused from the previous table.
 
+    The options key hashes the options as given (the rules' defaults are in the fingerprint of
+    their source), so planning imports no numerical library."""
     rules = rules_fingerprint()
     map_sha = file_sha256(config.map_path) if config.map_path else None
     keys: dict[float | None, tuple[dict[str, Any], str]] = {}
@@ -133,7 +139,7 @@ def plan(
     for p in paths:
         mass = mass_for(p, config)
         if mass not in keys:
-            opts = asdict(DfOptions(**{**config.df_options, "mass_kg": mass}))  # validated
+            opts = {**config.df_options, "mass_kg": mass}
             keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules))
         opts, key = keys[mass]
         prev = previous.get(str(p))
@@ -240,6 +246,11 @@ def fleet_extract(
         except DataFormatError as exc:
             log.warning("the previous fleet table is unreadable, every log is redone: %s", exc)
     tasks, reused = plan(paths, config, previous)
+    if tasks:  # the options are checked once here, not once per log on the workers
+        from thrustmap.fitting.df import DfOptions
+
+        for opts in {json.dumps(t.df_options, sort_keys=True) for t in tasks}:
+            DfOptions(**json.loads(opts))
     total = len(paths)
     result = FleetResult(outcomes=list(reused), total=total, reused=len(reused))
     done = len(reused)
