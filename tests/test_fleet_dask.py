@@ -72,7 +72,7 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
     proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)  # fmt: skip
+                            text=True, start_new_session=True)  # fmt: skip
     seen: set[Any] = set()
     try:
         assert proc.stderr is not None
@@ -84,7 +84,7 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
         parent = psutil.Process(proc.pid)
         seen = set(parent.children(recursive=True))
         assert len(seen) >= 2  # the two worker processes (and their nannies)
-        proc.send_signal(signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C at a terminal: the whole process group
         _, err = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
@@ -92,6 +92,7 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
             proc.wait()
     assert proc.returncode == 130, err
     assert "interrupted" in err and "run the same command again to resume" in err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err  # the workers kept quiet
     deadline = time.monotonic() + 10
     while any(alive(p) for p in seen) and time.monotonic() < deadline:
         time.sleep(0.2)

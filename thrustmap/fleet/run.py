@@ -301,20 +301,34 @@ def local_cluster_spec(workers: int | None, memory_per_worker: int | None) -> Lo
 
 
 def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
-    """A LocalCluster of ``spec.workers`` processes, one thread each (one log at a time)."""
+    """A LocalCluster of ``spec.workers`` processes, one thread each (one log at a time).
+
+    The worker processes start with Ctrl-C ignored (an ignored signal is inherited, and Python
+    and asyncio then leave it so): a Ctrl-C at the terminal reaches the whole process group, and
+    only this process must act on it, cancelling the logs and closing the cluster in order.
+    A Ctrl-C during the few seconds of start-up is therefore ignored."""
+    import signal
+    import threading
+
     import dask
     from distributed import Client, LocalCluster
 
     quiet_dask()
     dask.config.set({"distributed.scheduler.allowed-failures": 0})
-    cluster = LocalCluster(  # type: ignore[no-untyped-call]
-        n_workers=spec.workers,
-        threads_per_worker=1,
-        processes=True,
-        memory_limit=spec.memory_limit_bytes,
-        dashboard_address=":0",
-        silence_logs=logging.ERROR,
-    )
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    try:
+        cluster = LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=spec.workers,
+            threads_per_worker=1,
+            processes=True,
+            memory_limit=spec.memory_limit_bytes,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+        )
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
     return cluster, Client(cluster)  # type: ignore[no-untyped-call]
 
 
