@@ -22,8 +22,9 @@ def _e(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _table(head: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
-    h = "".join(f"<th>{_e(c)}</th>" for c in head)
+def _table(head: Sequence[str], rows: Iterable[Sequence[str]], left: Sequence[int] = ()) -> str:
+    cls = ' class="l"'
+    h = "".join(f"<th{cls if i in left else ''}>{_e(c)}</th>" for i, c in enumerate(head))
     body = "".join("<tr>" + "".join(r) + "</tr>" for r in rows)
     return f'<div class="tw"><table><tr>{h}</tr>{body}</table></div>'
 
@@ -35,10 +36,15 @@ def _td(text: Any, left: bool = False, value: float | None = None) -> str:
 
 
 def gamma_formula(coefficients: Sequence[float]) -> str:
-    return " + ".join(
-        f"{c:.6g}·B^{k}" if k > 1 else f"{c:.6g}·B" if k == 1 else f"{c:.6g}"
-        for k, c in enumerate(coefficients)
-    )
+    """γ(B) as text: ``1.6091 − 0.020368·B``."""
+    text = ""
+    for k, c in enumerate(coefficients):
+        term = f"{abs(c):.6g}" + ("" if k == 0 else "·B" if k == 1 else f"·B^{k}")
+        if k == 0:
+            text = f"{c:.6g}"
+        else:
+            text += f" {'−' if c < 0 else '+'} {term}"
+    return text
 
 
 def _svg(g: Group, width: int = 420, height: int = 220) -> str:
@@ -54,7 +60,7 @@ def _svg(g: Group, width: int = 420, height: int = 220) -> str:
     ymin, ymax = min(ys) + blo, max(ys) + bhi
     pad = 0.05 * (ymax - ymin or 0.01)
     ymin, ymax = ymin - pad, ymax + pad
-    ml, mr, mt, mb = 52, 12, 10, 34
+    ml, mr, mt, mb = 52, 26, 10, 34
 
     def x(b: float) -> float:
         return ml + (b - lo) / ((hi - lo) or 1.0) * (width - ml - mr)
@@ -140,7 +146,9 @@ def render(outcomes: list[Outcome], groups: list[Group], title: str) -> str:
     )
     parts.append(
         _table(
-            ["group", "format", "motors", "logs", "Df samples", "voltage V", "status", "γ(B)"], rows
+            ["group", "format", "motors", "logs", "Df samples", "voltage V", "status", "γ(B)"],
+            rows,
+            left=(0, 1, 2, 6, 7),
         )
     )
     parts.append("</section><section id='gamma'><h2>γ(B) per group</h2>")
@@ -203,7 +211,9 @@ def render(outcomes: list[Outcome], groups: list[Group], title: str) -> str:
             names += f", ... and {len(logs) - MAX_LOGS_LISTED} more"
         rrows.append([_td(len(logs), value=len(logs)), _td(reason, left=True),
                       _td(names, left=True)])  # fmt: skip
-    parts.append(_table(["logs", "reason", "files"], rrows) if rrows else "<p>None.</p>")
+    parts.append(
+        _table(["logs", "reason", "files"], rrows, left=(1, 2)) if rrows else "<p>None.</p>"
+    )
     parts.append("</section></main></body></html>")
     return "".join(parts)
 
