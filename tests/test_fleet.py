@@ -148,6 +148,7 @@ def test_bad_requests_are_one_line_and_exit_2(
             "expected e.g. 2GiB",
         ),  # fmt: skip
     ]
+    cases.append((["fleet", "gamma", str(tmp_path / "never-extracted")], "fleet table not found"))
     bad_masses = tmp_path / "m.csv"
     bad_masses.write_text("pattern,mass_kg\npx4*,1.0\napquad*,heavy\n", encoding="utf-8")
     cases.append(

@@ -262,9 +262,9 @@ def gamma_cmd(
 
     if min_logs < 1 or min_samples < 10 or min_span_v < 0:
         raise ConfigError("--min-logs ≥ 1, --min-samples ≥ 10 and --min-span-v ≥ 0 expected")
+    outcomes = read_table(out_dir / TABLE_NAME)
     report = report_path or out_dir / "fleet-report.html"
     check_output_path(report, inputs=[*([map_path] if map_path else [])], what="fleet report")
-    outcomes = read_table(out_dir / TABLE_NAME)
     tmap = ThrustMap.load(map_path) if map_path else None
     groups = fleet_gamma(
         outcomes,

@@ -14,17 +14,18 @@ the log again.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
+import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from thrustmap.core.errors import ThrustmapError
-from thrustmap.core.files import atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -236,13 +237,25 @@ def _load_stored(task: LogTask, out: Outcome) -> dict[str, Any] | None:
 
 
 def _store(task: LogTask, out: Outcome) -> None:
+    """Write the outcome beside the Df, atomically (a temporary file renamed over it) but not
+    fsync'd: it is a cache for resuming, and a torn or missing one only means the log is redone
+    (``_load_stored`` rejects anything it cannot parse). The Df itself is written by
+    ``write_df``, durably."""
+    path = _outcome_path(task, out.sha256)
+    text = json.dumps({"version": OUTCOME_VERSION, "outcome": out.to_dict()}, default=str) + "\n"
+    tmp = None
     try:
-        atomic_write_text(
-            _outcome_path(task, out.sha256),
-            json.dumps({"version": OUTCOME_VERSION, "outcome": out.to_dict()}, default=str) + "\n",
-        )
-    except ThrustmapError as exc:  # the outcome still reaches the table; only resume suffers
-        out.warnings.append(f"outcome not stored for resume: {one_line(exc)}")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".outcome-", suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:  # the outcome still reaches the table; only resuming suffers
+        out.warnings.append(f"outcome not stored for resume: {exc.strerror or exc}")
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def _extract(task: LogTask, out: Outcome) -> None:
