@@ -48,6 +48,10 @@ def warm_up() -> None:
     import thrustmap.fitting.mapfile  # noqa: F401
 
 
+def _warm(_: int) -> None:
+    warm_up()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", type=int, default=160, help="good logs (split over 4 airframes)")
@@ -120,6 +124,26 @@ def main() -> None:
                   f"{startup_s:.1f} s, not included; with it {n / (took + startup_s):.1f} logs/s); "
                   f"in-task {in_task[str(workers)] * 1e3:.0f} ms per log, workers idle "
                   f"{idle * 1e3:.1f} ms per log (scheduling)")  # fmt: skip
+
+        # the machine's own ceiling for two processes: a plain process pool, no Dask
+        from concurrent.futures import ProcessPoolExecutor
+
+        from thrustmap.fleet.discover import discover
+        from thrustmap.fleet.task import process_log
+
+        pool_s = float("inf")
+        with ProcessPoolExecutor(2) as pool:
+            list(pool.map(_warm, range(2)))
+            for k in range(a.repeat):
+                cfg = config_for(root, root / f"out-pool-{k}")
+                (cfg.out_dir / "df").mkdir(parents=True)
+                tasks, _ = run.plan(discover(sources), cfg, {})
+                t0 = time.perf_counter()
+                list(pool.map(process_log, tasks))
+                pool_s = min(pool_s, time.perf_counter() - t0)
+        print(f"{'2 plain processes':24s} {n / pool_s:7.1f} logs/s   "
+              f"{n / pool_s / results['serial']:.2f}× serial (a ProcessPoolExecutor, no Dask: "
+              "what this machine gives two processes right now)")  # fmt: skip
 
         t0 = time.perf_counter()
         r = run.fleet_extract(sources, config_for(root, root / "out-serial-0"))
