@@ -57,7 +57,7 @@ def main() -> None:
     ap.add_argument("--logs", type=int, default=160, help="good logs (split over 4 airframes)")
     ap.add_argument("--seconds", type=float, default=60.0, help="flight time per log")
     ap.add_argument("--rate-hz", type=float, default=50.0, help="log rate")
-    ap.add_argument("--repeat", type=int, default=2, help="runs per mode; the best is shown")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per mode; the best is shown")
     a = ap.parse_args()
     print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} "
           "(a loaded machine understates the workers' gain: rerun when it is idle)")  # fmt: skip
@@ -75,75 +75,71 @@ def main() -> None:
         sources = [fleet.folder]
         warm_up()
 
-        results: dict[str, float] = {}
-        in_task: dict[str, float] = {}  # mean seconds inside process_log per log
-        serial_s = float("inf")
-        for k in range(a.repeat):
-            out = root / f"out-serial-{k}"
-            t0 = time.perf_counter()
-            r = run.fleet_extract(sources, config_for(root, out))
-            took_k = time.perf_counter() - t0
-            assert r.reused == 0 and len(r.outcomes) == n
-            if took_k < serial_s:
-                serial_s = took_k
-                in_task["serial"] = sum(o.seconds for o in r.outcomes) / n
-        results["serial"] = n / serial_s
-        per_log_s = serial_s / n
-        print(f"{'serial loop (baseline)':24s} {results['serial']:7.1f} logs/s   "
-              f"({per_log_s * 1e3:.0f} ms per log, {in_task['serial'] * 1e3:.0f} ms of it "
-              "inside the log's task)")  # fmt: skip
-
-        for workers in (1, 2):
-            spec = run.local_cluster_spec(workers, None)
-            t0 = time.perf_counter()
-            cluster, client = run.start_local_cluster(spec)
-            client.run(warm_up)
-            startup_s = time.perf_counter() - t0
-            took = float("inf")
-            try:
-                for k in range(a.repeat):
-                    out = root / f"out-{workers}-{k}"
-                    t0 = time.perf_counter()
-                    r = run.fleet_extract(
-                        sources,
-                        config_for(root, out),
-                        connect=lambda c=client, w=workers: (c, 2 * w),
-                    )
-                    took_k = time.perf_counter() - t0
-                    assert r.reused == 0 and len(r.outcomes) == n
-                    if took_k < took:
-                        took = took_k
-                        in_task[str(workers)] = sum(o.seconds for o in r.outcomes) / n
-            finally:
-                client.close()
-                cluster.close()
-            results[str(workers)] = n / took
-            idle = (took * workers - in_task[str(workers)] * n) / n
-            print(f"{f'{workers} Dask worker(s)':24s} {n / took:7.1f} logs/s   "
-                  f"{n / took / results['serial']:.2f}× serial (cluster start-up "
-                  f"{startup_s:.1f} s, not included; with it {n / (took + startup_s):.1f} logs/s); "
-                  f"in-task {in_task[str(workers)] * 1e3:.0f} ms per log, workers idle "
-                  f"{idle * 1e3:.1f} ms per log (scheduling)")  # fmt: skip
-
-        # the machine's own ceiling for two processes: a plain process pool, no Dask
+        # Every mode is ready before the clock starts (clusters up, pool warm), and the modes
+        # take turns within each repeat, so a change in the machine's load hits them alike.
         from concurrent.futures import ProcessPoolExecutor
 
         from thrustmap.fleet.discover import discover
         from thrustmap.fleet.task import process_log
 
-        pool_s = float("inf")
-        with ProcessPoolExecutor(2) as pool:
-            list(pool.map(_warm, range(2)))
+        clusters: dict[int, tuple[object, object]] = {}
+        startup: dict[int, float] = {}
+        for workers in (1, 2):
+            t0 = time.perf_counter()
+            clusters[workers] = run.start_local_cluster(run.local_cluster_spec(workers, None))
+            clusters[workers][1].run(warm_up)  # type: ignore[attr-defined]
+            startup[workers] = time.perf_counter() - t0
+        pool = ProcessPoolExecutor(2)
+        list(pool.map(_warm, range(2)))
+        best: dict[str, float] = {}
+        in_task: dict[str, float] = {}  # mean seconds inside process_log per log, best run
+        try:
             for k in range(a.repeat):
-                cfg = config_for(root, root / f"out-pool-{k}")
-                (cfg.out_dir / "df").mkdir(parents=True)
-                tasks, _ = run.plan(discover(sources), cfg, {})
-                t0 = time.perf_counter()
-                list(pool.map(process_log, tasks))
-                pool_s = min(pool_s, time.perf_counter() - t0)
-        print(f"{'2 plain processes':24s} {n / pool_s:7.1f} logs/s   "
-              f"{n / pool_s / results['serial']:.2f}× serial (a ProcessPoolExecutor, no Dask: "
-              "what this machine gives two processes right now)")  # fmt: skip
+                for mode in ("serial", "1", "2", "pool"):
+                    cfg = config_for(root, root / f"out-{mode}-{k}")
+                    t0 = time.perf_counter()
+                    if mode == "pool":
+                        (cfg.out_dir / "df").mkdir(parents=True)
+                        tasks, _ = run.plan(discover(sources), cfg, {})
+                        t0 = time.perf_counter()
+                        outcomes = list(pool.map(process_log, tasks))
+                        took, spent = time.perf_counter() - t0, None
+                    else:
+                        connect = None
+                        if mode != "serial":
+                            w = int(mode)
+                            connect = lambda c=clusters[w][1], w=w: (c, 2 * w)  # noqa: E731
+                        r = run.fleet_extract(sources, cfg, connect=connect)
+                        took = time.perf_counter() - t0
+                        assert r.reused == 0 and len(r.outcomes) == n
+                        outcomes = []
+                        spent = sum(o.seconds for o in r.outcomes) / n
+                    if took < best.get(mode, float("inf")):
+                        best[mode] = took
+                        if spent is not None:
+                            in_task[mode] = spent
+                    del outcomes
+        finally:
+            pool.shutdown()
+            for cluster, client in clusters.values():
+                client.close()  # type: ignore[attr-defined]
+                cluster.close()  # type: ignore[attr-defined]
+        results = {mode: n / t for mode, t in best.items()}
+        serial_s = best["serial"]
+        per_log_s = serial_s / n
+        print(f"{'serial loop (baseline)':24s} {results['serial']:7.1f} logs/s   "
+              f"({per_log_s * 1e3:.0f} ms per log, {in_task['serial'] * 1e3:.0f} ms of it "
+              "inside the log's task)")  # fmt: skip
+        for workers in (1, 2):
+            m = str(workers)
+            idle = (best[m] * workers - in_task[m] * n) / n
+            print(f"{f'{workers} Dask worker(s)':24s} {results[m]:7.1f} logs/s   "
+                  f"{results[m] / results['serial']:.2f}× serial (cluster start-up "
+                  f"{startup[workers]:.1f} s, not included); in-task {in_task[m] * 1e3:.0f} ms "
+                  f"per log, workers idle {idle * 1e3:.1f} ms per log (scheduling)")  # fmt: skip
+        print(f"{'2 plain processes':24s} {results['pool']:7.1f} logs/s   "
+              f"{results['pool'] / results['serial']:.2f}× serial (a ProcessPoolExecutor, no "
+              "Dask: what this machine gives two processes right now)")  # fmt: skip
 
         t0 = time.perf_counter()
         r = run.fleet_extract(sources, config_for(root, root / "out-serial-0"))

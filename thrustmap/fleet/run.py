@@ -314,7 +314,14 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
     from distributed import Client, LocalCluster
 
     quiet_dask()
-    dask.config.set({"distributed.scheduler.allowed-failures": 0})
+    dask.config.set(
+        {
+            "distributed.scheduler.allowed-failures": 0,
+            # the workers' statistical profiler samples every thread's stack every 10 ms: on
+            # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
+            "distributed.worker.profile.enabled": False,
+        }
+    )
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
     try:
