@@ -113,13 +113,14 @@ def test_an_existing_scheduler_gives_the_same_table(
     fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
 ) -> None:
     sched_file = tmp_path / "scheduler.json"
-    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    dask = [sys.executable, "-m", "dask"]  # the `dask` command of this environment
     started: list[subprocess.Popen[bytes]] = []
     try:
         started.append(
             subprocess.Popen(
                 [
                     *dask,
+                    "scheduler",
                     "--scheduler-file",
                     str(sched_file),
                     "--port",
@@ -141,9 +142,8 @@ def test_an_existing_scheduler_gives_the_same_table(
         started.append(
             subprocess.Popen(
                 [
-                    sys.executable,
-                    "-m",
-                    "distributed.cli.dask_worker",
+                    *dask,
+                    "worker",
                     address,
                     "--nworkers",
                     "2",
