@@ -240,3 +240,34 @@ def test_fleet_gamma_is_gamma_fit_per_airframe_with_the_default_loss(
     assert code == 0
     assert stdout.count("too small: 2 logs") == 4 and "0 of 4 groups fitted" in stdout
     assert (out / "fleet-report.html").is_file()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_fifo_never_blocks_the_fleet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    os.mkfifo(logs / "pipe.ulg")  # opening it for reading would wait for a writer forever
+    (logs / "empty.bin").write_bytes(b"")
+    out = tmp_path / "out"
+    code, _, err = run_cli(
+        ["fleet", "extract", str(logs), "-o", str(out), "--mass-kg", "1", "--workers", "0"], capsys
+    )
+    assert code == 0, err
+    assert [Path(o.path).name for o in read_table(out / "fleet.parquet")] == ["empty.bin"]
+    code, _, err = run_cli(
+        [
+            "fleet",
+            "extract",
+            str(logs / "pipe.ulg"),
+            "-o",
+            str(out),
+            "--mass-kg",
+            "1",
+            "--workers",
+            "0",
+        ],  # fmt: skip
+        capsys,
+    )
+    assert code == 0, err
+    (o,) = read_table(out / "fleet.parquet")
+    assert o.status == "refused" and "not a regular file" in o.reason

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import glob
 import os
+import stat
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -13,12 +14,21 @@ from thrustmap.core.errors import ConfigError
 LOG_SUFFIXES = frozenset({".ulg", ".bin", ".tlog", ".bbl", ".bfl", ".db3", ".mcap", ".csv"})
 
 
+def _regular(path: Path) -> bool:
+    """A regular file (a FIFO, socket or device named like a log would block or never end)."""
+    try:
+        return stat.S_ISREG(path.stat().st_mode)
+    except OSError:
+        return False
+
+
 def _walk(folder: Path) -> Iterable[Path]:
     for root, dirs, files in os.walk(folder, followlinks=False):
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         for name in sorted(files):
-            if Path(name).suffix.lower() in LOG_SUFFIXES and not name.startswith("."):
-                yield Path(root) / name
+            p = Path(root) / name
+            if p.suffix.lower() in LOG_SUFFIXES and not name.startswith(".") and _regular(p):
+                yield p
 
 
 def discover(
@@ -28,7 +38,9 @@ def discover(
 
     A folder contributes the files under it with a flight-log suffix (hidden ones and anything
     under ``exclude``, the fleet's own output folder, skipped); a glob its matches; a file itself.
-    A source that names nothing is refused (a typo must not look like an empty fleet).
+    A source that names nothing is refused (a typo must not look like an empty fleet). Only
+    regular files are taken from folders and globs; a FIFO or device named explicitly is listed
+    and refused by its task, unread.
     """
     found: set[Path] = set()
     skip = exclude.resolve() if exclude is not None else None
@@ -37,13 +49,13 @@ def discover(
         p = Path(text)
         if p.is_dir():
             hits = list(_walk(p))
-        elif p.is_file():
-            hits = [p]
+        elif p.exists() and not glob.has_magic(text):
+            hits = [p]  # named explicitly: read, or refused with its reason if not a file
         elif glob.has_magic(text):
             hits = []
             for m in sorted(glob.glob(text, recursive=True)):
                 mp = Path(m)
-                hits.extend(_walk(mp) if mp.is_dir() else [mp] if mp.is_file() else [])
+                hits.extend(_walk(mp) if mp.is_dir() else [mp] if _regular(mp) else [])
             if not hits:
                 raise ConfigError("the pattern matches no file", file=text)
         else:

@@ -314,25 +314,24 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
     from distributed import Client, LocalCluster
 
     quiet_dask()
-    dask.config.set(
-        {
-            "distributed.scheduler.allowed-failures": 0,
-            # the workers' statistical profiler samples every thread's stack every 10 ms: on
-            # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
-            "distributed.worker.profile.enabled": False,
-        }
-    )
+    settings = {
+        "distributed.scheduler.allowed-failures": 0,
+        # the workers' statistical profiler samples every thread's stack every 10 ms: on
+        # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
+        "distributed.worker.profile.enabled": False,
+    }
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
     try:
-        cluster = LocalCluster(  # type: ignore[no-untyped-call]
-            n_workers=spec.workers,
-            threads_per_worker=1,
-            processes=True,
-            memory_limit=spec.memory_limit_bytes,
-            dashboard_address=":0",
-            silence_logs=logging.ERROR,
-        )
+        with dask.config.set(settings):
+            cluster = LocalCluster(  # type: ignore[no-untyped-call]
+                n_workers=spec.workers,
+                threads_per_worker=1,
+                processes=True,
+                memory_limit=spec.memory_limit_bytes,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)

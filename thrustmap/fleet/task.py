@@ -19,13 +19,14 @@ import hashlib
 import json
 import logging
 import os
+import stat
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from thrustmap.core.errors import ThrustmapError
+from thrustmap.core.errors import DataFormatError, ThrustmapError
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +169,14 @@ def airframe_key(airframe: dict[str, Any]) -> str:
 
 
 def _stat(path: str) -> tuple[int, int]:
-    st = os.stat(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise DataFormatError("flight log not found (removed during the run?)", file=path) from None
+    except OSError as exc:
+        raise DataFormatError(f"cannot read the flight log: {exc.strerror}", file=path) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DataFormatError("not a regular file (a FIFO or device is not read)", file=path)
     return st.st_size, st.st_mtime_ns
 
 
