@@ -174,3 +174,46 @@ def test_an_existing_scheduler_gives_the_same_table(
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path) -> None:
+    """What the memory limit does to a worker (its nanny kills it): the log it held is refused
+    with that reason, not retried, and the other logs are extracted on the restarted worker."""
+    import threading
+
+    from thrustmap.fleet import run
+
+    small = make_fleet(tmp_path, 2, duration_s=60.0, rate_hz=50.0, corrupt=False, no_mass=0)
+    config = run.FleetConfig(
+        out_dir=tmp_path / "out",
+        df_options={"rotors": None},
+        masses=run.read_masses(small.masses_csv),
+        map_path=small.stand_map,
+    )
+    cluster, client = run.start_local_cluster(run.LocalClusterSpec(1, 1 << 30))
+    killed: list[str] = []
+
+    def kill_first_busy_worker() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            busy = {w: keys for w, keys in client.processing().items() if keys}
+            if busy:
+                pid = client.run(os.getpid, workers=list(busy))[next(iter(busy))]
+                killed.append(str(busy[next(iter(busy))][0]))
+                os.kill(pid, signal.SIGKILL)
+                return
+            time.sleep(0.005)
+
+    try:
+        client.run(lambda: __import__("thrustmap.fitting.df"))
+        killer = threading.Thread(target=kill_first_busy_worker)
+        killer.start()
+        result = run.fleet_extract([small.folder], config, connect=lambda: (client, 1))
+        killer.join()
+    finally:
+        client.close()
+        cluster.close()
+    assert killed
+    died = [o for o in result.outcomes if o.status == "refused"]
+    assert len(died) == 1 and "the worker holding this log died" in died[0].reason
+    assert sum(o.status == "ok" for o in result.outcomes) == len(small.good) - 1
