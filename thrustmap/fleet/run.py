@@ -362,7 +362,9 @@ def stop_children(before: set[int], timeout_s: float = 5.0) -> list[int]:
     import psutil
 
     me = psutil.Process()
-    left = [c for c in me.children(recursive=True) if c.pid not in before]
+    left = [
+        c for c in me.children(recursive=True) if c.pid not in before and not _resource_tracker(c)
+    ]
     for c in left:
         with contextlib.suppress(psutil.Error):
             c.terminate()
@@ -372,6 +374,16 @@ def stop_children(before: set[int], timeout_s: float = 5.0) -> list[int]:
             c.kill()
     psutil.wait_procs(alive, timeout=timeout_s)
     return [c.pid for c in left]
+
+
+def _resource_tracker(proc: Any) -> bool:
+    """multiprocessing's resource tracker: one per parent, it exits when the parent does."""
+    import psutil
+
+    try:
+        return any("multiprocessing.resource_tracker" in a for a in proc.cmdline())
+    except psutil.Error:
+        return False
 
 
 def child_pids() -> set[int]:
