@@ -271,3 +271,17 @@ def test_a_fifo_never_blocks_the_fleet(tmp_path: Path, capsys: pytest.CaptureFix
     assert code == 0, err
     (o,) = read_table(out / "fleet.parquet")
     assert o.status == "refused" and "not a regular file" in o.reason
+
+
+def test_without_the_fleet_extra_the_command_says_how_to_get_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a)
+    )
+    code, _, err = run_cli(["fleet", "extract", str(tmp_path), "-o", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert err.strip() == "error: thrustmap fleet needs pyarrow: pip install 'thrustmap[fleet]'"

@@ -34,6 +34,17 @@ def _parse_size(text: str | None) -> int | None:
     return int(value)
 
 
+def _require(*modules: str) -> None:
+    """The fleet extra's libraries, or one line saying how to get them."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ConfigError(
+            f"thrustmap fleet needs {' and '.join(missing)}: pip install 'thrustmap[fleet]'"
+        )
+
+
 class _Bar:
     """A progress bar on stderr when it is a terminal, else a line every 10 %."""
 
@@ -127,6 +138,7 @@ def extract_cmd(
     table of outcomes (OUT_DIR/fleet.parquet). A bad log is listed with its reason and never
     stops the fleet. A re-run skips logs already done with the same content and options.
     """
+    _require("pyarrow", *(() if workers == 0 else ("distributed",)))
     from thrustmap.fleet import run
 
     if workers is not None and scheduler is not None:
@@ -254,6 +266,7 @@ def gamma_cmd(
     """
     import json
 
+    _require("pyarrow")
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
     from thrustmap.fleet.groups import fleet_gamma
