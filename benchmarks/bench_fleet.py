@@ -1,0 +1,170 @@
+"""Fleet throughput: logs per second for the plain serial loop, 1 and 2 local Dask workers.
+
+A synthetic fleet from the flight simulator (tests/support): four airframes (PX4 ULog of both
+topic generations, ArduPilot DataFlash of Copter 4 and Copter ≤ 3.3), each log on its own slice
+of a 6S battery, plus corrupt files. The same fleet is extracted three times into fresh output
+folders (nothing reused): in this process (``fleet extract --workers 0``), and on a local
+cluster of 1 and of 2 worker processes. Cluster start-up is timed apart from the run (it is paid
+once per command, not per log). Then a re-run with nothing new, and the projection for 100,000
+logs on 32 workers from the measured per-log cost (docs/fleet.md explains it).
+
+    python benchmarks/bench_fleet.py [--logs 160] [--seconds 60] [--rate-hz 50]
+
+Baseline: the serial loop. Target: 2 workers ≥ 1.7× its throughput on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))  # the fixture generators live in tests/support
+sys.path.insert(0, str(ROOT))
+
+from support.fleet_gen import AIRFRAMES, make_fleet  # noqa: E402
+
+from thrustmap.fleet import run  # noqa: E402
+
+
+def config_for(root: Path, out: Path) -> run.FleetConfig:
+    return run.FleetConfig(
+        out_dir=out,
+        df_options={"rotors": None},
+        masses=run.read_masses(root / "masses.csv"),
+        map_path=root / "stand-map.json",
+    )
+
+
+def warm_up() -> None:
+    """Import what a log needs (numpy, pandas, the readers) before the clock starts."""
+    import thrustmap.fitting.df  # noqa: F401
+    import thrustmap.fitting.flightlogs.dataflash  # noqa: F401
+    import thrustmap.fitting.flightlogs.ulog  # noqa: F401
+    import thrustmap.fitting.mapfile  # noqa: F401
+
+
+def _warm(_: int) -> None:
+    warm_up()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", type=int, default=160, help="good logs (split over 4 airframes)")
+    ap.add_argument("--seconds", type=float, default=60.0, help="flight time per log")
+    ap.add_argument("--rate-hz", type=float, default=50.0, help="log rate")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per mode; the best is shown")
+    a = ap.parse_args()
+    print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} "
+          "(a loaded machine understates the workers' gain: rerun when it is idle)")  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        t0 = time.perf_counter()
+        fleet = make_fleet(root, max(1, a.logs // len(AIRFRAMES)), duration_s=a.seconds,
+                           rate_hz=a.rate_hz)  # fmt: skip
+        n = len(fleet.good) + len(fleet.corrupt) + len(fleet.no_mass)
+        size = sum(p.stat().st_size for p in fleet.folder.rglob("*") if p.is_file())
+        print(f"fleet: {n} logs ({len(fleet.good)} good, {len(fleet.corrupt)} corrupt, "
+              f"{len(fleet.no_mass)} without a mass), {size / 1e6:.1f} MB, "
+              f"{a.seconds:g} s at {a.rate_hz:g} Hz each; generated in "
+              f"{time.perf_counter() - t0:.1f} s; {os.cpu_count()} cores")  # fmt: skip
+        sources = [fleet.folder]
+        warm_up()
+
+        # Every mode is ready before the clock starts (clusters up, pool warm), and the modes
+        # take turns within each repeat, so a change in the machine's load hits them alike.
+        from concurrent.futures import ProcessPoolExecutor
+
+        from thrustmap.fleet.discover import discover
+        from thrustmap.fleet.task import process_log
+
+        clusters: dict[int, tuple[object, object]] = {}
+        startup: dict[int, float] = {}
+        for workers in (1, 2):
+            t0 = time.perf_counter()
+            clusters[workers] = run.start_local_cluster(run.local_cluster_spec(workers, None))
+            clusters[workers][1].run(warm_up)  # type: ignore[attr-defined]
+            startup[workers] = time.perf_counter() - t0
+        pool = ProcessPoolExecutor(2)
+        list(pool.map(_warm, range(2)))
+        best: dict[str, float] = {}
+        in_task: dict[str, float] = {}  # mean seconds inside process_log per log, best run
+        try:
+            for k in range(a.repeat):
+                for mode in ("serial", "1", "2", "pool"):
+                    cfg = config_for(root, root / f"out-{mode}-{k}")
+                    t0 = time.perf_counter()
+                    if mode == "pool":
+                        (cfg.out_dir / "df").mkdir(parents=True)
+                        tasks, _ = run.plan(discover(sources), cfg, {})
+                        t0 = time.perf_counter()
+                        outcomes = list(pool.map(process_log, tasks))
+                        took, spent = time.perf_counter() - t0, None
+                    else:
+                        connect = None
+                        if mode != "serial":
+                            w = int(mode)
+                            connect = lambda c=clusters[w][1], w=w: (c, 2 * w)  # noqa: E731
+                        r = run.fleet_extract(sources, cfg, connect=connect)
+                        took = time.perf_counter() - t0
+                        assert r.reused == 0 and len(r.outcomes) == n
+                        outcomes = []
+                        spent = sum(o.seconds for o in r.outcomes) / n
+                    if took < best.get(mode, float("inf")):
+                        best[mode] = took
+                        if spent is not None:
+                            in_task[mode] = spent
+                    del outcomes
+        finally:
+            pool.shutdown()
+            for cluster, client in clusters.values():
+                client.close()  # type: ignore[attr-defined]
+                cluster.close()  # type: ignore[attr-defined]
+        results = {mode: n / t for mode, t in best.items()}
+        serial_s = best["serial"]
+        per_log_s = serial_s / n
+        print(f"{'serial loop (baseline)':24s} {results['serial']:7.1f} logs/s   "
+              f"({per_log_s * 1e3:.0f} ms per log, {in_task['serial'] * 1e3:.0f} ms of it "
+              "inside the log's task)")  # fmt: skip
+        for workers in (1, 2):
+            m = str(workers)
+            idle = (best[m] * workers - in_task[m] * n) / n
+            print(f"{f'{workers} Dask worker(s)':24s} {results[m]:7.1f} logs/s   "
+                  f"{results[m] / results['serial']:.2f}× serial (cluster start-up "
+                  f"{startup[workers]:.1f} s, not included); in-task {in_task[m] * 1e3:.0f} ms "
+                  f"per log, workers idle {idle * 1e3:.1f} ms per log (scheduling)")  # fmt: skip
+        print(f"{'2 plain processes':24s} {results['pool']:7.1f} logs/s   "
+              f"{results['pool'] / results['serial']:.2f}× serial (a ProcessPoolExecutor, no "
+              "Dask: what this machine gives two processes right now)")  # fmt: skip
+
+        t0 = time.perf_counter()
+        r = run.fleet_extract(sources, config_for(root, root / "out-serial-0"))
+        again_s = time.perf_counter() - t0
+        print(f"re-run with nothing new: {again_s:.3f} s ({again_s / serial_s * 100:.1f} % of "
+              f"the first serial run; {r.reused} of {n} skipped)")  # fmt: skip
+        eff = results["2"] / (2 * results["1"])
+        idle1 = (n / results["1"] - in_task["1"] * n) / n  # scheduling per log, 1 worker
+        cost_s = in_task["serial"] + max(idle1, 0.0)  # a log on a worker with a core to itself
+        proj = 100_000 * cost_s / 32
+        print(f"measured 2-worker efficiency here {eff:.2f} (logs/s per worker vs 1 worker)")
+        print(f"projection: 100,000 such logs on 32 workers (a core each) ≈ {proj / 60:.1f} min "
+              f"= 100,000 × ({in_task['serial'] * 1e3:.0f} ms in the task + {idle1 * 1e3:.1f} ms "
+              f"scheduling) / 32, plus start-up; the serial loop ≈ "
+              f"{100_000 * per_log_s / 3600:.1f} h")  # fmt: skip
+        print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        grow = in_task["2"] / in_task["1"]
+        if grow > 1.3:
+            print(f"note: a log's in-task time grew {grow:.2f}× from 1 to 2 workers: the two "
+                  "cores were shared with other work, so the 2-worker figure is CPU-bound, not "
+                  "scheduling-bound")  # fmt: skip
+        target = results["2"] / results["serial"]
+        print(f"target 2 workers ≥ 1.7× serial: {target:.2f}× "
+              f"({'met' if target >= 1.7 else 'NOT met'})")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,219 @@
+"""`fleet extract` on Dask: a local cluster interrupted leaves no process; a separately started
+`dask scheduler` + `dask worker` gives the same table as the plain serial loop."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from support.fleet_gen import Fleet, make_fleet
+
+from thrustmap.cli import main
+from thrustmap.fleet.table import read_table
+
+pytest.importorskip("distributed")
+psutil = pytest.importorskip("psutil")
+
+ROOT = Path(__file__).resolve().parent.parent
+#: what differs between two runs of the same fleet (timing, and whether it was reused)
+VOLATILE = ("seconds", "reused")
+
+
+def env() -> dict[str, str]:
+    e = dict(os.environ)
+    e["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "tests"), e.get("PYTHONPATH", "")])
+    return e
+
+
+def comparable(table: Path) -> list[dict[str, Any]]:
+    rows = []
+    for o in read_table(table):
+        d = o.to_dict()
+        for k in VOLATILE:
+            d.pop(k)
+        rows.append(json.loads(json.dumps(d, default=str).replace("NaN", "null")))
+    return rows
+
+
+def args(fleet: Fleet, out: Path, *extra: str) -> list[str]:
+    return ["fleet", "extract", str(fleet.folder), "-o", str(out), "--masses",
+            str(fleet.masses_csv), "--map", str(fleet.stand_map), *extra]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Fleet:
+    return make_fleet(tmp_path_factory.mktemp("fleet"), 30)
+
+
+@pytest.fixture(scope="module")
+def serial_table(fleet: Fleet, tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, Any]]:
+    out = tmp_path_factory.mktemp("serial")
+    main(args(fleet, out, "--workers", "0", "--quiet"))
+    return comparable(out / "fleet.parquet")
+
+
+def alive(p: Any) -> bool:
+    try:
+        return bool(p.is_running() and p.status() != psutil.STATUS_ZOMBIE)
+    except psutil.Error:
+        return False
+
+
+def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
+    proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)  # fmt: skip
+    seen: set[Any] = set()
+    try:
+        assert proc.stderr is not None
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:  # wait until the workers are busy with logs
+            if line.startswith("progress:"):
+                break
+            assert time.monotonic() < deadline, "no progress in 120 s"
+        parent = psutil.Process(proc.pid)
+        seen = set(parent.children(recursive=True))
+        assert len(seen) >= 2  # the two worker processes (and their nannies)
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C at a terminal: the whole process group
+        _, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "run the same command again to resume" in err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err  # the workers kept quiet
+    deadline = time.monotonic() + 10
+    while any(alive(p) for p in seen) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [p.pid for p in seen if alive(p)]
+    for pid in left:  # never leave them behind, even when the test fails
+        os.kill(pid, signal.SIGKILL)
+    assert left == []
+    partial = read_table(out / "fleet.parquet")
+    assert 0 < len(partial) < len(serial_table)
+    # the same command again resumes: what was done is reused, the table is whole
+    main(args(fleet, out, "--workers", "2", "--quiet"))
+    whole = read_table(out / "fleet.parquet")
+    assert sum(o.reused for o in whole) >= len(partial)
+    assert comparable(out / "fleet.parquet") == serial_table
+
+
+def test_an_existing_scheduler_gives_the_same_table(
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    sched_file = tmp_path / "scheduler.json"
+    dask = [sys.executable, "-m", "dask"]  # the `dask` command of this environment
+    started: list[subprocess.Popen[bytes]] = []
+    try:
+        started.append(
+            subprocess.Popen(
+                [
+                    *dask,
+                    "scheduler",
+                    "--scheduler-file",
+                    str(sched_file),
+                    "--port",
+                    "0",
+                    "--dashboard-address",
+                    ":0",
+                    "--host",
+                    "127.0.0.1",
+                ],  # fmt: skip
+                env=env(),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+        )
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        started.append(
+            subprocess.Popen(
+                [
+                    *dask,
+                    "worker",
+                    address,
+                    "--nworkers",
+                    "2",
+                    "--nthreads",
+                    "1",
+                    "--memory-limit",
+                    "1GiB",
+                    "--no-dashboard",
+                ],  # fmt: skip
+                env=env(),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+        )
+        from distributed import Client
+
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=90)
+        out = tmp_path / "out"
+        main(args(fleet, out, "--scheduler", address, "--quiet"))
+        assert comparable(out / "fleet.parquet") == serial_table
+    finally:
+        for p in reversed(started):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(started):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path) -> None:
+    """What the memory limit does to a worker (its nanny kills it): the log it held is refused
+    with that reason, not retried, and the other logs are extracted on the restarted worker."""
+    import threading
+
+    from thrustmap.fleet import run
+
+    small = make_fleet(tmp_path, 2, duration_s=60.0, rate_hz=50.0, corrupt=False, no_mass=0)
+    config = run.FleetConfig(
+        out_dir=tmp_path / "out",
+        df_options={"rotors": None},
+        masses=run.read_masses(small.masses_csv),
+        map_path=small.stand_map,
+    )
+    cluster, client = run.start_local_cluster(run.LocalClusterSpec(1, 1 << 30))
+    killed: list[str] = []
+
+    def kill_first_busy_worker() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            busy = {w: keys for w, keys in client.processing().items() if keys}
+            if busy:
+                pid = client.run(os.getpid, workers=list(busy))[next(iter(busy))]
+                killed.append(str(busy[next(iter(busy))][0]))
+                os.kill(pid, signal.SIGKILL)
+                return
+            time.sleep(0.005)
+
+    try:
+        client.run(lambda: __import__("thrustmap.fitting.df"))
+        killer = threading.Thread(target=kill_first_busy_worker)
+        killer.start()
+        result = run.fleet_extract([small.folder], config, connect=lambda: (client, 1))
+        killer.join()
+    finally:
+        client.close()
+        cluster.close()
+    assert killed
+    died = [o for o in result.outcomes if o.status == "refused"]
+    assert len(died) == 1 and "the worker holding this log died" in died[0].reason
+    assert sum(o.status == "ok" for o in result.outcomes) == len(small.good) - 1

@@ -1,0 +1,328 @@
+"""CLI: ``fleet extract`` and ``fleet gamma`` (thin over thrustmap.fleet; dask and pyarrow load
+only inside the commands)."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+
+from thrustmap.core.errors import ConfigError
+
+SHOW_REFUSED = 20  # refused logs listed by name; the rest are counted (all are in the table)
+
+
+def _parse_size(text: str | None) -> int | None:
+    if text is None or text.lower() == "auto":
+        return None
+    units = {"": 1, "b": 1, "kb": 1e3, "mb": 1e6, "gb": 1e9, "kib": 1024, "mib": 1024**2,
+             "gib": 1024**3}  # fmt: skip
+    t = text.strip().lower()
+    num = t.rstrip("kmgib")
+    try:
+        value = float(num) * units[t[len(num) :]]
+    except (ValueError, KeyError):
+        raise ConfigError(
+            f"--memory-per-worker '{text}': expected e.g. 2GiB, 1500MB or auto"
+        ) from None
+    if value < 256 * 1024**2:
+        raise ConfigError(f"--memory-per-worker '{text}': at least 256 MiB per worker")
+    return int(value)
+
+
+def _require(*modules: str) -> None:
+    """The fleet extra's libraries, or one line saying how to get them."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ConfigError(
+            f"thrustmap fleet needs {' and '.join(missing)}: pip install 'thrustmap[fleet]'"
+        )
+
+
+class _Bar:
+    """A progress bar on stderr when it is a terminal, else a line every 10 %."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self.started = time.monotonic()
+        self.last_decile = -1
+        self.refused = 0
+        self.shown = 0.0
+
+    def __call__(self, done: int, total: int, outcome: Any) -> None:
+        self.refused += int(outcome.status == "refused")
+        rate = done / max(time.monotonic() - self.started, 1e-9)
+        frac = done / total if total else 1.0
+        text = f"{done}/{total} logs ({rate:.1f}/s, {self.refused} refused)"
+        now = time.monotonic()
+        if self.tty and (now - self.shown >= 0.1 or done >= total):
+            self.shown = now
+            width = 30
+            fill = int(frac * width)
+            sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {text}")
+            if done >= total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+        elif int(frac * 10) > self.last_decile:
+            self.last_decile = int(frac * 10)
+            sys.stderr.write(f"progress: {text}\n")
+            sys.stderr.flush()
+
+    def end(self) -> None:
+        if self.tty:
+            sys.stderr.write("\n")
+
+
+@click.group("fleet")
+def fleet_group() -> None:
+    """Df and γ(B) over a fleet of flight logs, on Dask (pip install 'thrustmap[fleet]')."""
+
+
+@fleet_group.command("extract")
+@click.argument("sources", nargs=-1, required=True)
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Output folder: fleet.parquet and df/ (created when missing).")  # fmt: skip
+@click.option("--mass-kg", type=float, help="Take-off mass (kg) of every vehicle.")
+@click.option("--masses", "masses_path", type=click.Path(path_type=Path),
+              help="CSV of pattern,mass_kg: the first glob matching a log's name or path wins.")  # fmt: skip
+@click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
+@click.option("--rotors", type=int, help="Rotor count (default: each log's frame).")
+@click.option("--thrust-source", type=click.Choice(["auto", "log", "motors", "norm"]),
+              default="auto", show_default=True)  # fmt: skip
+@click.option("--rate-hz", type=float, default=10.0, show_default=True)
+@click.option("--accel-tol", type=float, default=1.0, show_default=True)
+@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
+@click.option("--settle-s", type=float, default=2.0, show_default=True)
+@click.option("--min-height-m", type=float, default=0.5, show_default=True)
+@click.option("--climb-max", type=float, default=1.0, show_default=True)
+@click.option("--format", "fmt", help="Reader name instead of content detection.")
+@click.option("--workers", type=int,
+              help="Local Dask workers (processes, one log each at a time); default: the "
+              "machine's cores; 0: a plain serial loop without Dask.")  # fmt: skip
+@click.option("--scheduler", help="Address of an existing Dask scheduler (tcp://host:8786).")
+@click.option("--memory-per-worker", default="auto", show_default=True,
+              help="Memory limit of each local worker (e.g. 2GiB); auto: min(4 GiB, RAM/workers).")  # fmt: skip
+@click.option("--max-log-mb", type=float, default=512.0, show_default=True,
+              help="Logs larger than this are refused unread (bounds a worker's memory).")  # fmt: skip
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def extract_cmd(
+    sources: tuple[str, ...],
+    out_dir: Path,
+    mass_kg: float | None,
+    masses_path: Path | None,
+    map_path: Path | None,
+    rotors: int | None,
+    thrust_source: str,
+    rate_hz: float,
+    accel_tol: float,
+    tilt_max_deg: float,
+    settle_s: float,
+    min_height_m: float,
+    climb_max: float,
+    fmt: str | None,
+    workers: int | None,
+    scheduler: str | None,
+    memory_per_worker: str,
+    max_log_mb: float,
+    quiet: bool,
+) -> None:
+    """Extract Df from every log in SOURCES (folders, globs, files) into OUT_DIR.
+
+    Each log goes through the rules of `flightlog extract`; one Df per log (OUT_DIR/df/) and one
+    table of outcomes (OUT_DIR/fleet.parquet). A bad log is listed with its reason and never
+    stops the fleet. A re-run skips logs already done with the same content and options.
+    """
+    _require("pyarrow", *(() if workers == 0 else ("distributed",)))
+    from thrustmap.fleet import run
+
+    if workers is not None and scheduler is not None:
+        raise ConfigError("give --workers (a local cluster) or --scheduler, not both")
+    if max_log_mb <= 0:
+        raise ConfigError(f"--max-log-mb must be positive, got {max_log_mb:g}")
+    mem = _parse_size(memory_per_worker)
+    if map_path is not None and not map_path.is_file():
+        raise ConfigError("map file not found", file=str(map_path))
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError("the output must be a folder", file=str(out_dir))
+    config = run.FleetConfig(
+        out_dir=out_dir.absolute(),
+        df_options={
+            "mass_kg": mass_kg,
+            "rotors": rotors,
+            "rate_hz": rate_hz,
+            "accel_tol_mps2": accel_tol,
+            "tilt_max_deg": tilt_max_deg,
+            "settle_s": settle_s,
+            "min_height_m": min_height_m,
+            "climb_max_mps": climb_max,
+            "thrust_source": thrust_source,
+        },
+        masses=run.read_masses(masses_path) if masses_path else [],
+        map_path=map_path,
+        fmt=fmt,
+        max_log_bytes=int(max_log_mb * 2**20),
+    )
+    bar = None if quiet else _Bar()
+    before = run.child_pids()
+    started = time.monotonic()
+    holder: dict[str, Any] = {}
+
+    def connect() -> tuple[Any, int]:
+        if scheduler is not None:
+            client = holder["client"] = run.connect(scheduler)
+            threads = sum(client.nthreads().values()) or 1
+            click.echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
+            return client, 2 * threads
+        spec = run.local_cluster_spec(workers, mem)
+        click.echo(
+            f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
+            f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
+            f"{max_log_mb:g} MB refused unread",
+            err=True,
+        )
+        holder["local"] = True  # from here, whatever happens, no child may outlive the command
+        holder["cluster"], holder["client"] = run.start_local_cluster(spec)
+        return holder["client"], 2 * spec.workers
+
+    if workers == 0:
+        click.echo("serial loop in this process (no Dask)", err=True)
+    try:
+        try:
+            result = run.fleet_extract(
+                sources, config, connect=None if workers == 0 else connect, progress=bar
+            )
+        except KeyboardInterrupt:
+            if bar is not None:
+                bar.end()
+            click.echo(
+                f"interrupted: the table of the logs finished so far is in "
+                f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume",
+                err=True,
+            )
+            raise
+    finally:
+        client, cluster = holder.get("client"), holder.get("cluster")
+        # closing must not hide the real outcome (and stop_children() below is the backstop)
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close(timeout=10)
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+        if holder.get("local"):
+            run.stop_children(before)
+    elapsed = time.monotonic() - started
+    counts: dict[str, int] = {}
+    for o in result.outcomes:
+        counts[o.status] = counts.get(o.status, 0) + 1
+    click.echo(
+        f"{result.total} logs: {counts.get('ok', 0)} extracted, {counts.get('empty', 0)} with no "
+        f"steady flight, {counts.get('refused', 0)} refused; {result.reused} already done "
+        f"(skipped); {elapsed:.1f} s"
+    )
+    refused = sorted((o for o in result.outcomes if o.status == "refused"), key=lambda o: o.path)
+    for o in refused[:SHOW_REFUSED]:
+        click.echo(f"  refused: {o.reason}")
+    if len(refused) > SHOW_REFUSED:
+        click.echo(f"  ... and {len(refused) - SHOW_REFUSED} more refused (see the table)")
+    click.echo(f"wrote {result.table_path}")
+
+
+@fleet_group.command("gamma")
+@click.argument("out_dir", type=click.Path(path_type=Path))
+@click.option("--map", "map_path", type=click.Path(path_type=Path),
+              help="Stand map: each fitted group also gets OUT_DIR/gamma/KEY.map.json, the "
+              "map with that group's γ block (as `gamma fit -o`).")  # fmt: skip
+@click.option("--loss", type=click.Choice(["l1", "l2"]), default="l1", show_default=True)
+@click.option("--min-logs", type=int, default=3, show_default=True,
+              help="Groups with fewer logs are reported, not fitted.")  # fmt: skip
+@click.option("--min-samples", type=int, default=100, show_default=True,
+              help="Groups with fewer Df samples are reported, not fitted.")  # fmt: skip
+@click.option("--min-span-v", type=float, default=0.5, show_default=True,
+              help="Groups whose flown voltage spans less are reported, not fitted.")  # fmt: skip
+@click.option("-o", "--report", "report_path", type=click.Path(path_type=Path),
+              help="Fleet HTML report (default: OUT_DIR/fleet-report.html).")  # fmt: skip
+@click.option("--json", "as_json", is_flag=True, help="Print the groups as JSON.")
+def gamma_cmd(
+    out_dir: Path,
+    map_path: Path | None,
+    loss: str,
+    min_logs: int,
+    min_samples: int,
+    min_span_v: float,
+    report_path: Path | None,
+    as_json: bool,
+) -> None:
+    """Group the logs of OUT_DIR by airframe and fit γ(B) per group (the rule of `gamma fit`).
+
+    Writes OUT_DIR/fleet-gamma.json, the HTML report and, with --map, one corrected map per
+    fitted group. Groups too small or too narrow in voltage are reported, not fitted.
+    """
+    import json
+
+    _require("pyarrow")
+    from thrustmap.core.files import atomic_write_text, check_output_path
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+    from thrustmap.fleet.groups import fleet_gamma
+    from thrustmap.fleet.report import gamma_formula, write_fleet_report
+    from thrustmap.fleet.table import TABLE_NAME, read_table
+
+    if min_logs < 1 or min_samples < 10 or min_span_v < 0:
+        raise ConfigError("--min-logs ≥ 1, --min-samples ≥ 10 and --min-span-v ≥ 0 expected")
+    outcomes = read_table(out_dir / TABLE_NAME)
+    report = report_path or out_dir / "fleet-report.html"
+    check_output_path(report, inputs=[*([map_path] if map_path else [])], what="fleet report")
+    tmap = ThrustMap.load(map_path) if map_path else None
+    groups = fleet_gamma(
+        outcomes,
+        out_dir,
+        tmap,
+        loss=loss,
+        min_logs=min_logs,
+        min_samples=min_samples,
+        min_span_v=min_span_v,
+    )
+    if tmap is not None:
+        from thrustmap.fitting.gamma import corrected_map
+
+        (out_dir / "gamma").mkdir(exist_ok=True)
+        for g in groups:
+            if g.fit is not None:
+                sources = [{"path": str(p), "sha256": file_sha256(p)} for p in g.df_paths]
+                out_map = corrected_map(tmap, g.fit, sources)
+                atomic_write_text(out_dir / "gamma" / f"{g.key}.map.json", out_map.dumps())
+    summary = [g.to_dict() for g in groups]
+    atomic_write_text(
+        out_dir / "fleet-gamma.json", json.dumps(summary, indent=2, default=float) + "\n"
+    )
+    write_fleet_report(outcomes, groups, report)
+    if as_json:
+        click.echo(json.dumps(summary, indent=2, default=float))
+        return
+    for g in groups:
+        head = f"{g.label}: {len(g.logs)} logs, {g.samples} samples"
+        if g.voltage_v is not None:
+            head += f", {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V"
+        if g.fit is None:
+            click.echo(f"{head}: {g.status}: {g.reason}")
+            continue
+        band = (
+            "" if g.band is None else f", 95 % of samples within {g.band[0]:+.4f}/{g.band[1]:+.4f}"
+        )
+        click.echo(
+            f"{head}: γ(B) = {gamma_formula(g.fit.correction.coefficients)} (degree "
+            f"{g.fit.degree}{band})"
+        )
+    refused = sum(o.status == "refused" for o in outcomes)
+    click.echo(
+        f"{sum(g.fit is not None for g in groups)} of {len(groups)} groups fitted; "
+        f"{refused} logs refused (by reason in the report); wrote {report} and "
+        f"{out_dir / 'fleet-gamma.json'}"
+        + (f" and the corrected maps in {out_dir / 'gamma'}" if tmap is not None else "")
+    )

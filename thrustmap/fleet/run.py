@@ -1,0 +1,392 @@
+"""Running a fleet: plan (what is already done), then the logs serially or on a Dask cluster.
+
+Bounded by construction: every worker runs one thread, so it holds one log at a time; the
+client keeps at most ``window`` logs submitted (2 per worker thread), so the scheduler and the
+driver never hold the whole fleet; a log larger than ``max_log_bytes`` is refused unread; and a
+local cluster's workers each get a ``memory_limit`` (a worker that exceeds it is restarted by
+its nanny and the log it held is recorded as refused, not retried).
+
+Resumable: a log whose path, size, modification time and options key match the previous table
+is not touched; any other log is hashed by its worker, and when ``OUT_DIR/df`` already holds the
+outcome for that content and these options it is reused without reading the log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import fnmatch
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.fleet.discover import discover
+from thrustmap.fleet.table import TABLE_NAME, read_table, write_table
+from thrustmap.fleet.task import LogTask, Outcome, file_sha256, one_line, process_log
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int, Outcome], None]
+
+
+@dataclass
+class FleetConfig:
+    out_dir: Path
+    df_options: dict[str, Any] = field(default_factory=dict)  # DfOptions fields (mass: default)
+    masses: list[tuple[str, float]] = field(default_factory=list)  # (glob on path or name, kg)
+    map_path: Path | None = None
+    fmt: str | None = None
+    max_log_bytes: int = 512 << 20
+
+
+@dataclass
+class FleetResult:
+    outcomes: list[Outcome]
+    total: int  # logs discovered
+    reused: int  # outcomes taken from the previous table or the stored outcome files
+    interrupted: bool = False
+    table_path: Path | None = None
+
+
+def rules_fingerprint() -> str:
+    """A hash of the extraction rules' source (Df filters and their defaults, every reader): a
+    change to them changes every log's options key, so a re-run re-extracts instead of reusing.
+    Found without importing them (a re-run with nothing new stays fast)."""
+    import importlib.util
+
+    h = hashlib.sha256()
+    files: list[Path] = []
+    for name in ("thrustmap.fitting.df", "thrustmap.fitting.flightlogs"):
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
+            raise ConfigError(f"cannot find {name}")
+        origin = Path(spec.origin)
+        files += sorted(origin.parent.glob("*.py")) if origin.name == "__init__.py" else [origin]
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def read_masses(path: Path) -> list[tuple[str, float]]:
+    """A CSV of ``pattern,mass_kg`` rows (header optional): the first pattern matching a log's
+    path or file name gives its mass."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise ConfigError(f"cannot read the mass table: {exc.strerror}", file=str(path)) from None
+    out: list[tuple[str, float]] = []
+    for n, row in enumerate(csv.reader(text.splitlines()), start=1):
+        if not row or not "".join(row).strip() or row[0].strip().startswith("#"):
+            continue
+        if len(row) != 2:
+            raise DataFormatError("expected two columns: pattern,mass_kg", file=str(path), line=n)
+        pattern, value = row[0].strip(), row[1].strip()
+        try:
+            mass = float(value)
+        except ValueError:
+            if n == 1:
+                continue  # a header
+            raise DataFormatError(
+                f"expected a mass in kg, got {value!r}", file=str(path), line=n, column="mass_kg"
+            ) from None
+        if not 0 < mass < 1000:
+            raise DataFormatError(
+                f"mass {mass:g} kg is not a multirotor's (expected 0..1000 kg)",
+                file=str(path),
+                line=n,
+                column="mass_kg",
+            )
+        out.append((pattern, mass))
+    return out
+
+
+def mass_for(path: Path, config: FleetConfig) -> float | None:
+    for pattern, mass in config.masses:
+        if fnmatch.fnmatch(path.name, pattern) or fnmatch.fnmatch(str(path), pattern):
+            return mass
+    given = config.df_options.get("mass_kg")
+    return None if given is None else float(given)
+
+
+def options_key(
+    df_options: dict[str, Any], map_sha: str | None, fmt: str | None, rules: str
+) -> str:
+    text = json.dumps(
+        {"df": df_options, "map": map_sha, "format": fmt, "rules": rules}, sort_keys=True
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def plan(
+    paths: Iterable[Path], config: FleetConfig, previous: dict[str, Outcome]
+) -> tuple[list[LogTask], list[Outcome]]:
+    """The tasks still to run, and the outcomes reused from the previous table.
+
+    The options key hashes the options as given (the rules' defaults are in the fingerprint of
+    their source), so planning imports no numerical library."""
+    rules = rules_fingerprint()
+    map_sha = file_sha256(config.map_path) if config.map_path else None
+    keys: dict[float | None, tuple[dict[str, Any], str]] = {}
+    tasks: list[LogTask] = []
+    reused: list[Outcome] = []
+    for p in paths:
+        mass = mass_for(p, config)
+        if mass not in keys:
+            opts = {**config.df_options, "mass_kg": mass}
+            keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules))
+        opts, key = keys[mass]
+        prev = previous.get(str(p))
+        if prev is not None and prev.options_key == key:
+            try:
+                st = p.stat()
+            except OSError:
+                st = None
+            if (
+                st is not None
+                and st.st_size == prev.size_bytes
+                and st.st_mtime_ns == prev.mtime_ns
+                and (not prev.df_path or (config.out_dir / prev.df_path).is_file())
+            ):
+                reused.append(replace(prev, seconds=0.0, reused=True))
+                continue
+        tasks.append(
+            LogTask(
+                path=str(p),
+                out_dir=str(config.out_dir),
+                options_key=key,
+                df_options=opts,
+                map_path=None if config.map_path is None else str(config.map_path.absolute()),
+                fmt=config.fmt,
+                max_log_bytes=config.max_log_bytes,
+            )
+        )
+    return tasks, reused
+
+
+def run_serial(tasks: list[LogTask]) -> Iterator[Outcome]:
+    """The plain loop: one log after the other in this process."""
+    for t in tasks:
+        yield Outcome.from_dict(process_log(t))
+
+
+def run_on_client(client: Any, tasks: list[LogTask], window: int) -> Iterator[Outcome]:
+    """The logs on a Dask cluster, at most ``window`` submitted at a time, in completion order.
+
+    Leaving the iterator early (an exception, Ctrl-C, ``close()``) cancels what is in flight.
+    """
+    from distributed import as_completed
+
+    pending = iter(tasks)
+    inflight: dict[str, tuple[Any, LogTask]] = {}
+    ac = as_completed()  # type: ignore[no-untyped-call]
+
+    def submit(t: LogTask) -> None:
+        fut = client.submit(process_log, t, pure=False, retries=0)
+        inflight[fut.key] = (fut, t)
+        ac.add(fut)  # type: ignore[no-untyped-call]
+
+    for t in pending:
+        submit(t)
+        if len(inflight) >= window:
+            break
+    try:
+        for fut in ac:
+            _, t = inflight.pop(fut.key)
+            try:
+                d = fut.result()
+            except Exception as exc:  # KilledWorker: over its memory limit, or crashed
+                d = Outcome(
+                    path=t.path,
+                    options_key=t.options_key,
+                    reason=f"{t.path}: the worker holding this log died "
+                    f"({type(exc).__name__}: {one_line(exc)}); over its memory limit?",
+                ).to_dict()
+            fut.release()
+            yield Outcome.from_dict(d)
+            nxt = next(pending, None)
+            if nxt is not None:
+                submit(nxt)
+    finally:
+        if inflight:
+            client.cancel([f for f, _ in inflight.values()], force=True)
+            inflight.clear()
+
+
+def fleet_extract(
+    sources: Iterable[str | os.PathLike[str]],
+    config: FleetConfig,
+    *,
+    connect: Callable[[], tuple[Any, int]] | None = None,
+    progress: Progress | None = None,
+) -> FleetResult:
+    """Extract every log of the fleet.
+
+    ``connect`` returns a Dask client and the number of logs to keep submitted; it is called
+    only when some log is left to do (a re-run with nothing new starts no cluster). Without it
+    the logs run in the plain serial loop.
+
+    The table (``OUT_DIR/fleet.parquet``) is written at the end, and also when the run is
+    interrupted (KeyboardInterrupt is re-raised after the table of what finished is written).
+    """
+    out_dir = config.out_dir
+    (out_dir / "df").mkdir(parents=True, exist_ok=True)
+    paths = discover(sources, exclude=out_dir)
+    table_path = out_dir / TABLE_NAME
+    previous: dict[str, Outcome] = {}
+    if table_path.exists():
+        try:
+            previous = {o.path: o for o in read_table(table_path)}
+        except DataFormatError as exc:
+            log.warning("the previous fleet table is unreadable, every log is redone: %s", exc)
+    tasks, reused = plan(paths, config, previous)
+    if tasks:  # the options are checked once here, not once per log on the workers
+        from thrustmap.fitting.df import DfOptions
+
+        for opts in {json.dumps(t.df_options, sort_keys=True) for t in tasks}:
+            DfOptions(**json.loads(opts))
+    total = len(paths)
+    result = FleetResult(outcomes=list(reused), total=total, reused=len(reused))
+    done = len(reused)
+    if progress is not None:
+        for k, o in enumerate(reused, start=1):
+            progress(k, total, o)
+    if tasks and connect is not None:
+        client, window = connect()
+        stream = run_on_client(client, tasks, window)
+    else:
+        stream = run_serial(tasks)
+    try:
+        for o in stream:
+            result.outcomes.append(o)
+            result.reused += int(o.reused)
+            done += 1
+            if progress is not None:
+                progress(done, total, o)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        close = getattr(stream, "close", None)
+        if close is not None:
+            close()
+        write_table(result.outcomes, table_path)
+        result.table_path = table_path
+        raise
+    write_table(result.outcomes, table_path)
+    result.table_path = table_path
+    return result
+
+
+@dataclass
+class LocalClusterSpec:
+    workers: int
+    memory_limit_bytes: int
+
+
+def local_cluster_spec(workers: int | None, memory_per_worker: int | None) -> LocalClusterSpec:
+    """How many local workers and how much memory each may use (stated to the user)."""
+    import psutil
+
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    if n < 1:
+        raise ConfigError(f"--workers must be at least 1 (0 runs the plain serial loop), got {n}")
+    total = psutil.virtual_memory().total
+    mem = memory_per_worker if memory_per_worker is not None else min(4 << 30, total // n)
+    return LocalClusterSpec(n, int(mem))
+
+
+def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
+    """A LocalCluster of ``spec.workers`` processes, one thread each (one log at a time).
+
+    The worker processes start with Ctrl-C ignored (an ignored signal is inherited, and Python
+    and asyncio then leave it so): a Ctrl-C at the terminal reaches the whole process group, and
+    only this process must act on it, cancelling the logs and closing the cluster in order.
+    A Ctrl-C during the few seconds of start-up is therefore ignored."""
+    import signal
+    import threading
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    quiet_dask()
+    settings = {
+        "distributed.scheduler.allowed-failures": 0,
+        # the workers' statistical profiler samples every thread's stack every 10 ms: on
+        # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
+        "distributed.worker.profile.enabled": False,
+    }
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    try:
+        with dask.config.set(settings):
+            cluster = LocalCluster(  # type: ignore[no-untyped-call]
+                n_workers=spec.workers,
+                threads_per_worker=1,
+                processes=True,
+                memory_limit=spec.memory_limit_bytes,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    return cluster, Client(cluster)  # type: ignore[no-untyped-call]
+
+
+def quiet_dask() -> None:
+    """Dask's own INFO lines (scheduler, nanny, worker life cycle) are not the user's business."""
+    for name in ("distributed", "tornado", "bokeh"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def connect(address: str) -> Any:
+    from distributed import Client
+
+    quiet_dask()
+    try:
+        return Client(address, timeout="15s")  # type: ignore[no-untyped-call]
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError(
+            f"cannot reach the Dask scheduler at {address}: {one_line(exc)}"
+        ) from None
+
+
+def stop_children(before: set[int], timeout_s: float = 5.0) -> list[int]:
+    """Terminate (then kill) any child process started since ``before`` that is still alive:
+    after a cluster is closed nothing it spawned may outlive the command."""
+    import psutil
+
+    me = psutil.Process()
+    left = [
+        c for c in me.children(recursive=True) if c.pid not in before and not _resource_tracker(c)
+    ]
+    for c in left:
+        with contextlib.suppress(psutil.Error):
+            c.terminate()
+    _, alive = psutil.wait_procs(left, timeout=timeout_s)
+    for c in alive:
+        with contextlib.suppress(psutil.Error):
+            c.kill()
+    psutil.wait_procs(alive, timeout=timeout_s)
+    return [c.pid for c in left]
+
+
+def _resource_tracker(proc: Any) -> bool:
+    """multiprocessing's resource tracker: one per parent, it exits when the parent does."""
+    import psutil
+
+    try:
+        return any("multiprocessing.resource_tracker" in a for a in proc.cmdline())
+    except psutil.Error:
+        return False
+
+
+def child_pids() -> set[int]:
+    import psutil
+
+    return {c.pid for c in psutil.Process().children(recursive=True)}
