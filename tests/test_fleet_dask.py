@@ -177,8 +177,10 @@ def test_an_existing_scheduler_gives_the_same_table(
 
 
 def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path) -> None:
-    """What the memory limit does to a worker (its nanny kills it): the log it held is refused
-    with that reason, not retried, and the other logs are extracted on the restarted worker."""
+    """What the memory limit does to a worker (its nanny kills it). Small logs travel two to a
+    task here (8 logs, one slot): the first death is the batch's, so its logs are sent again one
+    per task; the second kills the first of them alone, which is then refused with that reason,
+    not retried, and the other logs are extracted on the restarted worker."""
     import threading
 
     from thrustmap.fleet import run
@@ -195,13 +197,13 @@ def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path
 
     def kill_first_busy_worker() -> None:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and len(killed) < 2:
             busy = {w: keys for w, keys in client.processing().items() if keys}
-            if busy:
+            key = str(busy[next(iter(busy))][0]) if busy else None
+            if key is not None and key not in killed:
                 pid = client.run(os.getpid, workers=list(busy))[next(iter(busy))]
-                killed.append(str(busy[next(iter(busy))][0]))
+                killed.append(key)
                 os.kill(pid, signal.SIGKILL)
-                return
             time.sleep(0.005)
 
     try:
@@ -213,7 +215,24 @@ def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path
     finally:
         client.close()
         cluster.close()
-    assert killed
+    assert len(killed) == 2
     died = [o for o in result.outcomes if o.status == "refused"]
     assert len(died) == 1 and "the worker holding this log died" in died[0].reason
     assert sum(o.status == "ok" for o in result.outcomes) == len(small.good) - 1
+
+
+def test_small_logs_travel_in_batches_and_large_ones_alone(tmp_path: Path) -> None:
+    from thrustmap.fleet import run
+    from thrustmap.fleet.task import LogTask
+
+    def task(name: str, size: int) -> LogTask:
+        p = tmp_path / name
+        p.write_bytes(b"x" * size)
+        return LogTask(str(p), str(tmp_path), "k", {})
+
+    small = [task(f"s{k}", 1000) for k in range(40)]
+    big = task("big", run.BATCH_BYTES + 1)
+    groups = list(run.batches([*small[:20], big, *small[20:]], window=1))
+    assert [len(g) for g in groups][:3] == [10, 10, 1]  # at most 40 // (4 * 1) per batch
+    assert [t.path for g in groups for t in g] == [t.path for t in [*small[:20], big, *small[20:]]]
+    assert all(len(g) == 1 for g in run.batches(small[:3], window=4))  # few logs: one each

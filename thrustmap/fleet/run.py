@@ -1,10 +1,11 @@
 """Running a fleet: plan (what is already done), then the logs serially or on a Dask cluster.
 
 Bounded by construction: every worker runs one thread, so it holds one log at a time; the
-client keeps at most ``window`` logs submitted (2 per worker thread), so the scheduler and the
-driver never hold the whole fleet; a log larger than ``max_log_bytes`` is refused unread; and a
-local cluster's workers each get a ``memory_limit`` (a worker that exceeds it is restarted by
-its nanny and the log it held is recorded as refused, not retried).
+client keeps at most ``window`` tasks submitted (2 per worker thread; small logs go several to
+a task, one after the other), so the scheduler and the driver never hold the whole fleet; a log
+larger than ``max_log_bytes`` is refused unread; and a local cluster's workers each get a
+``memory_limit`` (a worker that exceeds it is restarted by its nanny and the log it held is
+recorded as refused, not retried).
 
 Resumable: a log whose path, size, modification time and options key match the previous table
 is not touched; any other log is hashed by its worker, and when ``OUT_DIR/df`` already holds the
@@ -176,43 +177,91 @@ def run_serial(tasks: list[LogTask]) -> Iterator[Outcome]:
         yield Outcome.from_dict(process_log(t))
 
 
+#: logs smaller than this together go to a worker as one Dask task (about 0.1 s of work)
+BATCH_BYTES = 4 << 20
+#: at most this many logs in one task
+BATCH_LOGS = 64
+
+
+def batches(tasks: list[LogTask], window: int) -> Iterator[list[LogTask]]:
+    """The tasks in submission order, grouped: small logs together up to ``BATCH_BYTES``, so a
+    Dask task carries about 0.1 s of work; no batch so large that the fleet's last batches keep
+    a worker busy while the others idle (at least 4 batches per slot of the window)."""
+    cap = max(1, min(BATCH_LOGS, len(tasks) // max(1, 4 * window)))
+    batch: list[LogTask] = []
+    size = 0
+    for t in tasks:
+        try:
+            n = os.stat(t.path).st_size
+        except OSError:
+            n = 0  # the worker reports why
+        if batch and (size + n > BATCH_BYTES or len(batch) >= cap):
+            yield batch
+            batch, size = [], 0
+        batch.append(t)
+        size += n
+    if batch:
+        yield batch
+
+
 def run_on_client(client: Any, tasks: list[LogTask], window: int) -> Iterator[Outcome]:
-    """The logs on a Dask cluster, at most ``window`` submitted at a time, in completion order.
+    """The logs on a Dask cluster, at most ``window`` tasks submitted at a time, in completion
+    order. Small logs travel in batches (``batches``); a batch whose worker died (over its
+    memory limit, or crashed) is sent again one log per task, so only the log that killed it is
+    refused (the others' outcomes were stored as they finished and are reused).
 
     Leaving the iterator early (an exception, Ctrl-C, ``close()``) cancels what is in flight.
     """
     from distributed import as_completed
 
-    pending = iter(tasks)
-    inflight: dict[str, tuple[Any, LogTask]] = {}
+    from thrustmap.fleet.task import process_batch
+
+    pending = batches(tasks, window)
+    retry: list[list[LogTask]] = []
+    inflight: dict[str, tuple[Any, list[LogTask]]] = {}
     ac = as_completed()  # type: ignore[no-untyped-call]
 
-    def submit(t: LogTask) -> None:
-        fut = client.submit(process_log, t, pure=False, retries=0)
-        inflight[fut.key] = (fut, t)
+    def submit(batch: list[LogTask]) -> None:
+        fut = client.submit(process_batch, batch, pure=False, retries=0)
+        inflight[fut.key] = (fut, batch)
         ac.add(fut)  # type: ignore[no-untyped-call]
 
-    for t in pending:
-        submit(t)
-        if len(inflight) >= window:
+    def submit_next() -> None:
+        nxt = retry.pop() if retry else next(pending, None)
+        if nxt is not None:
+            submit(nxt)
+
+    while len(inflight) < window:
+        before = len(inflight)
+        submit_next()
+        if len(inflight) == before:
             break
     try:
         for fut in ac:
-            _, t = inflight.pop(fut.key)
+            _, batch = inflight.pop(fut.key)
             try:
-                d = fut.result()
+                rows = fut.result()
             except Exception as exc:  # KilledWorker: over its memory limit, or crashed
-                d = Outcome(
-                    path=t.path,
-                    options_key=t.options_key,
-                    reason=f"{t.path}: the worker holding this log died "
-                    f"({type(exc).__name__}: {one_line(exc)}); over its memory limit?",
-                ).to_dict()
-            fut.release()
-            yield Outcome.from_dict(d)
-            nxt = next(pending, None)
-            if nxt is not None:
-                submit(nxt)
+                fut.release()
+                if len(batch) > 1:
+                    retry.extend([t] for t in reversed(batch))
+                    for _ in range(min(window - len(inflight), len(retry))):
+                        submit_next()
+                    continue
+                (t,) = batch
+                rows = [
+                    Outcome(
+                        path=t.path,
+                        options_key=t.options_key,
+                        reason=f"{t.path}: the worker holding this log died "
+                        f"({type(exc).__name__}: {one_line(exc)}); over its memory limit?",
+                    ).to_dict()
+                ]
+            else:
+                fut.release()
+            for d in rows:
+                yield Outcome.from_dict(d)
+            submit_next()
     finally:
         if inflight:
             client.cancel([f for f, _ in inflight.values()], force=True)
@@ -319,6 +368,16 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
         # the workers' statistical profiler samples every thread's stack every 10 ms: on
         # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
         "distributed.worker.profile.enabled": False,
+        # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's
+        # adaptive mmap threshold: every numpy array over 128 kB is then mmap'ed and unmapped
+        # again, and a log took ~1.3x as long in a worker as in the serial loop (bench_fleet).
+        # A worker holds one log at a time and the nanny still enforces memory_limit, so the
+        # default allocator is kept; the BLAS/OpenMP pools stay at one thread per worker.
+        "distributed.nanny.pre-spawn-environ": {
+            "OMP_NUM_THREADS": 1,
+            "MKL_NUM_THREADS": 1,
+            "OPENBLAS_NUM_THREADS": 1,
+        },
     }
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
