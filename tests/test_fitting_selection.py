@@ -200,12 +200,14 @@ def test_held_load_cell_staircase_pairs_legs_without_time() -> None:
     assert set(pts.kind.tolist()) == {"stair-pair"}
     assert r["stair_pairs_dropped_stalled"] == 2  # the rotor had not started on the way up
     assert r["stair_pairs"] == len(pts) == 10
-    true = 0.15 * (pts.throttle_pct / 100.0) ** 2 + 0.002
+    # the rest samples measured the load cell's zero (0.002 N): the points are read from it
+    assert r["zero_subtracted_n"] == pytest.approx(0.002, abs=1e-4)
+    true = 0.15 * (pts.throttle_pct / 100.0) ** 2
     paired_err = np.abs(pts.thrust_n / true - 1.0)
     # the up-leg alone (the old reading: every stair a "plateau") lags by far more
     up_pct = ds.throttle_pct[20 : 20 + 130].reshape(13, 10).mean(axis=1)[2:]
     up_t = ds.thrust_n[20 : 20 + 130].reshape(13, 10).mean(axis=1)[2:]
-    up_err = np.abs(up_t / (0.15 * (up_pct / 100) ** 2 + 0.002) - 1.0)
+    up_err = np.abs((up_t - 0.002) / (0.15 * (up_pct / 100) ** 2) - 1.0)
     assert float(np.median(paired_err)) < 0.2 * float(np.median(up_err))
     # the zero-command samples were the load cell's offset: tare information
     assert r["tare_points"] >= 1 and r["tare_offset_n"] == pytest.approx(0.002, abs=1e-4)
@@ -287,3 +289,51 @@ def test_selection_rules_on_real_data(shared_data: Path) -> None:
     a1 = load_dataset(shared_data / "third-party-stands" / "strawson-5inch" / "a1_7.csv")
     pts = select(a1, Selection())
     assert pts.report["stopped_rotor_points_dropped"] == 1 and len(pts) == 10
+
+
+def _offset_steps(offset_n: float, rest_samples: int = 24) -> tuple[Dataset, np.ndarray]:
+    """A step sweep whose load cell reads ``offset_n`` with the rotor at rest (tared off zero),
+    starting with ``rest_samples`` at command 0; returns the file and the true steady thrust."""
+    levels = [1000.0] * (rest_samples > 0) + [1150.0, 1300.0, 1450.0, 1600.0]
+    throttle = np.concatenate([np.full(rest_samples if lv == 1000.0 else 30, lv) for lv in levels])
+    steady = 12.0 * ((throttle - 1000) / 1000) ** 2
+    noise = np.random.default_rng(5).normal(0.0, 0.002, len(throttle))
+    n = len(throttle)
+    ds = Dataset(
+        path="offset.csv",
+        format="synthetic",
+        throttle_scale=SCALES["pwm"],
+        throttle_native=throttle,
+        thrust_n=steady + offset_n + noise,
+        voltage_v=np.full(n, 22.0),
+        line=np.arange(n, dtype=np.int64) + 2,
+        time_s=np.arange(n) * 0.05,
+    )
+    return ds, steady
+
+
+def test_load_cell_zero_from_the_rest_plateau_is_subtracted() -> None:
+    """A rotor at rest makes no thrust: a rest plateau reading 0.06 N is the load cell's zero
+    (the xNova steps file: 0.061 N, its sister file 0.004 N), and every point is read from it."""
+    ds, steady = _offset_steps(0.06)
+    pts = select(ds, Selection())
+    assert pts.report["zero_subtracted_n"] == pytest.approx(0.06, abs=0.003)
+    assert (pts.throttle_pct > 0).all()  # the rest plateau is the zero, not a map point
+    true = 12.0 * (pts.throttle_pct / 100.0) ** 2
+    assert np.abs(pts.thrust_n - true).max() < 0.005
+    # no rest plateau (or a zero inside its own noise): nothing is subtracted
+    assert "zero_subtracted_n" not in select(_offset_steps(0.06, 0)[0], Selection()).report
+    assert "zero_subtracted_n" not in select(_offset_steps(0.0)[0], Selection()).report
+
+
+def test_step_summary_rest_row_is_not_taken_for_the_zero(tmp_path: Path) -> None:
+    """One averaged rest row has no noise to judge it by: the stand software's tare stands."""
+    rows = ["Time (s),ESC signal (µs),Thrust (N),Voltage (V)"] + [
+        f"{i * 2.0},{1000 + 100 * i},{0.05 + 12.0 * (i / 10) ** 2},22.0" for i in range(11)
+    ]
+    p = tmp_path / "summary.csv"
+    p.write_text("\n".join(rows) + "\n")
+    ds = load_dataset(p)
+    if ds.meta.get("layout") != STEP_SUMMARY:
+        pytest.skip("not detected as a step summary")
+    assert "zero_subtracted_n" not in select(ds, Selection()).report
