@@ -269,7 +269,9 @@ def test_rotor_not_turning_at_a_positive_command_is_not_a_map_point() -> None:
     rpm = np.where(ds.throttle_pct > 12.0, 20000.0 * ds.throttle_pct / 100, 0.0)
     from dataclasses import replace
 
-    pts = select(replace(ds, rpm=rpm), Selection())
+    # not turning: 0 rpm and the load cell at its rest reading (0.002 N)
+    thrust = np.where(ds.throttle_pct > 12.0, ds.thrust_n, 0.002)
+    pts = select(replace(ds, rpm=rpm, thrust_n=thrust), Selection())
     assert pts.report["stopped_rotor_points_dropped"] >= 1
     assert float(pts.throttle_pct.min()) > 12.0
 
@@ -285,10 +287,11 @@ def test_selection_rules_on_real_data(shared_data: Path) -> None:
     # the 1000 µs rest level is tare information
     steps = select(load_dataset(xn / "single_rotor" / "xNova-SR-steps.csv"), Selection()).report
     assert steps["tare_points"] >= 1 and abs(steps["tare_offset_n"]) < 0.1
-    # a strawson step at 1050 µs with the rotor at 0 rpm is not a map point
+    # a strawson step at 1050 µs reading 0 rpm makes 6 gf at 0.38 A (0.1 A at rest): the rpm
+    # probe is below its lowest speed, the rotor turns, and the step is a map point
     a1 = load_dataset(shared_data / "third-party-stands" / "strawson-5inch" / "a1_7.csv")
     pts = select(a1, Selection())
-    assert pts.report["stopped_rotor_points_dropped"] == 1 and len(pts) == 10
+    assert "stopped_rotor_points_dropped" not in pts.report and len(pts) == 11
 
 
 def _offset_steps(offset_n: float, rest_samples: int = 24) -> tuple[Dataset, np.ndarray]:
@@ -337,3 +340,27 @@ def test_step_summary_rest_row_is_not_taken_for_the_zero(tmp_path: Path) -> None
     if ds.meta.get("layout") != STEP_SUMMARY:
         pytest.skip("not detected as a step summary")
     assert "zero_subtracted_n" not in select(ds, Selection()).report
+
+
+def test_rpm_probe_reading_zero_on_a_rotor_making_thrust_keeps_the_point(tmp_path: Path) -> None:
+    """The RCbenchmark stand's electrical rpm reads 0 below its lowest speed: at 1050 µs on 2S
+    the rows say 0 rpm with 6 gf and 0.38 A (0.1 A at rest). Such a row is a turning rotor and
+    a point of the map; a row at 0 rpm whose thrust is the rest reading is still dropped."""
+    rows = []
+    for i, us in enumerate(range(1050, 2001, 95)):
+        thrust_gf = 6.0 + 290.0 * ((us - 1050) / 950) ** 2
+        rpm = 0 if i == 0 else 3800 + 1150 * i
+        rows.append(
+            f"{i * 1.7:.3f},{us},,,,{thrust_gf:.3f},{7.4 - 0.02 * i:.3f},{0.4 + i},{rpm},0,1,1,,"
+        )
+    p = tmp_path / "s_7.csv"
+    p.write_text("\ufeff" + "\n".join([STEP_HEADER, *rows]) + "\n", encoding="utf-8")
+    ds = load_dataset(p)
+    pts = select(ds, Selection())
+    assert len(pts) == 11 and pts.throttle_pct[0] == pytest.approx(5.0)
+    assert "stopped_rotor_points_dropped" not in pts.report
+    # the same row reading no thrust (the rest level) is a rotor that did not turn
+    rows[0] = rows[0].replace(",6.000,", ",0.000,")
+    p.write_text("\ufeff" + "\n".join([STEP_HEADER, *rows]) + "\n", encoding="utf-8")
+    still = select(load_dataset(p), Selection())
+    assert len(still) == 10 and still.report["stopped_rotor_points_dropped"] == 1

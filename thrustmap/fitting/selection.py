@@ -285,15 +285,34 @@ def rest_zero(ds: Dataset, sel: Selection) -> float | None:
     return zero if abs(zero) > ZERO_SIGMAS * err and zero != 0.0 else None
 
 
+#: a row reading rpm 0 still turns when its thrust stands this share of the file's thrust range
+#: above the rest reading (the spin-up measurement's floor, spinup.FLOOR_FRACTION)
+MAKING_THRUST_FRACTION = 0.01
+
+
 def _rotor_stopped(ds: Dataset, sel: Selection) -> npt.NDArray[np.bool_]:
     """Samples with the rotor stopped: a command at the bottom of the scale (within the plateau
-    tolerance), or, where the log has rpm that rises above 1000, rpm under 1 % of its maximum.
-    Their thrust is the load cell's offset, not a point of the map."""
-    stopped = ds.throttle_pct <= sel.plateau_tolerance_pct
+    tolerance), or, where the log has rpm that rises above 1000, rpm under 1 % of its maximum
+    while the load cell shows no thrust. Their thrust is the load cell's offset, not a point of
+    the map. An rpm probe reads 0 below its lowest speed (the RCbenchmark stand's electrical rpm
+    at 1050 µs on 2S: 0 rpm, yet 6 gf and 0.38 A against 0.1 A at rest): a row making thrust
+    above the rest reading by ``MAKING_THRUST_FRACTION`` of the file's range is turning, as the
+    spin-up measurement counts it (thrust OR rpm)."""
+    at_bottom = ds.throttle_pct <= sel.plateau_tolerance_pct
+    stopped = at_bottom
     if ds.rpm is not None and np.isfinite(ds.rpm).any():
         top = float(np.nanmax(ds.rpm))
         if top > 1000.0:
-            stopped = stopped | (np.nan_to_num(ds.rpm, nan=np.inf) < 0.01 * top)
+            no_rpm = np.nan_to_num(ds.rpm, nan=np.inf) < 0.01 * top
+            t = ds.thrust_n
+            fin = np.isfinite(t)
+            rest = at_bottom & fin
+            base = float(np.median(t[rest])) if rest.any() else 0.0  # else the stand's tare
+            full = float(np.percentile(t[fin], 99)) - base if fin.any() else 0.0
+            making = fin & (t - base > MAKING_THRUST_FRACTION * full)
+            if not full > 0:
+                making[:] = False
+            stopped = stopped | (no_rpm & ~making)
     return np.asarray(stopped, dtype=bool)
 
 
