@@ -264,8 +264,9 @@ def rest_zero(ds: Dataset, sel: Selection) -> float | None:
 
     Samples at the zero command with the rotor stopped read no thrust, so their median is the
     offset every reading of the file carries (a stand tared off-zero, a cell that drifted before
-    the sweep). Taken only when it is measured: at least ``min_plateau_samples`` rest samples,
-    and a median beyond ``ZERO_SIGMAS`` standard errors of their noise. A step summary's single
+    the sweep). Taken only when it is measured: at least ``min_plateau_samples`` independent rest
+    readings (a sample-and-hold load cell's repeats are one reading), and a median beyond
+    ``ZERO_SIGMAS`` standard errors of their noise. A step summary's single
     averaged rest row (the stand software tared before the test) has no noise to judge it by
     and is not used."""
     if ds.meta.get("layout") == STEP_SUMMARY:
@@ -278,10 +279,13 @@ def rest_zero(ds: Dataset, sel: Selection) -> float | None:
     level = float(np.median(ds.throttle_pct[rest]))
     rest &= np.abs(ds.throttle_pct - level) <= sel.plateau_tolerance_pct
     t = ds.thrust_n[rest]
-    if len(t) < sel.min_plateau_samples:
+    # independent readings: a load cell that holds its value between updates repeats it, so
+    # the readings are the changes of value, not the samples
+    readings = 1 + int(np.count_nonzero(np.diff(t))) if len(t) else 0
+    if readings < sel.min_plateau_samples:
         return None
     zero = float(np.median(t))
-    err = float(np.std(t)) / np.sqrt(len(t))
+    err = float(np.std(t)) / np.sqrt(readings)
     return zero if abs(zero) > ZERO_SIGMAS * err and zero != 0.0 else None
 
 
