@@ -200,6 +200,9 @@ def test_held_load_cell_staircase_pairs_legs_without_time() -> None:
     assert set(pts.kind.tolist()) == {"stair-pair"}
     assert r["stair_pairs_dropped_stalled"] == 2  # the rotor had not started on the way up
     assert r["stair_pairs"] == len(pts) == 10
+    # 20 rest samples of a cell holding each reading for 10 are 3 readings: too few to measure
+    # its zero against its noise, so nothing is subtracted
+    assert "zero_subtracted_n" not in r
     true = 0.15 * (pts.throttle_pct / 100.0) ** 2 + 0.002
     paired_err = np.abs(pts.thrust_n / true - 1.0)
     # the up-leg alone (the old reading: every stair a "plateau") lags by far more
@@ -267,7 +270,9 @@ def test_rotor_not_turning_at_a_positive_command_is_not_a_map_point() -> None:
     rpm = np.where(ds.throttle_pct > 12.0, 20000.0 * ds.throttle_pct / 100, 0.0)
     from dataclasses import replace
 
-    pts = select(replace(ds, rpm=rpm), Selection())
+    # not turning: 0 rpm and the load cell at its rest reading (0.002 N)
+    thrust = np.where(ds.throttle_pct > 12.0, ds.thrust_n, 0.002)
+    pts = select(replace(ds, rpm=rpm, thrust_n=thrust), Selection())
     assert pts.report["stopped_rotor_points_dropped"] >= 1
     assert float(pts.throttle_pct.min()) > 12.0
 
@@ -283,7 +288,94 @@ def test_selection_rules_on_real_data(shared_data: Path) -> None:
     # the 1000 µs rest level is tare information
     steps = select(load_dataset(xn / "single_rotor" / "xNova-SR-steps.csv"), Selection()).report
     assert steps["tare_points"] >= 1 and abs(steps["tare_offset_n"]) < 0.1
-    # a strawson step at 1050 µs with the rotor at 0 rpm is not a map point
+    # a strawson step at 1050 µs reading 0 rpm makes 6 gf at 0.38 A (0.1 A at rest): the rpm
+    # probe is below its lowest speed, the rotor turns, and the step is a map point
     a1 = load_dataset(shared_data / "third-party-stands" / "strawson-5inch" / "a1_7.csv")
     pts = select(a1, Selection())
-    assert pts.report["stopped_rotor_points_dropped"] == 1 and len(pts) == 10
+    assert "stopped_rotor_points_dropped" not in pts.report and len(pts) == 11
+
+
+def _offset_steps(offset_n: float, rest_samples: int = 24) -> tuple[Dataset, np.ndarray]:
+    """A step sweep whose load cell reads ``offset_n`` with the rotor at rest (tared off zero),
+    starting with ``rest_samples`` at command 0; returns the file and the true steady thrust."""
+    levels = [1000.0] * (rest_samples > 0) + [1150.0, 1300.0, 1450.0, 1600.0]
+    throttle = np.concatenate([np.full(rest_samples if lv == 1000.0 else 30, lv) for lv in levels])
+    steady = 12.0 * ((throttle - 1000) / 1000) ** 2
+    noise = np.random.default_rng(5).normal(0.0, 0.002, len(throttle))
+    n = len(throttle)
+    ds = Dataset(
+        path="offset.csv",
+        format="synthetic",
+        throttle_scale=SCALES["pwm"],
+        throttle_native=throttle,
+        thrust_n=steady + offset_n + noise,
+        voltage_v=np.full(n, 22.0),
+        line=np.arange(n, dtype=np.int64) + 2,
+        time_s=np.arange(n) * 0.05,
+    )
+    return ds, steady
+
+
+def test_load_cell_zero_from_the_rest_plateau_is_subtracted() -> None:
+    """A rotor at rest makes no thrust: a rest plateau reading 0.06 N is the load cell's zero
+    (the xNova steps file: 0.061 N, its sister file 0.004 N), and every point is read from it."""
+    ds, steady = _offset_steps(0.06)
+    pts = select(ds, Selection())
+    assert pts.report["zero_subtracted_n"] == pytest.approx(0.06, abs=0.003)
+    assert (pts.throttle_pct > 0).all()  # the rest plateau is the zero, not a map point
+    true = 12.0 * (pts.throttle_pct / 100.0) ** 2
+    assert np.abs(pts.thrust_n - true).max() < 0.005
+    # no rest plateau (or a zero inside its own noise): nothing is subtracted
+    assert "zero_subtracted_n" not in select(_offset_steps(0.06, 0)[0], Selection()).report
+    assert "zero_subtracted_n" not in select(_offset_steps(0.0)[0], Selection()).report
+
+
+def test_step_summary_rest_row_is_not_taken_for_the_zero(tmp_path: Path) -> None:
+    """One averaged rest row has no noise to judge it by: the stand software's tare stands."""
+    rows = ["Time (s),ESC signal (µs),Thrust (N),Voltage (V)"] + [
+        f"{i * 2.0},{1000 + 100 * i},{0.05 + 12.0 * (i / 10) ** 2},22.0" for i in range(11)
+    ]
+    p = tmp_path / "summary.csv"
+    p.write_text("\n".join(rows) + "\n")
+    ds = load_dataset(p)
+    if ds.meta.get("layout") != STEP_SUMMARY:
+        pytest.skip("not detected as a step summary")
+    assert "zero_subtracted_n" not in select(ds, Selection()).report
+
+
+def test_rpm_probe_reading_zero_on_a_rotor_making_thrust_keeps_the_point(tmp_path: Path) -> None:
+    """The RCbenchmark stand's electrical rpm reads 0 below its lowest speed: at 1050 µs on 2S
+    the rows say 0 rpm with 6 gf and 0.38 A (0.1 A at rest). Such a row is a turning rotor and
+    a point of the map; a row at 0 rpm whose thrust is the rest reading is still dropped."""
+    rows = []
+    for i, us in enumerate(range(1050, 2001, 95)):
+        thrust_gf = 6.0 + 290.0 * ((us - 1050) / 950) ** 2
+        rpm = 0 if i == 0 else 3800 + 1150 * i
+        rows.append(
+            f"{i * 1.7:.3f},{us},,,,{thrust_gf:.3f},{7.4 - 0.02 * i:.3f},{0.4 + i},{rpm},0,1,1,,"
+        )
+    p = tmp_path / "s_7.csv"
+    p.write_text("\ufeff" + "\n".join([STEP_HEADER, *rows]) + "\n", encoding="utf-8")
+    ds = load_dataset(p)
+    pts = select(ds, Selection())
+    assert len(pts) == 11 and pts.throttle_pct[0] == pytest.approx(5.0)
+    assert "stopped_rotor_points_dropped" not in pts.report
+    # the same row reading no thrust (the rest level) is a rotor that did not turn
+    rows[0] = rows[0].replace(",6.000,", ",0.000,")
+    p.write_text("\ufeff" + "\n".join([STEP_HEADER, *rows]) + "\n", encoding="utf-8")
+    still = select(load_dataset(p), Selection())
+    assert len(still) == 10 and still.report["stopped_rotor_points_dropped"] == 1
+
+
+def test_load_cell_zero_counts_a_held_cells_readings_not_its_samples() -> None:
+    """A sample-and-hold cell repeats each reading: 60 rest samples holding 12 readings of pure
+    noise are judged on 12 readings, so noise is not taken for an offset; a real 0.06 N is."""
+    from dataclasses import replace
+
+    ds, _ = _offset_steps(0.0, rest_samples=60)
+    held = ds.thrust_n.copy()
+    held[:60] = np.repeat(np.random.default_rng(1).normal(0.0, 0.002, 12), 5)
+    assert "zero_subtracted_n" not in select(replace(ds, thrust_n=held), Selection()).report
+    held[:60] += 0.06
+    r = select(replace(ds, thrust_n=held), Selection()).report
+    assert r["zero_subtracted_n"] == pytest.approx(0.06, abs=0.003)

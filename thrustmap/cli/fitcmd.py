@@ -247,6 +247,11 @@ def fit_cmd(
         )
         if stair := describe_selection(r):
             click.echo(f"  {stair}")
+        if "zero_subtracted_n" in r:
+            click.echo(
+                f"  thrust read from the load cell's zero: its rest plateau read "
+                f"{r['zero_subtracted_n']:.4f} N, subtracted (a rotor at rest makes no thrust)"
+            )
     click.echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
     click.echo(
         f"in-sample e_Th: mean {s['mean_pct']:.3f} % ± {s['std_pct']:.3f}, p95 {s['p95_pct']:.3f} %, "

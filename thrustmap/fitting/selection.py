@@ -33,7 +33,11 @@ one leg reads next to nothing (under ``stall_fraction`` of the other above the r
 rotor that had not started on the way up). ``describe`` says in one line what was kept.
 
 Points where the rotor is stopped (command at the bottom of the scale, or rpm zero where the
-log has rpm) read the load cell's offset: tare information, reported. A positive command
+log has rpm) read the load cell's offset: tare information, reported. A rotor at rest makes no
+thrust, so when a rest plateau measures that offset (``rest_zero``: enough samples, beyond its
+own noise) every point of the file is read from it and the rest points, being the zero, are not
+map points (the xNova steps file rests at 0.061 N, its sister file at 0.004 N: read raw, the
+lower-voltage file seemed to need less throttle at equal thrust, which no motor does). A positive command
 that did not turn the rotor (ESC dead band, rotor not started) is not a map point and is dropped;
 zero-command points are dropped too with ``drop_tare_points``.
 Logs recorded by thrustmap say where each step begins and where the runner saw it settle: those
@@ -79,8 +83,9 @@ class Selection:
     quasi_static_lags: float = 10.0  # ... or that last less than this many lag time constants
     pair_voltage_rel: float = 0.05  # up/down readings paired only this close in voltage
     # Zero-command points (rotor at rest: thrust is the load cell's offset) are reported as tare
-    # information; True also drops them from the map. Off by default: the default 'motor' model
-    # pins its offset on the zero-command point (xNova by-file 0.51 % with it, 1.44 % without).
+    # information; True also drops them from the map. Off by default for files whose rest reading
+    # is not subtracted as the load cell's zero (a step summary's one rest row): there the point
+    # stays. Where the zero is subtracted the rest points are always dropped (they are the zero).
     drop_tare_points: bool = False
 
     def to_dict(self) -> dict[str, Any]:
@@ -158,6 +163,14 @@ def select(ds: Dataset, sel: Selection) -> Points:
             if drop.any():
                 report["stopped_rotor_points_dropped"] = int(drop.sum())
                 t, b, th, kind = t[~drop], b[~drop], th[~drop], kind[~drop]
+        zero = rest_zero(ds, sel)
+        if zero is not None:
+            # A rotor at rest makes no thrust: the rest plateau's reading is the load cell's
+            # zero, so every point of this file is read from it; the rest points are that zero,
+            # not points of the map (at zero thrust any command up to spin-up holds).
+            rest = th_pct_le(ds, th, sel) & (kind != "ramp-pair")
+            t, b, th, kind = t[~rest] - zero, b[~rest], th[~rest], kind[~rest]
+            report["zero_subtracted_n"] = round(zero, 6)
     # Without an explicit thrust range, points at or below zero thrust (rotor stopped, ESC dead
     # band, load-cell offset) say nothing about producing thrust: drop them, as the paper's 0 < T.
     thrust_rng = sel.thrust_range if sel.thrust_range is not None else (0.0, np.inf)
@@ -171,8 +184,9 @@ def select(ds: Dataset, sel: Selection) -> Points:
     stair = report.get("quasi_static_staircase")
     if isinstance(stair, dict) and keep.any() and len(ds):
         # how much of the thrust the file reached the kept points span (from its rest reading)
-        rest = float(report.get("tare_offset_n", 0.0))
-        top = float(np.nanmax(ds.thrust_n)) - rest
+        zero = report.get("zero_subtracted_n")
+        rest = 0.0 if zero is not None else float(report.get("tare_offset_n", 0.0))
+        top = float(np.nanmax(ds.thrust_n)) - float(zero if zero is not None else rest)
         if top > 0:
             span = float(t[keep].max()) - max(float(t[keep].min()), rest)
             stair["kept_thrust_n"] = [
@@ -236,15 +250,73 @@ def describe(report: dict[str, Any]) -> str | None:
     )
 
 
+def th_pct_le(ds: Dataset, th: FloatArray, sel: Selection) -> npt.NDArray[np.bool_]:
+    """Points at the zero command (within the plateau tolerance)."""
+    return np.asarray(ds.throttle_scale.to_pct(th) <= sel.plateau_tolerance_pct, dtype=bool)
+
+
+#: the rest plateau's mean is the load cell's zero when it is this many standard errors from 0
+ZERO_SIGMAS = 3.0
+
+
+def rest_zero(ds: Dataset, sel: Selection) -> float | None:
+    """The load cell's zero offset measured on the file's rest plateau, or None.
+
+    Samples at the zero command with the rotor stopped read no thrust, so their median is the
+    offset every reading of the file carries (a stand tared off-zero, a cell that drifted before
+    the sweep). Taken only when it is measured: at least ``min_plateau_samples`` independent rest
+    readings (a sample-and-hold load cell's repeats are one reading), and a median beyond
+    ``ZERO_SIGMAS`` standard errors of their noise. A step summary's single
+    averaged rest row (the stand software tared before the test) has no noise to judge it by
+    and is not used."""
+    if ds.meta.get("layout") == STEP_SUMMARY:
+        return None
+    rest = _rotor_stopped(ds, sel) & (ds.throttle_pct <= sel.plateau_tolerance_pct)
+    rest &= np.isfinite(ds.thrust_n)
+    if not rest.any():
+        return None
+    # the rest plateau: samples held at one command (not a command passing below the scale)
+    level = float(np.median(ds.throttle_pct[rest]))
+    rest &= np.abs(ds.throttle_pct - level) <= sel.plateau_tolerance_pct
+    t = ds.thrust_n[rest]
+    # independent readings: a load cell that holds its value between updates repeats it, so
+    # the readings are the changes of value, not the samples
+    readings = 1 + int(np.count_nonzero(np.diff(t))) if len(t) else 0
+    if readings < sel.min_plateau_samples:
+        return None
+    zero = float(np.median(t))
+    err = float(np.std(t)) / np.sqrt(readings)
+    return zero if abs(zero) > ZERO_SIGMAS * err and zero != 0.0 else None
+
+
+#: a row reading rpm 0 still turns when its thrust stands this share of the file's thrust range
+#: above the rest reading (the spin-up measurement's floor, spinup.FLOOR_FRACTION)
+MAKING_THRUST_FRACTION = 0.01
+
+
 def _rotor_stopped(ds: Dataset, sel: Selection) -> npt.NDArray[np.bool_]:
     """Samples with the rotor stopped: a command at the bottom of the scale (within the plateau
-    tolerance), or, where the log has rpm that rises above 1000, rpm under 1 % of its maximum.
-    Their thrust is the load cell's offset, not a point of the map."""
-    stopped = ds.throttle_pct <= sel.plateau_tolerance_pct
+    tolerance), or, where the log has rpm that rises above 1000, rpm under 1 % of its maximum
+    while the load cell shows no thrust. Their thrust is the load cell's offset, not a point of
+    the map. An rpm probe reads 0 below its lowest speed (the RCbenchmark stand's electrical rpm
+    at 1050 µs on 2S: 0 rpm, yet 6 gf and 0.38 A against 0.1 A at rest): a row making thrust
+    above the rest reading by ``MAKING_THRUST_FRACTION`` of the file's range is turning, as the
+    spin-up measurement counts it (thrust OR rpm)."""
+    at_bottom = ds.throttle_pct <= sel.plateau_tolerance_pct
+    stopped = at_bottom
     if ds.rpm is not None and np.isfinite(ds.rpm).any():
         top = float(np.nanmax(ds.rpm))
         if top > 1000.0:
-            stopped = stopped | (np.nan_to_num(ds.rpm, nan=np.inf) < 0.01 * top)
+            no_rpm = np.nan_to_num(ds.rpm, nan=np.inf) < 0.01 * top
+            t = ds.thrust_n
+            fin = np.isfinite(t)
+            rest = at_bottom & fin
+            base = float(np.median(t[rest])) if rest.any() else 0.0  # else the stand's tare
+            full = float(np.percentile(t[fin], 99)) - base if fin.any() else 0.0
+            making = fin & (t - base > MAKING_THRUST_FRACTION * full)
+            if not full > 0:
+                making[:] = False
+            stopped = stopped | (no_rpm & ~making)
     return np.asarray(stopped, dtype=bool)
 
 
