@@ -93,6 +93,7 @@ def run_campaign(exps: dict[str, plans.Plan], out_dir: Path, seed: int, cfg: Run
     plant = peers.bench_plant({"bench": "b"})
     logs: dict[str, Path] = {}
     durations: dict[str, float] = {}
+    out_dir = Path(tempfile.mkdtemp(prefix=f"seed{seed}-", dir=out_dir))  # logs never overwrite
     with fc, stand:
         for name, plan in exps.items():
             path = out_dir / f"{name}.csv"
