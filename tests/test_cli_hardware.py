@@ -200,7 +200,7 @@ def test_spin_betaflight_every_way_out_stops_and_verifies(
 
 
 def test_spin_stop_not_verified_exits_3(peers: list[Spy], monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(MspThrottleOutput, "verify_stopped", lambda self: False)
+    monkeypatch.setattr(MspThrottleOutput, "_judge", lambda self, values: "running")
     result = run(
         "spin", "sim://betaflight", "--motor", "1", "--throttle", "5", "--seconds", "1", "--yes"
     )
