@@ -119,6 +119,10 @@ class MspThrottleOutput(ThrottleOutput):
         self.timeout_s = timeout_s
         self.retries = retries
         self.stop_resend_s = stop_resend_s
+        #: motor commands sent and not yet answered before the next one waits for a reply
+        self.max_motor_commands_in_flight = 3
+        self._motor_refused = False
+        self._esc_telemetry = True  # False once the FC refused MOTOR_TELEMETRY
         self.timer = ReplyTimer(max_s=max_timeout_s, min_s=min(0.05, max_timeout_s))
         self.version = version
         self._decoder = MspDecoder()
@@ -208,26 +212,30 @@ class MspThrottleOutput(ThrottleOutput):
         while True:
             frames, got_data = self._read_frames()
             for frame in frames:
-                sent = self._match(frame)
-                if sent is not None and sent.request_id == request_id:
+                if self._dispatch(frame, request_id):
                     return frame
-                if sent is not None and sent.request_id is None:
-                    if frame.is_error:
-                        log.warning("FC refused MSP command %d (error reply)", frame.cmd)
-                    continue
-                self.stale_replies += 1
-                log.debug(
-                    "MSP: dropped a stale reply to cmd %d while waiting for cmd %d (%d so far)",
-                    frame.cmd,
-                    cmd,
-                    self.stale_replies,
-                )
             if self.clock.now_s() >= deadline_s:
                 return None
             if while_waiting is not None:
                 while_waiting()
             if not got_data:
                 self.clock.sleep_s(0.001)
+
+    def _dispatch(self, frame: MspFrame, request_id: int | None) -> bool:
+        """True when ``frame`` answers ``request_id``; otherwise it is taken in: an answer to
+        a request nobody waits for, or a stale reply (dropped and counted)."""
+        sent = self._match(frame)
+        if sent is not None and request_id is not None and sent.request_id == request_id:
+            return True
+        if sent is not None and sent.request_id is None:
+            if frame.is_error:
+                log.warning("FC refused MSP command %d (error reply)", frame.cmd)
+                if frame.cmd == MspCommand.SET_MOTOR:
+                    self._motor_refused = True
+            return False
+        self.stale_replies += 1
+        log.debug("MSP: dropped a stale reply to cmd %d (%d so far)", frame.cmd, self.stale_replies)
+        return False
 
     def _match(self, frame: MspFrame) -> _Sent | None:
         """The request ``frame`` answers: the oldest one on the wire with its command (an FC
@@ -326,7 +334,36 @@ class MspThrottleOutput(ThrottleOutput):
         if any(v > MSP_MOTOR_STOP for v in ext):
             self._ensure_watchdog()
             self._motors_may_run = True
-        self.request(MspCommand.SET_MOTOR, SetMotor(tuple(ext)).encode())
+        self._command_motors(SetMotor(tuple(ext)).encode())
+
+    def _command_motors(self, payload: bytes) -> None:
+        """SET_MOTOR without waiting for its reply (a slow link would hold a run's loop up one
+        round trip per command): at most ``max_motor_commands_in_flight`` unanswered, and an
+        FC that refuses one (``!``) fails the next."""
+        if self._motor_refused:
+            self._motor_refused = False
+            raise MspRefused(f"FC refused MSP command {MspCommand.SET_MOTOR} (error reply)")
+        deadline_s = self.clock.now_s() + self.timer.max_s * (self.retries + 1)
+        while self._unanswered(MspCommand.SET_MOTOR) >= self.max_motor_commands_in_flight:
+            if self.clock.now_s() >= deadline_s:
+                raise MspTimeout(
+                    f"no MSP reply to {self._unanswered(MspCommand.SET_MOTOR)} motor commands "
+                    f"within {self.timer.max_s * (self.retries + 1):.1f} s"
+                )
+            self._pump()
+        self._send(MspCommand.SET_MOTOR, encode_request(MspCommand.SET_MOTOR, payload), None)
+        self._pump()
+
+    def _unanswered(self, cmd: int) -> int:
+        return sum(1 for sent in self._sent if sent.cmd == cmd and sent.request_id is None)
+
+    def _pump(self) -> None:
+        """Take in the replies that arrived (answers to requests nobody waits for)."""
+        frames, got_data = self._read_frames()
+        for frame in frames:
+            self._dispatch(frame, None)
+        if not got_data:
+            self.clock.sleep_s(0.001)
 
     def stop(self) -> None:
         self.request(MspCommand.SET_MOTOR, SetMotor.stop_all(MSP_MOTOR_SLOTS).encode())
@@ -412,12 +449,13 @@ class MspThrottleOutput(ThrottleOutput):
         now = self.clock.now_s()
         batt = BatteryState.decode(self.request(MspCommand.BATTERY_STATE))
         rpm = temp = None
-        try:
-            tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
-            rpm = tuple(m.rpm for m in tel.motors)
-            temp = tuple(m.temperature_c for m in tel.motors)
-        except MspRefused:
-            pass  # no ESC telemetry on this build
+        if self._esc_telemetry:
+            try:
+                tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
+                rpm = tuple(m.rpm for m in tel.motors)
+                temp = tuple(m.temperature_c for m in tel.motors)
+            except MspRefused:
+                self._esc_telemetry = False  # no ESC telemetry on this build: not asked again
         return Telemetry(now, batt.voltage_v, batt.current_a, rpm, temp)
 
     def stop_and_verify(self, attempts: int = 3) -> bool:
