@@ -221,7 +221,7 @@ def test_spin_fc_gone_silent_is_reported_as_unverified(
     )
     assert result.exit_code == 3, result.output
     assert "STOP NOT VERIFIED on motor 1 - disconnect the battery now" in result.output
-    assert "no MSP reply" in result.output
+    assert "lost link to the throttle output" in result.output
     assert peers[0].inner.motor_values[0] > 1000  # honest: the FC really is still spinning
 
 

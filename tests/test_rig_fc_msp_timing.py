@@ -140,7 +140,7 @@ def test_a_spike_is_waited_out_and_its_late_copies_are_dropped_as_stale(
     assert output.motor_values()[0] == 1500
     motor_reads = [t for t, cmd, _ in wire.writes if cmd == MspCommand.MOTOR and t >= t0]
     assert len(motor_reads) >= 3  # retried before the reply came...
-    assert clock.now_s() - t0 == pytest.approx(0.7, abs=0.02)  # ...and took the first answer
+    assert clock.now_s() - t0 == pytest.approx(0.7, abs=0.05)  # ...and took the first answer
     lagged.delay_s = 0.02
     with caplog.at_level(logging.DEBUG, logger="thrustmap.rig.fc.msp"):
         assert output.stop_and_verify() is True

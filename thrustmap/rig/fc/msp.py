@@ -85,6 +85,7 @@ class _Sent:
     cmd: int
     sent_s: float
     request_id: int | None  # None: sent without waiting for its reply (the re-sent stop)
+    on_reply: Callable[[MspFrame], None] | None = None  # for a reply nobody waits for
 
 
 class MspThrottleOutput(ThrottleOutput):
@@ -123,6 +124,8 @@ class MspThrottleOutput(ThrottleOutput):
         self.max_motor_commands_in_flight = 3
         self._motor_refused = False
         self._esc_telemetry = True  # False once the FC refused MOTOR_TELEMETRY
+        self._battery: tuple[float, BatteryState] | None = None  # latest reply, when it came
+        self._esc: tuple[float, MotorTelemetry] | None = None
         self.timer = ReplyTimer(max_s=max_timeout_s, min_s=min(0.05, max_timeout_s))
         self.version = version
         self._decoder = MspDecoder()
@@ -184,7 +187,13 @@ class MspThrottleOutput(ThrottleOutput):
             return self.timeout_s
         return self.timer.timeout_for_try(attempt)
 
-    def _send(self, cmd: int, frame: bytes, request_id: int | None) -> float:
+    def _send(
+        self,
+        cmd: int,
+        frame: bytes,
+        request_id: int | None,
+        on_reply: Callable[[MspFrame], None] | None = None,
+    ) -> float:
         if not self._drained:
             # Whatever the port holds before our first request answers nothing of ours (a
             # reply to an earlier connection's request): drop it before it can pass for ours.
@@ -195,7 +204,7 @@ class MspThrottleOutput(ThrottleOutput):
                 log.debug("MSP: dropped a reply to cmd %d left from before", old.cmd)
         self.port.write(frame)
         now_s = self.clock.now_s()
-        self._sent.append(_Sent(cmd, now_s, request_id))
+        self._sent.append(_Sent(cmd, now_s, request_id, on_reply))
         return now_s
 
     def _read_frames(self) -> tuple[list[MspFrame], bool]:
@@ -228,7 +237,9 @@ class MspThrottleOutput(ThrottleOutput):
         if sent is not None and request_id is not None and sent.request_id == request_id:
             return True
         if sent is not None and sent.request_id is None:
-            if frame.is_error:
+            if sent.on_reply is not None:
+                sent.on_reply(frame)
+            elif frame.is_error:
                 log.warning("FC refused MSP command %d (error reply)", frame.cmd)
                 if frame.cmd == MspCommand.SET_MOTOR:
                     self._motor_refused = True
@@ -357,13 +368,29 @@ class MspThrottleOutput(ThrottleOutput):
     def _unanswered(self, cmd: int) -> int:
         return sum(1 for sent in self._sent if sent.cmd == cmd and sent.request_id is None)
 
-    def _pump(self) -> None:
+    def _pump(self, *, wait: bool = True) -> None:
         """Take in the replies that arrived (answers to requests nobody waits for)."""
         frames, got_data = self._read_frames()
         for frame in frames:
             self._dispatch(frame, None)
-        if not got_data:
+        if wait and not got_data:
             self.clock.sleep_s(0.001)
+
+    def _give_up_s(self) -> float:
+        """How long a request is tried before it fails (every try's wait)."""
+        return sum(self._wait_for_try(a) for a in range(1, self.retries + 2))
+
+    def _ask_ahead(self, cmd: int, on_reply: Callable[[MspFrame], None]) -> None:
+        """Keep one request for ``cmd`` on the wire without waiting for it; re-send it when
+        its reply is overdue (at most ``retries`` + 1 copies)."""
+        copies = [s for s in self._sent if s.cmd == cmd and s.on_reply is not None]
+        now_s = self.clock.now_s()
+        if copies and (
+            len(copies) > self.retries
+            or now_s - copies[-1].sent_s < self._wait_for_try(len(copies))
+        ):
+            return
+        self._send(cmd, encode_request(cmd, b"", self.version), None, on_reply)
 
     def stop(self) -> None:
         self.request(MspCommand.SET_MOTOR, SetMotor.stop_all(MSP_MOTOR_SLOTS).encode())
@@ -446,17 +473,53 @@ class MspThrottleOutput(ThrottleOutput):
             log.debug("MSP_MOTOR still shows %s after the stop: stopping again", values)
 
     def read_telemetry(self) -> Telemetry:
-        now = self.clock.now_s()
-        batt = BatteryState.decode(self.request(MspCommand.BATTERY_STATE))
+        """Battery (and ESC telemetry where the FC has it). The first call waits for the
+        replies; later calls return the latest ones and keep the next requests on the wire,
+        so a slow link never holds a run's loop up. Raises ``MspTimeout`` when the latest
+        battery reply is older than a request's whole retry budget (the link is gone)."""
+        if self._battery is None:
+            now = self.clock.now_s()
+            self._battery = (now, BatteryState.decode(self.request(MspCommand.BATTERY_STATE)))
+            if self._esc_telemetry:
+                try:
+                    tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
+                    self._esc = (now, tel)
+                except MspRefused:
+                    self._esc_telemetry = False  # no ESC telemetry on this build
+        else:
+            self._pump(wait=False)
+            self._ask_ahead(MspCommand.BATTERY_STATE, self._took_battery)
+            if self._esc_telemetry:
+                self._ask_ahead(MspCommand.MOTOR_TELEMETRY, self._took_esc)
+            age_s = self.clock.now_s() - self._battery[0]
+            if age_s > self._give_up_s():
+                raise MspTimeout(
+                    f"no MSP reply to BATTERY_STATE for {age_s:.2f} s ({self.timer.describe()})"
+                )
+        time_s, batt = self._battery
         rpm = temp = None
-        if self._esc_telemetry:
-            try:
-                tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
-                rpm = tuple(m.rpm for m in tel.motors)
-                temp = tuple(m.temperature_c for m in tel.motors)
-            except MspRefused:
-                self._esc_telemetry = False  # no ESC telemetry on this build: not asked again
-        return Telemetry(now, batt.voltage_v, batt.current_a, rpm, temp)
+        if self._esc is not None:
+            rpm = tuple(m.rpm for m in self._esc[1].motors)
+            temp = tuple(m.temperature_c for m in self._esc[1].motors)
+        return Telemetry(time_s, batt.voltage_v, batt.current_a, rpm, temp)
+
+    def _took_battery(self, frame: MspFrame) -> None:
+        if frame.is_error:
+            log.debug("FC refused BATTERY_STATE")
+            return
+        try:
+            self._battery = (self.clock.now_s(), BatteryState.decode(frame.payload))
+        except ThrustmapError as exc:
+            log.warning("bad BATTERY_STATE reply: %s", exc)
+
+    def _took_esc(self, frame: MspFrame) -> None:
+        if frame.is_error:
+            self._esc_telemetry = False  # no ESC telemetry on this build: not asked again
+            return
+        try:
+            self._esc = (self.clock.now_s(), MotorTelemetry.decode(frame.payload))
+        except ThrustmapError as exc:
+            log.warning("bad MOTOR_TELEMETRY reply: %s", exc)
 
     def stop_and_verify(self, attempts: int = 3) -> bool:
         """Send the stop and confirm it with MSP_MOTOR; retry. Never raises.
