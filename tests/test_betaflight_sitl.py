@@ -31,7 +31,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from support.betaflight_sitl import MSP_PORT, BetaflightSitl, port_in_use, sitl_binary
+from support.betaflight_sitl import (
+    MSP_PORT,
+    BetaflightSitl,
+    PwmSample,
+    port_in_use,
+    sitl_binary,
+)
 
 from thrustmap.protocols.msp.framing import MspDecoder, encode_request
 from thrustmap.protocols.msp.messages import MspCommand
@@ -136,6 +142,19 @@ def motor1_at(level_us: float, tol: float = 3.0) -> object:
     return lambda v: abs(v[0] - level_us) <= tol
 
 
+def reach(
+    sitl: BetaflightSitl, proc: subprocess.Popen[str], predicate: object, timeout_s: float
+) -> PwmSample:
+    """The first PWM sample for which ``predicate`` holds; else the run's own output, to say
+    why not."""
+    sample = sitl.wait_pwm(predicate, timeout_s)
+    if sample is None:
+        proc.kill()
+        out, err = proc.communicate(timeout=30)
+        pytest.fail(f"the run never reached the output ({sitl.latest_pwm()}):\n{out}\n{err}")
+    return sample
+
+
 def finish(proc: subprocess.Popen[str], timeout_s: float = 30.0) -> tuple[int, str, str]:
     out, err = proc.communicate(timeout=timeout_s)
     return proc.returncode, out, err
@@ -235,14 +254,14 @@ def test_spin(sitl: BetaflightSitl, link: Link, env: dict[str, str]) -> None:
         thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "2", "--yes"),
         env,
     )
-    held = sitl.wait_pwm(motor1_at(1100.0), 20.0)  # 10 % of PWM 1000..2000 µs
+    held = reach(sitl, proc, motor1_at(1100.0), 30.0)  # 10 % of PWM 1000..2000 µs
     code, out, err = finish(proc)
     assert code == 0, err
     assert held is not None and held.values[1:4] == (1000.0,) * 3  # only motor 1 moved
     at_level = [s.time_s for s in sitl.pwm_since(held.time_s) if abs(s.values[0] - 1100.0) <= 3]
-    # held for the 2 s less the 0.5 s ramp (and, on a slow link, the command's one-way delay
-    # plus one round trip of the spin's own loop)
-    assert at_level[-1] - at_level[0] >= 1.3 - 2 * link.latency_s
+    # held for the 2 s less the 0.5 s ramp, less what the firmware itself takes to apply a
+    # command on a loaded machine (up to ~0.5 s) and, on a slow link, two one-way delays
+    assert at_level[-1] - at_level[0] >= 1.0 - 2 * link.latency_s
     assert "stopped (verified)" in out
     assert alarms(err) == [], err
     assert_stopped(sitl)
@@ -255,7 +274,7 @@ def test_sigint_mid_spin_stops_within_a_second(
         thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
         env,
     )
-    assert sitl.wait_pwm(motor1_at(1100.0), 20.0) is not None, "the spin never reached the output"
+    reach(sitl, proc, motor1_at(1100.0), 30.0)
     sent_at = time.monotonic()
     proc.send_signal(signal.SIGINT)
     code, out, err = finish(proc)
@@ -291,8 +310,7 @@ def test_signal_mid_sweep_stops_the_motor(
     sitl: BetaflightSitl, link: Link, env: dict[str, str], tmp_path: Path, sig: signal.Signals
 ) -> None:
     proc = start(sweep_args(tmp_path, link.url, "--to", "30", "--step", "10", "--dwell", "3"), env)
-    spinning = sitl.wait_pwm(lambda v: v[0] >= 1099.0, 30.0)
-    assert spinning is not None, "the sweep never reached the output"
+    reach(sitl, proc, lambda v: v[0] >= 1099.0, 45.0)
     sent_at = time.monotonic()
     proc.send_signal(sig)
     code, out, err = finish(proc)
@@ -312,8 +330,7 @@ def test_sigkill_mid_spin_the_watchdog_stops_the_motor(
         thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
         env,
     )
-    held = sitl.wait_pwm(motor1_at(1100.0), 20.0)
-    assert held is not None, "the spin never reached the output"
+    reach(sitl, proc, motor1_at(1100.0), 30.0)
     killed_at = time.monotonic()
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=20)

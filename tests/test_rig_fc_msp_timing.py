@@ -206,3 +206,46 @@ def test_a_commanded_motor_on_a_dead_link_is_a_real_alarm(caplog: pytest.LogCapt
         assert output.stop_and_verify() is False
     assert "COULD NOT VERIFY MOTOR STOP" in caplog.text
     assert len(wire.stops()) >= 3  # it kept stopping while it waited
+
+
+# --------------------------------------------------------------------------- MAVLink command acks
+
+
+def _px4(delay_s: float, **opts: object) -> tuple[object, SimClock]:
+    from thrustmap.protocols.mavlink.link import MavlinkSerialLink
+    from thrustmap.rig.fc.mavlink import open_mavlink_output
+
+    peers.reset_benches()
+    clock = SimClock(100.0)
+    peer = create_peer("px4", {"bench": "timing", "motors": "1"})
+    port = SimSerial(LaggedPeer(peer, delay_s), clock, timeout=0)
+    return open_mavlink_output(MavlinkSerialLink(port, clock), clock, **opts), clock  # type: ignore[arg-type]
+
+
+def test_mavlink_ack_wait_is_learned_from_the_link() -> None:
+    from thrustmap.protocols.mavlink import codec as mav
+
+    out, clock = _px4(1.2)  # a radio link: 1.2 s per reply, longer than the old 2 x 0.5 s
+    session = out.session  # type: ignore[attr-defined]
+    for _ in range(3):  # every command answered; the wait backs off until it is measured
+        assert session.command(mav.request_message(mav.MSG_AUTOPILOT_VERSION)).accepted
+    assert session.ack_timer.srtt_s == pytest.approx(1.2, abs=0.1)
+    assert session.ack_timeout_s == 1.5  # learned: the round trip is long, the wait bounded
+    t0 = clock.now_s()
+    assert session.command(mav.request_message(mav.MSG_AUTOPILOT_VERSION)).accepted
+    assert clock.now_s() - t0 == pytest.approx(1.2, abs=0.1)
+    fixed, _ = _px4(1.2, ack_timeout_s=0.5)
+    from thrustmap.rig.fc.mavlink_session import MavlinkLinkLost
+
+    with pytest.raises(MavlinkLinkLost, match="after 2 tries"):
+        fixed.session.command(mav.request_message(mav.MSG_AUTOPILOT_VERSION))  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.5])
+def test_mavlink_stop_verified_over_a_slow_link(delay_s: float) -> None:
+    out, clock = _px4(delay_s)
+    out.identify()  # type: ignore[attr-defined]
+    out.set_throttle({0: float(out.throttle_scale.from_pct(10.0))})  # type: ignore[attr-defined]
+    clock.sleep_s(1.0)
+    out.keepalive()  # type: ignore[attr-defined]
+    assert out.stop_and_verify() is True  # type: ignore[attr-defined]

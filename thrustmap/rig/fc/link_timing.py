@@ -40,6 +40,8 @@ class ReplyTimer:
     samples: int = 0
     #: the longest round trip measured so far (for reports and benchmarks)
     max_rtt_s: float = 0.0
+    #: waits doubled this many times since the last sample (see :meth:`timed_out`)
+    backoff: int = 0
 
     def __post_init__(self) -> None:
         if not 0 < self.min_s <= self.max_s:
@@ -58,11 +60,19 @@ class ReplyTimer:
             self.srtt_s = (1 - ALPHA) * self.srtt_s + ALPHA * rtt_s
         self.samples += 1
         self.max_rtt_s = max(self.max_rtt_s, rtt_s)
+        self.backoff = 0
+
+    def timed_out(self) -> None:
+        """A first try went unanswered: later requests start with a doubled wait until a
+        round trip is measured again (RFC 6298 5.5). Without it a link slower than the
+        current wait would never be measured, since only first-try answers are sampled."""
+        self.backoff = min(self.backoff + 1, 5)
 
     @property
     def timeout_s(self) -> float:
         """The wait for a first try: smoothed round trip + 4 deviations, within the bounds."""
         raw = self.initial_s if self.srtt_s is None else self.srtt_s + K * self.rttvar_s
+        raw *= 2.0**self.backoff
         return min(self.max_s, max(self.min_s, raw))
 
     def timeout_for_try(self, attempt: int) -> float:
