@@ -5,7 +5,10 @@ repeatable; the real-firmware runs are in tests/test_betaflight_sitl.py).
 MSP (sim://betaflight, a motor spinning at 1500): today's driver (reply waits learned from the
 round trip, the stop sent at once and re-sent every 100 ms while its MSP_MOTOR check waits)
 against the old fixed 100 ms wait with 2 retries (stop, wait for its reply, then read MSP_MOTOR).
-MAVLink (sim://px4 motor test): today's driver; the ack wait is the session's.
+MAVLink (sim://px4 motor test): today's driver (COMMAND_ACK wait learned from the link) against
+the old fixed 0.5 s ACK wait. The MSP figure ends when the stop is verified (the driver then
+re-enables arming, one more round trip not counted); the old MSP sequence ends at its verifying
+read.
 
 Prints, per latency, the time from the stop call until the stop was verified, or "failed".
 Run: python benchmarks/bench_stop_latency.py
@@ -16,6 +19,8 @@ from __future__ import annotations
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ThrustmapError
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink
+from thrustmap.protocols.msp.framing import encode_request
+from thrustmap.protocols.msp.messages import MspCommand, SetArmingDisabled
 from thrustmap.protocols.peer import create_peer
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig import connect
@@ -27,11 +32,32 @@ from thrustmap.rig.sim import peers
 LATENCIES_S = (0.0, 0.05, 0.2, 0.5)
 
 
+class ArmingWatch:
+    """Passes bytes through; notes when the driver re-enables arming (it does so right after
+    the stop was verified): that instant is the verified stop."""
+
+    def __init__(self, inner: LaggedPeer) -> None:
+        self.inner = inner
+        self.arming_at: float | None = None
+        self._frame = encode_request(
+            MspCommand.SET_ARMING_DISABLED, SetArmingDisabled(False).encode()
+        )
+
+    def write(self, data: bytes, now_s: float) -> None:
+        if self._frame in data and self.arming_at is None:
+            self.arming_at = now_s
+        self.inner.write(data, now_s)
+
+    def read(self, now_s: float) -> bytes:
+        return self.inner.read(now_s)
+
+
 def msp_stop(delay_s: float, *, old: bool) -> float | None:
     peers.reset_benches()
     clock = SimClock(100.0)
     peer = create_peer("betaflight", {"bench": "bench", "protocol": "PWM"})
-    port = SimSerial(LaggedPeer(peer, delay_s), clock, timeout=0)
+    watch = ArmingWatch(LaggedPeer(peer, delay_s))
+    port = SimSerial(watch, clock, timeout=0)
     opts: dict[str, float | int] = {"timeout_s": 0.1, "retries": 2} if old else {}
     fc = MspThrottleOutput(port, clock, **opts)  # type: ignore[arg-type]
     try:
@@ -51,17 +77,17 @@ def msp_stop(delay_s: float, *, old: bool) -> float | None:
                 continue
         return None
     ok = fc.stop_and_verify()
-    # verified when the driver turned to re-enabling arming (the stop's own work is done)
-    return (clock.now_s() - t0 - (fc.timer.srtt_s or 0.0)) if ok else None
+    return watch.arming_at - t0 if ok and watch.arming_at is not None else None
 
 
-def mavlink_stop(delay_s: float) -> float | None:
+def mavlink_stop(delay_s: float, *, old: bool) -> float | None:
     peers.reset_benches()
     clock = SimClock(100.0)
     peer = create_peer("px4", {"bench": "bench", "motors": "1"})
     port = SimSerial(LaggedPeer(peer, delay_s), clock, timeout=0)
+    opts = {"ack_timeout_s": 0.5} if old else {}
     try:
-        out = open_mavlink_output(MavlinkSerialLink(port, clock), clock)
+        out = open_mavlink_output(MavlinkSerialLink(port, clock), clock, **opts)  # type: ignore[arg-type]
         out.identify()
         out.set_throttle({0: float(out.throttle_scale.from_pct(10.0))})
         clock.sleep_s(1.0)
@@ -81,11 +107,16 @@ def fmt(value: float | None) -> str:
 def main() -> None:
     connect.load_sim_peers()
     print("stop call -> verified stop, simulated clock")  # noqa: T201
-    print(f"{'latency':>8} | {'MSP now':>10} | {'MSP old 100 ms':>14} | {'MAVLink now':>11}")  # noqa: T201
+    print(  # noqa: T201
+        f"{'latency':>9} | {'MSP now':>10} | {'MSP old 100 ms':>14} | {'MAVLink now':>11} | "
+        f"{'MAVLink old 0.5 s':>17}"
+    )
     for delay_s in LATENCIES_S:
         row = (
             f"{delay_s * 1000:6.0f} ms | {fmt(msp_stop(delay_s, old=False)):>10} | "
-            f"{fmt(msp_stop(delay_s, old=True)):>14} | {fmt(mavlink_stop(delay_s)):>11}"
+            f"{fmt(msp_stop(delay_s, old=True)):>14} | "
+            f"{fmt(mavlink_stop(delay_s, old=False)):>11} | "
+            f"{fmt(mavlink_stop(delay_s, old=True)):>17}"
         )
         print(row)  # noqa: T201
 
