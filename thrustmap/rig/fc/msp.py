@@ -23,6 +23,17 @@ Because the firmware never times a motor value out, the preflight (before arming
 and any motor command) starts a watchdog process (:mod:`thrustmap.rig.watchdog`) when the
 driver knows the port's URL: if this process dies without a clean stop, the watchdog reopens
 the port and stops the motors. A clean close disarms it.
+
+Timing comes from the link itself (issue 20): a SITL on a busy machine answers in 10..680 ms,
+a radio bridge slower still. Each request's wait is learned from the measured round trip
+(:class:`~thrustmap.rig.fc.link_timing.ReplyTimer`, 50 ms..1.5 s per try, doubled per retry),
+and a late answer to an earlier try is the answer too. Replies are matched to requests by
+command in send order (an FC answers in order); replies to nothing still waiting — the late
+twins of a retried request, an earlier connection's leftovers — are dropped and counted
+(``stale_replies``). Motor commands and telemetry requests do not wait for their replies (a
+slow link would hold a run's loop up); the stop goes out at once and is re-sent every
+``stop_resend_s`` while the MSP_MOTOR read that verifies it waits. A session that commanded no
+motor sends no stop at all.
 """
 
 from __future__ import annotations
