@@ -365,12 +365,13 @@ class MspThrottleOutput(ThrottleOutput):
         if self._motor_refused:
             self._motor_refused = False
             raise MspRefused(f"FC refused MSP command {MspCommand.SET_MOTOR} (error reply)")
-        deadline_s = self.clock.now_s() + self.timer.max_s * (self.retries + 1)
+        give_up_s = self._give_up_s()
+        deadline_s = self.clock.now_s() + give_up_s
         while self._unanswered(MspCommand.SET_MOTOR) >= self.max_motor_commands_in_flight:
             if self.clock.now_s() >= deadline_s:
                 raise MspTimeout(
                     f"no MSP reply to {self._unanswered(MspCommand.SET_MOTOR)} motor commands "
-                    f"within {self.timer.max_s * (self.retries + 1):.1f} s"
+                    f"within {give_up_s * 1000:.0f} ms ({self.timer.describe()})"
                 )
             self._pump()
         self._send(MspCommand.SET_MOTOR, encode_request(MspCommand.SET_MOTOR, payload), None)
