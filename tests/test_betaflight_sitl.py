@@ -177,9 +177,12 @@ def assert_stopped(sitl: BetaflightSitl) -> None:
 
 
 def sweep_args(tmp_path: Path, url: str, *more: str) -> list[str]:
+    """A sweep on the SITL. ``--link-timeout 3``: a SITL on a loaded 2-core machine goes
+    silent for over a second now and then (seen: 1.2 s), which the default 1 s limit, meant
+    for a real FC on a cable, rightly calls a lost link."""
     return thrustmap(
         "sweep", "stairs-up", "--stand", STAND, "--throttle", url,
-        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", *more,
+        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", "--link-timeout", "3", *more,
     )  # fmt: skip
 
 
