@@ -176,6 +176,14 @@ def assert_stopped(sitl: BetaflightSitl) -> None:
     assert values[:4] == (1000,) * 4, values
 
 
+def spin_args(url: str, seconds: str) -> list[str]:
+    """Motor 1 at 10 %; the link timeout as for :func:`sweep_args`."""
+    return thrustmap(
+        "spin", url, "--motor", "1", "--throttle", "10", "--seconds", seconds, "--yes",
+        "--link-timeout", "3",
+    )  # fmt: skip
+
+
 def sweep_args(tmp_path: Path, url: str, *more: str) -> list[str]:
     """A sweep on the SITL. ``--link-timeout 3``: a SITL on a loaded 2-core machine goes
     silent for over a second now and then (seen: 1.2 s), which the default 1 s limit, meant
@@ -254,7 +262,7 @@ def test_the_simulated_46_sitl_answers_as_the_real_one(sitl: BetaflightSitl) -> 
 
 def test_spin(sitl: BetaflightSitl, link: Link, env: dict[str, str]) -> None:
     proc = start(
-        thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "2", "--yes"),
+        spin_args(link.url, "2"),
         env,
     )
     held = reach(sitl, proc, motor1_at(1100.0), 30.0)  # 10 % of PWM 1000..2000 µs
@@ -274,7 +282,7 @@ def test_sigint_mid_spin_stops_within_a_second(
     sitl: BetaflightSitl, link: Link, env: dict[str, str]
 ) -> None:
     proc = start(
-        thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
+        spin_args(link.url, "8"),
         env,
     )
     reach(sitl, proc, motor1_at(1100.0), 30.0)
@@ -330,7 +338,7 @@ def test_sigkill_mid_spin_the_watchdog_stops_the_motor(
     sitl: BetaflightSitl, link: Link, env: dict[str, str], tmp_path: Path
 ) -> None:
     proc = start(
-        thrustmap("spin", link.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
+        spin_args(link.url, "8"),
         env,
     )
     reach(sitl, proc, motor1_at(1100.0), 30.0)
