@@ -249,3 +249,35 @@ def test_mavlink_stop_verified_over_a_slow_link(delay_s: float) -> None:
     clock.sleep_s(1.0)
     out.keepalive()  # type: ignore[attr-defined]
     assert out.stop_and_verify() is True  # type: ignore[attr-defined]
+
+
+class OneByteReads:
+    """A port like pyserial's ``socket://``: ``in_waiting`` says 0, a read gives one byte."""
+
+    def __init__(self, inner: SimSerial) -> None:
+        self.inner = inner
+
+    timeout = 0.0
+    in_waiting = 0
+
+    def read(self, size: int = 1) -> bytes:
+        return self.inner.read(1)
+
+    def write(self, data: bytes) -> int | None:
+        return self.inner.write(data)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def test_telemetry_kept_on_the_wire_through_a_port_that_reads_a_byte_at_a_time() -> None:
+    output, _, _, clock = fc(0.05)
+    output.port = OneByteReads(output.port)  # type: ignore[arg-type, assignment]
+    output.identify()
+    first = output.read_telemetry()
+    times = []
+    for _ in range(20):
+        clock.sleep_s(0.1)
+        times.append(output.read_telemetry().time_s)  # never blocks on the link
+    assert times[-1] - first.time_s > 1.5  # fresh replies kept coming in
+    assert times[-1] >= clock.now_s() - 0.2

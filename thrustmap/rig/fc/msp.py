@@ -381,11 +381,18 @@ class MspThrottleOutput(ThrottleOutput):
         return sum(1 for sent in self._sent if sent.cmd == cmd and sent.request_id is None)
 
     def _pump(self, *, wait: bool = True) -> None:
-        """Take in the replies that arrived (answers to requests nobody waits for)."""
-        frames, got_data = self._read_frames()
-        for frame in frames:
-            self._dispatch(frame, None)
-        if wait and not got_data:
+        """Take in every reply that arrived (answers to requests nobody waits for). Some
+        ports report nothing ``in_waiting`` (pyserial's ``socket://``) and give a byte a read:
+        read until they have nothing more (bounded)."""
+        for _ in range(4096):
+            frames, got_data = self._read_frames()
+            for frame in frames:
+                self._dispatch(frame, None)
+            if not got_data:
+                break
+        else:
+            return
+        if wait:
             self.clock.sleep_s(0.001)
 
     def _give_up_s(self) -> float:
