@@ -176,8 +176,9 @@ class MspThrottleOutput(ThrottleOutput):
         request_id = self._next_request_id
         frame = encode_request(cmd, payload, self.version)
         waited_s = 0.0
-        tries = self.retries + 1
-        for attempt in range(1, tries + 1):
+        attempt = 0
+        while True:
+            attempt += 1
             sent_s = self._send(cmd, frame, request_id)
             wait_s = self._wait_for_try(attempt)
             reply = self._await(cmd, request_id, sent_s + wait_s, while_waiting)
@@ -187,9 +188,15 @@ class MspThrottleOutput(ThrottleOutput):
                 return self._payload(reply)
             waited_s += wait_s
             log.debug("MSP cmd %d: no reply within %.0f ms (try %d)", cmd, wait_s * 1000, attempt)
+            # The round trip decides when to re-send; giving up takes at least the longest
+            # wait of one reply too (a link that answers in 15 ms can stall for a second).
+            if attempt > self.retries and (
+                self.timeout_s is not None or waited_s >= self.timer.max_s
+            ):
+                break
         self._forget(request_id)
         raise MspTimeout(
-            f"no MSP reply to command {cmd} after {tries} tries over {waited_s * 1000:.0f} ms"
+            f"no MSP reply to command {cmd} after {attempt} tries over {waited_s * 1000:.0f} ms"
             + ("" if self.timeout_s is not None else f" ({self.timer.describe()})")
         )
 
