@@ -1,6 +1,7 @@
-"""MSP and MAVLink timing from the link itself (issue 20): reply waits learned from the round trip, replies
-matched to their request by command, stale ones dropped, a fast stop whatever the latency, and
-no stop (and no alarm) from a session that commanded nothing. On a simulated clock: exact."""
+"""MSP and MAVLink timing from the link itself (issue 20): reply waits learned from the round
+trip, replies matched to their request by command, stale ones dropped, a fast stop whatever
+the latency, and no stop (and no alarm) from a session that commanded nothing. On a simulated
+clock: exact."""
 
 from __future__ import annotations
 
