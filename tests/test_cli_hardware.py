@@ -200,7 +200,7 @@ def test_spin_betaflight_every_way_out_stops_and_verifies(
 
 
 def test_spin_stop_not_verified_exits_3(peers: list[Spy], monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(MspThrottleOutput, "verify_stopped", lambda self: False)
+    monkeypatch.setattr(MspThrottleOutput, "_judge", lambda self, values: "running")
     result = run(
         "spin", "sim://betaflight", "--motor", "1", "--throttle", "5", "--seconds", "1", "--yes"
     )
@@ -221,7 +221,7 @@ def test_spin_fc_gone_silent_is_reported_as_unverified(
     )
     assert result.exit_code == 3, result.output
     assert "STOP NOT VERIFIED on motor 1 - disconnect the battery now" in result.output
-    assert "no MSP reply" in result.output
+    assert "lost link to the throttle output" in result.output
     assert peers[0].inner.motor_values[0] > 1000  # honest: the FC really is still spinning
 
 

@@ -180,7 +180,7 @@ def test_limit_trip_stops_within_100ms(tmp_path: Path) -> None:
     assert result.status == "aborted" and result.trip is not None and result.trip.limit == "thrust"
     ds = load_dataset(tmp_path / "trip.csv")
     t_cross = float(ds.time_s[ds.thrust_n > 1.5][0])  # type: ignore[index]
-    stops = rig.fc_port.stop_times(t_cross)
+    stops = rig.fc_port.stop_times(t_cross - 0.0005)  # the log keeps times to the ms
     assert stops and stops[0] - t_cross <= 0.1
     assert result.stop_verified and motors_at_rest(rig)
     assert_partial_log(tmp_path / "trip.csv", "limit tripped: thrust")
@@ -233,9 +233,9 @@ def test_fc_link_dropped_then_back(tmp_path: Path) -> None:
         result = sweep(rig, tmp_path / "f.csv", PLAN, limits=limits)
     assert result.status == "aborted" and "lost link to the throttle output" in result.reason
     stops = rig.fc_port.stop_times(5.0)
-    assert (
-        stops and stops[0] - (5.0 + limits.link_timeout_s) <= 0.1 + 0.5
-    )  # detection within one request cycle
+    # detection within one request cycle: a silent FC fails a request after 4 tries of
+    # 50..400 ms (the reply timeout adapts to the link's round trip, issue 20)
+    assert stops and stops[0] - (5.0 + limits.link_timeout_s) <= 0.1 + 0.75
     assert result.stop_verified and motors_at_rest(rig)  # verified once the link came back
     assert_partial_log(tmp_path / "f.csv", "lost link to the throttle output")
 

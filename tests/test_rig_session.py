@@ -154,9 +154,9 @@ def test_ctrl_c_while_waiting_at_rest_stops_at_once_without_a_false_alarm(
         result = sweep(rig, tmp_path / "c.csv", PLAN, stand=stand)
     assert fired and result.outcome == "interrupted" and result.stop_verified
     assert exit_code(result.outcome, result.stop_verified) == EXIT_INTERRUPTED
-    stops = rig.fc_port.stop_times(fired[0])
-    assert stops and stops[0] - fired[0] <= 0.1
     assert running_commands(rig.fc_port.writes) == []
+    # nothing was commanded, so there is nothing to stop: no stop is sent (issue 20)
+    assert rig.fc_port.stop_times(0.0) == []
     assert not [r for r in caplog.records if r.levelno >= logging.CRITICAL]
 
 

@@ -236,7 +236,7 @@ def stop_motors(url: str, *, baudrate: int | None, give_up_s: float) -> bool:
         except Exception as exc:  # busy, refused, unplugged: try again
             log.info("attempt %d: cannot open %s yet: %s", attempt, url, exc)
         else:
-            output = MspThrottleOutput(port, clock, timeout_s=0.25, retries=1, watchdog=False)
+            output = MspThrottleOutput(port, clock, retries=2, watchdog=False)
             try:
                 outcome = output.watchdog_stop()
                 if outcome == "verified":

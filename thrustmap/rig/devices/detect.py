@@ -101,10 +101,11 @@ def sniff(
     clock: Clock,
     *,
     listen_s: float = 2.0,
-    msp_timeout_s: float = 0.5,
+    msp_timeout_s: float = 1.5,
     send_msp: bool = True,
 ) -> Detection | None:
-    """Listen for ``listen_s``, then (if nothing spoke) ask once for MSP API_VERSION."""
+    """Listen for ``listen_s``, then (if nothing spoke) ask once for MSP API_VERSION, waiting
+    as long as the MSP driver's longest wait (a SITL on a busy machine, a radio bridge)."""
     port.timeout = 0.0
     seen = bytearray()
     deadline = clock.now_s() + listen_s

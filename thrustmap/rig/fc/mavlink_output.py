@@ -64,7 +64,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
         test_timeout_s: float = 2.0,
         keepalive_interval_s: float = 0.5,
         max_command_gap_s: float | None = None,
-        ack_timeout_s: float = 0.5,
+        ack_timeout_s: float | None = None,  # None: learned from the link's round trip
         command_attempts: int = 2,
         heartbeat_timeout_s: float = 3.0,
         param_timeout_s: float = 0.3,

@@ -34,6 +34,7 @@ from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, DataFormatError, SafetyError, ThrustmapError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.params import ParamEncoding, encoding_from_capabilities
+from thrustmap.rig.fc.link_timing import ReplyTimer
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +116,7 @@ class MavlinkSession:
         clock: Clock,
         *,
         heartbeat: mav.Heartbeat | None = None,
-        ack_timeout_s: float = 0.5,
+        ack_timeout_s: float | None = None,
         command_attempts: int = 2,
         heartbeat_timeout_s: float = 3.0,
         param_timeout_s: float = 0.3,
@@ -127,7 +128,12 @@ class MavlinkSession:
             raise ConfigError(f"max_messages_per_poll must be >= 1, got {max_messages_per_poll}")
         self.link = link
         self.clock = clock
-        self.ack_timeout_s = ack_timeout_s
+        #: None: the COMMAND_ACK wait is learned from the link (``ack_timer``); else fixed
+        self.fixed_ack_timeout_s = ack_timeout_s
+        self.ack_timer = ReplyTimer(initial_s=0.5, min_s=0.2, max_s=1.5)
+        #: COMMAND_ACKs that arrived for a command nobody waited for any more (dropped)
+        self.stale_acks = 0
+        self._duplicates: dict[int, list[float]] = {}  # command -> until when a twin may come
         self.command_attempts = command_attempts
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.param_timeout_s = param_timeout_s
@@ -284,27 +290,73 @@ class MavlinkSession:
                 return self.acks.pop(i)
         return None
 
+    @property
+    def ack_timeout_s(self) -> float:
+        """The wait for a COMMAND_ACK: fixed, or learned from the link's measured round trip
+        (:class:`ReplyTimer`: 0.2..1.5 s; retries wait twice as long as the try before)."""
+        if self.fixed_ack_timeout_s is not None:
+            return self.fixed_ack_timeout_s
+        return self.ack_timer.timeout_s
+
+    def _ack_wait_for_try(self, attempt: int) -> float:
+        if self.fixed_ack_timeout_s is not None:
+            return self.fixed_ack_timeout_s
+        return self.ack_timer.timeout_for_try(attempt)
+
+    def _duplicate_due(self, command: int) -> bool:
+        """An ACK for ``command`` is expected as the late twin of an earlier retried one."""
+        now_s = self.clock.now_s()
+        due = [t for t in self._duplicates.get(command, []) if t > now_s]
+        if not due:
+            self._duplicates.pop(command, None)
+            return False
+        self._duplicates[command] = due[1:]
+        return True
+
     def command(self, cmd: mav.CommandLong, *, attempts: int | None = None) -> mav.CommandAck:
-        """Send a COMMAND_LONG to the vehicle and return its final COMMAND_ACK (any result)."""
+        """Send a COMMAND_LONG to the vehicle and return its final COMMAND_ACK (any result).
+
+        A late ACK to an earlier try is the answer too; ACKs for this command left from before
+        are dropped (``stale_acks``). The round trip of a command answered at its first try
+        teaches the ACK wait (``ack_timer``)."""
         cmd = self.target(cmd)
         tries = self.command_attempts if attempts is None else attempts
-        self.acks = [a for a in self.acks if a.command != cmd.command]
+        kept = [a for a in self.acks if a.command != cmd.command]
+        self.stale_acks += len(self.acks) - len(kept)
+        self.acks = kept
+        waited_s = 0.0
         for attempt in range(1, tries + 1):
             log.debug("-> %s %s (attempt %d)", command_name(cmd.command), cmd.params, attempt)
             self.send(cmd.to_message())
+            sent_s = self.clock.now_s()
             found: list[mav.CommandAck] = []
 
             def got_ack(command: int = cmd.command, out: list[mav.CommandAck] = found) -> bool:
-                ack = self.take_ack(command)
-                if ack is not None:
+                while not out:
+                    ack = self.take_ack(command)
+                    if ack is None:
+                        break
+                    if self._duplicate_due(command):
+                        self.stale_acks += 1  # the late twin of an earlier command's ACK
+                        log.debug("dropped a late duplicate COMMAND_ACK for %s", command)
+                        continue
                     out.append(ack)
                 return bool(out)
 
-            if self.wait_until(got_ack, self.ack_timeout_s):
+            wait_s = self._ack_wait_for_try(attempt)
+            if self.wait_until(got_ack, wait_s):
+                if attempt == 1:
+                    self.ack_timer.sample(self.clock.now_s() - sent_s)
+                else:  # the other tries' ACKs may still come: they answer nothing new
+                    due_s = self.clock.now_s() + 2 * self.ack_timer.max_s
+                    self._duplicates.setdefault(cmd.command, []).extend([due_s] * (attempt - 1))
                 return found[0]
+            if attempt == 1 and self.fixed_ack_timeout_s is None:
+                self.ack_timer.timed_out()
+            waited_s += wait_s
         raise MavlinkLinkLost(
             f"no COMMAND_ACK for {command_name(cmd.command)} after {tries} tries "
-            f"({self.ack_timeout_s:g} s each): link lost"
+            f"({waited_s:.2f} s in all): link lost"
         )
 
     def request_autopilot_version(self) -> mav.AutopilotVersion | None:

@@ -23,16 +23,29 @@ Because the firmware never times a motor value out, the preflight (before arming
 and any motor command) starts a watchdog process (:mod:`thrustmap.rig.watchdog`) when the
 driver knows the port's URL: if this process dies without a clean stop, the watchdog reopens
 the port and stops the motors. A clean close disarms it.
+
+Timing comes from the link itself (issue 20): a SITL on a busy machine answers in 10..680 ms,
+a radio bridge slower still. Each request's wait is learned from the measured round trip
+(:class:`~thrustmap.rig.fc.link_timing.ReplyTimer`, 50 ms..1.5 s per try, doubled per retry),
+and a late answer to an earlier try is the answer too. Replies are matched to requests by
+command in send order (an FC answers in order); replies to nothing still waiting — the late
+twins of a retried request, an earlier connection's leftovers — are dropped and counted
+(``stale_replies``). Motor commands and telemetry requests do not wait for their replies (a
+slow link would hold a run's loop up); the stop goes out at once and is re-sent every
+``stop_resend_s`` while the MSP_MOTOR read that verifies it waits. A session that commanded no
+motor sends no stop at all.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 from thrustmap.core.clock import Clock
-from thrustmap.core.errors import SafetyError, ThrustmapError
+from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.protocols.msp.framing import MspDecoder, MspFrame, MspVersion, encode_request
 from thrustmap.protocols.msp.messages import (
     MSP_MOTOR_STOP,
@@ -54,6 +67,7 @@ from thrustmap.protocols.msp.messages import (
     throttle_scale_for,
 )
 from thrustmap.protocols.transport import SerialLike
+from thrustmap.rig.fc.link_timing import ReplyTimer
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 
 if TYPE_CHECKING:
@@ -75,34 +89,71 @@ class MspRefused(ThrustmapError):
     """The FC answered with an MSP error frame (``!``): unknown or refused command."""
 
 
+@dataclass
+class _Sent:
+    """A request on the wire whose reply has not been read yet."""
+
+    cmd: int
+    sent_s: float
+    request_id: int | None  # None: sent without waiting for its reply (the re-sent stop)
+    on_reply: Callable[[MspFrame], None] | None = None  # for a reply nobody waits for
+
+
 class MspThrottleOutput(ThrottleOutput):
     def __init__(
         self,
         port: SerialLike,
         clock: Clock,
         *,
-        timeout_s: float = 0.1,
-        retries: int = 2,
+        timeout_s: float | None = None,
+        retries: int = 3,
+        max_timeout_s: float = 1.5,
+        stop_resend_s: float = 0.1,
         version: MspVersion = MspVersion.V1,
         url: str | None = None,
         baudrate: int | None = None,
         watchdog: bool = True,
         watchdog_log: str | None = None,
     ) -> None:
-        """``url``/``baudrate``: how ``port`` was opened. With them (and ``watchdog``), the
+        """``timeout_s``: None (the default) learns the wait for each reply from the link's
+        measured round trip (:class:`ReplyTimer`, at most ``max_timeout_s`` per try, doubled
+        per retry); a number fixes it (every try waits exactly that long). ``retries``: tries
+        after the first before a request fails. ``stop_resend_s``: while a stop waits for its
+        verifying MSP_MOTOR, the stop is re-sent this often.
+
+        ``url``/``baudrate``: how ``port`` was opened. With them (and ``watchdog``), the
         preflight starts the motor-stop watchdog on the same port (not for simulated or
         replayed ports, which end with this process)."""
+        if retries < 0:
+            raise ConfigError(f"retries must be >= 0, got {retries}")
         self.port = port
         self.clock = clock
         self.timeout_s = timeout_s
         self.retries = retries
+        self.stop_resend_s = stop_resend_s
+        #: motor commands sent and not yet answered before the next one waits for a reply
+        self.max_motor_commands_in_flight = 3
+        self._motor_refused = False
+        self._esc_telemetry = True  # False once the FC refused MOTOR_TELEMETRY
+        self._battery: tuple[float, BatteryState] | None = None  # latest reply, when it came
+        self._esc: tuple[float, MotorTelemetry] | None = None
+        self.timer = ReplyTimer(max_s=max_timeout_s, min_s=min(0.05, max_timeout_s))
         self.version = version
         self._decoder = MspDecoder()
+        self._sent: deque[_Sent] = deque(maxlen=256)  # bounded: a dead FC answers nothing
+        self._next_request_id = 0
+        self._drained = False
+        #: replies that answered no request still waiting (late answers to a request already
+        #: answered or given up, or left over from an earlier connection): dropped
+        self.stale_replies = 0
+        #: requests the FC never answered (a later request was answered first)
+        self.lost_requests = 0
         self._identity: DeviceIdentity | None = None
         self.motor_protocol = MotorProtocol.DSHOT600
         self.throttle_scale = throttle_scale_for(self.motor_protocol)
         self._arming_disabled = False
         self._motor_count: int | None = None
+        self._last_motor_values: tuple[int, ...] = ()
         self._motors_may_run = False  # a motor command went out since the last confirmed stop
         #: why the last stop could not be verified on this FC (None: verified, or not known yet)
         self.stop_unverifiable: str | None = None
@@ -113,34 +164,138 @@ class MspThrottleOutput(ThrottleOutput):
         self.port.timeout = 0.0  # we poll with our own clock-driven deadline
 
     # -- MSP request/response -------------------------------------------------------------
-    def request(self, cmd: int, payload: bytes = b"") -> bytes:
-        """Send one request and return the reply payload; retry on silence."""
-        last: Exception | None = None
-        for attempt in range(self.retries + 1):
-            self.port.write(encode_request(cmd, payload, self.version))
-            try:
-                return self._await(cmd)
-            except MspTimeout as exc:
-                last = exc
-                log.debug("MSP cmd %d: no reply (attempt %d)", cmd, attempt + 1)
-        assert last is not None
-        raise last
+    def request(
+        self, cmd: int, payload: bytes = b"", *, while_waiting: Callable[[], None] | None = None
+    ) -> bytes:
+        """Send one request and return its reply payload, re-sending it on silence.
 
-    def _await(self, cmd: int) -> bytes:
-        deadline = self.clock.now_s() + self.timeout_s
+        Each try waits as long as the link needs (see ``ReplyTimer``); a late reply to an
+        earlier try of the same request is its answer too. Replies to anything else are
+        dropped (``stale_replies``). ``while_waiting`` is called on every poll of the wait."""
+        self._next_request_id += 1
+        request_id = self._next_request_id
+        frame = encode_request(cmd, payload, self.version)
+        waited_s = 0.0
+        attempt = 0
         while True:
-            data = self.port.read(max(1, self.port.in_waiting))
-            for frame in self._decoder.feed(data):
-                if frame.cmd != cmd:
-                    log.debug("MSP: discarding unexpected reply to cmd %d", frame.cmd)
-                    continue
-                return self._payload(frame)
-            if self.clock.now_s() >= deadline:
-                raise MspTimeout(
-                    f"no MSP reply to command {cmd} within {self.timeout_s * 1000:.0f} ms"
-                )
-            if not data:
+            attempt += 1
+            sent_s = self._send(cmd, frame, request_id)
+            wait_s = self._wait_for_try(attempt)
+            reply = self._await(cmd, request_id, sent_s + wait_s, while_waiting)
+            if reply is not None:
+                if attempt == 1 and self.timeout_s is None:
+                    self.timer.sample(self.clock.now_s() - sent_s)
+                return self._payload(reply)
+            waited_s += wait_s
+            log.debug("MSP cmd %d: no reply within %.0f ms (try %d)", cmd, wait_s * 1000, attempt)
+            # The round trip decides when to re-send; giving up takes at least the longest
+            # wait of one reply too (a link that answers in 15 ms can stall for a second).
+            if attempt > self.retries and (
+                self.timeout_s is not None or waited_s >= self.timer.max_s
+            ):
+                break
+        self._forget(request_id)
+        raise MspTimeout(
+            f"no MSP reply to command {cmd} after {attempt} tries over {waited_s * 1000:.0f} ms"
+            + ("" if self.timeout_s is not None else f" ({self.timer.describe()})")
+        )
+
+    def _wait_for_try(self, attempt: int) -> float:
+        if self.timeout_s is not None:
+            return self.timeout_s
+        return self.timer.timeout_for_try(attempt)
+
+    def _send(
+        self,
+        cmd: int,
+        frame: bytes,
+        request_id: int | None,
+        on_reply: Callable[[MspFrame], None] | None = None,
+    ) -> float:
+        if not self._drained:
+            # Whatever the port holds before our first request answers nothing of ours (a
+            # reply to an earlier connection's request): drop it before it can pass for ours.
+            self._drained = True
+            leftovers, _ = self._read_frames()
+            for old in leftovers:
+                self.stale_replies += 1
+                log.debug("MSP: dropped a reply to cmd %d left from before", old.cmd)
+        self.port.write(frame)
+        now_s = self.clock.now_s()
+        self._sent.append(_Sent(cmd, now_s, request_id, on_reply))
+        return now_s
+
+    def _read_frames(self) -> tuple[list[MspFrame], bool]:
+        data = self.port.read(max(1, self.port.in_waiting))
+        return self._decoder.feed(data), bool(data)
+
+    def _await(
+        self,
+        cmd: int,
+        request_id: int,
+        deadline_s: float,
+        while_waiting: Callable[[], None] | None,
+    ) -> MspFrame | None:
+        while True:
+            frames, got_data = self._read_frames()
+            for frame in frames:
+                if self._dispatch(frame, request_id):
+                    return frame
+            if self.clock.now_s() >= deadline_s:
+                return None
+            if while_waiting is not None:
+                while_waiting()
+            if not got_data:
                 self.clock.sleep_s(0.001)
+
+    def _dispatch(self, frame: MspFrame, request_id: int | None) -> bool:
+        """True when ``frame`` answers ``request_id``; otherwise it is taken in: an answer to
+        a request nobody waits for, or a stale reply (dropped and counted)."""
+        sent = self._match(frame)
+        if sent is not None and request_id is not None and sent.request_id == request_id:
+            return True
+        if sent is not None and sent.request_id is None:
+            if sent.on_reply is not None:
+                sent.on_reply(frame)
+            elif frame.is_error:
+                log.warning("FC refused MSP command %d (error reply)", frame.cmd)
+                if frame.cmd == MspCommand.SET_MOTOR:
+                    self._motor_refused = True
+            return False
+        self.stale_replies += 1
+        log.debug("MSP: dropped a stale reply to cmd %d (%d so far)", frame.cmd, self.stale_replies)
+        return False
+
+    def _match(self, frame: MspFrame) -> _Sent | None:
+        """The request ``frame`` answers: the oldest one on the wire with its command (an FC
+        answers in order, so requests sent before it and still unanswered were lost)."""
+        for index, sent in enumerate(self._sent):
+            if sent.cmd == frame.cmd:
+                for _ in range(index):
+                    lost = self._sent.popleft()
+                    if lost.request_id is not None:
+                        self.lost_requests += 1
+                self._sent.popleft()
+                return sent
+        return None
+
+    def _forget(self, request_id: int) -> None:
+        """A request given up: its copies stay on record (their late replies are stale), but
+        anything sent longer ago than the longest wait is taken as lost, so the record stays
+        bounded."""
+        horizon_s = self.clock.now_s() - 2 * self.timer.max_s * (self.retries + 1)
+        while self._sent and self._sent[0].sent_s < horizon_s:
+            self._sent.popleft()
+            self.lost_requests += 1
+
+    def _send_stop(self) -> None:
+        """The stop, without waiting for its reply (what waits is the MSP_MOTOR read after it)."""
+        self._send(MspCommand.SET_MOTOR, self._stop_frame(), None)
+
+    def _stop_frame(self) -> bytes:
+        return encode_request(
+            MspCommand.SET_MOTOR, SetMotor.stop_all(MSP_MOTOR_SLOTS).encode(), self.version
+        )
 
     @staticmethod
     def _payload(frame: MspFrame) -> bytes:
@@ -208,7 +363,60 @@ class MspThrottleOutput(ThrottleOutput):
         if any(v > MSP_MOTOR_STOP for v in ext):
             self._ensure_watchdog()
             self._motors_may_run = True
-        self.request(MspCommand.SET_MOTOR, SetMotor(tuple(ext)).encode())
+        self._command_motors(SetMotor(tuple(ext)).encode())
+
+    def _command_motors(self, payload: bytes) -> None:
+        """SET_MOTOR without waiting for its reply (a slow link would hold a run's loop up one
+        round trip per command): at most ``max_motor_commands_in_flight`` unanswered, and an
+        FC that refuses one (``!``) fails the next."""
+        if self._motor_refused:
+            self._motor_refused = False
+            raise MspRefused(f"FC refused MSP command {MspCommand.SET_MOTOR} (error reply)")
+        give_up_s = self._give_up_s()
+        deadline_s = self.clock.now_s() + give_up_s
+        while self._unanswered(MspCommand.SET_MOTOR) >= self.max_motor_commands_in_flight:
+            if self.clock.now_s() >= deadline_s:
+                raise MspTimeout(
+                    f"no MSP reply to {self._unanswered(MspCommand.SET_MOTOR)} motor commands "
+                    f"within {give_up_s * 1000:.0f} ms ({self.timer.describe()})"
+                )
+            self._pump()
+        self._send(MspCommand.SET_MOTOR, encode_request(MspCommand.SET_MOTOR, payload), None)
+        self._pump()
+
+    def _unanswered(self, cmd: int) -> int:
+        return sum(1 for sent in self._sent if sent.cmd == cmd and sent.request_id is None)
+
+    def _pump(self, *, wait: bool = True) -> None:
+        """Take in every reply that arrived (answers to requests nobody waits for). Some
+        ports report nothing ``in_waiting`` (pyserial's ``socket://``) and give a byte a read:
+        read until they have nothing more (bounded)."""
+        for _ in range(4096):
+            frames, got_data = self._read_frames()
+            for frame in frames:
+                self._dispatch(frame, None)
+            if not got_data:
+                break
+        else:
+            return
+        if wait:
+            self.clock.sleep_s(0.001)
+
+    def _give_up_s(self) -> float:
+        """How long a request is tried before it fails (every try's wait)."""
+        return sum(self._wait_for_try(a) for a in range(1, self.retries + 2))
+
+    def _ask_ahead(self, cmd: int, on_reply: Callable[[MspFrame], None]) -> None:
+        """Keep one request for ``cmd`` on the wire without waiting for it; re-send it when
+        its reply is overdue (at most ``retries`` + 1 copies)."""
+        copies = [s for s in self._sent if s.cmd == cmd and s.on_reply is not None]
+        now_s = self.clock.now_s()
+        if copies and (
+            len(copies) > self.retries
+            or now_s - copies[-1].sent_s < self._wait_for_try(len(copies))
+        ):
+            return
+        self._send(cmd, encode_request(cmd, b"", self.version), None, on_reply)
 
     def stop(self) -> None:
         self.request(MspCommand.SET_MOTOR, SetMotor.stop_all(MSP_MOTOR_SLOTS).encode())
@@ -232,11 +440,16 @@ class MspThrottleOutput(ThrottleOutput):
         """Read MSP_MOTOR: ``verified`` (every motor at the stop value or below), ``running``
         (some motor above it) or ``unverifiable`` (the FC reports 0 = nothing for a motor it
         drives; ``stop_unverifiable`` says which)."""
+        outcome = self._judge(self.motor_values())
+        if outcome == "running":
+            log.warning("MSP_MOTOR: motor(s) above the stop value: %s", self._last_motor_values)
+        return outcome
+
+    def _judge(self, values: tuple[int, ...]) -> StopCheck:
         self.stop_unverifiable = None
-        values = self.motor_values()
+        self._last_motor_values = values
         running = [i + 1 for i, v in enumerate(values) if v > MSP_MOTOR_STOP]
         if running:
-            log.warning("MSP_MOTOR: motor(s) %s above the stop value: %s", running, values)
             return "running"
         count = self.motor_count()
         driven = values[:count] if count is not None else values
@@ -255,37 +468,110 @@ class MspThrottleOutput(ThrottleOutput):
     def verify_stopped(self) -> bool:
         return self.check_stopped() == "verified"
 
+    def _stop_and_check(self) -> StopCheck:
+        """One stop attempt, as fast as the link allows: the stop goes out at once, then the
+        MSP_MOTOR read that verifies it (the FC answers in order, so its answer already
+        reflects the stop); while that read waits, the stop is re-sent every
+        ``stop_resend_s``, so a lost frame costs that long and not a reply timeout. A read
+        that still shows a motor running (the FC's control loop applies a stop on its next
+        run) sends the stop again and reads again, for up to half a second or two reply
+        timeouts. Raises ``MspTimeout`` when MSP_MOTOR never answers."""
+        window_s = max(0.5, 2 * self.timer.timeout_s)
+        start_s = self.clock.now_s()
+        while True:
+            self._send_stop()
+            last_s = self.clock.now_s()
+
+            def resend() -> None:
+                nonlocal last_s
+                now_s = self.clock.now_s()
+                if now_s - last_s >= self.stop_resend_s:
+                    self._send_stop()
+                    last_s = now_s
+
+            values = Motor.decode(self.request(MspCommand.MOTOR, while_waiting=resend)).values
+            outcome = self._judge(values)
+            if outcome != "running":
+                return outcome
+            if self.clock.now_s() - start_s >= window_s:
+                log.warning("MSP_MOTOR: motor(s) above the stop value: %s", values)
+                return outcome
+            log.debug("MSP_MOTOR still shows %s after the stop: stopping again", values)
+
     def read_telemetry(self) -> Telemetry:
-        now = self.clock.now_s()
-        batt = BatteryState.decode(self.request(MspCommand.BATTERY_STATE))
+        """Battery (and ESC telemetry where the FC has it). The first call waits for the
+        replies; later calls return the latest ones and keep the next requests on the wire,
+        so a slow link never holds a run's loop up. Raises ``MspTimeout`` when the latest
+        battery reply is older than a request's whole retry budget (the link is gone)."""
+        if self._battery is None:
+            now = self.clock.now_s()
+            self._battery = (now, BatteryState.decode(self.request(MspCommand.BATTERY_STATE)))
+            if self._esc_telemetry:
+                try:
+                    tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
+                    self._esc = (now, tel)
+                except MspRefused:
+                    self._esc_telemetry = False  # no ESC telemetry on this build
+        else:
+            self._pump(wait=False)
+            self._ask_ahead(MspCommand.BATTERY_STATE, self._took_battery)
+            if self._esc_telemetry:
+                self._ask_ahead(MspCommand.MOTOR_TELEMETRY, self._took_esc)
+            age_s = self.clock.now_s() - self._battery[0]
+            if age_s > self._give_up_s():
+                raise MspTimeout(
+                    f"no MSP reply to BATTERY_STATE for {age_s:.2f} s ({self.timer.describe()})"
+                )
+        time_s, batt = self._battery
         rpm = temp = None
+        if self._esc is not None:
+            rpm = tuple(m.rpm for m in self._esc[1].motors)
+            temp = tuple(m.temperature_c for m in self._esc[1].motors)
+        return Telemetry(time_s, batt.voltage_v, batt.current_a, rpm, temp)
+
+    def _took_battery(self, frame: MspFrame) -> None:
+        if frame.is_error:
+            log.debug("FC refused BATTERY_STATE")
+            return
         try:
-            tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
-            rpm = tuple(m.rpm for m in tel.motors)
-            temp = tuple(m.temperature_c for m in tel.motors)
-        except MspRefused:
-            pass  # no ESC telemetry on this build
-        return Telemetry(now, batt.voltage_v, batt.current_a, rpm, temp)
+            self._battery = (self.clock.now_s(), BatteryState.decode(frame.payload))
+        except ThrustmapError as exc:
+            log.warning("bad BATTERY_STATE reply: %s", exc)
+
+    def _took_esc(self, frame: MspFrame) -> None:
+        if frame.is_error:
+            self._esc_telemetry = False  # no ESC telemetry on this build: not asked again
+            return
+        try:
+            self._esc = (self.clock.now_s(), MotorTelemetry.decode(frame.payload))
+        except ThrustmapError as exc:
+            log.warning("bad MOTOR_TELEMETRY reply: %s", exc)
 
     def stop_and_verify(self, attempts: int = 3) -> bool:
         """Send the stop and confirm it with MSP_MOTOR; retry. Never raises.
 
-        An FC that reports no motor values (see module) gets one acknowledged stop and a
-        warning, not retries and a CRITICAL alarm: nothing says a motor turns, and nothing can
-        say it stopped. The result is False all the same: such a stop is never "verified"."""
+        A session that commanded no motor (a probe; a run refused before its first command)
+        sends no stop: nothing of ours can turn, so it re-enables arming and reports True
+        without an alarm. An FC that reports no motor values (see module) gets one
+        acknowledged stop and a warning, not retries and a CRITICAL alarm: nothing says a
+        motor turns, and nothing can say it stopped. The result is False all the same: such
+        a stop is never "verified"."""
+        if not self._motors_may_run:
+            log.info("no motor was commanded in this session: no stop to send")
+            self._enable_arming()
+            return True
         for attempt in range(1, attempts + 1):
             try:
-                self.stop()
-                verified = self.verify_stopped()
+                outcome = self._stop_and_check()
             except Exception as exc:  # the link may be gone; keep trying, then report
-                log.error("stop attempt %d failed: %s", attempt, exc)
+                log.warning("stop attempt %d of %d not confirmed: %s", attempt, attempts, exc)
                 continue
-            if verified:
+            if outcome == "verified":
                 log.info("motors stopped (verified, attempt %d)", attempt)
                 self._motors_may_run = False
                 self._enable_arming()
                 return True
-            if self.stop_unverifiable is not None:
+            if outcome == "unverifiable":
                 # The FC acknowledged the stop and reports driving nothing: arming goes back
                 # as Configurator leaves it, but the result stays "not verified".
                 log.warning("motor stop sent and acknowledged; %s", self.stop_unverifiable)
@@ -309,8 +595,7 @@ class MspThrottleOutput(ThrottleOutput):
         """The watchdog's stop: all motors to the stop value, MSP_MOTOR check, and arming
         re-enabled as :meth:`stop_and_verify` does after the driver disabled it. Sends
         nothing that can start a motor, and no identification or preflight."""
-        self.stop()
-        outcome = self.check_stopped()
+        outcome = self._stop_and_check()
         if outcome != "running":
             self._arming_disabled = True  # the dead session left it disabled
             self._enable_arming()
