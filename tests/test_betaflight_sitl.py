@@ -255,10 +255,13 @@ def test_the_simulated_46_sitl_answers_as_the_real_one(sitl: BetaflightSitl) -> 
         decoder = MspDecoder()
         for i, cmd in enumerate([*static, MspCommand.STATUS]):
             s.sendall(encode_request(cmd))
-            frames: list[object] = []
-            while not frames:
-                frames = list(decoder.feed(s.recv(512)))
-            (real,) = frames
+            # the reply to this request; a stale one (an earlier connection's request still in
+            # the SITL's queue on a loaded machine) is skipped, as the driver skips it
+            real = None
+            while real is None:
+                for frame in decoder.feed(s.recv(512)):
+                    if frame.cmd == cmd:  # type: ignore[attr-defined]
+                        real = frame
             peer.write(encode_request(cmd), float(i))
             (sim,) = MspDecoder().feed(peer.read(i + 1.0))
             assert (sim.cmd, sim.direction) == (real.cmd, real.direction)  # type: ignore[attr-defined]
@@ -374,7 +377,7 @@ def test_adaptive_sweep_with_a_short_budget_stops_the_motor(
     t0 = time.monotonic()
     args = thrustmap(
         "sweep", "adaptive", "--stand", STAND, "--throttle", sitl.url,
-        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet",
+        "-o", str(tmp_path / "run.csv"), "--yes", "--quiet", "--link-timeout", "3",
         "--from", "10", "--to", "20", "--coarse", "3", "--dwell", "2", "--max-minutes", "0.15",
     )  # fmt: skip
     result = run(args, env, timeout_s=90.0)

@@ -111,8 +111,8 @@ class StandEscOutput(ThrottleOutput):
     def verify_stopped(self) -> bool:
         return self.inner.verify_stopped()
 
-    def stop_and_verify(self, attempts: int = 3) -> bool:
-        return self.inner.stop_and_verify(attempts)
+    def stop_and_verify(self, attempts: int = 3, *, alarm: bool = True) -> bool:
+        return self.inner.stop_and_verify(attempts, alarm=alarm)
 
     def read_telemetry(self) -> Telemetry:
         return self.inner.read_telemetry()

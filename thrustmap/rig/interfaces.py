@@ -105,8 +105,11 @@ class ThrottleOutput(ABC):
     @abstractmethod
     def close(self) -> None: ...
 
-    def stop_and_verify(self, attempts: int = 3) -> bool:
-        """Send stop, confirm it; retry. Never raises: this runs on every way out."""
+    def stop_and_verify(self, attempts: int = 3, *, alarm: bool = True) -> bool:
+        """Send stop, confirm it; retry. Never raises: this runs on every way out.
+
+        ``alarm``: raise the CRITICAL alarm when the stop cannot be verified; a caller that
+        keeps retrying (the runner's stop loop) passes False and raises it once, at its end."""
         for attempt in range(1, attempts + 1):
             try:
                 self.stop()
@@ -116,7 +119,8 @@ class ThrottleOutput(ABC):
                 log.warning("stop not confirmed (attempt %d of %d)", attempt, attempts)
             except Exception as exc:  # the link may be gone; keep trying, then report
                 log.error("stop attempt %d failed: %s", attempt, exc)
-        log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
+        if alarm:
+            log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
         return False
 
     def __enter__(self) -> ThrottleOutput:

@@ -267,7 +267,8 @@ class Runner:
         the last motor value forever, so giving up after one try is not an option)."""
         deadline = self.clock.now_s() + self.cfg.stop_retry_s
         while True:
-            if self.output.stop_and_verify(attempts=1):
+            # one CRITICAL at the end of the loop, not one per failed attempt
+            if self.output.stop_and_verify(attempts=1, alarm=False):
                 return True
             if getattr(self.output, "stop_unverifiable", None):
                 return False  # acknowledged, but this FC cannot confirm a stop: no retry loop

@@ -465,7 +465,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
             log.warning("stop not verified: %s", "; ".join(outcome))
         return ok
 
-    def stop_and_verify(self, attempts: int = 3) -> bool:
+    def stop_and_verify(self, attempts: int = 3, *, alarm: bool = True) -> bool:
         if not self._started:
             # Nothing we asked for was ever accepted (refused, or never commanded): no motor of
             # ours can be turning. Send what is harmless, but raise no alarm.
@@ -479,7 +479,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
         if self._verified_since_sent and self._stop_is_idempotent_noop():
             log.info("stop already verified and nothing commanded since")
             return True
-        ok = super().stop_and_verify(attempts)
+        ok = super().stop_and_verify(attempts, alarm=alarm)
         self.last_stop_verified = ok
         self._verified_since_sent = ok
         return ok

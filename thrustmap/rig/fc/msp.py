@@ -85,6 +85,10 @@ class MspTimeout(ThrustmapError):
     """The FC did not answer an MSP request (it ignores bad frames silently)."""
 
 
+class MspLinkLost(MspTimeout):
+    """The port itself failed (a socket closed, a USB adapter unplugged): no reply can come."""
+
+
 class MspRefused(ThrustmapError):
     """The FC answered with an MSP error frame (``!``): unknown or refused command."""
 
@@ -220,13 +224,19 @@ class MspThrottleOutput(ThrottleOutput):
             for old in leftovers:
                 self.stale_replies += 1
                 log.debug("MSP: dropped a reply to cmd %d left from before", old.cmd)
-        self.port.write(frame)
+        try:
+            self.port.write(frame)
+        except OSError as exc:  # serial.SerialException is an OSError
+            raise MspLinkLost(f"MSP link lost: {exc}") from exc
         now_s = self.clock.now_s()
         self._sent.append(_Sent(cmd, now_s, request_id, on_reply))
         return now_s
 
     def _read_frames(self) -> tuple[list[MspFrame], bool]:
-        data = self.port.read(max(1, self.port.in_waiting))
+        try:
+            data = self.port.read(max(1, self.port.in_waiting))
+        except OSError as exc:  # serial.SerialException is an OSError
+            raise MspLinkLost(f"MSP link lost: {exc}") from exc
         return self._decoder.feed(data), bool(data)
 
     def _await(
@@ -517,7 +527,16 @@ class MspThrottleOutput(ThrottleOutput):
             self._ask_ahead(MspCommand.BATTERY_STATE, self._took_battery)
             if self._esc_telemetry:
                 self._ask_ahead(MspCommand.MOTOR_TELEMETRY, self._took_esc)
-            age_s = self.clock.now_s() - self._battery[0]
+            # the link is judged by the request it has not answered (the oldest one on the
+            # wire), not by the age of the last reply: a caller that did not ask for a while
+            # (the stand's tare, a fit between holds) has not lost its link
+            now_s = self.clock.now_s()
+            asked = [
+                s.sent_s
+                for s in self._sent
+                if s.cmd == MspCommand.BATTERY_STATE and s.on_reply is not None
+            ]
+            age_s = now_s - max(self._battery[0], min(asked)) if asked else 0.0
             if age_s > self._give_up_s():
                 raise MspTimeout(
                     f"no MSP reply to BATTERY_STATE for {age_s:.2f} s ({self.timer.describe()})"
@@ -547,7 +566,7 @@ class MspThrottleOutput(ThrottleOutput):
         except ThrustmapError as exc:
             log.warning("bad MOTOR_TELEMETRY reply: %s", exc)
 
-    def stop_and_verify(self, attempts: int = 3) -> bool:
+    def stop_and_verify(self, attempts: int = 3, *, alarm: bool = True) -> bool:
         """Send the stop and confirm it with MSP_MOTOR; retry. Never raises.
 
         A session that commanded no motor (a probe; a run refused before its first command)
@@ -579,7 +598,8 @@ class MspThrottleOutput(ThrottleOutput):
                 self._enable_arming()
                 return False
             log.warning("stop not confirmed (attempt %d of %d)", attempt, attempts)
-        log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
+        if alarm:
+            log.critical("COULD NOT VERIFY MOTOR STOP - disconnect the battery now")
         return False
 
     def _enable_arming(self) -> None:
