@@ -522,6 +522,13 @@ class MspThrottleOutput(ThrottleOutput):
                     self._esc = (now, tel)
                 except MspRefused:
                     self._esc_telemetry = False  # no ESC telemetry on this build
+                except MspLinkLost:
+                    raise
+                except MspTimeout as exc:
+                    # the battery answered, so the link is up: this FC (or a bridge, or a
+                    # recording) does not serve ESC telemetry; the run goes on without it
+                    log.info("no ESC telemetry (MOTOR_TELEMETRY unanswered: %s)", exc)
+                    self._esc_telemetry = False
         else:
             self._pump(wait=False)
             self._ask_ahead(MspCommand.BATTERY_STATE, self._took_battery)
