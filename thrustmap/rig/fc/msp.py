@@ -517,18 +517,9 @@ class MspThrottleOutput(ThrottleOutput):
             now = self.clock.now_s()
             self._battery = (now, BatteryState.decode(self.request(MspCommand.BATTERY_STATE)))
             if self._esc_telemetry:
-                try:
-                    tel = MotorTelemetry.decode(self.request(MspCommand.MOTOR_TELEMETRY))
-                    self._esc = (now, tel)
-                except MspRefused:
-                    self._esc_telemetry = False  # no ESC telemetry on this build
-                except MspLinkLost:
-                    raise
-                except MspTimeout as exc:
-                    # the battery answered, so the link is up: this FC (or a bridge, or a
-                    # recording) does not serve ESC telemetry; the run goes on without it
-                    log.info("no ESC telemetry (MOTOR_TELEMETRY unanswered: %s)", exc)
-                    self._esc_telemetry = False
+                # optional: asked ahead, never waited for (an FC, bridge or recording without
+                # ESC telemetry must not hold the first reading up, nor fail it)
+                self._ask_ahead(MspCommand.MOTOR_TELEMETRY, self._took_esc)
         else:
             self._pump(wait=False)
             self._ask_ahead(MspCommand.BATTERY_STATE, self._took_battery)
