@@ -212,6 +212,31 @@ def test_exception_and_signals_stop_within_100ms(tmp_path: Path, how: str) -> No
     assert_partial_log(tmp_path / "x.csv", expected)
 
 
+def test_sigint_stops_a_sweep_started_as_a_background_job(tmp_path: Path) -> None:
+    """A shell starts background jobs (``&``, nohup, scripts) with SIGINT ignored; Python then
+    installs no Ctrl-C handler. A SIGINT must still stop the motor, not be ignored."""
+    rig = make_rig()
+    fired: list[float] = []
+
+    def monitor(st: Status) -> None:
+        if st.elapsed_s > 5.0 and not fired:
+            fired.append(st.time_s)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with rig.fc, rig.stand:
+            result = sweep(rig, tmp_path / "bg.csv", PLAN, monitor=monitor)
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # put back as it was
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert result.status == "aborted" and result.stop_verified
+    stops = rig.fc_port.stop_times(fired[0])
+    assert stops and stops[0] - fired[0] <= 0.1
+    assert motors_at_rest(rig)
+    assert_partial_log(tmp_path / "bg.csv", "interrupted")
+
+
 def test_stand_link_dropped(tmp_path: Path) -> None:
     rig = make_rig()
     rig.stand_port.dead = _fault_at(5.0)

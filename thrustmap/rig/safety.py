@@ -20,7 +20,13 @@ class Terminated(KeyboardInterrupt):
 
 @contextmanager
 def terminate_as_exception() -> Iterator[None]:
-    """Within this block SIGTERM (and SIGHUP where it exists) raises ``Terminated``."""
+    """Within this block SIGTERM (and SIGHUP where it exists) raises ``Terminated``, and SIGINT
+    raises ``KeyboardInterrupt`` even where the process inherited it ignored.
+
+    A shell starts a background job (``thrustmap sweep … &``, ``nohup``, a script run from a
+    non-interactive shell) with SIGINT ignored, and Python then installs no Ctrl-C handler: a
+    SIGINT would leave the motor spinning to the end of its plan. While motors can be commanded,
+    SIGINT always means stop; a handler the embedding program installed itself is kept."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -35,6 +41,9 @@ def terminate_as_exception() -> Iterator[None]:
         sig = getattr(signal, name, None)
         if sig is not None:
             previous[sig] = signal.signal(sig, handler)
+    if not callable(signal.getsignal(signal.SIGINT)):  # SIG_IGN or SIG_DFL: no Python handler
+        log.debug("SIGINT was not handled (a background job?): it will stop the motors")
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
