@@ -67,6 +67,22 @@ def test_time_never_goes_backwards_and_motor_index_checked() -> None:
         plant.set_throttle(1, 0.5, 1.0)
 
 
+def test_the_timeline_starts_when_the_plant_is_first_told() -> None:
+    """A wall clock reads the machine's uptime: a plant behind a sim:// URL must not integrate
+    a rest from 0 to it (hours of simulated time: seconds to minutes of CPU before the stand's
+    first reading, which made sweeps against a real FC miss their at-rest wait)."""
+    plant = make_plant(XNOVA, rotors_on_esc=1, seed=0)
+    first = plant.state(3600.0)
+    assert first.time_s == 3600.0 and plant.time_s == 3600.0
+    assert plant.soc == plant.params.initial_soc  # at rest until now: nothing drawn
+    assert first.rpm == [0.0]
+    plant.set_throttle(0, 0.5, 3600.0)
+    assert plant.state(3601.0).rpm[0] > 1000.0  # from then on, integrated as always
+    fixed = make_plant(XNOVA, rotors_on_esc=1, seed=0, start_time_s=0.0)
+    fixed.state(60.0)
+    assert fixed.soc < fixed.params.initial_soc  # a given origin is kept: the ESC idles 60 s
+
+
 def _trace(seed: int) -> list[PlantState]:
     plant = make_plant(XNOVA, rotors_on_esc=4, seed=seed)
     out = []

@@ -358,7 +358,8 @@ class Runner:
             self._report(now)
             self.clock.sleep_s(self.cfg.tick_s)
         raise SafetyError(
-            f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before taring"
+            f"the rotor did not come to rest within {self.cfg.spin_down_max_s:.0f} s before "
+            f"taring: {detector.why_not}"
         )
 
     def _target_pct(self, seg: Segment, t_in: float) -> float:

@@ -81,12 +81,34 @@ class RestDetector:
     def __init__(self, window_s: float, floor_n: float = 0.005) -> None:
         self.window = _Window(window_s)
         self.floor_n = floor_n
+        #: why the last update said "not at rest" (for the message when the wait gives up)
+        self.why_not = "no stand reading yet"
 
     def update(self, now_s: float, samples: Iterable[StandSample]) -> bool:
+        turning = False
         for s in samples:
             if s.rpm is not None and s.rpm > TURNING_RPM:
                 self.window.points.clear()
+                self.why_not = f"the stand reads {s.rpm:.0f} rpm"
+                turning = True
                 continue
             self.window.add(now_s, [(s.time_s, s.thrust_n)])
         self.window.add(now_s, ())
-        return self.window.spans(6) and steady(self.window.values(), self.floor_n)
+        if turning and not self.window.points:
+            return False
+        if not self.window.spans(6):
+            p = self.window.points
+            span = p[-1][0] - p[0][0] if p else 0.0
+            self.why_not = (
+                f"{len(p)} stand readings over {span:.2f} s in the last "
+                f"{self.window.window_s:g} s (needs 6 over {0.8 * self.window.window_s:g} s)"
+            )
+            return False
+        values = self.window.values()
+        if not steady(values, self.floor_n):
+            self.why_not = (
+                f"thrust still moving ({values.min():+.3f}..{values.max():+.3f} N "
+                f"over {self.window.window_s:g} s)"
+            )
+            return False
+        return True

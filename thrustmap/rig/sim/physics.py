@@ -20,8 +20,9 @@ Model (averaged, per motor i, all rotors on one ESC and one battery):
 
 Time is injected: ``state(t)`` integrates up to ``t`` with substeps of at most
 ``max_substep_s`` while a rotor is in transient and ``settled_substep_s`` once all have settled,
-so results do not depend on how often the plant is polled. Randomness comes from one seeded
-``numpy.random.Generator``.
+so results do not depend on how often the plant is polled. The timeline starts at the first time
+the plant is told (at rest until then) unless ``start_time_s`` fixes it: a wall clock's origin is
+the machine's boot. Randomness comes from one seeded ``numpy.random.Generator``.
 
 Ground truth (``true_thrust_n`` / ``true_throttle_fraction``) is the steady state with all
 ``rotors_on_esc`` rotors at the same throttle, expressed in the *measured terminal voltage*
@@ -195,7 +196,7 @@ class PhysicsPlant:
         *,
         rotors_on_esc: int,
         rng: np.random.Generator,
-        start_time_s: float = 0.0,
+        start_time_s: float | None = None,
     ):
         if rotors_on_esc < 1:
             raise ConfigError(f"rotors_on_esc must be >= 1, got {rotors_on_esc}")
@@ -204,7 +205,10 @@ class PhysicsPlant:
         self.rotors_on_esc = rotors_on_esc
         self._rng = rng
         n = rotors_on_esc
-        self._t = float(start_time_s)
+        # None: the timeline starts at the first time the plant is told (a wall clock reads
+        # the machine's uptime: integrating from 0 to it, at rest, took seconds to minutes)
+        self._t = 0.0 if start_time_s is None else float(start_time_s)
+        self._origin_pending = start_time_s is None
         self._throttle = [0.0] * n
         self._duty_cmd = [0.0] * n  # ESC duty for the throttle, before current limiting
         self._omega = [0.0] * n
@@ -325,6 +329,10 @@ class PhysicsPlant:
 
     # -- integration --------------------------------------------------------------------------
     def _advance(self, time_s: float) -> None:
+        if self._origin_pending:
+            self._origin_pending = False
+            self._t = float(time_s)  # at rest until now: nothing to integrate
+            return
         if time_s < self._t - 1e-9:
             raise ValueError(f"plant time cannot go backwards: {time_s} < {self._t}")
         p = self.params
@@ -423,7 +431,7 @@ def make_plant(
     rotors_on_esc: int,
     seed: int,
     noise: bool = True,
-    start_time_s: float = 0.0,
+    start_time_s: float | None = None,
     **overrides: Any,
 ) -> PhysicsPlant:
     """A plant from a named preset (see ``PRESETS``), e.g. ``make_plant("xnova-2207-6s",
