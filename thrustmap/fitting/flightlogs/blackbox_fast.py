@@ -22,6 +22,7 @@ the reference decoder, so decoded values never depend on which path ran.
 from __future__ import annotations
 
 import functools
+import logging
 import re
 from collections.abc import Callable
 
@@ -29,6 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.fitting.flightlogs import blackbox_decode as bd
+
+log = logging.getLogger(__name__)
 
 I64 = npt.NDArray[np.int64]
 
@@ -339,7 +342,9 @@ def decode_log_fast(
     path does not cover it (the caller then runs the reference decoder)."""
     try:
         return _decode(section, index, offset, keep_field)
-    except (_Unsupported, bd.CorruptFrame):
+    except (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError) as exc:
+        # the reference decoder decodes (or rejects) it, however odd the log
+        log.debug("log %d: bulk decoding declined (%s)", index + 1, exc)
         return None
 
 
