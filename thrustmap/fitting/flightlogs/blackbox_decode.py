@@ -15,7 +15,8 @@ the data); otherwise it is counted as corrupt and decoding resynchronises at the
 Inter frames after a corrupt frame are dropped until the next intra frame re-establishes the
 history. A truncated tail is reported and everything before it is kept.
 
-For speed each frame layout is compiled once into a small specialised Python function.
+For speed each frame layout is compiled once into a small specialised Python function; a clean
+log (the usual case) is decoded in bulk by :mod:`blackbox_fast` instead, with the same result.
 """
 
 from __future__ import annotations
