@@ -40,7 +40,11 @@ from support import simulate_flight as simulate  # noqa: E402
 
 from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
 from thrustmap.fitting.flightlogs import blackbox, dataflash, ulog  # noqa: E402
-from thrustmap.fitting.flightlogs.blackbox_decode import decode_file  # noqa: E402
+from thrustmap.fitting.flightlogs.blackbox_decode import (  # noqa: E402
+    decode_file,
+    decode_log_reference,
+    split_logs,
+)
 
 SHARED = ROOT.parent / "shared/data/flightlogs"
 DF_MESSAGES = ["IMU", "BAT", "CURR", "RCOU", "CTUN", "ATT", "EV", "PARM", "MSG"]
@@ -124,6 +128,9 @@ def bench_blackbox(path: Path, label: str, repeat: int, profile: bool) -> None:
     frames = sum(len(lg.main) for lg in decode_file(data))
     print(f"Blackbox, {label}: {path.name}, {mb:.2f} MB, {frames} main frames")
     t_decode = best_of(lambda: decode_file(data), repeat)
+    t_ref = best_of(
+        lambda: [decode_log_reference(data[a:b]) for a, b in split_logs(data)], max(repeat // 2, 1)
+    )
     t_read = best_of(lambda: blackbox.read(path), repeat)
     try:
         from orangebox import Parser  # type: ignore[import-not-found]
@@ -141,8 +148,13 @@ def bench_blackbox(path: Path, label: str, repeat: int, profile: bool) -> None:
         row("orangebox (baseline)", mb, t_ob)
     else:
         print("  orangebox (baseline)               not installed here: no baseline measured")
-    row("thrustmap decode_file", mb, t_decode, t_ob, "x")
+    row("thrustmap reference (per frame)", mb, t_ref, t_ob, "x")
+    row("thrustmap decode_file (bulk numpy)", mb, t_decode, t_ob, "x")
     row("thrustmap blackbox.read (+ units)", mb, t_read, t_ob, "x")
+    wall, cpu = blackbox_whole_process_cpu(path, repeat)
+    print(f"  whole process, `thrustmap flightlog extract` (best of {repeat}): wall {wall:.3f} s "
+          f"({mb / wall:.2f} MB/s), CPU user+sys {cpu:.3f} s ({mb / cpu:.2f} MB/s; on a loaded "
+          "machine the CPU time is the steadier figure)")  # fmt: skip
     if profile:
         import cProfile
         import pstats
@@ -154,6 +166,30 @@ def bench_blackbox(path: Path, label: str, repeat: int, profile: bool) -> None:
         print("  where decode_file spends its time (cProfile, tottime):")
         stats = pstats.Stats(prof)
         stats.sort_stats("tottime").print_stats(8)
+
+
+def blackbox_whole_process_cpu(path: Path, repeat: int) -> tuple[float, float]:
+    """Best wall and best CPU (user + system) time of a fresh ``thrustmap flightlog extract``."""
+    import os
+    import subprocess
+
+    walls, cpus = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "thrustmap", "flightlog", "extract", str(path),
+               "--mass-kg", "1.0", "-o", str(Path(tmp) / "df.csv")]  # fmt: skip
+        for k in range(max(repeat, 1) + 1):  # the first run writes the bytecode caches
+            before = os.times()
+            t = time.perf_counter()
+            subprocess.run(cmd, capture_output=True, env=_env(), check=True, timeout=600, cwd=tmp)
+            wall = time.perf_counter() - t
+            after = os.times()
+            if k:
+                walls.append(wall)
+                cpus.append(
+                    after.children_user + after.children_system
+                    - before.children_user - before.children_system
+                )  # fmt: skip
+    return min(walls), min(cpus)
 
 
 # -- whole process ---------------------------------------------------------------------------------

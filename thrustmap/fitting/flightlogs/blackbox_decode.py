@@ -15,7 +15,8 @@ the data); otherwise it is counted as corrupt and decoding resynchronises at the
 Inter frames after a corrupt frame are dropped until the next intra frame re-establishes the
 history. A truncated tail is reported and everything before it is kept.
 
-For speed each frame layout is compiled once into a small specialised Python function.
+For speed each frame layout is compiled once into a small specialised Python function; a clean
+log (the usual case) is decoded in bulk by :mod:`blackbox_fast` instead, with the same result.
 """
 
 from __future__ import annotations
@@ -708,7 +709,27 @@ def decode_log(
     ``keep_field``: decode only the main-frame fields it accepts (and loopIteration and time):
     the others are still parsed for their length, but their values are neither predicted nor
     stored, and ``main_fields`` lists only the kept ones (a reader needing a handful of the
-    40-odd fields saves most of the decoding)."""
+    40-odd fields saves most of the decoding).
+
+    A clean log (no corrupt frame, gap, rollover, ...) is decoded in bulk by
+    :mod:`blackbox_fast`, ~10x faster; every other log by :func:`decode_log_reference`. Both
+    give the same result (tests/test_blackbox_fast.py compares them frame by frame)."""
+    from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_fast
+
+    decoded = decode_log_fast(section, index, offset, keep_field=keep_field)
+    if decoded is not None:
+        return decoded
+    return decode_log_reference(section, index, offset, keep_field=keep_field)
+
+
+def decode_log_reference(
+    section: bytes,
+    index: int = 0,
+    offset: int = 0,
+    *,
+    keep_field: Callable[[str], bool] | None = None,
+) -> DecodedLog:
+    """:func:`decode_log` frame by frame in pure Python: every log, however damaged."""
     try:
         fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field)
     except OverflowError:  # a value beyond int64: certainly out of range
@@ -739,6 +760,40 @@ def _main_signed(headers: dict[str, str], n: int) -> list[int]:
     return (signed + [0] * n)[:n]
 
 
+def _kept_fields(
+    names: list[str],
+    idef: FrameDef,
+    pdef: FrameDef,
+    motor0: int,
+    keep_field: Callable[[str], bool] | None,
+) -> frozenset[int] | None:
+    """Indices of the main fields to decode (None: all): loopIteration, time, the fields
+    ``keep_field`` accepts, and motor[0] when a kept field is predicted from it."""
+    if keep_field is None:
+        return None
+    keep = frozenset(k for k, name in enumerate(names) if k < 2 or keep_field(name))
+    if motor0 >= 0:  # a kept field predicted from motor[0] needs it
+        preds = list(idef.predictor) + list(pdef.predictor)
+        width = len(idef.predictor)
+        if any(
+            preds[k] == PRED_MOTOR_0
+            or (width + k < len(preds) and preds[width + k] == PRED_MOTOR_0)
+            for k in keep
+            if k < width
+        ):
+            keep = keep | {motor0}
+    return keep
+
+
+def _table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
+    if not rows:
+        return np.zeros((0, width), dtype=np.int64)
+    if sum(map(len, rows)) != len(rows) * width:  # ragged: let numpy say so
+        return np.array(rows, dtype=np.int64)
+    flat = itertools.chain.from_iterable(rows)  # ~1.7x faster than np.array on lists
+    return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
+
+
 def _decode_log(
     section: bytes,
     index: int,
@@ -764,21 +819,7 @@ def _decode_log(
         "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
     }
     version = header_int(headers, "Data version", 2)
-    keep = (
-        None
-        if keep_field is None
-        else frozenset(k for k, name in enumerate(names) if k < 2 or keep_field(name))
-    )
-    if keep is not None and motor0 >= 0:  # a kept field predicted from motor[0] needs it
-        preds = list(idef.predictor) + list(pdef.predictor)
-        width = len(idef.predictor)
-        if any(
-            preds[k] == PRED_MOTOR_0
-            or (width + k < len(preds) and preds[width + k] == PRED_MOTOR_0)
-            for k in keep
-            if k < width
-        ):
-            keep = keep | {motor0}
+    keep = _kept_fields(names, idef, pdef, motor0, keep_field)
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
@@ -985,26 +1026,18 @@ def _decode_log(
             f"{stats['skipped_bytes']} unparseable bytes)"
         )
 
-    def table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
-        if not rows:
-            return np.zeros((0, width), dtype=np.int64)
-        if sum(map(len, rows)) != len(rows) * width:  # ragged: let numpy say so
-            return np.array(rows, dtype=np.int64)
-        flat = itertools.chain.from_iterable(rows)  # ~1.7x faster than np.array on lists
-        return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
-
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
     return DecodedLog(
         index=index,
         headers=headers,
         main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
-        main=table(main_rows, nfields if keep is None else len(keep)),
+        main=_table(main_rows, nfields if keep is None else len(keep)),
         slow_fields=list(sdef.names),
-        slow=table(slow_rows, len(sdef.names)),
+        slow=_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=table(gps_rows, len(gdef.names)),
+        gps=_table(gps_rows, len(gdef.names)),
         events=events,
         stats=stats,
         warnings=warnings,

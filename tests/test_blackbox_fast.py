@@ -1,0 +1,171 @@
+"""The bulk (numpy) blackbox decoder against the per-frame reference decoder, frame by frame:
+on every shared Betaflight log, on the fixtures, on random logs that use every encoding width,
+and on damaged logs (which must reach the reference decoder and decode as it does)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from support import blackbox_encode as be
+
+from thrustmap.fitting.flightlogs import blackbox_decode as bd
+from thrustmap.fitting.flightlogs import blackbox_fast as bf
+from thrustmap.fitting.flightlogs.blackbox import used_field
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
+
+
+def assert_same(fast: bd.DecodedLog, ref: bd.DecodedLog) -> None:
+    """Every field of the two results equal; the main frames compared one by one."""
+    assert fast.main_fields == ref.main_fields
+    assert fast.main.shape == ref.main.shape and fast.main.dtype == ref.main.dtype
+    differ = np.flatnonzero((fast.main != ref.main).any(axis=1))
+    assert not len(differ), (
+        f"main frame {differ[0]} differs: {fast.main[differ[0]].tolist()} "
+        f"!= {ref.main[differ[0]].tolist()}"
+    )
+    for f in dataclasses.fields(ref):
+        a, b = getattr(fast, f.name), getattr(ref, f.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), f.name
+        else:
+            assert a == b, f.name
+
+
+def logs_in(path: Path) -> list[bytes]:
+    data = path.read_bytes()
+    return [data[a:b] for a, b in bd.split_logs(data)]
+
+
+def compare_fast(section: bytes) -> None:
+    """The fast path covers ``section`` and gives exactly the reference's result, for the full
+    decode and for the fields a flight log uses."""
+    for keep in (None, used_field):
+        fast = bf.decode_log_fast(section, 3, 100, keep_field=keep)
+        assert fast is not None, "the fast path does not cover this clean log"
+        assert_same(fast, bd.decode_log_reference(section, 3, 100, keep_field=keep))
+
+
+def test_shared_betaflight_logs_frame_by_frame(shared_data: Path) -> None:
+    paths = [
+        p
+        for p in sorted((shared_data / "flightlogs" / "betaflight").iterdir())
+        if p.suffix.lower() in (".bbl", ".bfl")
+    ]
+    assert paths
+    for path in paths:
+        sections = logs_in(path)
+        assert sections, path
+        for section in sections:
+            compare_fast(section)
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in FIXTURES.glob("*.bbl")))
+def test_fixture_logs_frame_by_frame(name: str) -> None:
+    for section in logs_in(FIXTURES / name):
+        compare_fast(section)
+
+
+# --- random logs: every encoding width, signs, events, a logging pause --------------------------
+
+#: noise amplitude per field of the simulated hover (be.SIM_MAIN): the residuals it gives span
+#: zero groups, 4/8/16-bit tag8_4s16 fields, every tag2_3s32 width and multi-byte varints
+AMPLITUDE = [0, 0, 15000, 15000, 15000, 450, 1500, 1_000_000, 1_000_000, 1_000_000, 1_000_000,
+             1_000_000, 1_000_000, 1_000_000, 650, 650, 650, 650]  # fmt: skip
+
+
+def random_log(seed: int, frames: int) -> bytes:
+    rng = np.random.default_rng(seed)
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
+                     be.SIM_SLOW)  # fmt: skip
+    out = bytearray(enc.header_bytes())
+    out += enc.event(bd.EVENT_SYNC_BEEP, 123456)
+    out += enc.s_frame([1, 0, 0, 1])
+    resume_at, gap_at = frames // 2, 3 * frames // 4
+    pause_us = 0
+    for k in range(frames):
+        if k in (resume_at, gap_at):  # logging paused for 12 s
+            pause_us += 12_000_000
+        values = be.sim_frame_values(k, 4096, 5_000_000 + pause_us, 10.0)
+        scale = rng.choice([0.0, 1e-4, 1e-2, 1.0], size=len(values))
+        noise = (rng.uniform(-1, 1, len(values)) * np.array(AMPLITUDE) * scale).astype(int)
+        values = values[:2] + [v + int(x) for v, x in zip(values[2:], noise[2:], strict=True)]
+        if k == resume_at:  # announced: a resume event, then an intra frame
+            out += enc.event(bd.EVENT_LOGGING_RESUME, values[0], values[1] - 50)
+            out += enc.i_frame(values)
+        elif k == gap_at or k % 8 == 0:  # the pause at gap_at unannounced: a gap
+            out += enc.i_frame(values)
+        else:
+            out += enc.p_frame(values)
+        if k == frames // 3:
+            out += enc.s_frame([int(rng.integers(0, 1 << 20)), 3, 0, 1])
+            out += enc.event(bd.EVENT_FLIGHT_MODE, 5, 1)
+    out += enc.event(bd.EVENT_DISARM, 4)
+    out += enc.event(bd.EVENT_LOG_END)
+    return bytes(out)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 300))
+def test_random_logs_frame_by_frame(seed: int, frames: int) -> None:
+    section = random_log(seed, frames)
+    compare_fast(section)
+    fast = bf.decode_log_fast(section)
+    assert fast is not None
+    gaps = [w for w in fast.warnings if "12.0 s gap" in w]  # the unannounced pause only
+    assert len(gaps) == (1 if 0 < 3 * frames // 4 != frames // 2 else 0)
+
+
+# --- what the fast path leaves to the reference decoder ----------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_damaged_logs_decode_as_the_reference_does(seed: int) -> None:
+    """Flipped bytes, a truncated tail or a corrupt frame: decode_log equals the reference
+    (through the reference where the fast path declines)."""
+    rng = np.random.default_rng(seed)
+    section = random_log(seed, 200)
+    body = section.index(b"\nE") + 1  # past the headers
+    data = bytearray(section)
+    for k in rng.integers(body, len(data), 1 + seed % 4):
+        data[int(k)] = int(rng.integers(0, 256))
+    damaged = bytes(data[: int(rng.integers(body + 100, len(data) + 1))])
+    for keep in (None, used_field):
+        assert_same(
+            bd.decode_log(damaged, keep_field=keep),
+            bd.decode_log_reference(damaged, keep_field=keep),
+        )
+
+
+def test_truncated_or_corrupt_logs_go_to_the_reference() -> None:
+    section = random_log(7, 120)
+    truncated = section[:-40]
+    assert bf.decode_log_fast(truncated) is None
+    assert any("truncated" in w for w in bd.decode_log(truncated).warnings)
+    body = section.index(b"\nE") + 1
+    garbage = section[:body] + b"\x01\x02" + section[body:]  # bytes no frame starts with
+    assert bf.decode_log_fast(garbage) is None
+    assert bd.decode_log(garbage).stats["skipped_bytes"] == 2
+
+
+def test_a_value_needing_the_32_bit_wrap_goes_to_the_reference() -> None:
+    """Unsigned amperage driven past 2**32 by its inter-frame deltas: only the reference's
+    wrapped decode is right, so the fast path declines."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    out = bytearray(enc.header_bytes())
+    for k in range(16):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        values[6] = 1640  # vbat (unsigned), stepping past 2**32 in the P frames
+        if k % 8:
+            values[6] = 1640 + k * (1 << 30)
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+    section = bytes(out)
+    assert bf.decode_log_fast(section) is None
+    decoded = bd.decode_log(section)
+    assert int(decoded.main[:, 6].max()) <= 0xFFFFFFFF
+    assert_same(decoded, bd.decode_log_reference(section))
