@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import logging
 import re
+import sys
 from collections.abc import Callable
 
 import numpy as np
@@ -49,8 +50,13 @@ P_PREDICTORS = I_PREDICTORS | {
     bd.PRED_INC,
 }
 #: a varint; the possessive {0,4}+ matches the same (a continuation byte can never end it) and
-#: saves the regex engine its backtracking bookkeeping (~25 % of the framing time)
-_VB = rb"[\x80-\xff]{0,4}+[\x00-\x7f]"
+#: saves the regex engine its backtracking bookkeeping (~25 % of the framing time); Python 3.10's
+#: re has no possessive quantifiers, and the plain one matches the same frames
+_VB = (
+    rb"[\x80-\xff]{0,4}+[\x00-\x7f]"
+    if sys.version_info >= (3, 11)
+    else rb"[\x80-\xff]{0,4}[\x00-\x7f]"
+)
 _PAD = bytes(16)
 _T2LEN = np.asarray(bd._TAG2_3S32_LEN, dtype=np.int64)
 _T4LEN = np.asarray(bd._TAG8_4S16_V2_LEN, dtype=np.int64)
