@@ -8,6 +8,11 @@ and outside the map's validity box together), both ways: 48 pairs × 2 = 96 dire
 is done for the seed paper's models (la, linear, poly2, poly2-trunc, poly3) side by side, and
 the seed paper's own xNova data is scored by file (each step file predicting the other).
 
+Every direction is also printed beside the default map's figure BEFORE issue 18 (physical
+bounds, supported region; ``baselines/cross_voltage_pre_issue18.csv``), with the directions now
+worse counted: issue 18's acceptance is "no direction worse than before". The point sets differ
+where selection changed since (n then and now are printed).
+
 Run: python benchmarks/bench_cross_voltage.py [--per-pair] [--data DIR]
 """
 
@@ -35,6 +40,9 @@ SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 BASELINES = ("la", "linear", "poly2", "poly2-trunc", "poly3")
 MODELS = (DEFAULT_MODEL, *BASELINES)
 BACKEMF = "back-EMF"  # motor form identified from the training file's rpm and current
+BASELINE = Path(__file__).resolve().parent / "baselines" / "cross_voltage_pre_issue18.csv"
+#: a direction is "worse" when its figure exceeds the baseline's by more than rounding
+WORSE_PP = 0.005
 
 
 @dataclass
@@ -139,6 +147,54 @@ def xnova_by_file(root: Path) -> list[str]:
     return lines
 
 
+def load_baseline(path: Path = BASELINE) -> dict[tuple[str, str], tuple[float, int]]:
+    """(train, test) -> (mean e_Th %, points scored) of the pre-issue-18 default map."""
+    out: dict[tuple[str, str], tuple[float, int]] = {}
+    if not path.exists():
+        return out
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line or line.startswith("#") or line.startswith("train,"):
+            continue
+        train, test, value, n = line.split(",")
+        out[(train, test)] = (float(value), int(n))
+    return out
+
+
+def baseline_table(
+    dirs: list[Direction], base: dict[tuple[str, str], tuple[float, int]]
+) -> list[str]:
+    """Every direction: the default map now beside the pre-issue-18 figure, worse ones flagged."""
+    lines = [
+        f"per direction, default '{DEFAULT_MODEL}' now vs before issue 18 (mean e_Th %, all points):",
+        f"  {'train':<9} {'test':<9} {'now':>6} {'n':>3} {'before':>7} {'n':>3} {'delta':>6}",
+    ]
+    worse: list[float] = []
+    now_vals: list[float] = []
+    then_vals: list[float] = []
+    for d in dirs:
+        s = d.errors[DEFAULT_MODEL]
+        b = base.get((d.train, d.test))
+        if s is None or b is None:
+            continue
+        delta = s.mean_pct - b[0]
+        flag = "  WORSE" if delta > WORSE_PP else ""
+        if flag:
+            worse.append(delta)
+        now_vals.append(s.mean_pct)
+        then_vals.append(b[0])
+        lines.append(
+            f"  {d.train:<9} {d.test:<9} {s.mean_pct:>6.2f} {s.n:>3} {b[0]:>7.2f} {b[1]:>3} "
+            f"{delta:>+6.2f}{flag}"
+        )
+    if now_vals:
+        lines.append(
+            f"  {len(now_vals)} directions: median {np.median(now_vals):.2f} % now, "
+            f"{np.median(then_vals):.2f} % before; {len(worse)} worse than before"
+            + (f" (by up to {max(worse):.2f} pp)" if worse else "")
+        )
+    return lines
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=SHARED, help="the shared data folder")
@@ -193,6 +249,11 @@ def main() -> int:
     print(
         f"  goal (default median <= 3.0 %, p90 <= 6.0 %, every pair fits): {'met' if ok else 'NOT met'}"
     )
+    base = load_baseline()
+    if base:
+        print()
+        for line in baseline_table(dirs, base):
+            print(line)
     print()
     for line in xnova_by_file(args.data):
         print(line)
