@@ -368,6 +368,18 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
         # the workers' statistical profiler samples every thread's stack every 10 ms: on
         # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
         "distributed.worker.profile.enabled": False,
+        # Background ticks of an idle 2-worker cluster (benchmarks/bench_fleet.py measures them:
+        # CPU of this process and of each worker while nothing runs) took 40-55 ms/s in this
+        # process and ~20 ms/s in each worker, ~4.5 % of a 2-core machine taken from the logs.
+        # These three bring it to ~10 ms/s and ~4 ms/s:
+        # - the event-loop health check (only a "loop was unresponsive" warning) every 20 ms
+        "distributed.admin.tick.interval": "1s",
+        # - CPU/memory/network samples for the dashboard (which a local cluster does not run)
+        "distributed.admin.system-monitor.interval": "5s",
+        # - the nanny's and the worker's memory poll (100 ms): 250 ms still stops a worker over
+        #   --memory-per-worker within a quarter second, and --max-log-mb bounds what one log
+        #   can take (one log at a time per worker)
+        "distributed.worker.memory.monitor-interval": "250ms",
         # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's
         # adaptive mmap threshold: every numpy array over 128 kB is then mmap'ed and unmapped
         # again, and a log took ~1.3x as long in a worker as in the serial loop (bench_fleet).
@@ -388,7 +400,10 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
                 threads_per_worker=1,
                 processes=True,
                 memory_limit=spec.memory_limit_bytes,
+                # no dashboard (nobody is given its address; start-up is ~0.5 s shorter without
+                # bokeh); its HTTP server (health checks) stays on a free port
                 dashboard_address=":0",
+                scheduler_kwargs={"dashboard": False},
                 silence_logs=logging.ERROR,
             )
     finally:
