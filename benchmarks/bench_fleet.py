@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import tempfile
 import time
@@ -50,6 +51,15 @@ def warm_up() -> None:
 
 def _warm(_: int) -> None:
     warm_up()
+
+
+def _cpu(procs: list[object]) -> float:
+    """User + system CPU seconds of these processes (every thread)."""
+    total = 0.0
+    for p in procs:
+        t = p.cpu_times()  # type: ignore[attr-defined]
+        total += t.user + t.system
+    return total
 
 
 def main() -> None:
@@ -93,10 +103,23 @@ def main() -> None:
         list(pool.map(_warm, range(2)))
         best: dict[str, float] = {}
         in_task: dict[str, float] = {}  # mean seconds inside process_log per log, best run
+        # CPU seconds per log of this process (driver, client, scheduler, nannies) and of the
+        # worker processes, every run: unlike wall-clock rates these hardly move with the load
+        import psutil
+
+        me = psutil.Process()
+        procs: dict[str, list[psutil.Process]] = {"serial": [], "pool": []}
+        procs["pool"] = [psutil.Process(pid) for pid in pool._processes]
+        for workers, (_, client) in clusters.items():
+            pids = client.run(os.getpid).values()  # type: ignore[attr-defined]
+            procs[str(workers)] = [psutil.Process(pid) for pid in pids]
+        cpu_main: dict[str, list[float]] = {}
+        cpu_workers: dict[str, list[float]] = {}
         try:
             for k in range(a.repeat):
                 for mode in ("serial", "1", "2", "pool"):
                     cfg = config_for(root, root / f"out-{mode}-{k}")
+                    main0, workers0 = _cpu([me]), _cpu(procs[mode])
                     t0 = time.perf_counter()
                     if mode == "pool":
                         (cfg.out_dir / "df").mkdir(parents=True)
@@ -114,11 +137,20 @@ def main() -> None:
                         assert r.reused == 0 and len(r.outcomes) == n
                         outcomes = []
                         spent = sum(o.seconds for o in r.outcomes) / n
+                    cpu_main.setdefault(mode, []).append((_cpu([me]) - main0) / n)
+                    cpu_workers.setdefault(mode, []).append((_cpu(procs[mode]) - workers0) / n)
                     if took < best.get(mode, float("inf")):
                         best[mode] = took
                         if spent is not None:
                             in_task[mode] = spent
                     del outcomes
+            # what a 2-worker cluster costs while it has nothing to do (heartbeats, ticks,
+            # memory polls): CPU taken from the logs while they run
+            _, client = clusters[2]
+            main0, workers0, t0 = _cpu([me]), _cpu(procs["2"]), time.perf_counter()
+            time.sleep(3.0)
+            idle_s = time.perf_counter() - t0
+            idle_main, idle_workers = _cpu([me]) - main0, _cpu(procs["2"]) - workers0
         finally:
             pool.shutdown()
             for cluster, client in clusters.values():
@@ -141,6 +173,17 @@ def main() -> None:
               f"{results['pool'] / results['serial']:.2f}× serial (a ProcessPoolExecutor, no "
               "Dask: what this machine gives two processes right now)")  # fmt: skip
 
+        print("CPU per log, median of the runs (ms; the driver's process holds the client, the "
+              "scheduler and the nannies):")  # fmt: skip
+        for mode, label in (("serial", "serial loop"), ("1", "1 Dask worker"),
+                            ("2", "2 Dask workers"), ("pool", "2 plain processes")):  # fmt: skip
+            m, w = statistics.median(cpu_main[mode]), statistics.median(cpu_workers[mode])
+            print(f"  {label:22s} this process {m * 1e3:5.2f}   workers {w * 1e3:5.2f}   "
+                  f"total {(m + w) * 1e3:5.2f}")  # fmt: skip
+        print(
+            f"idle 2-worker cluster: this process {idle_main / idle_s * 1e3:.1f} ms/s, "
+            f"workers {idle_workers / idle_s * 1e3:.1f} ms/s together (of 2000 ms/s)"
+        )
         t0 = time.perf_counter()
         r = run.fleet_extract(sources, config_for(root, root / "out-serial-0"))
         again_s = time.perf_counter() - t0

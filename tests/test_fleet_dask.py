@@ -233,6 +233,34 @@ def test_small_logs_travel_in_batches_and_large_ones_alone(tmp_path: Path) -> No
     small = [task(f"s{k}", 1000) for k in range(40)]
     big = task("big", run.BATCH_BYTES + 1)
     groups = list(run.batches([*small[:20], big, *small[20:]], window=1))
-    assert [len(g) for g in groups][:3] == [10, 10, 1]  # at most 40 // (4 * 1) per batch
+    # the small logs before the big one together, the big one alone, the rest together
+    assert [len(g) for g in groups] == [20, 1, 20]
     assert [t.path for g in groups for t in g] == [t.path for t in [*small[:20], big, *small[20:]]]
     assert all(len(g) == 1 for g in run.batches(small[:3], window=4))  # few logs: one each
+
+
+def test_batches_shrink_to_single_logs_at_the_fleets_tail(tmp_path: Path) -> None:
+    """Guided self-scheduling: big batches first (few Dask tasks), then smaller and smaller, and
+    a window of single logs last, so no worker idles while another finishes a big batch."""
+    from thrustmap.fleet import run
+    from thrustmap.fleet.task import LogTask
+
+    tasks = []
+    for k in range(165):
+        p = tmp_path / f"s{k:03d}"
+        p.write_bytes(b"x" * 1000)
+        tasks.append(LogTask(str(p), str(tmp_path), "k", {}))
+    groups = list(run.batches(tasks, window=4))
+    sizes = [len(g) for g in groups]
+    assert [t.path for g in groups for t in g] == [t.path for t in tasks]
+    assert sizes[0] == 42  # ceil(165 / 4): a window's share
+    assert sizes[-4:] == [1, 1, 1, 1]  # a window of single logs at the end
+    assert sizes == sorted(sizes, reverse=True)  # never a bigger batch after a smaller one
+    assert len(sizes) <= 20  # still batched: not one task per log
+    # a batch also stops at BATCH_BYTES of logs (here 4 logs of a quarter of it)
+    big = []
+    for k in range(12):
+        p = tmp_path / f"b{k:02d}"
+        p.write_bytes(b"x" * (run.BATCH_BYTES // 4))
+        big.append(LogTask(str(p), str(tmp_path), "k", {}))
+    assert [len(g) for g in run.batches(big, window=2)] == [4, 4, 2, 1, 1]

