@@ -203,6 +203,25 @@ def alarms(stderr: str) -> list[str]:
     return [ln for ln in stderr.splitlines() if ln.startswith(("error:", "CRITICAL"))]
 
 
+def test_a_port_in_time_wait_is_free_to_the_next_sitl() -> None:
+    """The next SITL binds its port with SO_REUSEADDR: a closed connection's TIME_WAIT left by
+    the previous one must not make the harness skip (CI: fail) the real-firmware tests."""
+    import socket
+
+    server = socket.socket()
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    client = socket.create_connection(("127.0.0.1", port))
+    conn, _ = server.accept()
+    assert port_in_use(port)  # listening: taken
+    conn.close()  # the server side closes first, as a stopped SITL does: TIME_WAIT on `port`
+    server.close()
+    client.close()
+    assert not port_in_use(port)
+
+
 def test_probe(sitl: BetaflightSitl, link: Link, env: dict[str, str]) -> None:
     result = run(thrustmap("probe", link.url, "--json"), env)
     assert result.returncode == 0, result.stderr

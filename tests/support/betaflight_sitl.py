@@ -57,7 +57,12 @@ def _die_with_parent() -> None:
 
 
 def port_in_use(port: int, kind: int = socket.SOCK_STREAM) -> bool:
+    """Whether a SITL could not bind ``port``. TCP with SO_REUSEADDR, as the SITL binds it: a
+    port left in TIME_WAIT by the previous SITL (stopped with a client connected) is free to it,
+    and without the option the next module saw it "in use" and skipped (or, in CI, failed)."""
     with socket.socket(socket.AF_INET, kind) as s:
+        if kind == socket.SOCK_STREAM:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("0.0.0.0", port))
         except OSError:
