@@ -109,3 +109,57 @@ def test_motor_validation_fast_path_matches_per_fold_fits() -> None:
         coef = fit_coefficients(m, t[tr], b[tr], th[tr], "l2")
         errs.append(np.abs(m.evaluate(coef, t[te], b[te]) - th[te]))
     assert row.all.mean_pct == pytest.approx(float(np.concatenate(errs).mean()), rel=1e-6)
+
+
+@pytest.mark.parametrize("loss", ["l2", "l1"])
+def test_solve_weight_two_is_the_row_counted_twice(loss: str) -> None:
+    rng = np.random.default_rng(3)
+    x = np.column_stack([np.ones(30), rng.uniform(0, 5, 30), rng.uniform(0, 5, 30)])
+    y = x @ np.array([1.0, 2.0, -0.5]) + rng.normal(0, 0.5, 30)
+    w = np.ones(30)
+    w[:7] = 2.0
+    doubled = solve(np.vstack([x, x[:7]]), np.r_[y, y[:7]], loss=loss)  # type: ignore[arg-type]
+    weighted = solve(x, y, loss=loss, weights=w)  # type: ignore[arg-type]
+    np.testing.assert_allclose(weighted, doubled, rtol=1e-6, atol=1e-6)
+
+
+def test_command_weights_give_each_point_its_share_of_the_range() -> None:
+    from thrustmap.fitting.models import command_weights
+
+    # a slow ramp leaves 100 samples over 10..12 %, a staircase one plateau at 30, 50 and 70 %
+    th = np.r_[np.linspace(10.0, 12.0, 100), 30.0, 50.0, 70.0]
+    w = command_weights(th)
+    assert w.mean() == pytest.approx(1.0)
+    assert w[100:].sum() > 2 * w[:100].sum()  # three plateaus outweigh the hundred samples
+    np.testing.assert_allclose(w[100:], w[100])  # each capped at a tenth of the span
+    # points at one command share its cell; a uniform staircase weighs its steps equally
+    shared = command_weights(np.array([10.0, 10.0, 20.0, 30.0]))
+    np.testing.assert_allclose(shared / shared[2], [0.5, 0.5, 1, 1])
+    np.testing.assert_allclose(command_weights(np.arange(10.0, 100.0, 10.0)), 1.0)
+    np.testing.assert_allclose(command_weights(np.array([42.0, 42.0])), 1.0)
+
+
+def test_motor_fit_is_not_outvoted_by_a_slow_ramps_samples() -> None:
+    """The same sweep with a slow ramp's samples densified tenfold gives the same map: the fit
+    meets the data over the commanded range, not where the sweep lingered (the xNova
+    'steps-up' file: 95 ramp samples under 20 % against 10 plateaus)."""
+    m = MODELS["motor"]
+    volt = 22.0
+
+    def true_th(t: np.ndarray) -> np.ndarray:  # a real ESC's curve is not exactly the form
+        u = (40 * np.sqrt(t) + 90 * t) / volt
+        return 3 + u + 1.5 * np.sin(u / 12)
+
+    t_steps = np.linspace(0.5, 9.0, 9)
+
+    def fitted(n_ramp: int) -> np.ndarray:
+        t = np.r_[np.linspace(0.05, 0.5, n_ramp), t_steps]
+        th = true_th(t)
+        return m.fit(t, np.full(len(t), volt), th, "l2")
+
+    tq = np.linspace(0.05, 9.0, 50)
+    bq = np.full(50, volt)
+    sparse, dense = (m.evaluate(fitted(n), tq, bq) for n in (10, 100))
+    assert float(np.max(np.abs(dense - sparse))) < 0.15
+    truth = true_th(tq)
+    assert float(np.mean(np.abs(dense - truth))) < 0.5

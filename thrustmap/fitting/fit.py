@@ -328,7 +328,10 @@ def parameter_covariance(
 ) -> FloatArray | None:
     """Covariance of the raw coefficients (least-squares, linearised at the fit): residual
     variance × (XᵀX)⁻¹ over the coefficients the data determined; a coefficient held by
-    physics or resting on its bound contributes nothing. None when it cannot be computed."""
+    physics or resting on its bound contributes nothing. A model that weighs its points
+    (``Model.fit_weights``) gets the sandwich form (XᵀWX)⁻¹ XᵀW diag(e²) WX (XᵀWX)⁻¹, scaled by
+    n / dof: its weights say how much of the range a point stands for, not how noisy it is.
+    None when it cannot be computed."""
     if len(t) <= 1:
         return None
     design, to_raw = model.conditioned(t, b)
@@ -360,14 +363,19 @@ def parameter_covariance(
     dof = len(t) - int(free.sum())
     if dof <= 0:
         return None
-    s2 = float(np.sum(resid**2) / dof)
     x = design[:, free]
+    weights = model.fit_weights(th)
     try:
-        inv = np.linalg.pinv(x.T @ x)
+        if weights is None:
+            inner = np.linalg.pinv(x.T @ x) * float(np.sum(resid**2) / dof)
+        else:
+            bread = np.linalg.pinv(x.T @ (x * weights[:, None]))
+            meat = x.T @ (x * (weights**2 * resid**2)[:, None])
+            inner = bread @ meat @ bread * (len(t) / dof)
     except np.linalg.LinAlgError:
         return None
     cov_c = np.zeros((k, k))
-    cov_c[np.ix_(free, free)] = s2 * inv
+    cov_c[np.ix_(free, free)] = inner
     jac = np.column_stack([to_raw(e) for e in np.eye(k)])  # raw = J @ conditioned
     cov = jac @ cov_c @ jac.T
     return np.asarray(0.5 * (cov + cov.T), dtype=float) if np.all(np.isfinite(cov)) else None
@@ -494,20 +502,28 @@ def validate(
     trues: list[FloatArray] = []
     insides: list[np.ndarray[Any, np.dtype[np.bool_]]] = []
     fast = loss == "l2" and m.linear_least_squares
+    weighted = m.fit_weights(data.throttle_pct) is not None
     if fast:
         # One conditioned design for all points; each fold's fit comes from sums of per-split
-        # normal equations, so k folds cost one pass over the samples, not k.
+        # normal equations, so k folds cost one pass over the samples, not k (a model that
+        # weighs its points by the range they cover weighs each fold's own points instead).
         design, to_raw = m.conditioned(data.thrust_n, data.voltage_v)
         lower_c, upper_c = _conditioned_bounds(m, to_raw)
-        gram_all = design.T @ design
-        rhs_all = design.T @ data.throttle_pct
+        if not weighted:
+            gram_all = design.T @ design
+            rhs_all = design.T @ data.throttle_pct
     for train, test in splits:
         t, b, th = data.take(train)
         tt, bt, tht = data.take(test)
         if fast:
             _check_fit_data(m, t, b, f"{model} {validation} fold")
             dt = design[test]
-            if validation == "in-sample":
+            if weighted:
+                w = np.zeros(n)
+                w[train] = m.fit_weights(th)
+                wd = design * w[:, None]
+                gram, rhs = wd.T @ design, wd.T @ data.throttle_pct
+            elif validation == "in-sample":
                 gram, rhs = gram_all, rhs_all
             else:
                 gram, rhs = gram_all - dt.T @ dt, rhs_all - dt.T @ tht

@@ -28,6 +28,11 @@ in the reason and the bounded fit kept. Where the stand logged rpm and current,
 ``backemf_coefficients`` identifies the same form from B·d = Ke·ω + R·I instead (fit.py keeps
 it only when by-file held-out error at another voltage confirms it). The choice, its reason
 and the voltage scaling the map rests on are reported (:class:`Identification`).
+
+Weights. ``motor`` weighs each point by the share of the command range it stands for
+(:func:`command_weights`): a slow ramp's hundred samples over a few percent of throttle count
+as much as the one plateau beside them would, so the map is met over the range a user
+commands, not where the sweep lingered.
 """
 
 from __future__ import annotations
@@ -94,6 +99,10 @@ class Model:
 
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
+
+    def fit_weights(self, throttle_pct: FloatArray) -> FloatArray | None:
+        """Each point's weight in the fit (None: all equal)."""
+        return None
 
     def upper(self) -> FloatArray | None:
         return np.array(self.upper_bounds, float) if self.upper_bounds else None
@@ -245,6 +254,47 @@ MIN_RELATIVE_SPAN = 0.05
 MIN_POINTS_PER_COEFFICIENT = 8
 
 
+#: no point's command cell exceeds this share of the commanded span (a ten-step staircase): one
+#: stray point far from the rest must not outweigh the sweep
+MAX_CELL_SHARE = 0.1
+#: commands closer than this (% of the range) are one command when weighing points
+COMMAND_RESOLUTION_PCT = 1e-3
+
+
+def command_weights(throttle_pct: FloatArray) -> FloatArray:
+    """Each point's share of the command range it stands for (mean 1), so that the fit meets
+    the map over the range a user commands rather than where the sweep lingered: a slow ramp
+    leaves a hundred samples over a few percent of throttle, a staircase one plateau per step,
+    and unweighted the ramp outvotes the plateaus (samples close in command are close in time
+    on a sweep, so their errors are not independent either). A point's cell reaches halfway to
+    its neighbours in throttle (the end points mirror theirs), points at one command share its
+    cell, and no cell exceeds ``MAX_CELL_SHARE`` of the span."""
+    th = np.asarray(throttle_pct, float)
+    if len(th) < 2 or not np.all(np.isfinite(th)):
+        return np.ones_like(th)
+    # commands within COMMAND_RESOLUTION_PCT are one command; counted, not sorted (a million
+    # raw samples take a few ms, and validation weighs every fold)
+    keys = np.rint((th - float(np.min(th))) / COMMAND_RESOLUTION_PCT).astype(np.int64)
+    if int(np.max(keys)) < 8 * len(keys) + 1_000_000:
+        counts_all = np.bincount(keys)
+        present = np.flatnonzero(counts_all)
+        levels = present * COMMAND_RESOLUTION_PCT
+        counts = counts_all[present]
+        slot = np.zeros(len(counts_all), np.int64)
+        slot[present] = np.arange(len(present))
+        inverse = slot[keys]
+    else:
+        ukeys, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        levels = ukeys * COMMAND_RESOLUTION_PCT
+    if len(levels) < 2:
+        return np.ones_like(th)
+    gaps = np.diff(levels)
+    cell = np.r_[gaps[0], (gaps[1:] + gaps[:-1]) / 2, gaps[-1]]
+    cell = np.minimum(cell, MAX_CELL_SHARE * float(levels[-1] - levels[0]))
+    w = (cell / counts)[inverse]
+    return np.asarray(w / float(np.mean(w)), dtype=float)
+
+
 #: the ESC's throttle offset (where its duty reaches zero), % of the range: an ESC whose duty is
 #: a fifth of full at zero command, or that stays off over half its range, is not a motor's ESC
 OFFSET_RANGE_PCT = (-20.0, 50.0)
@@ -270,14 +320,24 @@ class MotorModel(FeatureModel):
         assert lower is not None and upper is not None
         keep = [0, 1, 2, 3] if full else [0, 2, 3]
         coef = np.zeros(4)
-        coef[keep] = solve(design[:, keep], th, loss=loss, lower=lower[keep], upper=upper[keep])
+        coef[keep] = solve(
+            design[:, keep],
+            th,
+            loss=loss,
+            lower=lower[keep],
+            upper=upper[keep],
+            weights=self.fit_weights(th),
+        )
         return coef
 
     def _free_fit(self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss) -> FloatArray:
         """What the data alone say: c and k0 unconstrained (k1, k2 ≥ 0), for the report."""
         design = self.design(t, b)
         lower = np.array([-np.inf, -np.inf, 0.0, 0.0])
-        return solve(design, th, loss=loss, lower=lower)
+        return solve(design, th, loss=loss, lower=lower, weights=self.fit_weights(th))
+
+    def fit_weights(self, throttle_pct: FloatArray) -> FloatArray | None:
+        return command_weights(throttle_pct)
 
     def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
         """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""

@@ -22,17 +22,22 @@ def solve(
     loss: Loss = "l2",
     lower: FloatArray | None = None,
     upper: FloatArray | None = None,
+    weights: FloatArray | None = None,
 ) -> FloatArray:
     """Coefficients c minimising ||design @ c - target|| in the L2 or L1 sense.
 
     ``lower`` / ``upper`` give per-coefficient bounds (∓inf for none); used to keep physics
     models physical. Column scaling is applied internally so the bounds are in the caller's units.
+    ``weights`` (> 0, one per row) weigh each row's squared (L2) or absolute (L1) residual.
     """
     import scipy.optimize as opt  # scipy loads when a fit runs (~1.5 s of imports)
 
     n, k = design.shape
     if n < k:
         raise FitError(f"{n} samples cannot determine {k} coefficients; need at least {k}")
+    if weights is not None:
+        row = np.sqrt(weights) if loss == "l2" else np.asarray(weights, float)
+        design, target = design * row[:, None], target * row
     norms = np.linalg.norm(design, axis=0)
     norms[norms == 0] = 1.0
     scaled = design / norms
