@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -145,6 +146,15 @@ def test_loads_json_takes_any_text(text: str) -> None:
         assert "\n" not in str(exc)
 
 
+def nesting(value: object) -> int:
+    """Levels of [ ] and { } a JSON value adds (a scalar adds none)."""
+    if isinstance(value, list):
+        return 1 + max((nesting(v) for v in value), default=0)
+    if isinstance(value, dict):
+        return 1 + max((nesting(v) for v in value.values()), default=0)
+    return 0
+
+
 @FAST
 @given(json_values, st.integers(1, 400))
 def test_loads_json_depth_is_bounded(value: object, depth: int) -> None:
@@ -152,12 +162,24 @@ def test_loads_json_depth_is_bounded(value: object, depth: int) -> None:
     from thrustmap.core.jsonfile import MAX_JSON_DEPTH, loads_json
 
     text = "[" * depth + json.dumps(value) + "]" * depth
+    total = depth + nesting(value)
     try:
         loads_json(text, source="x.json")
-        assert depth <= MAX_JSON_DEPTH
+        assert total <= MAX_JSON_DEPTH
     except DataFormatError as exc:
         allowed = ("too large", "not a number JSON allows")  # 1e400 / Infinity: strict numbers
-        assert depth + 2 > MAX_JSON_DEPTH or any(a in str(exc) for a in allowed), str(exc)
+        assert total > MAX_JSON_DEPTH or any(a in str(exc) for a in allowed), str(exc)
+
+
+def test_loads_json_depth_counts_the_value_s_own_levels() -> None:
+    """The case hypothesis found: 61 wrapping levels around [[[[]]]] are 65 levels, refused."""
+    from thrustmap.core.errors import DataFormatError
+    from thrustmap.core.jsonfile import MAX_JSON_DEPTH, loads_json
+
+    assert MAX_JSON_DEPTH == 64
+    loads_json("[" * 60 + "[[[[]]]]" + "]" * 60, source="x.json")  # 64 levels: read
+    with pytest.raises(DataFormatError, match="deeper than 64"):
+        loads_json("[" * 61 + "[[[[]]]]" + "]" * 61, source="x.json")
 
 
 @settings(max_examples=80, deadline=None)
