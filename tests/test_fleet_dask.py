@@ -26,6 +26,13 @@ ROOT = Path(__file__).resolve().parent.parent
 VOLATILE = ("seconds", "reused")
 
 
+def terminal_signals() -> None:
+    """Run a child as a terminal's foreground job would: Ctrl-C (SIGINT) at its default. A shell
+    starts background jobs (``&``, nohup, CI scripts run that way) with SIGINT ignored, and a
+    child inherits that; the fleet, unlike a motor path, rightly keeps ignoring it there."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def env() -> dict[str, str]:
     e = dict(os.environ)
     e["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "tests"), e.get("PYTHONPATH", "")])
@@ -72,7 +79,8 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
     proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)  # fmt: skip
+                            text=True, start_new_session=True,
+                            preexec_fn=terminal_signals)  # fmt: skip
     seen: set[Any] = set()
     try:
         assert proc.stderr is not None
@@ -133,6 +141,7 @@ def test_an_existing_scheduler_gives_the_same_table(
                 env=env(),
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
+                preexec_fn=terminal_signals,  # stopped with SIGINT below
             )  # fmt: skip
         )
         deadline = time.monotonic() + 60
@@ -156,6 +165,7 @@ def test_an_existing_scheduler_gives_the_same_table(
                 env=env(),
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
+                preexec_fn=terminal_signals,  # stopped with SIGINT below
             )  # fmt: skip
         )
         from distributed import Client
