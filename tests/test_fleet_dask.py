@@ -73,9 +73,13 @@ def alive(p: Any) -> bool:
         return False
 
 
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
 def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
-    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path, how: str
 ) -> None:
+    """Ctrl-C at a terminal (SIGINT to the whole process group), or SIGTERM to the command
+    alone (a batch system, systemd, ``kill``): the table of what finished is written, no worker
+    outlives the command, and the same command resumes."""
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
     proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -92,7 +96,10 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
         parent = psutil.Process(proc.pid)
         seen = set(parent.children(recursive=True))
         assert len(seen) >= 2  # the two worker processes (and their nannies)
-        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C at a terminal: the whole process group
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C at a terminal: the whole process group
+        else:
+            proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
@@ -101,6 +108,7 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
     assert proc.returncode == 130, err
     assert "interrupted" in err and "run the same command again to resume" in err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err  # the workers kept quiet
+    assert "leaked" not in err  # the workers' semaphores were released: they were stopped
     deadline = time.monotonic() + 10
     while any(alive(p) for p in seen) and time.monotonic() < deadline:
         time.sleep(0.2)
