@@ -257,7 +257,7 @@ MIN_POINTS_PER_COEFFICIENT = 8
 #: no point's command cell exceeds this share of the commanded span (a ten-step staircase): one
 #: stray point far from the rest must not outweigh the sweep
 MAX_CELL_SHARE = 0.1
-#: commands closer than this (% of the range) are one command when weighing points
+#: commands closer than this (% throttle) are one command when weighing points
 COMMAND_RESOLUTION_PCT = 1e-3
 
 
