@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +28,20 @@ ROOT = Path(__file__).resolve().parent.parent
 VOLATILE = ("seconds", "reused")
 
 
-def terminal_signals() -> None:
-    """Run a child as a terminal's foreground job would: Ctrl-C (SIGINT) at its default. A shell
-    starts background jobs (``&``, nohup, CI scripts run that way) with SIGINT ignored, and a
-    child inherits that; the fleet, unlike a motor path, rightly keeps ignoring it there."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+@contextlib.contextmanager
+def sigint_for_children() -> Iterator[None]:
+    """Children started in this block get SIGINT at its default, as a terminal's foreground
+    job has it. A shell starts background jobs (``&``, nohup, CI scripts run that way) with
+    SIGINT ignored and children inherit that (the fleet, unlike a motor path, rightly keeps
+    ignoring it there). Only "ignored" survives exec, so any handler here is enough; set in the
+    parent rather than in a preexec_fn, which is unsafe with threads running."""
+    previous = signal.getsignal(signal.SIGINT)
+    if previous == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def env() -> dict[str, str]:
@@ -82,9 +93,9 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
     outlives the command, and the same command resumes."""
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
-    proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True,
-                            preexec_fn=terminal_signals)  # fmt: skip
+    with sigint_for_children():
+        proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)  # fmt: skip
     seen: set[Any] = set()
     try:
         assert proc.stderr is not None
@@ -131,9 +142,16 @@ def test_an_existing_scheduler_gives_the_same_table(
     sched_file = tmp_path / "scheduler.json"
     dask = [sys.executable, "-m", "dask"]  # the `dask` command of this environment
     started: list[subprocess.Popen[bytes]] = []
+
+    def spawn(cmd: list[str]) -> subprocess.Popen[bytes]:
+        with sigint_for_children():  # stopped with SIGINT below
+            return subprocess.Popen(
+                cmd, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            )
+
     try:
         started.append(
-            subprocess.Popen(
+            spawn(
                 [
                     *dask,
                     "scheduler",
@@ -146,18 +164,14 @@ def test_an_existing_scheduler_gives_the_same_table(
                     "--host",
                     "127.0.0.1",
                 ],  # fmt: skip
-                env=env(),
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                preexec_fn=terminal_signals,  # stopped with SIGINT below
-            )  # fmt: skip
+            )
         )
         deadline = time.monotonic() + 60
         while not sched_file.exists() and time.monotonic() < deadline:
             time.sleep(0.2)
         address = json.loads(sched_file.read_text())["address"]
         started.append(
-            subprocess.Popen(
+            spawn(
                 [
                     *dask,
                     "worker",
@@ -170,11 +184,7 @@ def test_an_existing_scheduler_gives_the_same_table(
                     "1GiB",
                     "--no-dashboard",
                 ],  # fmt: skip
-                env=env(),
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                preexec_fn=terminal_signals,  # stopped with SIGINT below
-            )  # fmt: skip
+            )
         )
         from distributed import Client
 
