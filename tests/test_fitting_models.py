@@ -141,8 +141,8 @@ def test_command_weights_give_each_point_its_share_of_the_range() -> None:
 
 def test_motor_fit_is_not_outvoted_by_a_slow_ramps_samples() -> None:
     """The same sweep with a slow ramp's samples densified tenfold gives the same map: the fit
-    meets the data over the commanded range, not where the sweep lingered (the xNova
-    'steps-up' file: 95 ramp samples under 20 % against 10 plateaus)."""
+    meets the data over the commanded range, not where the sweep lingered (the xNova 'steps'
+    file: 29 of its 38 points lie between 10 and 20 % throttle)."""
     m = MODELS["motor"]
     volt = 22.0
 
@@ -163,3 +163,29 @@ def test_motor_fit_is_not_outvoted_by_a_slow_ramps_samples() -> None:
     assert float(np.max(np.abs(dense - sparse))) < 0.15
     truth = true_th(tq)
     assert float(np.mean(np.abs(dense - truth))) < 0.5
+
+
+def test_fit_says_how_the_weight_was_shared() -> None:
+    from thrustmap.fitting.fit import Pool, weighting_line
+    from thrustmap.fitting.selection import Points
+
+    def points(th: np.ndarray, kind: str) -> Points:
+        t = (th / 100.0) ** 2 * 8.0
+        return Points("f.csv", t, np.full(len(th), 22.0), th, np.full(len(th), kind))
+
+    def pool(*parts: Points) -> Pool:
+        cat = [np.concatenate([getattr(p, a) for p in parts]) for a in ("thrust_n", "voltage_v")]
+        th = np.concatenate([p.throttle_pct for p in parts])
+        fi = np.zeros(len(th), dtype=np.int64)
+        return Pool(cat[0], cat[1], th, fi, parts, SCALES["pwm"])
+
+    ramp = points(np.linspace(10.0, 12.0, 50), "ramp")
+    steps = points(np.array([30.0, 40.0, 50.0, 60.0]), "plateau")
+    line = weighting_line(MODELS["motor"], pool(ramp, steps))
+    assert line.startswith("fit weights:") and "50 ramp samples carry" in line
+    share = int(line.split("4 plateaus carry ")[1].split(" %")[0])
+    assert share > 50  # four plateaus over 30-60 % outweigh fifty samples over 10-12 %
+    # evenly spaced steps weigh the same: nothing to say; an unweighted model says nothing
+    even = points(np.arange(10.0, 100.0, 10.0), "step-summary")
+    assert weighting_line(MODELS["motor"], pool(even)) == ""
+    assert weighting_line(MODELS["poly2"], pool(ramp, steps)) == ""

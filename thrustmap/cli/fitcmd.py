@@ -253,6 +253,8 @@ def fit_cmd(
                 f"{r['zero_subtracted_n']:.4f} N, subtracted (a rotor at rest makes no thrust)"
             )
     click.echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
+    if out.weighting:
+        click.echo(out.weighting)
     click.echo(
         f"in-sample e_Th: mean {s['mean_pct']:.3f} % ± {s['std_pct']:.3f}, p95 {s['p95_pct']:.3f} %, "
         f"max {s['max_pct']:.3f} %, n={s['n']}"

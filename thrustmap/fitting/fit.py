@@ -124,6 +124,42 @@ class FitOutcome:
     warnings: list[str] = field(default_factory=list)
     trust: str = ""  # where the map can be trusted (its prediction interval and box)
     more_data: str = ""  # where more data would help most
+    weighting: str = ""  # how the points were weighed, when it was not one each
+
+
+#: what each kind of selected point is called when its share of the fit is reported
+KIND_NAMES = {
+    "plateau": "plateaus",
+    "ramp": "ramp samples",
+    "ramp-pair": "paired ramp samples",
+    "stair-pair": "paired stairs",
+    "step-summary": "step rows",
+    "sample": "raw samples",
+}
+#: the weighting is reported when the heaviest point counts this many times the lightest
+REPORT_WEIGHT_RATIO = 2.0
+
+
+def weighting_line(model: Model, data: Pool) -> str:
+    """One line on how a weighted model shared the fit among the kinds of points ('' when the
+    model does not weigh, or every point counts about the same)."""
+    w = model.fit_weights(data.throttle_pct)
+    if w is None or not len(w) or float(np.max(w)) <= REPORT_WEIGHT_RATIO * float(np.min(w)):
+        return ""
+    kinds = np.concatenate([np.asarray(p.kind) for p in data.points])
+    if len(kinds) != len(w):
+        return ""
+    total = float(np.sum(w))
+    parts = []
+    for k in dict.fromkeys(kinds.tolist()):  # in the order they first appear
+        sel = kinds == k
+        parts.append(
+            f"{int(sel.sum())} {KIND_NAMES.get(k, k)} carry {100 * float(np.sum(w[sel])) / total:.0f} %"
+        )
+    return (
+        "fit weights: each point counts for the command range it covers, not one each: "
+        + ", ".join(parts)
+    )
 
 
 def fit_map(
@@ -210,7 +246,7 @@ def fit_map(
     warnings = check_map(tmap, data)
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
-    return FitOutcome(tmap, data, warnings, trust, more_data)
+    return FitOutcome(tmap, data, warnings, trust, more_data, weighting_line(m, data))
 
 
 def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
