@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -235,6 +236,26 @@ def test_sigint_stops_a_sweep_started_as_a_background_job(tmp_path: Path) -> Non
     assert stops and stops[0] - fired[0] <= 0.1
     assert motors_at_rest(rig)
     assert_partial_log(tmp_path / "bg.csv", "interrupted")
+
+
+def test_work_that_commands_no_motor_keeps_an_ignored_sigint_ignored() -> None:
+    """The fleet's use: SIGTERM and SIGHUP still unwind it, but a SIGINT the shell told a
+    background job to ignore stays ignored (only a motor path overrides that)."""
+    from thrustmap.rig.safety import Terminated, terminate_as_exception
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with terminate_as_exception(stopping="the fleet run", sigint_always=False):
+            assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGINT)  # ignored: nothing raised
+            for sig in (signal.SIGTERM, signal.SIGHUP):
+                with pytest.raises(Terminated):
+                    os.kill(os.getpid(), sig)
+                    time.sleep(1.0)  # the handler runs at the next bytecode boundary
+        with terminate_as_exception():
+            assert signal.getsignal(signal.SIGINT) == signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_stand_link_dropped(tmp_path: Path) -> None:

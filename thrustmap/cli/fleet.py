@@ -4,18 +4,15 @@ only inside the commands)."""
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import click
 
 from thrustmap.core.errors import ConfigError
+from thrustmap.rig.safety import terminate_as_exception
 
 SHOW_REFUSED = 20  # refused logs listed by name; the rest are counted (all are in the table)
 
@@ -81,26 +78,6 @@ class _Bar:
     def end(self) -> None:
         if self.tty:
             sys.stderr.write("\n")
-
-
-@contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM (how a batch system, systemd or ``kill`` stops a job) ends the run as Ctrl-C
-    does: the table of the logs finished so far is written, the workers are stopped and the
-    same command resumes. Without it the process died with no table and its workers'
-    semaphores leaked."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @click.group("fleet")
@@ -218,7 +195,9 @@ def extract_cmd(
         click.echo("serial loop in this process (no Dask)", err=True)
     try:
         try:
-            with _sigterm_interrupts():
+            # SIGTERM (a batch system, systemd, kill) or SIGHUP ends the run as Ctrl-C does:
+            # the table of what finished is written, the workers stopped, the command resumable
+            with terminate_as_exception(stopping="the fleet run", sigint_always=False):
                 result = run.fleet_extract(
                     sources, config, connect=None if workers == 0 else connect, progress=bar
                 )

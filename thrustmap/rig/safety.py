@@ -19,20 +19,24 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def terminate_as_exception() -> Iterator[None]:
+def terminate_as_exception(
+    *, stopping: str = "motors", sigint_always: bool = True
+) -> Iterator[None]:
     """Within this block SIGTERM (and SIGHUP where it exists) raises ``Terminated``, and SIGINT
     raises ``KeyboardInterrupt`` even where the process inherited it ignored.
 
     A shell starts a background job (``thrustmap sweep … &``, ``nohup``, a script run from a
     non-interactive shell) with SIGINT ignored, and Python then installs no Ctrl-C handler: a
     SIGINT would leave the motor spinning to the end of its plan. While motors can be commanded,
-    SIGINT always means stop; a handler the embedding program installed itself is kept."""
+    SIGINT always means stop; a handler the embedding program installed itself is kept. Work
+    that commands no motor (``sigint_always=False``, e.g. the fleet) leaves an ignored SIGINT
+    ignored, as the shell intends; ``stopping`` names what the warning says is stopped."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum: int, frame: FrameType | None) -> None:
-        log.warning("signal %d received: stopping motors", signum)
+        log.warning("signal %d received: stopping %s", signum, stopping)
         raise Terminated(f"signal {signum}")
 
     names = ["SIGTERM", "SIGHUP"]
@@ -41,7 +45,7 @@ def terminate_as_exception() -> Iterator[None]:
         sig = getattr(signal, name, None)
         if sig is not None:
             previous[sig] = signal.signal(sig, handler)
-    if not callable(signal.getsignal(signal.SIGINT)):  # SIG_IGN or SIG_DFL: no Python handler
+    if sigint_always and not callable(signal.getsignal(signal.SIGINT)):  # no Python handler
         log.debug("SIGINT was not handled (a background job?): it will stop the motors")
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
