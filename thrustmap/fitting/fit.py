@@ -146,9 +146,7 @@ def weighting_line(model: Model, data: Pool) -> str:
     w = model.fit_weights(data.throttle_pct)
     if w is None or not len(w) or float(np.max(w)) <= REPORT_WEIGHT_RATIO * float(np.min(w)):
         return ""
-    kinds = np.concatenate([np.asarray(p.kind) for p in data.points])
-    if len(kinds) != len(w):
-        return ""
+    kinds = np.concatenate([np.asarray(p.kind) for p in data.points])  # pooled in this order
     total = float(np.sum(w))
     parts = []
     for k in dict.fromkeys(kinds.tolist()):  # in the order they first appear
@@ -538,11 +536,12 @@ def validate(
     trues: list[FloatArray] = []
     insides: list[np.ndarray[Any, np.dtype[np.bool_]]] = []
     fast = loss == "l2" and m.linear_least_squares
-    weighted = m.fit_weights(data.throttle_pct) is not None
+    weighted = m.fit_weights(data.throttle_pct[:0]) is not None
     if fast:
         # One conditioned design for all points; each fold's fit comes from sums of per-split
         # normal equations, so k folds cost one pass over the samples, not k (a model that
-        # weighs its points by the range they cover weighs each fold's own points instead).
+        # weighs its points by the range they cover weighs each fold's own points: one
+        # weighted product per fold).
         design, to_raw = m.conditioned(data.thrust_n, data.voltage_v)
         lower_c, upper_c = _conditioned_bounds(m, to_raw)
         if not weighted:

@@ -100,12 +100,12 @@ class Model:
     def lower(self) -> FloatArray | None:
         return np.array(self.lower_bounds, float) if self.lower_bounds else None
 
+    def upper(self) -> FloatArray | None:
+        return np.array(self.upper_bounds, float) if self.upper_bounds else None
+
     def fit_weights(self, throttle_pct: FloatArray) -> FloatArray | None:
         """Each point's weight in the fit (None: all equal)."""
         return None
-
-    def upper(self) -> FloatArray | None:
-        return np.array(self.upper_bounds, float) if self.upper_bounds else None
 
     def fit(
         self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
