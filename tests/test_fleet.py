@@ -285,3 +285,29 @@ def test_without_the_fleet_extra_the_command_says_how_to_get_it(
     code, _, err = run_cli(["fleet", "extract", str(tmp_path), "-o", str(tmp_path / "o")], capsys)
     assert code == 2
     assert err.strip() == "error: thrustmap fleet needs pyarrow: pip install 'thrustmap[fleet]'"
+
+
+def test_a_stop_signal_inside_a_dask_call_waits_for_the_call_to_return() -> None:
+    """A Ctrl-C landing inside client.submit left a half-built future whose collection printed a
+    traceback after 'interrupted'. Inside ``signals_held`` the signal is held, then delivered."""
+    import signal
+
+    from thrustmap.fleet.run import signals_held
+
+    steps: list[str] = []
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with signals_held():
+                os.kill(os.getpid(), signal.SIGINT)
+                steps.append("the call finished")  # not cut short
+            steps.append("after the block")  # never reached: delivered on leaving
+        assert steps == ["the call finished"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        # a signal the process ignores stays ignored
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        with signals_held():
+            os.kill(os.getpid(), signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
