@@ -135,6 +135,11 @@ def run_demo(
                 )
                 logs.append(path)
                 runs.append(run)
+                if run.interrupted:  # Ctrl-C/SIGTERM stops the demo: nothing fitted on part
+                    raise KeyboardInterrupt(
+                        f"{strategy} {name} sweep stopped ({run.reason}); no map fitted and no "
+                        f"report written (partial logs in {path.parent})"
+                    )
         datasets = load_datasets(logs)
         outcome = fit_map(datasets)
         map_path = out_dir / f"{strategy.lower()}-map.json"

@@ -278,9 +278,10 @@ def _run_inner(args: list[str], handler: _CliLogHandler) -> int:
     except ThrustmapError as exc:
         click.echo(f"error: {' '.join(str(exc).splitlines())}{handler.summary()}", err=True)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM where a command turns it into one)
         handler.flush_held()
-        click.echo("interrupted", err=True)
+        why = " ".join(str(exc).splitlines())
+        click.echo("interrupted" + (f": {why}" if why else ""), err=True)
         return 130
     except Exception as exc:  # a bug: say so in one line, traceback only on request
         handler.flush_held()

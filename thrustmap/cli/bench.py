@@ -45,8 +45,9 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
     results = run_demo(
         Path(out_dir), seed=seed, progress=None if quiet else (lambda m: click.echo(m, err=True))
     )
+    paths = write_reports(results)  # everything is written before anything is presented
     click.echo(report(results, Path(out_dir)))
-    for path in write_reports(results):
+    for path in paths:
         click.echo(f"Report: {path} (open it in a browser)")
     if not quiet:
         click.echo(f"({time.perf_counter() - start:.1f} s)", err=True)

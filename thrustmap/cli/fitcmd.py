@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from thrustmap.core import physical
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, ThrottleScale, parse_range, scale
 from thrustmap.fitting.names import DEFAULT_MODEL, LOSSES, MODEL_NAMES, VALIDATIONS
@@ -366,23 +367,18 @@ def predict_cmd(
     """Throttle for a thrust (the map), or thrust for a throttle (forward)."""
     from thrustmap.fitting.mapfile import ThrustMap
 
-    tmap = ThrustMap.load(map_file)
     given = [x is not None for x in (thrust_n, throttle_native, throttle_pct)]
     if sum(given) != 1:
         raise ConfigError("give exactly one of --thrust-n, --throttle, --throttle-pct")
-    for opt, value in (
-        ("--thrust-n", thrust_n),
-        ("--throttle", throttle_native),
-        ("--throttle-pct", throttle_pct),
-        ("--voltage-v", voltage_v),
-    ):
-        if value is not None and not math.isfinite(value):
-            raise ConfigError(f"{opt}: expected a finite number, got {value}")
-    if voltage_v <= 0:
-        raise ConfigError(f"--voltage-v: expected a positive battery voltage, got {voltage_v:g}")
-    for opt, value in (("--thrust-n", thrust_n), ("--throttle-pct", throttle_pct)):
-        if value is not None and value < 0:
-            raise ConfigError(f"{opt}: expected a value >= 0, got {value:g}")
+    for opt, value in (("--throttle", throttle_native), ("--throttle-pct", throttle_pct)):
+        if value is not None:
+            physical.finite(value, opt)
+    if thrust_n is not None:
+        physical.rotor_thrust_n(thrust_n, "--thrust-n")
+    physical.battery_voltage_v(voltage_v, "--voltage-v")
+    if throttle_pct is not None and throttle_pct < 0:
+        raise ConfigError(f"--throttle-pct: expected a value >= 0, got {throttle_pct:g}")
+    tmap = ThrustMap.load(map_file)
     sc = tmap.throttle_scale
     corrected = not no_correction
     if thrust_n is None:
@@ -427,7 +423,10 @@ def predict_cmd(
         if region.voltage_lo_v <= voltage_v <= region.voltage_hi_v
         else None,
         "corrected": corrected and tmap.correction is not None,
+        # γ(B) applied at this voltage (None: no correction applied)
+        "gamma": g if corrected and tmap.correction is not None else None,
     }
+    applied = _gamma_line(tmap, g, voltage_v) if common["gamma"] is not None else None
     if thrust_n is not None and not 0.0 <= pct <= 100.0:
         # not an answer: the motor cannot make this thrust at this voltage (per the map)
         edge = 100.0 if pct > 100.0 else 0.0
@@ -450,6 +449,8 @@ def predict_cmd(
                 f"({pct:.1f} % by the map); the nearest reachable thrust at {voltage_v:.2f} V is "
                 f"{nearest:.4f} N (throttle {edge:.0f} %)"
             )
+            if applied:
+                click.echo(applied)
         sys.exit(1)  # exit 1: no answer (as spin and sweep exit 1 when a limit stops them)
     native = float(sc.from_pct(pct))
     result = {
@@ -491,6 +492,18 @@ def predict_cmd(
             f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
             f"{native:.2f}{pm_native} {sc.unit_label}{level}"
         )
+        if applied:
+            click.echo(applied)
+
+
+def _gamma_line(tmap: Any, gamma: float, voltage_v: float) -> str:
+    """The line that says the map's flight correction was applied (and whether forced)."""
+    forced = tmap.correction.metrics.get("forced") if tmap.correction is not None else None
+    return (
+        f"flight correction applied: γ(B) = {gamma:.4g} at {voltage_v:.2f} V (the bench map at "
+        f"γ·T; --no-correction for the bench map alone)"
+        + (f"; γ was written with --force: {'; '.join(map(str, forced))}" if forced else "")
+    )
 
 
 @click.command("inspect")

@@ -161,6 +161,12 @@ def readers_cmd() -> None:
     "--climb-max", type=float, default=1.0, show_default=True, help="|climb rate| max, m/s."
 )
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Extract even when the map says the vehicle cannot hover at --mass-kg (said, and "
+    "recorded in the Df sidecar).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
 def extract_cmd(
     logs: tuple[Path, ...],
@@ -176,9 +182,13 @@ def extract_cmd(
     min_height_m: float,
     climb_max: float,
     fmt: str | None,
+    force: bool,
     as_json: bool,
 ) -> None:
-    """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar."""
+    """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar.
+
+    With --map, a mass whose hover thrust the map puts outside its reach (0..100 % throttle)
+    is refused (exit 2) unless --force."""
     from thrustmap.core.files import check_output_path
     from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
     from thrustmap.fitting.flightlogs.detect import read_log
@@ -212,6 +222,8 @@ def extract_cmd(
     for path in logs:
         flights.extend(read_log(path, format=fmt))
     df = extract(flights, opts, tmap)
+    if tmap is not None:
+        _check_hover(df.sources, tmap, force)
     df.sources["logs"] = [{"path": str(p), "sha256": _sha256(p)} for p in logs if p.is_file()]
     side = write_df(df, output)
     for r in df.reports:
@@ -236,6 +248,29 @@ def extract_cmd(
         f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
     )
+
+
+def _check_hover(side: dict[str, Any], tmap: Any, force: bool) -> None:
+    """Each flight's mass against the map's reach (``ThrustMap.hover_refusal``): refused
+    unless ``force``; a forced one is logged and recorded in the sidecar (``forced``)."""
+    import logging
+
+    forced = []
+    for fid, meta in side.get("flights", {}).items():
+        mass, rotors = meta.get("mass_kg"), meta.get("rotors")
+        if not isinstance(mass, (int, float)) or not isinstance(rotors, int) or rotors < 1:
+            continue
+        why = tmap.hover_refusal(float(mass), rotors)
+        if why is None:
+            continue
+        if not force:
+            raise ConfigError(f"{fid}: {why}; nothing written (--force extracts anyway)")
+        logging.getLogger("thrustmap.cli").warning(
+            "%s: forced (--force), recorded in the Df sidecar: %s", fid, why
+        )
+        forced.append(f"{fid}: {why}")
+    if forced:
+        side["forced"] = forced
 
 
 def _sha256(path: Path) -> str:
@@ -290,6 +325,12 @@ def gamma_group() -> None:
     is_flag=True,
     help="Fit one γ(B) over flights with different mass or rotor count (refused otherwise).",
 )
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Write a γ(B) outside the physical band 0.5..2 or from a too-short Df anyway (said, "
+    "and recorded in the map).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and metrics as JSON.")
 def gamma_fit_cmd(
     dfs: tuple[Path, ...],
@@ -299,14 +340,18 @@ def gamma_fit_cmd(
     degree: str,
     rotors: int | None,
     pool_mixed: bool,
+    force: bool,
     as_json: bool,
 ) -> None:
-    """Fit γ(B) on DF... and write the map with its correction block."""
+    """Fit γ(B) on DF... and write the map with its correction block.
+
+    A γ outside 0.5..2 anywhere over the flown voltages, or a Df too short for a γ fit, is
+    refused (exit 2) unless --force, which says so and records it in the map."""
     import pandas as pd
 
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.df import read_df, sidecar_path
-    from thrustmap.fitting.gamma import corrected_map, fit_gamma
+    from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     inputs = [*dfs, *(sidecar_path(p) for p in dfs), map_path]
@@ -338,7 +383,8 @@ def gamma_fit_cmd(
         allow_mixed=pool_mixed,
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
-    out_map = corrected_map(tmap, fit, sources)
+    forced = check_physical(fit, force=force)  # refused unless --force (logged, recorded)
+    out_map = corrected_map(tmap, fit, sources, forced=forced)
     atomic_write_text(output, out_map.dumps())
     if as_json:
         click.echo(json.dumps(fit.to_dict(), indent=2, default=float))

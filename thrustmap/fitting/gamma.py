@@ -28,6 +28,7 @@ Metrics (per sample, then mean ± std, overall and binned by voltage):
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,8 +37,14 @@ import numpy.typing as npt
 import pandas as pd
 
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
+from thrustmap.core.physical import gamma_outside_band
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.df import map_extrapolation, motor_pct_in_map_scale, thrust_from_motors
+from thrustmap.fitting.df import (
+    MIN_DF_SAMPLES,
+    map_extrapolation,
+    motor_pct_in_map_scale,
+    thrust_from_motors,
+)
 from thrustmap.fitting.mapfile import Box, GammaCorrection, ThrustMap
 from thrustmap.fitting.names import Loss
 from thrustmap.fitting.solve import solve
@@ -516,13 +523,46 @@ def flight_metrics(
     return out
 
 
-def corrected_map(tmap: ThrustMap, fit: GammaFit, sources: list[dict[str, Any]]) -> ThrustMap:
-    """The stand map with the γ correction block attached (predict applies f̂(γ(B)·T_c, B))."""
+def physical_refusals(fit: GammaFit) -> list[str]:
+    """Why this γ(B) should not be written (empty: it may): a Df shorter than a γ fit needs
+    (``MIN_DF_SAMPLES``, the length ``flightlog extract`` calls too short), or a γ outside the
+    physical band (``core.physical.GAMMA_BAND``) anywhere over the flown voltages."""
+    out = []
+    if fit.samples < MIN_DF_SAMPLES:
+        out.append(
+            f"only {fit.samples} Df samples (fewer than {MIN_DF_SAMPLES}): too short for a γ fit"
+        )
+    v = fit.correction.voltage_v
+    band = gamma_outside_band(fit.correction.gamma(np.linspace(v.lo, v.hi, 25)).tolist())
+    if band is not None:
+        out.append(band)
+    return out
+
+
+def check_physical(fit: GammaFit, *, force: bool = False) -> list[str]:
+    """Refuse (``FitError``) a γ(B) with :func:`physical_refusals`, unless ``force``: then the
+    reasons are returned (and logged) for the map to record."""
+    reasons = physical_refusals(fit)
+    if reasons and not force:
+        raise FitError("; ".join(reasons) + "; nothing written (--force writes it anyway)")
+    for reason in reasons:
+        log.warning("forced (--force), recorded in the map: %s", reason)
+    return reasons
+
+
+def corrected_map(
+    tmap: ThrustMap, fit: GammaFit, sources: list[dict[str, Any]], *, forced: Sequence[str] = ()
+) -> ThrustMap:
+    """The stand map with the γ correction block attached (predict applies f̂(γ(B)·T_c, B));
+    ``forced``: the refusals the user overrode with ``--force``, recorded in the block."""
+    metrics = dict(fit.correction.metrics)
+    if forced:
+        metrics["forced"] = list(forced)
     corr = GammaCorrection(
         coefficients=fit.correction.coefficients,
         voltage_v=fit.correction.voltage_v,
         loss=fit.loss,
-        metrics=fit.correction.metrics,
+        metrics=metrics,
         sources=tuple(sources),
     )
     return tmap.with_correction(corr)

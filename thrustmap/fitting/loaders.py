@@ -31,6 +31,13 @@ import numpy as np
 
 from thrustmap.core import dslog
 from thrustmap.core.errors import DataFormatError
+from thrustmap.core.physical import (  # the physical ranges live in one place
+    BATTERY_V,
+    MAX_ROTOR_THRUST_N,
+    MAX_THRUST_PER_VOLT_N,
+    THRUST_PER_WATT_GF,
+    check_header_unit,
+)
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.dataset import (
     SAMPLE_AND_HOLD,
@@ -384,17 +391,7 @@ def is_step_summary(throttle: FloatArray, time_s: FloatArray | None, scale: Thro
     return True
 
 
-#: A battery from 1S under load to 14S fully charged (and a bench supply up to 63 V).
-BATTERY_V = (2.5, 63.0)
-#: Propellers make at most a few tens of grams of thrust per electrical watt (hover-optimised
-#: large props ~20 g/W at low power); 5-inch racers 3-6 g/W. Outside this: a wrong unit.
-THRUST_PER_WATT_GF = (0.2, 60.0)
-#: Per-rotor thrust no multirotor stand measures (about 200 kgf).
-MAX_ROTOR_THRUST_N = 2000.0
-#: Thrust per rotor per volt of battery no motor reaches: full-throttle speed grows with the
-#: voltage, and the heaviest-lift motors make ~3-7 N per volt (36 kgf on 12S is 7 N/V); 5-inch
-#: racers ~1 N/V, a Crazyflie ~0.04 N/V. A gram column read as newtons gives 30-100 N/V.
-MAX_THRUST_PER_VOLT_N = 20.0
+# BATTERY_V, THRUST_PER_WATT_GF, MAX_ROTOR_THRUST_N, MAX_THRUST_PER_VOLT_N: core.physical
 
 
 def _check_voltage(table: _Table, voltage_v: FloatArray, meta: dict[str, Any]) -> FloatArray:
@@ -899,6 +896,11 @@ def _with_column_map(table: _Table, cm: ColumnMap) -> Dataset:
             f"unknown thrust unit '{cm.thrust_unit}'; expected one of: N, kgf, gf, g, lbf, ozf",
             file=table.path,
         )
+    check_header_unit(table.header[fi], cm.thrust_unit, file=table.path)
+    current = index(cm.current, "current")
+    if current is None:  # a current column the map did not name still checks the thrust unit
+        hit = _find(table, r"current \((a|amps?)\)")
+        current = None if hit is None else hit[0]
     return _assemble(
         table,
         "column-map",
@@ -908,7 +910,7 @@ def _with_column_map(table: _Table, cm: ColumnMap) -> Dataset:
             "thrust": fi,
             "voltage": vi,
             "time": index(cm.time, "time"),
-            "current": index(cm.current, "current"),
+            "current": current,
             "rpm": index(cm.rpm, "rpm"),
         },
         factor,

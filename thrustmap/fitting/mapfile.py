@@ -25,6 +25,7 @@ from thrustmap import __version__
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
+from thrustmap.core.physical import gamma_outside_band, hover_outside_map
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.interval import Interval, Region, interval_range
 from thrustmap.fitting.models import Model, get_model, motor_forward
@@ -236,6 +237,15 @@ class ThrustMap:
         """Inside the map's supported region (where its data are; the box for older maps)."""
         return self.supported_region().contains(thrust_n, voltage_v)
 
+    def hover_refusal(self, mass_kg: float, rotors: int) -> str | None:
+        """Why a vehicle of ``mass_kg`` on ``rotors`` rotors cannot hover on this (bench) map,
+        or None: its hover thrust per rotor must lie between the map's thrust at 0 % throttle
+        at the lowest voltage and at 100 % at the highest (``core.physical``)."""
+        v = self.validity.voltage_v
+        lo = float(self.thrust_n(0.0, v.lo, corrected=False))
+        hi = float(self.thrust_n(100.0, v.hi, corrected=False))
+        return hover_outside_map(mass_kg, rotors, (lo, hi), v.hi)
+
     def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
         return replace(self, correction=correction)
 
@@ -327,12 +337,17 @@ class ThrustMap:
                 f"{model.n_coefficients} coefficients",
                 "interval",
             )
+        _check_constraints(f, model, coefs)
         vf = f.sub("validity")
         box = ValidityBox(
             thrust_n=_box(vf, "thrust_n", minimum=0.0),
             voltage_v=_box(vf, "voltage_v", minimum=0.0, positive=True),
             throttle_pct=_box(vf, "throttle_pct"),
         )
+        supported = _region(f)
+        _check_monotone(f, model, coefs, supported or Region.box(
+            box.thrust_n.lo, box.thrust_n.hi, box.voltage_v.lo, box.voltage_v.hi
+        ))  # fmt: skip
         correction = None
         if f.has("correction"):
             cf = f.sub("correction")
@@ -347,6 +362,10 @@ class ThrustMap:
                 metrics=dict(metrics) if isinstance(metrics, dict) else {},
                 sources=tuple(_list(cf, "sources")),
             )
+            flown = np.linspace(correction.voltage_v.lo, correction.voltage_v.hi, 25)
+            band = gamma_outside_band(correction.gamma(flown).tolist())
+            if band is not None and not correction.metrics.get("forced"):
+                raise cf.error(band + " (not written with --force)", "coefficients")
         try:
             throttle_scale = ThrottleScale.from_dict(dict(f.sub("throttle_scale").obj))
         except ConfigError as exc:
@@ -376,10 +395,60 @@ class ThrustMap:
             identification=_dict(f, "identification"),
             interval=_interval(f),
             spin_up=_dict(f, "spin_up"),
-            supported=_region(f),
+            supported=supported,
             tool_version=f.string("tool_version", ""),
             created_utc=f.string("created_utc", ""),
         )
+
+
+#: how far (% throttle) a map may fall as thrust rises inside its box before it is refused:
+#: a fitted polynomial wiggles by a fraction of a percent; a map that falls by more answers
+#: one throttle for two thrusts
+MONOTONE_TOLERANCE_PCT = 1.0
+
+
+def _check_constraints(f: Fields, model: Model, coefs: tuple[float, ...]) -> None:
+    """The model's own bounds (``motor``: k0, k1, k2 >= 0, -20 <= c <= 50) hold for every
+    coefficient: a hand-edited map that breaks them is refused, naming the coefficient."""
+    scale = max([1.0, *(abs(c) for c in coefs)])
+    for i, (name, value) in enumerate(zip(model.term_names, coefs, strict=True)):
+        lo = model.lower_bounds[i] if model.lower_bounds else -math.inf
+        hi = model.upper_bounds[i] if model.upper_bounds else math.inf
+        if value < lo - 1e-9 * scale or value > hi + 1e-9 * scale:
+            bound = f">= {lo:g}" if value < lo else f"<= {hi:g}"
+            raise f.error(
+                f"coefficient {i} (term {name}) is {value:g}; model '{model.name}' needs it "
+                f"{bound} ({model.formula})",
+                "coefficients",
+            )
+
+
+def _check_monotone(f: Fields, model: Model, coefs: tuple[float, ...], region: Region) -> None:
+    """Throttle rises with thrust where the map's data are (its supported region; the box for
+    a map written before regions) at every voltage knot, within ``MONOTONE_TOLERANCE_PCT``:
+    otherwise one throttle answers two thrusts. (Outside the data a polynomial may turn: that
+    is extrapolation, which predict already says.)"""
+    for b, t_lo, t_hi in zip(region.voltage_v, region.thrust_lo_n, region.thrust_hi_n, strict=True):
+        if not t_hi > t_lo:
+            continue
+        t = np.linspace(t_lo, t_hi, 61)
+        th = model.evaluate(coefs, t, np.full_like(t, b))
+        if not np.all(np.isfinite(th)):
+            raise f.error(f"the map gives no finite throttle at {b:.2f} V", "coefficients")
+        drop = np.maximum.accumulate(th) - th
+        k = int(np.argmax(drop))
+        if drop[k] > MONOTONE_TOLERANCE_PCT:
+            top = int(np.argmax(th[: k + 1]))
+            text = (
+                f"throttle falls by {drop[k]:.2f} % as thrust rises from {t[top]:.3g} to "
+                f"{t[k]:.3g} N at {b:.2f} V, inside the map's data: one throttle answers two "
+                "thrusts there"
+            )
+            if model.lower_bounds:  # monotone by construction: only a broken file falls
+                raise f.error(text, "coefficients")
+            # a free polynomial can turn between its points: a fit, not a corrupt file
+            log.warning("%s: model '%s': %s (the motor model cannot)", f.source, model.name, text)
+            return
 
 
 def _box(f: Fields, key: str, *, minimum: float | None = None, positive: bool = False) -> Box:
