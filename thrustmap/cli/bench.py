@@ -82,8 +82,32 @@ def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
         return plans.ramp(kw["start"], kw["stop"], duration_s=kw["duration"], repeats=kw["repeats"])
     if kind == "adaptive":
         return _adaptive_plan(kw)
-    levels = [float(x) for x in (kw["levels"] or "").split(",") if x.strip()]
-    return plans.explicit(levels, dwell_s=dwell, settle=settle, record_s=record)
+    return plans.explicit(_levels(kw["levels"]), dwell_s=dwell, settle=settle, record_s=record)
+
+
+def _levels(text: str | None) -> list[float]:
+    """``--levels 10,20,35``: finite throttle levels in 0..100 %, named when one is not."""
+    from thrustmap.core.errors import ConfigError
+
+    if not text or not text.strip():
+        raise ConfigError("explicit needs --levels: comma-separated throttle levels in %")
+    levels = []
+    for i, part in enumerate(text.split(","), start=1):
+        if not part.strip():
+            continue  # "10,20," and "10,,20": an empty item is no level
+        try:
+            value = float(part)
+        except ValueError:
+            raise ConfigError(
+                f"--levels: item {i} {part.strip()!r} is not a number; expected "
+                "comma-separated throttle levels in % (e.g. 10,20,35)"
+            ) from None
+        if not 0.0 <= value <= 100.0:  # also NaN and inf
+            raise ConfigError(f"--levels: item {i} is {value:g}; expected 0..100 % throttle")
+        levels.append(value)
+    if not levels:
+        raise ConfigError(f"--levels {text!r}: no level; expected e.g. 10,20,35 (% throttle)")
+    return levels
 
 
 def _stand_cannot_see_the_motor(stand_url: str | None, throttle_url: str | None) -> bool:
@@ -374,12 +398,12 @@ def sweep_cmd(
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
     )
-    if not kw["yes"] and not click.confirm(
+    from thrustmap.cli.waysout import confirm_spin
+
+    confirm_spin(
         f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
-        err=True,
-    ):
-        click.echo("refused: nothing spun", err=True)
-        sys.exit(2)
+        yes=kw["yes"],
+    )
     session = BenchSession(rig, clock)
     try:
         with session, LiveView(f"sweep {kind}", quiet=kw["quiet"]) as view:

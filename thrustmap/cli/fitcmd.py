@@ -124,6 +124,9 @@ def _rows_table(rows: list[Row]) -> str:
     )
     lines = [head, "-" * len(head)]
     for r in rows:
+        if r.error:  # the model could not be fitted: its row says why
+            lines.append(f"{r.model:<{w_model}} {r.validation:<{w_val}} not fitted: {r.error}")
+            continue
         s, i, o = r.all, r.inside, r.outside
         ins = f"n={i.n} mean {i.mean_pct:.3f} %" if i.n else "n=0"
         out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "n=0"

@@ -289,6 +289,7 @@ def spin_cmd(
       3    stop NOT verified (disconnect the battery)
       130  interrupted by Ctrl-C/SIGTERM (stop verified)"""
     from thrustmap.cli.live import LiveView
+    from thrustmap.cli.waysout import confirm_spin
     from thrustmap.rig.fc.motor_numbers import parse_motor
     from thrustmap.rig.session import BenchSession, Rig, exit_code, pairing_warnings
     from thrustmap.rig.spin import SpinRequest, check_spin
@@ -311,13 +312,11 @@ def spin_cmd(
     clock = make_clock(clock_choice, rig.urls())
     for warning in pairing_warnings(rig):
         click.echo(f"warning: {warning}", err=True)
-    if not yes and not click.confirm(
+    confirm_spin(
         f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
         "Propellers on? The stand must be secured and the area clear. Spin now?",
-        err=True,
-    ):
-        click.echo("refused: nothing spun", err=True)
-        sys.exit(2)
+        yes=yes,
+    )
     session = BenchSession(rig, clock)
     try:
         with session:

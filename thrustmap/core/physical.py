@@ -1,10 +1,12 @@
 """Physical checks: the one place that says what a number entering thrustmap may be.
 
 Every quantity that crosses a boundary — a stand log's column, a command-line option, a map
-file's coefficients, a flight log's accelerometer, a γ(B) about to be written — is checked here
+file's coefficients, a γ(B) about to be written — is checked here
 against physics (and against the map it meets), so a careless input is refused in one line
 (exit 2) instead of producing a confident, wrong answer. Commands and loaders call these
-functions; they never carry their own copy of a range.
+functions; they never carry their own copy of a range. (A flight log's acceleration is
+questioned by ``fitting.flightlogs.series.question_specific_force``, applied to every reader
+where ``fitting.df`` takes it: in g it is converted and said, unphysical it is refused.)
 
 Light on imports: the CLI checks options with it before anything heavy is loaded (numpy is
 imported inside the functions that take arrays).
@@ -43,8 +45,6 @@ MAX_THRUST_PER_VOLT_N = 20.0
 #: of two (propwash, a different battery, a bent prop); outside it something else is wrong
 #: (the mass in the wrong unit, the wrong map or rotor count).
 GAMMA_BAND = (0.5, 2.0)
-#: An accelerometer near hover reads about g: a median |a_up| in this band means it is in g.
-ACCEL_IN_G_BAND = (0.5, 2.0)
 #: Thrust units a column header may name, as the loaders spell them (lower case).
 HEADER_THRUST_UNITS = ("n", "kgf", "gf", "g", "kg", "lbf", "ozf")
 
@@ -129,26 +129,6 @@ def hover_outside_map(
             f"hover, below the map's {lo:.4g} N at 0 % throttle: kilograms typed as grams?"
         )
     return None
-
-
-def accel_in_mps2(values: FloatArray, origin: str) -> tuple[FloatArray, str | None]:
-    """An upward acceleration in m/s²; one logged in g (≈ 1 at hover, not ≈ 9.8) is converted
-    and said. Returns the values and the note (None when nothing was converted)."""
-    import numpy as np
-
-    a = np.asarray(values, dtype=float)
-    ok = a[np.isfinite(a)]
-    if ok.size < 3:
-        return a, None
-    med = float(np.median(np.abs(ok)))
-    lo, hi = ACCEL_IN_G_BAND
-    if not lo <= med <= hi:
-        return a, None
-    note = (
-        f"{origin}: the upward acceleration reads {med:.3g} (median |a|), not ≈ {G0:.2f}: taken "
-        f"as logged in g and multiplied by {G0:g} m/s² per g"
-    )
-    return np.asarray(a * G0, dtype=float), note
 
 
 def header_thrust_unit(header: str) -> str | None:

@@ -32,7 +32,13 @@ from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import load_json
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
+from thrustmap.fitting.flightlogs.series import (
+    FlightLog,
+    FloatArray,
+    Signal,
+    nanmedian,
+    question_specific_force,
+)
 
 if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
     import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)
@@ -709,6 +715,10 @@ def extract_flight_columns(
     if mass is None:
         raise ConfigError("give the vehicle mass (--mass-kg): the log does not record it")
     acc, time_warnings = plausible_timeline(flight.accel_up_mps2, opts.rate_hz, flight.path)
+    # every reader's acceleration is questioned here, not only the CSV readers': in g it is
+    # converted and said, one that cannot be a specific force is refused (issue 31 item 8)
+    acc, unit_notes = question_specific_force(acc, flight.path)
+    time_warnings = [*time_warnings, *unit_notes]
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
     dt = 1.0 / opts.rate_hz

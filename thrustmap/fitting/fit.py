@@ -453,6 +453,9 @@ class Row:
     outside: ErrorStats  # held-out points outside the training box
     folds: int
     all: ErrorStats  # every held-out point: the headline
+    #: why the model could not be fitted under this validation ("" when it was: a model that
+    #: cannot be fitted gets a row saying why, and the other models keep theirs)
+    error: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (no NaN: a figure with no points is null). Top-level figures are over all
@@ -462,6 +465,8 @@ class Row:
             "validation": self.validation,
             "folds": self.folds,
         }
+        if self.error:
+            d["error"] = self.error
         d.update(self.all.to_dict())
         d["inside_box"] = self.inside.to_dict()
         d["outside_box"] = self.outside.to_dict()
@@ -602,10 +607,18 @@ def compare(
     folds: int = 5,
 ) -> list[Row]:
     data = pool(datasets, selection or Selection())
+    for name in models:
+        get_model(name)  # an unknown name is refused before anything is fitted
     rows = []
     for name in models:
-        get_model(name)
-        rows.append(validate(data, name, validation, loss, folds))
+        try:
+            rows.append(validate(data, name, validation, loss, folds))
+        except FitError as exc:  # this model only: the others keep their rows
+            log.info("%s: %s", name, exc)
+            empty = error_stats(np.zeros(0), np.zeros(0))
+            rows.append(Row(name, validation, empty, empty, 0, empty, error=str(exc)))
+    if all(r.error for r in rows):
+        raise FitError("no model could be fitted: " + "; ".join(r.error for r in rows))
     return rows
 
 

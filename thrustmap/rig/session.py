@@ -220,9 +220,11 @@ class BenchSession:
         and its label ("motor 3 (test order A)"): the FC is identified first, since its frame
         says what a letter means."""
         from thrustmap.rig.fc.motor_numbers import motor_label, resolve_motor
+        from thrustmap.rig.spin import check_motor_exists
 
-        self.output.identify()
+        identity = self.output.identify()
         index = resolve_motor(self.output, text)
+        check_motor_exists(index, identity)  # before the first motor command (rig.spin)
         return index, motor_label(self.output, index)
 
     def _close_output(self, output: ThrottleOutput) -> None:

@@ -19,6 +19,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
@@ -101,6 +102,17 @@ def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROT
         raise ConfigError("ramp must be >= 0 s; tick, report and resend periods must be > 0 s")
 
 
+def check_motor_exists(motor: int, identity: Any) -> None:
+    """Refuse a 0-based ``motor`` the FC does not have (its identity's ``motor_count``; 0 or
+    None: unknown, not refused). Called when the motor is resolved, before any command."""
+    count = getattr(identity, "motor_count", None)
+    if count and motor >= count:
+        raise ConfigError(
+            f"--motor {motor + 1}: motor {motor + 1} does not exist: "
+            f"{getattr(identity, 'kind', 'the FC')} reports {count} motor(s); nothing spun"
+        )
+
+
 def run_spin(
     output: ThrottleOutput,
     clock: Clock,
@@ -153,12 +165,7 @@ def spin_on(
     check_spin(request, max_throttle_pct)
     result = SpinResult()
     try:
-        identity = output.identify()
-        if identity.motor_count and request.motor >= identity.motor_count:
-            raise ConfigError(
-                f"motor {request.motor + 1} does not exist: {identity.kind} reports "
-                f"{identity.motor_count} motor(s)"
-            )
+        check_motor_exists(request.motor, output.identify())
     except Exception as exc:
         result.status, result.error = "failed", exc
         result.reason = str(exc) if isinstance(exc, ThrustmapError) else repr(exc)

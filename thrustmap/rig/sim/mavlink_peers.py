@@ -64,6 +64,7 @@ from thrustmap.protocols.mavlink.frames import motor_order
 from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
 from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
+from thrustmap.rig.sim.options import MAX_SIM_MOTORS, opt_flag, opt_float, opt_int
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
 
 R = mav.MavResult
@@ -482,36 +483,38 @@ def plant_cells(plant: Plant) -> int:
 
 
 def constant_plant(options: Mapping[str, str]) -> Plant:
-    return ConstantPlant(motor_count=int(options.get("motors", "4")))
+    return ConstantPlant(motor_count=opt_int(options, "motors", 4, lo=1, hi=MAX_SIM_MOTORS))
 
 
 def _flag(options: Mapping[str, str], key: str, default: bool) -> bool:
-    if key not in options:
-        return default
-    return options[key].strip().lower() not in ("0", "false", "no", "off")
+    return opt_flag(options, key, default)
 
 
 def _common(options: Mapping[str, str]) -> dict[str, Any]:
     return {
-        "system_id": int(options.get("sysid", "1")),
-        "telemetry_rate_hz": float(options.get("rate_hz", "10")),
+        "system_id": opt_int(options, "sysid", 1, lo=1, hi=255),
+        "telemetry_rate_hz": opt_float(
+            options, "rate_hz", 10.0, positive=True, maximum=1000.0, what="a telemetry rate in Hz"
+        ),  # fmt: skip
     }
 
 
 def px4_from_options(options: Mapping[str, str], plant: Plant | None = None) -> PX4Vehicle:
     params = {}
     if "com_mot_test_en" in options:
-        params["COM_MOT_TEST_EN"] = float(options["com_mot_test_en"])
+        params["COM_MOT_TEST_EN"] = opt_float(options, "com_mot_test_en", 0.0)
     if "thr_mdl_fac" in options:
-        params["THR_MDL_FAC"] = float(options["thr_mdl_fac"])
+        params["THR_MDL_FAC"] = opt_float(options, "thr_mdl_fac", 0.0, minimum=0.0, maximum=1.0)
     return PX4Vehicle(
         plant if plant is not None else constant_plant(options),
         armed=_flag(options, "armed", False),
         safety_on=_flag(options, "safety", False),
         legacy_pwm=_flag(options, "legacy_pwm", False),
         flood=_flag(options, "flood", False),
-        cells=int(options["cells"]) if "cells" in options else None,
-        motors=int(options["motors"]) if "motors" in options else None,
+        cells=opt_int(options, "cells", 0, lo=1, hi=14) if "cells" in options else None,
+        motors=opt_int(options, "motors", 4, lo=1, hi=MAX_SIM_MOTORS)
+        if "motors" in options
+        else None,
         params=params,
         **_common(options),
     )
@@ -525,9 +528,9 @@ def ardupilot_from_options(
         landed=_flag(options, "landed", True),
         safety_switch_engaged=_flag(options, "safety", False),
         rc_calibrated=_flag(options, "rc_calibrated", True),
-        frame_class=int(options.get("frame_class", "1")),
-        frame_type=int(options.get("frame_type", "1")),
-        init_delay_s=float(options.get("init_delay_s", "0")),
+        frame_class=opt_int(options, "frame_class", 1, lo=0),
+        frame_type=opt_int(options, "frame_type", 1, lo=0),
+        init_delay_s=opt_float(options, "init_delay_s", 0.0, minimum=0.0),
         **_common(options),
     )
 

@@ -69,6 +69,7 @@ from thrustmap.protocols.msp.messages import (
     external_to_fraction,
 )
 from thrustmap.protocols.peer import BytePeer, register_peer
+from thrustmap.rig.sim.options import MAX_SIM_MOTORS, opt_flag, opt_float, opt_int
 from thrustmap.rig.sim.plant import ConstantPlant, Plant, PlantState
 
 log = logging.getLogger(__name__)
@@ -516,17 +517,14 @@ class MspPeer:
 
 
 def _opt_int(options: Mapping[str, str], key: str, default: int) -> int:
-    try:
-        return int(options.get(key, default))
-    except ValueError:
-        raise ConfigError(f"sim option {key}={options[key]!r}: expected an integer") from None
+    return opt_int(options, key, default)
 
 
 PlantFactory = Callable[[Mapping[str, str]], Plant]
 
 
 def constant_plant(options: Mapping[str, str]) -> Plant:
-    return ConstantPlant(_opt_int(options, "motors", 4))
+    return ConstantPlant(opt_int(options, "motors", 4, lo=1, hi=MAX_SIM_MOTORS))
 
 
 MSP_OPTIONS = frozenset({"firmware", "motors", "protocol", "rate_hz", "motor_readback"})
@@ -545,7 +543,7 @@ def msp_peer_from_options(
         raise ConfigError(
             f"unknown MSP sim options {sorted(unknown)}; expected some of {sorted(MSP_OPTIONS)}"
         )
-    motors = _opt_int(options, "motors", 4)
+    motors = opt_int(options, "motors", 4, lo=1, hi=MAX_SIM_MOTORS)
     protocol: MotorProtocol | None = None
     if "protocol" in options:
         name = options["protocol"].upper()
@@ -556,19 +554,14 @@ def msp_peer_from_options(
             raise ConfigError(
                 f"unknown motor protocol '{name}'; expected one of: {known}"
             ) from None
-    rate = _opt_int(options, "rate_hz", 100)
-    readback: bool | None = None
-    if "motor_readback" in options:
-        flag = _opt_int(options, "motor_readback", 1)
-        if flag not in (0, 1):
-            raise ConfigError(f"sim option motor_readback={flag}: expected 0 or 1")
-        readback = bool(flag)
+    rate = opt_float(options, "rate_hz", 100.0, positive=True, what="a serial frame rate in Hz")
+    readback = opt_flag(options, "motor_readback", True) if "motor_readback" in options else None
     return MspPeer(
         plant if plant is not None else ConstantPlant(motors),
         options.get("firmware", "betaflight-4"),
         motor_protocol=protocol,
         motor_count=motors,
-        serial_rate_hz=float(rate) if rate > 0 else None,
+        serial_rate_hz=rate,
         motor_readback=readback,
     )
 

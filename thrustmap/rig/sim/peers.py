@@ -18,11 +18,14 @@ from collections.abc import Mapping
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.sim.mavlink_peers import register_mavlink_peers
 from thrustmap.rig.sim.msp_peer import register_msp_peers
+from thrustmap.rig.sim.options import MAX_SIM_MOTORS, opt_flag, opt_int
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
 from thrustmap.rig.sim.stand_peers import register_stand_peers
 
 PLANT_OPTIONS = ("bench", "plant", "rotors", "seed", "noise")
 DEFAULTS = {"plant": "xnova-2207-6s", "rotors": "1", "seed": "1", "noise": "1"}
+#: rotors a simulated bench can have on its ESC
+ROTOR_COUNTS = ("1", "2", "3", "4", "6", "8")
 
 _benches: dict[str, tuple[dict[str, str], PhysicsPlant]] = {}
 
@@ -41,17 +44,15 @@ def bench_plant(options: Mapping[str, str]) -> PhysicsPlant:
             )
         return plant
     spec = {**DEFAULTS, **given}
-    try:
-        rotors, seed = int(spec["rotors"]), int(spec["seed"])
-    except ValueError:
-        raise ConfigError(f"sim options rotors/seed must be integers, got {spec}") from None
-    if rotors not in (1, 2, 3, 4, 6, 8):
+    rotors = opt_int(spec, "rotors", 1, lo=1, hi=8, what="the rotors on the ESC (1 SR, 4 MR)")
+    if str(rotors) not in ROTOR_COUNTS:
         raise ConfigError(
-            f"sim option rotors={rotors}: expected the rotors on the ESC (1 for SR, 4 for MR)"
+            f"sim option rotors={rotors}: expected the rotors on the ESC, one of "
+            f"{', '.join(ROTOR_COUNTS)} (1 for SR, 4 for MR)"
         )
-    plant = make_plant(
-        spec["plant"], rotors_on_esc=rotors, seed=seed, noise=spec["noise"] not in ("0", "false")
-    )
+    seed = opt_int(spec, "seed", 1)
+    plant = make_plant(spec["plant"], rotors_on_esc=rotors, seed=seed,
+                       noise=opt_flag(spec, "noise", True))  # fmt: skip
     _benches[name] = (spec, plant)
     return plant
 
@@ -64,7 +65,13 @@ def reset_benches() -> None:
 def _mavlink_plant(options: Mapping[str, str]) -> PhysicsPlant:
     # A vehicle declared with N motors has N rotors spinning unless the bench says otherwise.
     if "motors" in options and "rotors" not in options:
-        options = {**options, "rotors": options["motors"]}
+        motors = opt_int(options, "motors", 4, lo=1, hi=MAX_SIM_MOTORS)
+        if str(motors) not in ROTOR_COUNTS:
+            raise ConfigError(
+                f"sim option motors={motors}: the simulated bench spins {', '.join(ROTOR_COUNTS)} "
+                "rotors; give rotors= for a different count on the ESC"
+            )
+        options = {**options, "rotors": str(motors)}
     return bench_plant(options)
 
 

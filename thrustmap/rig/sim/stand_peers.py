@@ -35,6 +35,7 @@ from thrustmap.protocols.stands.tyto import (
     TytoPoll,
     TytoReading,
 )
+from thrustmap.rig.sim.options import opt_flag, opt_float
 from thrustmap.rig.sim.plant import ConstantPlant, Plant
 
 log = logging.getLogger(__name__)
@@ -268,10 +269,7 @@ class LineStandPeer:
 
 
 def _float_opt(options: Mapping[str, str], key: str, default: float) -> float:
-    try:
-        return float(options.get(key, default))
-    except ValueError:
-        raise ConfigError(f"sim option {key}={options[key]!r}: expected a number") from None
+    return opt_float(options, key, default, minimum=0.0)
 
 
 def _check(options: Mapping[str, str], known: set[str], what: str, allow: Collection[str]) -> None:
@@ -295,7 +293,7 @@ def tyto_peer_from_options(
         cal,
         boot_s=_float_opt(options, "boot_s", 1.5),
         noise_counts=_float_opt(options, "noise_counts", 0.0),
-        drive_esc=options.get("drive_esc", "1") not in ("0", "false", "no"),
+        drive_esc=opt_flag(options, "drive_esc", True),
     )
 
 
@@ -307,7 +305,7 @@ def line_peer_from_options(
     return LineStandPeer(
         plant if plant is not None else ConstantPlant(1),
         preset(options.get("preset", REFERENCE.name)),
-        rate_hz=_float_opt(options, "rate_hz", 100.0),
+        rate_hz=opt_float(options, "rate_hz", 100.0, positive=True, what="a rate in Hz"),
     )
 
 
