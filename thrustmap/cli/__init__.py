@@ -264,9 +264,12 @@ def _run_inner(args: list[str], handler: _CliLogHandler) -> int:
     try:
         cli.main(args=args, prog_name="thrustmap", standalone_mode=False)
         return 0
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as exc:  # click turns Ctrl-C (and EOF at a prompt) into this
         handler.flush_held()
-        click.echo("aborted", err=True)
+        cause = exc.__cause__
+        why = " ".join(str(cause).splitlines()) if isinstance(cause, KeyboardInterrupt) else ""
+        word = "interrupted" if isinstance(cause, KeyboardInterrupt) else "aborted"
+        click.echo(word + (f": {why}" if why else ""), err=True)
         return 130
     except click.ClickException as exc:
         message = " ".join(exc.format_message().splitlines())

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from thrustmap.core import physical
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, parse_range
 from thrustmap.fitting.names import TARGETS
@@ -93,6 +94,12 @@ def export_cmd(
     if not 0.0 < spin_max <= 1.0:
         raise ConfigError(f"--spin-max: expected a value in (0, 1], got {spin_max:g}")
     range_ = parse_range(range_text, "--range") if range_text is not None else None
+    if voltage_v is not None:
+        physical.battery_voltage_v(voltage_v, "--voltage-v")
+    if mass_kg is not None:
+        physical.positive(mass_kg, "--mass-kg", "kg")
+    if rotors is not None and not 1 <= rotors <= 64:
+        raise ConfigError(f"--rotors: expected 1..64 rotors, got {rotors}")
     from thrustmap.fitting.export.encodings import ExportOptions
     from thrustmap.fitting.export.targets import export_map
     from thrustmap.fitting.mapfile import ThrustMap
@@ -103,6 +110,8 @@ def export_cmd(
 
         plan = check_output_path(output, inputs=[map_file], what="export output")
     tmap = ThrustMap.load(map_file)
+    if mass_kg is not None and (why := tmap.hover_refusal(mass_kg, rotors or 4)) is not None:
+        raise ConfigError(f"--mass-kg: {why}")
     result = export_map(
         tmap,
         target,

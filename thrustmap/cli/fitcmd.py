@@ -87,6 +87,15 @@ def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
 
     cols = [kw.get("col_throttle"), kw.get("col_thrust"), kw.get("col_voltage")]
     if not any(cols):
+        for key, option in (
+            ("throttle_scale", "--throttle-scale"),
+            ("thrust_unit", "--thrust-unit"),
+        ):
+            if _given(key):  # an option that would change nothing is not silently dropped
+                raise ConfigError(
+                    f"{option} {kw[key]}: applies only with a column map (--col-throttle, "
+                    "--col-thrust, --col-voltage); a recognised stand log names its own units"
+                )
         return None
     if not all(cols):
         raise ConfigError(
@@ -106,6 +115,13 @@ def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
         thrust_unit=kw.get("thrust_unit") or "N",
         throttle_scale=tscale,
     )
+
+
+def _given(name: str) -> bool:
+    """True when option ``name`` was typed (not its default)."""
+    ctx = click.get_current_context(silent=True)
+    source = ctx.get_parameter_source(name) if ctx is not None else None
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
 
 
 def _fmt(x: float, width: int) -> str:

@@ -15,27 +15,35 @@ import sys
 
 import click
 
-from thrustmap.core.errors import SafetyError
-
 YES = frozenset({"y", "yes"})
+
+
+class Refused(click.ClickException):
+    """Nothing spun: the safety question was answered no, or could not be asked. Exit 2, as a
+    ``ThrustmapError`` in :func:`thrustmap.cli.main`, and also when the command is invoked
+    through click directly (tests, embedding)."""
+
+    exit_code = 2
 
 
 def confirm_spin(question: str, *, yes: bool) -> None:
     """Ask ``question`` on stderr and read the answer from stdin, unless ``yes`` (``--yes``).
 
-    Returns on yes; raises ``SafetyError`` (exit 2) on anything else, naming why nothing spun."""
+    Returns on yes; raises :class:`Refused` (exit 2) on anything else, naming why nothing
+    spun."""
     if yes:
         return
     click.echo(f"{question} [y/N]: ", err=True, nl=False)
     try:
-        line = sys.stdin.readline() if sys.stdin is not None else ""
-    except (OSError, ValueError):  # stdin closed or not readable
-        line = ""
+        line, typed = sys.stdin.readline(), sys.stdin.isatty()
+    except (AttributeError, OSError, ValueError):  # no stdin, or closed
+        line, typed = "", False
+    if not line or not typed:
+        click.echo("", err=True)  # the answer was not typed: end the question's line
     if not line:  # EOF: nobody to ask
-        click.echo("", err=True)
-        raise SafetyError(
+        raise Refused(
             "no answer to the safety question (no terminal to ask: stdin is closed or empty): "
             "nothing spun; --yes confirms that the propellers are on and the area is clear"
         )
     if line.strip().lower() not in YES:
-        raise SafetyError("refused: nothing spun (answer y, or give --yes, to spin)")
+        raise Refused("refused: nothing spun (answer y, or give --yes, to spin)")

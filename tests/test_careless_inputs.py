@@ -1,0 +1,460 @@
+"""Careless inputs (issue 31): each row is a command, its input, the exit code it must end with
+and a phrase of the line it must say. No row may produce a traceback or an "internal error",
+and none may answer with exit 0 what the same tool refuses elsewhere.
+
+The rows cover the sixteen cases of issue 31 that are this branch's (items 5 and 6 belong to
+the interval work, 10 and 15 to the fleet work) and the careless inputs the README's tour
+invites: typos, units (millivolts, grams, kilograms), ranges, missing answers. Every command
+runs in-process through :func:`thrustmap.cli.main` (the one place exit codes are decided), on
+the project's own fixtures and on small files written here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import math
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from thrustmap.cli import main
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+FL = FIXTURES / "flightlogs"
+
+
+@dataclass(frozen=True)
+class Row:
+    name: str
+    argv: str  # split on spaces ("~" is a space inside one argument); {map} {tmp} {ulg} {run}
+    code: int
+    phrase: str  # in stdout or stderr
+    stdin: str | None = None  # None: no terminal and nothing to read (stdin at EOF)
+    absent: str | None = None  # text that must NOT appear (e.g. "spinning" before a refusal)
+
+
+# -- the workspace the rows run in -----------------------------------------------------------
+
+
+def _step_summary(path: Path, voltage_v: float, *, header_thrust: str = "Thrust (gf)") -> None:
+    """An RCbenchmark-style step summary (one averaged row per step, 1050..2000 µs), grams of
+    thrust and amperes of current as a 5-inch motor makes them (about 4 gf/W)."""
+    lines = [f"Time (s),ESC signal (µs),{header_thrust},Voltage (V),Current (A)"]
+    for k in range(11):
+        us = 1050 + 95 * k
+        x = (us - 1000) / 1000.0
+        thrust_gf = 15.0 + 900.0 * x**2 * voltage_v / 11.1
+        sag_v = voltage_v - 0.01 * k
+        current_a = thrust_gf / 4.0 / sag_v
+        lines.append(f"{2.0 * k:.1f},{us},{thrust_gf:.3f},{sag_v:.3f},{current_a:.3f}")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    tmp = tmp_path_factory.mktemp("careless")
+    shutil.copy(FL / "sim_map.json", tmp / "map.json")
+    doc = json.loads((FL / "sim_map.json").read_text())
+    neg = dict(doc, coefficients=[doc["coefficients"][0], 0.0, -512.0, doc["coefficients"][3]])
+    (tmp / "neg.json").write_text(json.dumps(neg))
+    off = dict(doc, correction={"coefficients": [0.00114], "voltage_v": [21.0, 24.0]})
+    (tmp / "gamma_off.json").write_text(json.dumps(off))
+    (tmp / "truncated.json").write_text((FL / "sim_map.json").read_text()[:200])
+    (tmp / "empty.csv").write_text("")
+    (tmp / "picture.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    _step_summary(tmp / "s_7.csv", 7.4)
+    _step_summary(tmp / "s_11.csv", 11.1)
+    # grams under a header that says so, read as newtons
+    _step_summary(tmp / "grams_header.csv", 11.1)
+    # grams under a header without a unit, a current column the column map does not name
+    _step_summary(tmp / "grams_plain.csv", 11.1, header_thrust="Thrust")
+    # a Df of a vehicle whose mass was typed in grams (no map to question it), a too-short one
+    ulg = str(FL / "sim_hover.ulg")
+    for argv in (
+        ["flightlog", "extract", ulg, "--mass-kg", "1200", "-o", str(tmp / "heavy.csv")],
+        ["flightlog", "extract", ulg, "--mass-kg", "1", "--rate-hz", "2",
+         "-o", str(tmp / "short.csv")],
+        ["flightlog", "extract", ulg, "--mass-kg", "1", "-o", str(tmp / "df.csv")],
+    ):  # fmt: skip
+        assert _run(argv)[0] == 0
+    return {
+        "tmp": str(tmp),
+        "map": str(tmp / "map.json"),
+        "ulg": ulg,
+        "run": str(FIXTURES / "sweeps" / "msp_run.csv"),
+    }
+
+
+def _run(argv: list[str], stdin: str | None = None) -> tuple[int, str, str]:
+    """``thrustmap ARGV`` in-process: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    old = sys.stdout, sys.stderr, sys.stdin
+    sys.stdout, sys.stderr, sys.stdin = out, err, io.StringIO(stdin or "")
+    try:
+        try:
+            main(argv)
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:
+        sys.stdout, sys.stderr, sys.stdin = old
+    return code, out.getvalue(), err.getvalue()
+
+
+ROWS = [
+    # --- issue 31, wrong answers -------------------------------------------------------------
+    Row(
+        "1 predict at 1000 V",
+        "predict {map} --thrust-n 4 --voltage-v 1000",
+        2,
+        "is not a battery voltage",
+    ),
+    Row(
+        "1 predict in millivolts",
+        "predict {map} --thrust-n 4 --voltage-v 24000",
+        2,
+        "millivolts? 24 V",
+    ),
+    Row("1 predict below 1S", "predict {map} --thrust-n 4 --voltage-v 1", 2, "expected 2.5..63 V"),
+    Row(
+        "2 grams typed as newtons (header says gf)",
+        "fit {tmp}/grams_header.csv --col-throttle ESC~signal~(µs) --col-thrust Thrust~(gf) "
+        "--col-voltage Voltage~(V) --thrust-unit N -o {tmp}/g1.json",
+        2,
+        "--thrust-unit gf",
+    ),
+    Row(
+        "2 grams typed as newtons (current in the file)",
+        "fit {tmp}/grams_plain.csv --col-throttle ESC~signal~(µs) --col-thrust Thrust "
+        "--col-voltage Voltage~(V) --thrust-unit N -o {tmp}/g2.json",
+        2,
+        "gf/W",
+    ),
+    Row(
+        "2 predict at grams typed as newtons",
+        "predict {map} --thrust-n 5000 --voltage-v 24",
+        2,
+        "grams typed as newtons",
+    ),
+    Row(
+        "3 mass typed in grams",
+        "flightlog extract {ulg} --mass-kg 1200 --map {map} -o {tmp}/x1.csv",
+        2,
+        "grams typed as kilograms",
+    ),
+    Row(
+        "3 gamma far outside 0.5..2",
+        "gamma fit {tmp}/heavy.csv --map {map} -o {tmp}/x2.json",
+        2,
+        "agree within 0.5..2",
+    ),
+    Row(
+        "3 a map holding such a gamma",
+        "predict {tmp}/gamma_off.json --thrust-n 2 --voltage-v 22",
+        2,
+        "not written with --force",
+    ),
+    Row(
+        "3 export with the mass in grams",
+        "export {map} --to px4 --mass-kg 1200",
+        2,
+        "grams typed as kilograms",
+    ),
+    Row(
+        "4 hand-edited k1 < 0",
+        "predict {tmp}/neg.json --thrust-n 4 --voltage-v 24",
+        2,
+        "needs it >= 0",
+    ),
+    Row(
+        "7 gamma on a too-short Df",
+        "gamma fit {tmp}/short.csv --map {map} -o {tmp}/x3.json",
+        2,
+        "too short for a γ fit",
+    ),
+    # --- issue 31, ways out ------------------------------------------------------------------
+    Row(
+        "11 a motor the FC does not have",
+        "spin sim://betaflight --motor 9 --throttle 10 --yes",
+        2,
+        "motor 9 does not exist",
+        absent="spinning",
+    ),
+    Row(
+        "12 no terminal to ask",
+        "spin sim://betaflight --motor 1 --throttle 10",
+        2,
+        "--yes confirms",
+        absent="aborted",
+    ),
+    Row(
+        "12 sweep with no terminal to ask",
+        "sweep steps --stand sim://tyto-1585 --throttle sim://betaflight -o {tmp}/sw1.csv",
+        2,
+        "--yes confirms",
+        absent="aborted",
+    ),
+    Row(
+        "12 answered no",
+        "spin sim://betaflight --motor 1 --throttle 10",
+        2,
+        "nothing spun",
+        stdin="n\n",
+    ),
+    Row(
+        "13 a level that is not a number",
+        "sweep explicit --stand sim://tyto-1585 --levels 10,abc -o {tmp}/sw2.csv --dry-run",
+        2,
+        "'abc' is not a number",
+    ),
+    Row(
+        "13 a level above 100 %",
+        "sweep explicit --stand sim://tyto-1585 --levels 10,200 -o {tmp}/sw3.csv --dry-run",
+        2,
+        "expected 0..100 %",
+    ),
+    Row(
+        "14 a model that cannot be fitted on a fold",
+        "compare {tmp}/s_7.csv {tmp}/s_11.csv --models motor,linear,poly4 --validate by-file",
+        0,
+        "poly4  by-file    not fitted",
+    ),
+    Row(
+        "14 no model can be fitted",
+        "compare {tmp}/s_7.csv {tmp}/s_11.csv --models poly4 --validate by-file",
+        2,
+        "no model could be fitted",
+    ),
+    Row(
+        "16 rate_hz=0",
+        "spin sim://betaflight?rate_hz=0 --motor 1 --throttle 10 --yes",
+        2,
+        "sim option rate_hz='0'",
+    ),
+    Row(
+        "16 rate_hz=-5",
+        "spin sim://betaflight?rate_hz=-5 --motor 1 --throttle 10 --yes",
+        2,
+        "sim option rate_hz='-5'",
+    ),
+    Row(
+        "16 drive_esc=maybe",
+        "probe sim://tyto-1585?drive_esc=maybe",
+        2,
+        "sim option drive_esc='maybe'",
+    ),
+    Row(
+        "16 motors=400 names motors",
+        "spin sim://px4?motors=400 --motor 1 --throttle 10 --yes",
+        2,
+        "sim option motors='400'",
+    ),
+    Row(
+        "16 PX4 telemetry rate 0",
+        "spin sim://px4?rate_hz=0 --motor 1 --throttle 10 --yes",
+        2,
+        "sim option rate_hz='0'",
+    ),
+    Row("16 a negative boot time", "probe sim://tyto-1585?boot_s=-1", 2, "boot_s='-1'"),
+    # --- the README tour, carelessly ---------------------------------------------------------
+    Row("a file that is not there", "fit {tmp}/nothere.csv -o {tmp}/m.json", 2, "nothere.csv"),
+    Row("a folder for a file", "fit {tmp} -o {tmp}/m.json", 2, "is a directory"),
+    Row("an empty stand log", "fit {tmp}/empty.csv -o {tmp}/m.json", 2, "empty.csv"),
+    Row("a picture for a stand log", "fit {tmp}/picture.png -o {tmp}/m.json", 2, "picture.png"),
+    Row("a model name typo", "fit {run} --model poyl2 -o {tmp}/m.json", 2, "poyl2"),
+    Row("a reversed range", "fit {run} --voltage-range 30:20 -o {tmp}/m.json", 2, "LO < HI"),
+    Row(
+        "a scale option without a column map",
+        "fit {run} --throttle-scale pwn -o {tmp}/m.json",
+        2,
+        "applies only with a column map",
+    ),
+    Row(
+        "an unknown throttle scale",
+        "fit {tmp}/grams_plain.csv --col-throttle ESC~signal~(µs) "
+        "--col-thrust Thrust --col-voltage Voltage~(V) --throttle-scale pwn -o {tmp}/m.json",
+        2,
+        "unknown throttle scale 'pwn'",
+    ),
+    Row("predict without a voltage", "predict {map} --thrust-n 4", 2, "--voltage-v"),
+    Row("predict a negative thrust", "predict {map} --thrust-n -1 --voltage-v 24", 2, ">= 0"),
+    Row("predict NaN", "predict {map} --thrust-n nan --voltage-v 24", 2, "finite"),
+    Row(
+        "predict both directions",
+        "predict {map} --thrust-n 4 --throttle-pct 50 --voltage-v 24",
+        2,
+        "exactly one",
+    ),
+    Row("predict 150 %", "predict {map} --throttle-pct 150 --voltage-v 24", 2, "0..100 %"),
+    Row(
+        "predict more than the motor makes",
+        "predict {map} --thrust-n 100 --voltage-v 24",
+        1,
+        "unreachable",
+    ),
+    Row(
+        "a truncated map",
+        "predict {tmp}/truncated.json --thrust-n 4 --voltage-v 24",
+        2,
+        "truncated.json",
+    ),
+    Row("a stand log for a map", "predict {run} --thrust-n 4 --voltage-v 24", 2, "msp_run.csv"),
+    Row("export in millivolts", "export {map} --to px4 --voltage-v 24000", 2, "millivolts"),
+    Row("export a negative mass", "export {map} --to px4 --mass-kg -1", 2, "positive"),
+    Row("extract without a mass", "flightlog extract {ulg} -o {tmp}/x4.csv", 2, "--mass-kg"),
+    Row(
+        "extract a negative mass",
+        "flightlog extract {ulg} --mass-kg -1 -o {tmp}/x5.csv",
+        2,
+        "mass must be positive",
+    ),
+    Row(
+        "extract at 0 Hz",
+        "flightlog extract {ulg} --mass-kg 1 --rate-hz 0 -o {tmp}/x6.csv",
+        2,
+        "positive",
+    ),
+    Row(
+        "gamma on a Df that is not there",
+        "gamma fit {tmp}/nodf.csv --map {map} -o {tmp}/x7.json",
+        2,
+        "nodf.csv",
+    ),
+    Row("spin at motor 0", "spin sim://betaflight --motor 0 --throttle 10 --yes", 2, "1..16"),
+    Row(
+        "spin above the cap",
+        "spin sim://betaflight --motor 1 --throttle 50 --yes",
+        2,
+        "--max-throttle 50",
+    ),
+    Row(
+        "spin for minutes",
+        "spin sim://betaflight --motor 1 --throttle 10 --seconds 100 --yes",
+        2,
+        "at most 10 s",
+    ),
+    Row(
+        "a sweep with a negative dwell",
+        "sweep steps --stand sim://tyto-1585 --dwell -1 -o {tmp}/sw4.csv --dry-run",
+        2,
+        "dwell",
+    ),
+    Row("a command typo", "fti {run}", 2, "No such command"),
+]
+
+
+def _argv(row: Row, work: dict[str, str]) -> list[str]:
+    return [part.replace("~", " ") for part in row.argv.format(**work).split(" ")]
+
+
+@pytest.mark.parametrize("row", ROWS, ids=[r.name for r in ROWS])
+def test_careless_input(row: Row, work: dict[str, str]) -> None:
+    code, out, err = _run(_argv(row, work), row.stdin)
+    text = out + err
+    assert "Traceback" not in text and "internal error" not in text, text
+    assert code == row.code, f"exit {code}, expected {row.code}:\n{text}"
+    assert row.phrase in text, text
+    if row.absent is not None:
+        assert row.absent not in text, text
+    if code == 2:  # a refusal is one line naming what was expected
+        lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+        assert len(lines) == 1, err
+
+
+def test_at_least_forty_rows() -> None:
+    assert len(ROWS) >= 40
+
+
+def test_forced_gamma_is_said_and_recorded(work: dict[str, str]) -> None:
+    """--force writes the refused γ, says so, records it in the map; predict says γ applied."""
+    out_map = Path(work["tmp"]) / "forced.json"
+    code, _, err = _run(
+        ["gamma", "fit", f"{work['tmp']}/heavy.csv", "--map", work["map"], "-o", str(out_map),
+         "--force"]
+    )  # fmt: skip
+    assert code == 0 and "forced (--force), recorded in the map" in err
+    forced = json.loads(out_map.read_text())["correction"]["metrics"]["forced"]
+    assert any("0.5..2" in f for f in forced)
+    code, out, _ = _run(["predict", str(out_map), "--thrust-n", "2", "--voltage-v", "22"])
+    assert code == 0 and "flight correction applied" in out and "--force" in out
+
+
+def test_predict_says_gamma_applied(work: dict[str, str]) -> None:
+    out_map = Path(work["tmp"]) / "good.json"
+    code, _, err = _run(
+        ["gamma", "fit", f"{work['tmp']}/df.csv", "--map", work["map"], "-o", str(out_map)]
+    )
+    assert code == 0, err
+    code, out, _ = _run(["predict", str(out_map), "--thrust-n", "2", "--voltage-v", "22"])
+    assert code == 0 and "flight correction applied: γ(B) = " in out
+    gamma = float(out.split("γ(B) = ")[1].split()[0])
+    assert 0.5 <= gamma <= 2.0
+    code, out, _ = _run(["predict", str(out_map), "--thrust-n", "2", "--voltage-v", "22", "--json"])
+    assert json.loads(out)["gamma"] == pytest.approx(gamma, rel=1e-3)
+    code, out, _ = _run(
+        ["predict", str(out_map), "--thrust-n", "2", "--voltage-v", "22", "--no-correction"]
+    )
+    assert code == 0 and "flight correction" not in out
+
+
+def test_extract_force_records_the_mass_refusal(work: dict[str, str]) -> None:
+    out = Path(work["tmp"]) / "forced_df.csv"
+    code, _, err = _run(
+        ["flightlog", "extract", work["ulg"], "--mass-kg", "1200", "--map", work["map"],
+         "--force", "-o", str(out)]
+    )  # fmt: skip
+    assert code == 0 and "forced (--force), recorded in the Df sidecar" in err
+    side = json.loads(out.with_suffix(".json").read_text())
+    assert any("grams typed as kilograms" in f for f in side["forced"])
+
+
+def test_demo_ctrl_c_stops_with_130_and_no_report(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C during a simulated sweep (the runner reports it as an interrupted run) stops the
+    demo: exit 130, no map fitted on the partial data, no report."""
+    import thrustmap.demo as demo
+    from thrustmap.rig.runner import RunResult
+
+    calls = []
+
+    def interrupted(*args: object, **kwargs: object) -> RunResult:
+        calls.append(args)
+        return RunResult("aborted", "interrupted (Ctrl-C)", 0, 0.1, True, None, interrupted=True)
+
+    monkeypatch.setattr(demo, "record_sweep", interrupted)
+    code, out, err = _run(["demo", "-q", "-o", str(tmp_path / "d")])
+    assert code == 130, out + err
+    assert len(calls) == 1  # nothing after the interrupted sweep
+    assert "interrupted" in err and "no report written" in err
+    assert not list((tmp_path / "d").rglob("*.json")) and not list((tmp_path / "d").rglob("*.html"))
+    assert out == ""  # nothing presented as complete
+
+
+def test_accelerometer_in_g_is_caught(work: dict[str, str]) -> None:
+    """A binary log's acceleration in g (≈ 1 at hover) is converted and said, not used as
+    m/s² (which leaves no sample near hover, or a force ten times too small)."""
+    from thrustmap.fitting.df import DfOptions, extract
+    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.mapfile import ThrustMap
+
+    (flight,) = read_log(Path(work["ulg"]))
+    acc = flight.accel_up_mps2
+    assert acc is not None
+    in_g = dataclasses.replace(
+        flight, accel_up_mps2=dataclasses.replace(acc, values=acc.values / 9.80665)
+    )
+    tmap = ThrustMap.load(work["map"])
+    ref = extract([flight], DfOptions(mass_kg=1.0), tmap)
+    got = extract([in_g], DfOptions(mass_kg=1.0), tmap)
+    assert len(got) == len(ref) > 0
+    assert math.isclose(
+        float(got.table["force_n"].median()), float(ref.table["force_n"].median()), rel_tol=1e-6
+    )
+    notes = [w for r in got.reports for w in r.warnings]
+    assert any("taken as g" in w for w in notes), notes
