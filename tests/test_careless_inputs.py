@@ -344,6 +344,30 @@ ROWS = [
         2,
         "dwell",
     ),
+    Row(
+        "a negative current limit",
+        "sweep steps --stand sim://tyto-1585 --max-current -5 -o {tmp}/sw5.csv --dry-run",
+        2,
+        "--max-current -5: expected a number > 0",
+    ),
+    Row(
+        "a tilt beyond 90 degrees",
+        "flightlog extract {ulg} --mass-kg 1 --tilt-max-deg 500 -o {tmp}/x8.csv",
+        2,
+        "--tilt-max-deg 500: expected 0..90",
+    ),
+    Row(
+        "a negative hover tolerance",
+        "flightlog extract {ulg} --mass-kg 1 --accel-tol -1 -o {tmp}/x9.csv",
+        2,
+        "--accel-tol -1",
+    ),
+    Row(
+        "gamma with -1 rotors",
+        "gamma fit {tmp}/df.csv --map {map} --rotors -1 -o {tmp}/x10.json",
+        2,
+        "--rotors -1",
+    ),
     Row("a command typo", "fti {run}", 2, "No such command"),
 ]
 

@@ -354,6 +354,8 @@ def gamma_fit_cmd(
     from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
+    if rotors is not None and not 1 <= rotors <= 64:
+        raise ConfigError(f"--rotors {rotors}: expected 1..64 rotors")
     inputs = [*dfs, *(sidecar_path(p) for p in dfs), map_path]
     plan = check_output_path(output, inputs=inputs, what="map output")
     tmap = ThrustMap.load(map_path)

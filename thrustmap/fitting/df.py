@@ -92,6 +92,15 @@ class DfOptions:
             raise ConfigError(f"rotor count must be at least 1, got {self.rotors}")
         if not self.rate_hz > 0:
             raise ConfigError(f"resampling rate must be positive, got {self.rate_hz} Hz")
+        for name, value, lo, hi in (  # issue 31: each filter a band it can be (lo < value <= hi)
+            ("--accel-tol", self.accel_tol_mps2, 0.0, 9.80665),
+            ("--tilt-max-deg", self.tilt_max_deg, 0.0, 90.0),
+            ("--climb-max", self.climb_max_mps, 0.0, 100.0),
+            ("--settle-s", self.settle_s, -1e-12, 3600.0),
+            ("--min-height-m", self.min_height_m, -1e-12, 1000.0),
+        ):
+            if not lo < value <= hi:  # also NaN
+                raise ConfigError(f"{name} {value:g}: expected {max(lo, 0):g}..{hi:g}")
         if self.thrust_source not in ("auto", "log", "motors", "norm"):
             raise ConfigError(
                 f"thrust source '{self.thrust_source}': expected auto, log, motors or norm"

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
 
-from thrustmap.core.errors import SafetyError
+from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.rig.plans import Plan
 
 #: ``spin``: one short, capped motor test (the CLI's defaults; a sweep uses the table below)
@@ -161,6 +161,27 @@ class Limits:
     stale_data_s: float = _default("stale_data_s")
     link_timeout_s: float = _default("link_timeout_s")
     min_thrust_by_pct: float = _default("min_thrust_by_pct")
+
+    def __post_init__(self) -> None:
+        """Every threshold a number that can be one: finite and > 0 (``--min-thrust-by`` may
+        be 0, which turns it off), a throttle cap at most 100 %, 1..14 cells. A careless
+        ``--max-current -5`` is refused naming the option, before anything is opened."""
+        for row in INTERLOCKS:
+            value = getattr(self, row.field)
+            if value is None:
+                continue
+            off_ok = row.field == "min_thrust_by_pct"
+            top = 100.0 if row.field in ("max_throttle_pct", "min_thrust_by_pct") else math.inf
+            top = 14 if row.field == "cells" else top
+            if not (
+                math.isfinite(value) and (value >= 0 if off_ok else value > 0) and value <= top
+            ):
+                expected = (">= 0" if off_ok else "> 0") + (
+                    f" and <= {top:g}" if top < math.inf else ""
+                )
+                raise ConfigError(
+                    f"{row.option} {value:g}: expected a number {expected} {row.unit}".rstrip()
+                )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
