@@ -482,3 +482,22 @@ def test_accelerometer_in_g_is_caught(work: dict[str, str]) -> None:
     )
     notes = [w for r in got.reports for w in r.warnings]
     assert any("taken as g" in w for w in notes), notes
+
+
+def test_ctrl_c_at_the_safety_question(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C while the question waits: exit 130 (an interruption, not a refusal), nothing
+    spun and said so."""
+
+    class CtrlC(io.StringIO):
+        def readline(self, size: int | None = -1) -> str:
+            raise KeyboardInterrupt
+
+    out, err = io.StringIO(), io.StringIO()
+    monkeypatch.setattr(sys, "stdin", CtrlC())
+    monkeypatch.setattr(sys, "stdout", out)
+    monkeypatch.setattr(sys, "stderr", err)
+    with pytest.raises(SystemExit) as exc:
+        main(["spin", "sim://betaflight", "--motor", "1", "--throttle", "10"])
+    assert exc.value.code == 130
+    assert "interrupted: at the safety question: nothing spun" in err.getvalue()
+    assert "spinning" not in out.getvalue()

@@ -38,6 +38,8 @@ def confirm_spin(question: str, *, yes: bool) -> None:
         line, typed = sys.stdin.readline(), sys.stdin.isatty()
     except (AttributeError, OSError, ValueError):  # no stdin, or closed
         line, typed = "", False
+    except KeyboardInterrupt:  # Ctrl-C at the question: exit 130, and say what did not happen
+        raise KeyboardInterrupt("at the safety question: nothing spun") from None
     if not line or not typed:
         click.echo("", err=True)  # the answer was not typed: end the question's line
     if not line:  # EOF: nobody to ask
