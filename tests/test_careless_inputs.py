@@ -368,6 +368,12 @@ ROWS = [
         2,
         "--rotors -1",
     ),
+    Row(
+        "a pack voltage for the per-cell limit",
+        "sweep steps --stand sim://tyto-1585 --min-cell-voltage 22.2 -o {tmp}/sw6.csv --dry-run",
+        2,
+        "it is per cell",
+    ),
     Row("a command typo", "fti {run}", 2, "No such command"),
 ]
 

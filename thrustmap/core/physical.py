@@ -31,6 +31,8 @@ G0 = 9.80665
 
 #: A battery from 1S under load to 14S fully charged (and a bench supply up to 63 V).
 BATTERY_V = (2.5, 63.0)
+#: One lithium cell under load (LiPo/Li-ion, down to a deep discharge) up to a full LiHV cell.
+CELL_V = (2.5, 4.45)
 #: Propellers make at most a few tens of grams of thrust per electrical watt (hover-optimised
 #: large props ~20 g/W at low power); 5-inch racers 3-6 g/W. Outside this: a wrong unit (grams
 #: read as newtons give ~100 times more).

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
 
 from thrustmap.core.errors import ConfigError, SafetyError
+from thrustmap.core.physical import CELL_V
 from thrustmap.rig.plans import Plan
 
 #: ``spin``: one short, capped motor test (the CLI's defaults; a sweep uses the table below)
@@ -182,6 +183,12 @@ class Limits:
                 raise ConfigError(
                     f"{row.option} {value:g}: expected a number {expected} {row.unit}".rstrip()
                 )
+        lo, hi = CELL_V
+        if not lo <= self.min_cell_voltage_v <= hi:
+            raise ConfigError(
+                f"--min-cell-voltage {self.min_cell_voltage_v:g} V per cell: a lithium cell is "
+                f"{lo:g}..{hi:g} V (the pack's voltage? it is per cell)"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
