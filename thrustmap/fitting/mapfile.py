@@ -423,32 +423,41 @@ def _check_constraints(f: Fields, model: Model, coefs: tuple[float, ...]) -> Non
             )
 
 
-def _check_monotone(f: Fields, model: Model, coefs: tuple[float, ...], region: Region) -> None:
-    """Throttle rises with thrust where the map's data are (its supported region; the box for
-    a map written before regions) at every voltage knot, within ``MONOTONE_TOLERANCE_PCT``:
-    otherwise one throttle answers two thrusts. (Outside the data a polynomial may turn: that
-    is extrapolation, which predict already says.)"""
+def falls_with_thrust(model: Model, coefs: npt.ArrayLike, region: Region) -> str | None:
+    """Where throttle falls as thrust rises inside ``region`` (the map's data: at every
+    voltage knot, by more than ``MONOTONE_TOLERANCE_PCT``), or None: then one throttle answers
+    one thrust. (Outside the data a polynomial may turn: that is extrapolation, which predict
+    already says. ``fit.check_map`` warns at fit time on any fall, however small.)"""
     for b, t_lo, t_hi in zip(region.voltage_v, region.thrust_lo_n, region.thrust_hi_n, strict=True):
         if not t_hi > t_lo:
             continue
         t = np.linspace(t_lo, t_hi, 61)
         th = model.evaluate(coefs, t, np.full_like(t, b))
         if not np.all(np.isfinite(th)):
-            raise f.error(f"the map gives no finite throttle at {b:.2f} V", "coefficients")
+            return f"the map gives no finite throttle at {b:.2f} V"
         drop = np.maximum.accumulate(th) - th
         k = int(np.argmax(drop))
         if drop[k] > MONOTONE_TOLERANCE_PCT:
             top = int(np.argmax(th[: k + 1]))
-            text = (
+            return (
                 f"throttle falls by {drop[k]:.2f} % as thrust rises from {t[top]:.3g} to "
                 f"{t[k]:.3g} N at {b:.2f} V, inside the map's data: one throttle answers two "
                 "thrusts there"
             )
-            if model.lower_bounds:  # monotone by construction: only a broken file falls
-                raise f.error(text, "coefficients")
-            # a free polynomial can turn between its points: a fit, not a corrupt file
-            log.warning("%s: model '%s': %s (the motor model cannot)", f.source, model.name, text)
-            return
+    return None
+
+
+def _check_monotone(f: Fields, model: Model, coefs: tuple[float, ...], region: Region) -> None:
+    """A map whose throttle falls with thrust inside its data (:func:`falls_with_thrust`): a
+    model monotone by construction (bounded coefficients, ``motor``) is refused, since only a
+    broken file falls; a free polynomial can turn between its points (a fit, not a corrupt
+    file): it loads, with a warning."""
+    text = falls_with_thrust(model, coefs, region)
+    if text is None:
+        return
+    if model.lower_bounds or "finite" in text:
+        raise f.error(text, "coefficients")
+    log.warning("%s: model '%s': %s (the motor model cannot)", f.source, model.name, text)
 
 
 def _box(f: Fields, key: str, *, minimum: float | None = None, positive: bool = False) -> Box:
