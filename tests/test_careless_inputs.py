@@ -374,6 +374,18 @@ ROWS = [
         2,
         "it is per cell",
     ),
+    Row(
+        "a sweep repeated 0 times",
+        "sweep steps --stand sim://tyto-1585 --repeats 0 -o {tmp}/sw7.csv --dry-run",
+        2,
+        "--repeats 0: expected 1 or more",
+    ),
+    Row(
+        "a spin of 0 s",
+        "spin sim://betaflight --motor 1 --throttle 10 --seconds 0 --yes",
+        2,
+        "--seconds 0: expected a positive duration",
+    ),
     Row("a command typo", "fti {run}", 2, "No such command"),
 ]
 

@@ -54,6 +54,12 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
 
 
 def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
+    from thrustmap.core.errors import ConfigError
+
+    if kw["repeats"] < 1:
+        raise ConfigError(f"--repeats {kw['repeats']}: expected 1 or more")
+    if not kw["record"] > 0:  # also NaN
+        raise ConfigError(f"--record {kw['record']:g}: expected a positive number of seconds")
     dwell, settle, record = kw["dwell"], kw["settle"], kw["record"]
     if kind == "steps":
         return plans.steps(

@@ -86,7 +86,9 @@ def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROT
             f"throttle {pct:g} % is above the {max_throttle_pct:g} % cap; raise it explicitly "
             f"with --max-throttle {math.ceil(pct):d} if you mean it"
         )
-    if not 0.0 < request.seconds <= MAX_SECONDS:
+    if not request.seconds > 0:  # also NaN
+        raise SafetyError(f"--seconds {request.seconds:g}: expected a positive duration")
+    if not request.seconds <= MAX_SECONDS:
         raise SafetyError(
             f"a spin lasts at most {MAX_SECONDS:g} s (got {request.seconds:g} s); use "
             "`thrustmap sweep` for longer tests"
