@@ -519,3 +519,27 @@ def test_ctrl_c_at_the_safety_question(monkeypatch: pytest.MonkeyPatch) -> None:
     assert exc.value.code == 130
     assert "interrupted: at the safety question: nothing spun" in err.getvalue()
     assert "spinning" not in out.getvalue()
+
+
+def test_grams_as_newtons_on_real_stand_logs(shared_data: Path, tmp_path: Path) -> None:
+    """Every Strawson 5-inch file (96 motor × propeller × voltage step summaries, not ours):
+    its own unit loads; the same file under a unitless thrust header read as newtons — the
+    column map naming no current column — is refused, at any number of its first rows from 4."""
+    from thrustmap.core.errors import DataFormatError
+    from thrustmap.core.units import SCALES
+    from thrustmap.fitting.loaders import ColumnMap, load_dataset
+
+    files = sorted((shared_data / "third-party-stands" / "strawson-5inch").glob("*.csv"))
+    assert len(files) == 96
+    as_newtons = ColumnMap(
+        "ESC signal (µs)", "Thrust", "Voltage (V)", thrust_unit="N", throttle_scale=SCALES["pwm"]
+    )
+    for path in files:
+        load_dataset(path)  # no false refusal
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+        head = lines[0].replace("Thrust (gf)", "Thrust")
+        for rows in (4, len(lines) - 1):
+            bad = tmp_path / f"{rows}_{path.name}"
+            bad.write_text("\n".join([head, *lines[1 : rows + 1]]) + "\n", encoding="utf-8")
+            with pytest.raises(DataFormatError, match="gf/W"):
+                load_dataset(bad, as_newtons)

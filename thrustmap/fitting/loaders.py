@@ -457,7 +457,9 @@ def _check_thrust_per_watt(
     table: _Table, thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray
 ) -> None:
     power_w = np.abs(voltage_v * current_a)  # some stands log the current negative
-    ok = np.isfinite(power_w) & (power_w > max(5.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
+    # rows at load: above 1 W (a resting rotor's ESC draws a fraction of a watt) and a fifth of
+    # the top power, so a 2S motor's first steps count too (grams read as newtons at any throttle)
+    ok = np.isfinite(power_w) & (power_w > max(1.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
     if ok.sum() < 3:
         return
     gf_per_w = float(np.median(np.abs(thrust_n[ok]) / G0 * 1000.0 / power_w[ok]))
