@@ -39,8 +39,9 @@ TEST_US = 1100  # a low spin: 10 % of 1000..2000 µs
 
 def open_fc(rate_hz: int, clock: MonotonicClock) -> MspThrottleOutput:
     """The simulated FC with its serial task at ``rate_hz`` (0: no limit)."""
+    rate = rate_hz or "unlimited"  # sim option rate_hz must be > 0, or "unlimited"
     peers.reset_benches()
-    url = f"sim://betaflight?bench=link&rotors=1&seed=1&protocol=PWM&rate_hz={rate_hz}"
+    url = f"sim://betaflight?bench=link&rotors=1&seed=1&protocol=PWM&rate_hz={rate}"
     fc = MspThrottleOutput(open_transport(url, clock=clock, timeout=0), clock)
     fc.identify()  # identity, not ARMED, arming disabled: as before any motor test
     return fc

@@ -249,7 +249,7 @@ def test_sim_url_builds_the_registered_peer() -> None:
     import thrustmap.rig.sim.msp_peer  # noqa: F401 - registers betaflight/inav
 
     clock = SimClock()
-    port = open_transport("sim://inav?motors=2&rate_hz=1000", timeout=0.1, clock=clock)
+    port = open_transport("sim://inav?motors=2&rate_hz=unlimited", timeout=0.1, clock=clock)
     port.write(encode_request(2))
     (frame,) = MspDecoder().feed(port.read(16))
     assert FcVariant.decode(frame.payload).identifier == "INAV"

@@ -535,7 +535,7 @@ def msp_peer_from_options(
 ) -> MspPeer:
     """Build a peer from ``sim://`` URL options: ``firmware`` (betaflight-4, betaflight-2025,
     betaflight-4.6-sitl, betaflight-2026-sitl, inav), ``motors`` (default 4), ``protocol``
-    (DSHOT600, PWM, ...; default: the firmware's), ``rate_hz`` (100), ``motor_readback``
+    (DSHOT600, PWM, ...; default: the firmware's), ``rate_hz`` (100; ``unlimited``: no limit), ``motor_readback``
     (0: MSP_MOTOR reads 0 whatever was commanded, as a SITL without its motor loop does).
     Keys in ``allow`` (a plant factory's options) are accepted and ignored here."""
     unknown = set(options) - MSP_OPTIONS - set(allow)
@@ -554,7 +554,15 @@ def msp_peer_from_options(
             raise ConfigError(
                 f"unknown motor protocol '{name}'; expected one of: {known}"
             ) from None
-    rate = opt_float(options, "rate_hz", 100.0, positive=True, what="a serial frame rate in Hz")
+    rate: float | None = None  # rate_hz=unlimited: no serial task limit (a benchmark's ceiling)
+    if options.get("rate_hz", "").strip().lower() != "unlimited":
+        rate = opt_float(
+            options,
+            "rate_hz",
+            100.0,
+            positive=True,
+            what="a serial frame rate in Hz (or unlimited)",
+        )
     readback = opt_flag(options, "motor_readback", True) if "motor_readback" in options else None
     return MspPeer(
         plant if plant is not None else ConstantPlant(motors),
