@@ -1,30 +1,22 @@
 """Physical checks: the one place that says what a number entering thrustmap may be.
 
 Every quantity that crosses a boundary — a stand log's column, a command-line option, a map
-file's coefficients, a γ(B) about to be written — is checked here
-against physics (and against the map it meets), so a careless input is refused in one line
-(exit 2) instead of producing a confident, wrong answer. Commands and loaders call these
+file's coefficients, a γ(B) about to be written — is checked here against physics (and against
+the map it meets), so a careless input is refused in one line (exit 2) instead of producing a
+confident, wrong answer. Commands and loaders call these
 functions; they never carry their own copy of a range. (A flight log's acceleration is
 questioned by ``fitting.flightlogs.series.question_specific_force``, applied to every reader
 where ``fitting.df`` takes it: in g it is converted and said, unphysical it is refused.)
 
-Light on imports: the CLI checks options with it before anything heavy is loaded (numpy is
-imported inside the functions that take arrays).
+Light on imports (no numpy): the CLI checks options with it before anything heavy is loaded.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from thrustmap.core.errors import ConfigError, DataFormatError
-
-if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
-
-    FloatArray = npt.NDArray[np.float64]
 
 #: standard gravity, m/s²
 G0 = 9.80665

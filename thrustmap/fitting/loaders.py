@@ -33,6 +33,7 @@ from thrustmap.core import dslog
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.physical import (  # the physical ranges live in one place
     BATTERY_V,
+    G0,
     MAX_ROTOR_THRUST_N,
     MAX_THRUST_PER_VOLT_N,
     THRUST_PER_WATT_GF,
@@ -50,7 +51,6 @@ from thrustmap.fitting.dataset import (
 
 log = logging.getLogger(__name__)
 
-G0 = 9.80665
 THRUST_UNITS: dict[str, float] = {
     "n": 1.0,
     "kgf": G0,
