@@ -26,6 +26,7 @@ from thrustmap.fitting.models import (
     SCALING_BACKEMF,
     Identification,
     Model,
+    MotorModel,
     backemf_coefficients,
     get_model,
 )
@@ -176,6 +177,8 @@ def fit_map(
         m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
     )
     file_fit = None
+    if isinstance(m, MotorModel):
+        coef, ident = _voltage_term_by_file(m, data, loss, coef, ident)
     if m.name == "motor":
         coef, ident, file_fit = _try_backemf(datasets, data, selection, m, loss, coef, ident)
     pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
@@ -245,6 +248,61 @@ def fit_map(
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
     return FitOutcome(tmap, data, warnings, trust, more_data, weighting_line(m, data))
+
+
+#: the fitted voltage term is kept only when it holds out better by file than this share of the
+#: physics prior's error (a tie, or a fold that cannot fit it, keeps the prior)
+VOLTAGE_TERM_MARGIN = 0.98
+
+
+def _voltage_term_by_file(
+    m: MotorModel, data: Pool, loss: Loss, coef: FloatArray, ident: Identification | None
+) -> tuple[FloatArray, Identification | None]:
+    """A voltage term (k0) fitted on points of several files is kept only if leave-one-file-out
+    confirms it: each file is predicted by the identification fitted on the other files, and by
+    the physics prior (k0 = 0) fitted on them. Files recorded on different days differ for
+    reasons other than voltage (a load-cell offset, a warmer motor, another propeller mount),
+    which an in-sample fit reads as a voltage term."""
+    files = np.unique(data.file_index)
+    if ident is None or ident.form != "full" or len(files) < 2:
+        return coef, ident
+    err_fit: list[FloatArray] = []
+    err_prior: list[FloatArray] = []
+    for f in files:
+        test = data.file_index == f
+        t, b, th = data.take(~test)
+        tt, bt, tht = data.take(test)
+        try:
+            c_fit = identify_coefficients(m, t, b, th, loss)[0]
+            c_prior = m.physics_fit(t, b, th, loss, "", "")[0]
+        except FitError:
+            c_fit = c_prior = np.full(m.n_coefficients, np.nan)
+        if not (np.all(np.isfinite(c_fit)) and np.all(np.isfinite(c_prior))):
+            err_fit.append(np.full(len(tt), np.inf))
+            err_prior.append(np.zeros(len(tt)))
+            continue
+        err_fit.append(np.abs(m.evaluate(c_fit, tt, bt) - tht))
+        err_prior.append(np.abs(m.evaluate(c_prior, tt, bt) - tht))
+    e_fit = float(np.mean(np.concatenate(err_fit)))
+    e_prior = float(np.mean(np.concatenate(err_prior)))
+    evidence = {
+        **ident.evidence,
+        "by_file_voltage_term_pct": e_fit,
+        "by_file_physics_prior_pct": e_prior,
+    }
+    if e_fit < VOLTAGE_TERM_MARGIN * e_prior:
+        note = f"; confirmed by file (held out {e_fit:.3f} % against {e_prior:.3f} % with k0 = 0)"
+        return coef, replace(ident, reason=ident.reason + note, evidence=evidence)
+    shown = "could not be fitted without one file" if not np.isfinite(e_fit) else f"{e_fit:.3f} %"
+    reason = (
+        f"voltage span {ident.voltage_span_v:.2f} V across {len(files)} files, but the voltage "
+        f"term fitted on the others held out no better by file ({shown} against {e_prior:.3f} % "
+        "with k0 = 0; files from different days differ for reasons other than voltage): the "
+        "physics prior (k0 = 0) is used"
+    )
+    t, b, th = data.thrust_n, data.voltage_v, data.throttle_pct
+    evidence = {k: v for k, v in evidence.items() if np.isfinite(v)}
+    return m.physics_fit(t, b, th, loss, reason, "files", evidence)
 
 
 def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
