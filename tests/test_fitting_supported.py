@@ -163,9 +163,19 @@ def test_one_interval_in_fit_predict_map_and_report(
         )
         got = json.loads(out)["interval_pct"]
         x = np.array([1.0, 1.0 / b, np.sqrt(t) / b, t / b])
-        base = np.hypot(iv["half_width_pct"], iv["z"] * np.sqrt(x @ cov @ x))
-        d = region.distance(t, b, iv["thrust_unit_n"], iv["voltage_unit_v"])
-        assert got == pytest.approx(base * (1 + iv["growth_per_span"] * float(d)), rel=1e-9)
+        vs = iv["voltage_support"]
+        b_lo = np.interp(t, vs["thrust_n"], vs["voltage_lo_v"])
+        b_hi = np.interp(t, vs["thrust_n"], vs["voltage_hi_v"])
+        rho = abs(np.log(b / np.clip(b, b_lo, b_hi)))
+        base = np.sqrt(
+            iv["half_width_pct"] ** 2
+            + iv["z"] ** 2 * (x @ cov @ x)
+            + iv["systematic_pct"] ** 2
+            + (iv["voltage_pct_per_log"] * rho) ** 2
+        )
+        t_lo, t_hi = region.thrust_range(b)
+        d = max(float(t_lo) - t, t - float(t_hi), 0.0) / iv["thrust_unit_n"]
+        assert got == pytest.approx(base * (1 + iv["growth_per_span"] * d), rel=1e-9)
     # and the range over the region is the minimum and maximum of that same function
     tmap = ThrustMap.load(m)
     tt, bb = tmap.supported_region().grid()
