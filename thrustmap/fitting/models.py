@@ -377,6 +377,28 @@ class MotorModel(FeatureModel):
                     return f"{label} on its bound {bound:g}{unit}"
         return ""
 
+    def released_fit(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, coef: FloatArray
+    ) -> FloatArray:
+        """``coef``'s form refitted with the offset c free of its band (k0 stays 0 if it was):
+        what the data would say without the bound, for the interval's bound term."""
+        design = self.design(t, b)
+        lower, upper = self.lower(), self.upper()
+        assert lower is not None and upper is not None
+        keep = [0, 2, 3] if coef[1] == 0.0 else [0, 1, 2, 3]
+        lo, hi = lower.copy(), upper.copy()
+        lo[0], hi[0] = -np.inf, np.inf
+        out = np.zeros(4)
+        out[keep] = solve(
+            design[:, keep],
+            th,
+            loss=loss,
+            lower=lo[keep],
+            upper=hi[keep],
+            weights=self.fit_weights(th),
+        )
+        return out
+
     def physics_fit(
         self,
         t: FloatArray,
