@@ -4,8 +4,10 @@
 margin of ``VOLTAGE_MARGIN`` of the mean voltage) and, at each voltage B, the thrusts the data
 reached there. A motor that reached thrust T at voltage B1 can reach it at any higher voltage
 (it needs less throttle), and one that made a low thrust at B1 can make it at any lower voltage,
-so the reached range at B is [min thrust of points at or above B, max thrust of points at or
-below B], each widened by ``THRUST_MARGIN`` of the top thrust. A map answers inside it from data,
+so the reached range at B is [the lowest thrust of any point, max thrust of points at or below
+B], widened by ``THRUST_MARGIN`` of the top thrust (an adaptive run that measured low thrusts
+late in a discharge and high ones early still supports 1 N at the start voltage). How far B
+lies from the voltages measured near T is the interval's voltage term, not the region's. A map answers inside it from data,
 outside it by extrapolation. It replaces the (T, B) bounding box, whose corners may hold no
 data at all (a motor fitted on 2S and 3S does not reach its 3S thrust on 2S).
 
@@ -83,10 +85,10 @@ class Region:
         b_lo, b_hi = float(b.min()) - m_b, float(b.max()) + m_b
         knots = np.linspace(b_lo, b_hi, REGION_KNOTS if b_hi > b_lo else 1)
         hi = np.array([np.max(t[b <= k + m_b], initial=-np.inf) for k in knots])
-        lo = np.array([np.min(t[b >= k - m_b], initial=np.inf) for k in knots])
-        # at the ends a knot may see no point: take its neighbour's reach
+        # at the low end a knot may see no point: take its neighbour's reach
         hi = np.maximum.accumulate(np.where(np.isfinite(hi), hi, float(t.min())))
-        lo = np.minimum.accumulate(np.where(np.isfinite(lo), lo, float(t.max()))[::-1])[::-1]
+        # any thrust made at one voltage can be made at every other below the top reached
+        lo = np.full(len(knots), float(t.min()))
         return cls(
             voltage_v=tuple(float(x) for x in knots),
             thrust_lo_n=tuple(float(x) for x in np.maximum(lo - m_t, 0.0)),
