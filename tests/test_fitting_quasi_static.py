@@ -238,6 +238,8 @@ def test_one_second_stairs_on_a_creeping_load_cell_are_read_leg_by_leg(
     assert creep["thrust_disagreement_before_median_pct"] >= 10.0
     assert abs(legs["thrust_disagreement_median_pct"]) < 3.0  # after the correction
     assert 0.0 < legs["disagreement_p95_pct"] < 1.5
+    line = describe(pts.report) or ""
+    assert "staircase read leg by leg: 2 legs" in line and "creeping load cell" in line
     tmap = fit_map([ds]).map
     top = float(np.max(ds.thrust_n))
     tt = np.linspace(0.1 * top, 0.9 * top, 25)

@@ -34,6 +34,7 @@ which.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -510,10 +511,18 @@ def advice(
     else:
         lo, hi = over_region
         g = interval.growth_per_span
-        widen = (
-            f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
-            f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
-        )
+        if interval.voltage_pct_per_log:
+            widen = (
+                f"; beyond the thrust reached it widens by ×{1 + g:.2f} per "
+                f"{interval.thrust_unit_n:.3f} N, and away from the voltages measured near a "
+                f"thrust by ±{interval.voltage_pct_per_log:g} % per unit |ln(B/B_measured)| "
+                f"(±{interval.voltage_pct_per_log * math.log(1.1):.1f} % at 10 % off)"
+            )
+        else:
+            widen = (
+                f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
+                f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
+            )
         trust = (
             f"trustworthy to ±{lo:.2f}..{hi:.2f} % ({100 * interval.level:.0f} % prediction "
             f"interval) over the supported region{widen}"

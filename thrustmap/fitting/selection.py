@@ -228,8 +228,34 @@ def select(ds: Dataset, sel: Selection) -> Points:
     )
 
 
+def describe_legs(legs: dict[str, Any]) -> str:
+    """One line on a staircase read leg by leg: its points, the legs' disagreement, a creep."""
+    line = (
+        f"staircase read leg by leg: {legs.get('legs', 0)} legs, a plateau per stair "
+        f"({legs.get('dwell_sensor_updates_settled', 0):g} sensor updates after the transient); "
+        f"the legs disagree by {legs.get('disagreement_median_pct', 0.0):.2f} % throttle at equal "
+        f"thrust (95th percentile {legs.get('disagreement_p95_pct', 0.0):.2f} %, half of it "
+        "carried in the map's interval)"
+    )
+    creep = legs.get("load_cell_creep")
+    if isinstance(creep, dict):
+        when = (
+            f"{creep['time_s']:g} s" if "time_s" in creep else f"{creep.get('time_rows', 0):g} rows"
+        )
+        line += (
+            f"; a creeping load cell read out first ({100 * creep.get('fraction', 0.0):.0f} % of "
+            f"each load change arriving over {when}: the legs disagreed by "
+            f"{creep.get('thrust_disagreement_before_median_pct', 0.0):g} % in thrust before)"
+        )
+    return line
+
+
 def describe(report: dict[str, Any]) -> str | None:
-    """One line on a quasi-static staircase (what was paired and kept), or None."""
+    """One line on a quasi-static staircase (what was paired and kept), or on a staircase read
+    leg by leg, or None."""
+    legs = report.get("staircase_legs")
+    if isinstance(legs, dict):
+        return describe_legs(legs)
     q = report.get("quasi_static_staircase")
     if not isinstance(q, dict):
         n = report.get("quasi_static_legs_unpaired", 0)
