@@ -21,7 +21,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from thrustmap.core.errors import FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import backemf_rows, evaluate, fit_map
 from thrustmap.fitting.loaders import load_datasets
-from thrustmap.fitting.metrics import ErrorStats, error_stats
+from thrustmap.fitting.metrics import ErrorStats, coverage, error_stats
 from thrustmap.fitting.models import MODELS as MODEL_DEFS
 from thrustmap.fitting.models import backemf_coefficients
 from thrustmap.fitting.names import DEFAULT_MODEL
@@ -147,6 +147,160 @@ def xnova_by_file(root: Path) -> list[str]:
     return lines
 
 
+# -- coverage of the default map's 95 % interval ------------------------------------------------
+
+#: Strawson motors the interval's voltage term κ is calibrated on; d-f are held out
+CALIBRATION_MOTORS = ("a", "b", "c")
+COVERAGE_GOAL_PCT = 90.0
+
+
+@dataclass
+class Scored:
+    """One map scored on one file, per point: |error|, the interval's parts without κ (base,
+    widening factor), |ln(B/B_edge)|, and whether the point is inside the supported region."""
+
+    err: np.ndarray
+    base: np.ndarray
+    factor: np.ndarray
+    rho: np.ndarray
+    inside: np.ndarray
+    kappa: float  # the map's own κ
+
+    def half(self, kappa: float | None = None) -> np.ndarray:
+        k = self.kappa if kappa is None else kappa
+        return np.sqrt(self.base**2 + (k * self.rho) ** 2) * self.factor
+
+
+def scored(train: Dataset, test: Dataset) -> Scored:
+    """Fit ``train`` as ``thrustmap fit`` does, score ``test`` as ``thrustmap evaluate`` does."""
+    sel_train, _ = _selection_for(train)
+    sel_test, _ = _selection_for(test)
+    tmap = fit_map([train], selection=sel_train).map
+    p = select(test, sel_test)
+    pred = tmap.throttle_pct(p.thrust_n, p.voltage_v, corrected=False)
+    no_kappa = replace(tmap, interval={**tmap.interval, "voltage_pct_per_log": 1e-12})
+    parts = no_kappa.interval_parts(p.thrust_n, p.voltage_v)
+    assert parts is not None
+    base, factor, _ = parts
+    region = tmap.supported_region()
+    iv = tmap.prediction_interval()
+    assert iv is not None
+    return Scored(
+        err=np.abs(pred - p.throttle_pct),
+        base=np.asarray(base),
+        factor=np.asarray(factor),
+        rho=iv.voltage_log_distance(p.thrust_n, p.voltage_v),
+        inside=np.asarray(region.contains(p.thrust_n, p.voltage_v)),
+        kappa=float(tmap.interval.get("voltage_pct_per_log", 0.0)),
+    )
+
+
+def coverage_line(name: str, runs: list[Scored], kappa: float | None = None) -> tuple[str, bool]:
+    """'name  inside x % of n (median ±w)  outside ...' and whether both meet the goal."""
+    err = np.concatenate([r.err for r in runs])
+    half = np.concatenate([r.half(kappa) for r in runs])
+    inside = np.concatenate([r.inside for r in runs])
+    cells = []
+    met = True
+    for label, m in (("inside", inside), ("outside", ~inside)):
+        c = coverage(err[m], np.zeros(int(m.sum())), half[m])
+        cells.append(f"{label} {c.describe():<32}")
+        met &= not c.n or c.coverage_pct >= COVERAGE_GOAL_PCT
+    return f"  {name:<40} " + " ".join(cells), met
+
+
+def strawson_scored(folder: Path) -> dict[tuple[str, str], list[Scored]]:
+    """(motor letter, '2S->3S' or '3S->2S') -> the pairs' scores."""
+    out: dict[tuple[str, str], list[Scored]] = {}
+    for low in sorted(folder.glob("*_7.csv")):
+        high = low.with_name(low.name.replace("_7.csv", "_11.csv"))
+        if not high.exists():
+            continue
+        a, b = load_datasets([str(low), str(high)])
+        out.setdefault((low.name[0], "2S->3S"), []).append(scored(a, b))
+        out.setdefault((low.name[0], "3S->2S"), []).append(scored(b, a))
+    return out
+
+
+def calibrate_kappa(runs: list[Scored], level: float = 95.0) -> float:
+    """The smallest κ (% per unit |ln(B/B_edge)|, in steps of 0.5) whose interval covers
+    ``level`` % of the points."""
+    for kappa in np.arange(0.0, 80.0, 0.5):
+        err = np.concatenate([r.err for r in runs])
+        half = np.concatenate([r.half(float(kappa)) for r in runs])
+        if 100.0 * float(np.mean(err <= half)) >= level:
+            return float(kappa)
+    return float("nan")
+
+
+def creeping_staircases(seeds: tuple[int, ...] = (1, 2, 3)) -> list[Scored]:
+    """Simulated Crazyflie staircases with 1 s stairs on a creeping load cell: the map of each
+    log scored on the other logs (the same motor recorded again)."""
+    import tempfile
+
+    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.rig.sim.physics import LoadCellCreep
+    from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
+
+    with tempfile.TemporaryDirectory() as tmp:
+        logs = [
+            load_dataset(
+                write_csv(
+                    simulate_staircase(
+                        seed=s, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep()
+                    ),
+                    Path(tmp) / f"creep{s}.csv",
+                )
+            )
+            for s in seeds
+        ]
+    return [scored(a, b) for a in logs for b in logs if a is not b]
+
+
+def coverage_report(root: Path, calibrate: bool) -> list[str]:
+    lines = [
+        "coverage of the default map's 95 % interval (share of the other file's points inside "
+        "it; goal >= 90 % inside and outside the supported region), median half-width beside:"
+    ]
+    met_all = True
+    sr = root / "xnova-thrust-stand" / "single_rotor"
+    files = [sr / "xNova-SR-steps.csv", sr / "xNova-SR-steps-up.csv"]
+    if all(f.exists() for f in files):
+        ds = load_datasets([str(f) for f in files])
+        line, met = coverage_line("xNova SR by file", [scored(ds[0], ds[1]), scored(ds[1], ds[0])])
+        lines.append(line)
+        met_all &= met
+    folder = root / "third-party-stands" / "strawson-5inch"
+    if folder.is_dir():
+        by = strawson_scored(folder)
+        ways = ("2S->3S", "3S->2S")
+        cal = [r for (m, _), rs in by.items() if m in CALIBRATION_MOTORS for r in rs]
+        held = [r for (m, _), rs in by.items() if m not in CALIBRATION_MOTORS for r in rs]
+        kappa = cal[0].kappa if cal else 0.0
+        for way in ways:
+            runs = [r for (_, w), rs in by.items() if w == way for r in rs]
+            line, met = coverage_line(f"Strawson a-f {way} ({len(runs)} pairs)", runs)
+            lines.append(line)
+            met_all &= met
+        for name, runs in (("a-c (calibration)", cal), ("d-f (held out)", held)):
+            lines.append(coverage_line(f"Strawson {name}, both ways", runs)[0])
+        if calibrate:
+            fitted = calibrate_kappa(cal)
+            lines.append(
+                f"  calibration: kappa covering 95 % of motors {'-'.join(CALIBRATION_MOTORS[::2])} "
+                f"= {fitted:g} % per unit |ln(B/B_edge)| (the map uses {kappa:g}); with it, "
+                f"held-out d-f: {coverage_line('', held, fitted)[0].strip()}"
+            )
+    line, met = coverage_line("simulated creeping 1 s staircases by file", creeping_staircases())
+    lines.append(line)
+    met_all &= met
+    lines.append(
+        f"  goal (>= {COVERAGE_GOAL_PCT:g} % inside and outside, every set): "
+        f"{'met' if met_all else 'NOT met'}"
+    )
+    return lines
+
+
 def load_baseline(path: Path = BASELINE) -> dict[tuple[str, str], tuple[float, int]]:
     """(train, test) -> (mean e_Th %, points scored) of the pre-issue-18 default map."""
     out: dict[tuple[str, str], tuple[float, int]] = {}
@@ -199,6 +353,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=SHARED, help="the shared data folder")
     ap.add_argument("--per-pair", action="store_true", help="print every direction")
+    ap.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="also fit the interval's voltage term kappa on motors a-c and score d-f with it",
+    )
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     folder = args.data / "third-party-stands" / "strawson-5inch"
@@ -256,6 +415,9 @@ def main() -> int:
             print(line)
     print()
     for line in xnova_by_file(args.data):
+        print(line)
+    print()
+    for line in coverage_report(args.data, args.calibrate):
         print(line)
     return 0
 

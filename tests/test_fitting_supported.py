@@ -163,9 +163,19 @@ def test_one_interval_in_fit_predict_map_and_report(
         )
         got = json.loads(out)["interval_pct"]
         x = np.array([1.0, 1.0 / b, np.sqrt(t) / b, t / b])
-        base = np.hypot(iv["half_width_pct"], iv["z"] * np.sqrt(x @ cov @ x))
-        d = region.distance(t, b, iv["thrust_unit_n"], iv["voltage_unit_v"])
-        assert got == pytest.approx(base * (1 + iv["growth_per_span"] * float(d)), rel=1e-9)
+        vs = iv["voltage_support"]
+        b_lo = np.interp(t, vs["thrust_n"], vs["voltage_lo_v"])
+        b_hi = np.interp(t, vs["thrust_n"], vs["voltage_hi_v"])
+        rho = abs(np.log(b / np.clip(b, b_lo, b_hi)))
+        base = np.sqrt(
+            iv["half_width_pct"] ** 2
+            + iv["z"] ** 2 * (x @ cov @ x)
+            + iv["systematic_pct"] ** 2
+            + (iv["voltage_pct_per_log"] * rho) ** 2
+        )
+        t_lo, t_hi = region.thrust_range(b)
+        d = max(float(t_lo) - t, t - float(t_hi), 0.0) / iv["thrust_unit_n"]
+        assert got == pytest.approx(base * (1 + iv["growth_per_span"] * d), rel=1e-9)
     # and the range over the region is the minimum and maximum of that same function
     tmap = ThrustMap.load(m)
     tt, bb = tmap.supported_region().grid()
@@ -235,3 +245,35 @@ def test_a_gamma_corrected_map_judges_its_region_at_gamma_times_thrust(
     assert code == 0 and doc["corrected"] and not doc["inside_supported_region"]
     assert doc["supported_thrust_n"][1] == pytest.approx(float(hi) / 1.2)
     assert "outside the map's supported region" in err
+
+
+def test_a_thrust_reached_at_one_voltage_is_supported_at_every_higher_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 31 item 6: an adaptive run measured its high thrusts early (25.1 V) and its low
+    ones late in the discharge (24.0 V). Before, the region at 25.1 V was 6.7..7.2 N and
+    predict 1 N at 25.09 V was called extrapolation; a thrust reached at 24.0 V is within
+    reach at every higher voltage."""
+
+    hi_t = np.linspace(6.7, 7.2, 12)
+    lo_t = np.linspace(0.05, 0.42, 12)
+    t = np.r_[hi_t, lo_t]
+    b = np.r_[np.linspace(25.1, 24.9, 12), np.linspace(24.2, 24.0, 12)]
+    th = 4.0 + (30.0 * np.sqrt(t) + 150.0 * t) / b
+    region = Region.from_points(t, b)
+    lo, hi = region.thrust_range(25.09)
+    assert float(lo) <= 0.1 and float(hi) >= 7.1
+    assert bool(region.contains(1.0, 25.09))
+    # a thrust beyond anything reached at or below 24.1 V is still outside there
+    assert not bool(region.contains(7.0, 24.05))
+    lines = ["ESC signal (µs),Thrust (N),Voltage (V)"] + [
+        f"{1000 + 10 * x:.3f},{y:.5f},{v:.4f}" for x, y, v in zip(th, t, b, strict=True)
+    ]
+    f = tmp_path / "adaptive.csv"
+    f.write_text("\n".join(lines) + "\n")
+    m = tmp_path / "a.json"
+    main(["fit", str(f), "--all-samples", "-o", str(m)])
+    capsys.readouterr()
+    main(["predict", str(m), "--thrust-n", "1", "--voltage-v", "25.09", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert out["inside_supported_region"] is True

@@ -146,9 +146,17 @@ def _rows_table(rows: list[Row]) -> str:
         s, i, o = r.all, r.inside, r.outside
         ins = f"n={i.n} mean {i.mean_pct:.3f} %" if i.n else "n=0"
         out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "n=0"
+        held = ""
+        if r.coverage_inside is not None and r.coverage_outside is not None:
+            cells = [
+                f"{where} {c.coverage_pct:.1f} % (median ±{c.median_half_width_pct:.2f} %)"
+                for where, c in (("in", r.coverage_inside), ("out", r.coverage_outside))
+                if c.n
+            ]
+            held = "  | interval held: " + ", ".join(cells) if cells else ""
         lines.append(
             f"{r.model:<{w_model}} {r.validation:<{w_val}} {s.n:>5} {_fmt(s.mean_pct, 8)} "
-            f"{_fmt(s.std_pct, 7)} {_fmt(s.p95_pct, 7)} {_fmt(s.max_pct, 8)}  {ins} | {out}"
+            f"{_fmt(s.std_pct, 7)} {_fmt(s.p95_pct, 7)} {_fmt(s.max_pct, 8)}  {ins} | {out}{held}"
         )
     kinds = {r.validation.split(":", 1)[0] for r in rows}
     if kinds == {"evaluate"}:
@@ -164,6 +172,11 @@ def _rows_table(rows: list[Row]) -> str:
         )
     else:
         lines.append("(all held-out points; the split by the training box beside them)")
+    if any(r.coverage_inside is not None for r in rows):
+        lines.append(
+            "(interval held: the share of those points inside the map's 95 % prediction "
+            "interval, in and out of its supported region, and the interval's median half-width)"
+        )
     return "\n".join(lines)
 
 

@@ -4,14 +4,19 @@ After each settled point the points so far are fitted (the default model, as ``t
 would) and the map's 95 % prediction interval is asked over the envelope: thrusts in the
 envelope at the voltages seen. The next command is the throttle the map gives for the thrust
 whose prediction is least certain **at the battery voltage now** (the voltage cannot be chosen:
-it falls as the battery discharges). Where the interval is equally wide (inside the data's box
-it may be flat), the thrust farthest from any point measured near this voltage wins, so the plan
-fills gaps and revisits the range as the voltage moves. The run is done once the worst interval
+it falls as the battery discharges), among those within ``NEAR_WIDEST`` of the widest, the width weighed by
+(1 + its distance from the points measured), so a point is not measured again and again where
+one already is; where the interval
+is equally wide, the thrust farthest from any point measured near this voltage wins, so the
+plan fills gaps and revisits the range as the voltage moves. The run is done once the worst interval
 over the envelope is within the target.
 
 Everything the map is asked goes through one function, :func:`fit_interval` (fit the points,
 return the prediction and its interval at (T, B)), so a change of the interval's definition
-changes the choice without touching the rest.
+changes the choice without touching the rest. The interval is the map's own
+(``ThrustMap.interval_pct``, what ``predict`` and ``fit`` report), and the target must hold over
+the envelope and over the map's supported region, the range ``fit`` states: a bench that says
+"target met" is a bench whose log ``fit`` calls trustworthy to within the target.
 
 This module belongs to ``fitting``: it knows nothing of the rig. The plan
 (``thrustmap.rig.plans.adaptive``) receives a :class:`MapChooser` from its caller.
@@ -38,6 +43,9 @@ FloatArray = npt.NDArray[np.float64]
 #: (the identification rule of ``fit``: 5 % of the mean voltage)
 IDENTIFY_SPAN_REL = 0.05
 PERCENT = ThrottleScale("percent", 0.0, 100.0, "%")
+#: candidates whose interval is within this share of the widest are weighed by their distance
+#: from the points measured (× (1 + gap)): measuring again on a point narrows little
+NEAR_WIDEST = 0.9
 
 
 class PointLike(Protocol):
@@ -59,6 +67,9 @@ class Fitted:
 
     throttle_pct: Callable[[FloatArray, FloatArray], FloatArray]
     half_width_pct: Callable[[FloatArray, FloatArray], FloatArray]
+    #: the widest half-width over the map's supported region: what ``fit`` prints as
+    #: "trustworthy to ±lo..hi %" (None: not known)
+    worst_over_region_pct: float | None = None
 
 
 def fit_interval(
@@ -81,17 +92,20 @@ def fit_interval(
         meta={"layout": STEP_SUMMARY},
     )
     tmap = fit_map([ds], model=model).map
-    interval = tmap.prediction_interval()
 
     def half_width(t: FloatArray, b: FloatArray) -> FloatArray:
-        if interval is None:
+        # the map's own interval, exactly as predict and fit evaluate it (with the
+        # coefficients' term; issue 31: the bench once asked it without, and stopped early)
+        half = tmap.interval_pct(t, b, corrected=False)
+        if half is None:
             return np.full(np.broadcast(t, b).shape, np.inf)
-        return np.asarray(interval.half_width(t, b), dtype=np.float64)
+        return np.asarray(half, dtype=np.float64)
 
     def throttle(t: FloatArray, b: FloatArray) -> FloatArray:
         return np.asarray(tmap.throttle_pct(t, b, corrected=False), dtype=np.float64)
 
-    return Fitted(throttle, half_width)
+    over = tmap.interval_over_region()
+    return Fitted(throttle, half_width, None if over is None else float(over[1]))
 
 
 @dataclass(frozen=True)
@@ -195,6 +209,9 @@ class MapChooser:
             if inside.any():
                 hw = np.where(inside, hw, -np.inf)
         worst_all = float(np.max(hw))
+        if fitted.worst_over_region_pct is not None and math.isfinite(worst_all):
+            # the target holds where fit will say it does: over the supported region too
+            worst_all = max(worst_all, fitted.worst_over_region_pct)
         worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
         note = ""
         span = b_hi - b_lo
@@ -239,7 +256,15 @@ class MapChooser:
         )
         near = np.abs(b - voltage_v) <= unit_b
         wide = pi_now >= float(pi_now.max()) * 0.98
-        score = np.where(wide, gap, -1.0)
+        # the widest interval, weighed by how far it is from the points: a point measured
+        # again where one already is narrows the coefficients' term little (the map's
+        # interval includes it), so the plan does not sit on one end of the range
+        finite = np.isfinite(pi_now)
+        top = float(pi_now.max()) if finite.any() else math.inf
+        close = finite & (pi_now >= NEAR_WIDEST * top)
+        score = np.where(close, np.where(finite, pi_now, 0.0) * (1.0 + gap), -np.inf)
+        if not finite.any() or bool(wide.all()):
+            score = np.where(wide, gap, -1.0)
         k = int(np.argmax(score))
         target_t = float(grid_t[k])
         level = float(fitted.throttle_pct(np.array([target_t]), np.array([cand_b[k]]))[0])

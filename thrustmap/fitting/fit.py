@@ -15,17 +15,18 @@ from typing import Any
 
 import numpy as np
 
-from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.core.errors import ConfigError, FitError, ThrustmapError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import Dataset, FloatArray
-from thrustmap.fitting.interval import Region, advice, interval_range, learn_interval
+from thrustmap.fitting.interval import Interval, Region, advice, interval_range, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
-from thrustmap.fitting.metrics import ErrorStats, error_stats
+from thrustmap.fitting.metrics import Coverage, ErrorStats, coverage, error_stats
 from thrustmap.fitting.models import (
     MIN_RELATIVE_SPAN,
     SCALING_BACKEMF,
     Identification,
     Model,
+    MotorModel,
     backemf_coefficients,
     get_model,
 )
@@ -160,6 +161,76 @@ def weighting_line(model: Model, data: Pool) -> str:
     )
 
 
+def systematic_terms(points: Sequence[Points]) -> list[tuple[float, str]]:
+    """What the stand showed beyond the residuals, for the interval: half the largest
+    disagreement between a staircase's up and down legs at equal thrust (95th percentile)."""
+    legs = [
+        p.leg_disagreement_pct
+        for p in points
+        if isinstance(p, Points) and p.leg_disagreement_pct > 0  # (a test's Pool may hold None)
+    ]
+    if not legs:
+        return []
+    return [(0.5 * max(legs), "half the staircase legs' disagreement at equal thrust")]
+
+
+def bound_term(
+    m: Model, coef: FloatArray, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss
+) -> list[tuple[float, str]]:
+    """A coefficient resting on its bound is set by the bound, not the data: the interval
+    carries what freeing it would change (95th percentile over the points)."""
+    if not isinstance(m, MotorModel) or len(t) < m.n_coefficients:
+        return []
+    which = m.on_bound(coef, skip=(1, 2, 3))
+    if not which:
+        return []
+    try:
+        free = m.released_fit(t, b, th, loss, coef)
+    except FitError:
+        return []
+    delta = np.abs(m.evaluate(free, t, b) - m.evaluate(coef, t, b))
+    if not np.all(np.isfinite(delta)):
+        return []
+    return [(float(np.percentile(delta, 95)), f"{which}: what freeing it would change")]
+
+
+def model_interval(
+    m: Model,
+    coef: FloatArray,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    file_index: np.ndarray[Any, np.dtype[np.int64]],
+    loss: Loss,
+    ident: Identification | None = None,
+    systematic: Sequence[tuple[float, str]] = (),
+    file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
+) -> Interval | None:
+    """The map's one 95 % prediction interval (fitting.interval.learn_interval) for model ``m``
+    fitted with ``coef`` on these points: what ``fit`` writes, and what ``compare`` scores
+    each fold's map with."""
+
+    def predictor(
+        tt: FloatArray, bb: FloatArray, tth: FloatArray
+    ) -> Callable[[FloatArray, FloatArray], FloatArray]:
+        c = fit_coefficients(m, tt, bb, tth, loss)
+        return lambda tq, bq: m.evaluate(c, tq, bq)
+
+    pred = m.evaluate(coef, t, b)
+    return learn_interval(
+        t,
+        b,
+        th,
+        file_index,
+        predictor,
+        np.abs(pred - th),
+        Region.from_points(t, b),
+        parameter_covariance(m, coef, t, b, th, ident),
+        file_fit,
+        [*systematic, *bound_term(m, coef, t, b, th, loss)],
+    )
+
+
 def fit_map(
     datasets: Sequence[Dataset],
     *,
@@ -176,30 +247,24 @@ def fit_map(
         m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
     )
     file_fit = None
+    if isinstance(m, MotorModel):
+        coef, ident = _voltage_term_by_file(m, data, loss, coef, ident)
     if m.name == "motor":
         coef, ident, file_fit = _try_backemf(datasets, data, selection, m, loss, coef, ident)
     pred = m.evaluate(coef, data.thrust_n, data.voltage_v)
     stats = error_stats(pred, data.throttle_pct)
 
-    def predictor(
-        t: FloatArray, b: FloatArray, th: FloatArray
-    ) -> Callable[[FloatArray, FloatArray], FloatArray]:
-        c = fit_coefficients(m, t, b, th, loss)
-        return lambda tq, bq: m.evaluate(c, tq, bq)
-
     region = Region.from_points(data.thrust_n, data.voltage_v)
-    covariance = parameter_covariance(
-        m, coef, data.thrust_n, data.voltage_v, data.throttle_pct, ident
-    )
-    interval = learn_interval(
+    interval = model_interval(
+        m,
+        coef,
         data.thrust_n,
         data.voltage_v,
         data.throttle_pct,
         data.file_index,
-        predictor,
-        np.abs(pred - data.throttle_pct),
-        region,
-        covariance,
+        loss,
+        ident,
+        systematic_terms(data.points),
         file_fit,
     )
     over_region = None if interval is None else interval_range(interval, m.design)
@@ -245,6 +310,61 @@ def fit_map(
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
     return FitOutcome(tmap, data, warnings, trust, more_data, weighting_line(m, data))
+
+
+#: the fitted voltage term is kept only when it holds out better by file than this share of the
+#: physics prior's error (a tie, or a fold that cannot fit it, keeps the prior)
+VOLTAGE_TERM_MARGIN = 0.98
+
+
+def _voltage_term_by_file(
+    m: MotorModel, data: Pool, loss: Loss, coef: FloatArray, ident: Identification | None
+) -> tuple[FloatArray, Identification | None]:
+    """A voltage term (k0) fitted on points of several files is kept only if leave-one-file-out
+    confirms it: each file is predicted by the identification fitted on the other files, and by
+    the physics prior (k0 = 0) fitted on them. Files recorded on different days differ for
+    reasons other than voltage (a load-cell offset, a warmer motor, another propeller mount),
+    which an in-sample fit reads as a voltage term."""
+    files = np.unique(data.file_index)
+    if ident is None or ident.form != "full" or len(files) < 2:
+        return coef, ident
+    err_fit: list[FloatArray] = []
+    err_prior: list[FloatArray] = []
+    for f in files:
+        test = data.file_index == f
+        t, b, th = data.take(~test)
+        tt, bt, tht = data.take(test)
+        try:
+            c_fit = identify_coefficients(m, t, b, th, loss)[0]
+            c_prior = m.physics_fit(t, b, th, loss, "", "")[0]
+        except FitError:
+            c_fit = c_prior = np.full(m.n_coefficients, np.nan)
+        if not (np.all(np.isfinite(c_fit)) and np.all(np.isfinite(c_prior))):
+            err_fit.append(np.full(len(tt), np.inf))
+            err_prior.append(np.zeros(len(tt)))
+            continue
+        err_fit.append(np.abs(m.evaluate(c_fit, tt, bt) - tht))
+        err_prior.append(np.abs(m.evaluate(c_prior, tt, bt) - tht))
+    e_fit = float(np.mean(np.concatenate(err_fit)))
+    e_prior = float(np.mean(np.concatenate(err_prior)))
+    evidence = {
+        **ident.evidence,
+        "by_file_voltage_term_pct": e_fit,
+        "by_file_physics_prior_pct": e_prior,
+    }
+    if e_fit < VOLTAGE_TERM_MARGIN * e_prior:
+        note = f"; confirmed by file (held out {e_fit:.3f} % against {e_prior:.3f} % with k0 = 0)"
+        return coef, replace(ident, reason=ident.reason + note, evidence=evidence)
+    shown = "could not be fitted without one file" if not np.isfinite(e_fit) else f"{e_fit:.3f} %"
+    reason = (
+        f"voltage span {ident.voltage_span_v:.2f} V across {len(files)} files, but the voltage "
+        f"term fitted on the others held out no better by file ({shown} against {e_prior:.3f} % "
+        "with k0 = 0; files from different days differ for reasons other than voltage): the "
+        "physics prior (k0 = 0) is used"
+    )
+    t, b, th = data.thrust_n, data.voltage_v, data.throttle_pct
+    evidence = {k: v for k, v in evidence.items() if np.isfinite(v)}
+    return m.physics_fit(t, b, th, loss, reason, "files", evidence)
 
 
 def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
@@ -456,6 +576,10 @@ class Row:
     #: why the model could not be fitted under this validation ("" when it was: a model that
     #: cannot be fitted gets a row saying why, and the other models keep theirs)
     error: str = ""
+    #: how many held-out points the map's 95 % interval held, inside / outside the supported
+    #: region (None: the map has no interval, or it could not be learned on the fold)
+    coverage_inside: Coverage | None = None
+    coverage_outside: Coverage | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (no NaN: a figure with no points is null). Top-level figures are over all
@@ -470,6 +594,15 @@ class Row:
         d.update(self.all.to_dict())
         d["inside_box"] = self.inside.to_dict()
         d["outside_box"] = self.outside.to_dict()
+        if self.coverage_inside is not None and self.coverage_outside is not None:
+            cells = {
+                "inside_supported_region": self.coverage_inside.to_dict(),
+                "outside_supported_region": self.coverage_outside.to_dict(),
+            }
+            d["coverage_pct"] = {k: v["coverage_pct"] for k, v in cells.items()}
+            d["interval_median_half_width_pct"] = {
+                k: v["median_half_width_pct"] for k, v in cells.items()
+            }
         return d
 
 
@@ -480,7 +613,14 @@ def _row(
     pred: FloatArray,
     true: FloatArray,
     inside: np.ndarray[Any, np.dtype[np.bool_]],
+    half_width: FloatArray | None = None,
 ) -> Row:
+    """``half_width``: the map's interval at each point (NaN where a fold had none)."""
+    cov_in = cov_out = None
+    if half_width is not None:
+        has = np.isfinite(half_width)
+        cov_in = coverage(pred[inside & has], true[inside & has], half_width[inside & has])
+        cov_out = coverage(pred[~inside & has], true[~inside & has], half_width[~inside & has])
     return Row(
         model=model,
         validation=validation,
@@ -488,6 +628,8 @@ def _row(
         outside=error_stats(pred[~inside], true[~inside]),
         folds=folds,
         all=error_stats(pred, true),
+        coverage_inside=cov_in,
+        coverage_outside=cov_out,
     )
 
 
@@ -517,8 +659,17 @@ def _conditioned_bounds(
 
 
 def validate(
-    data: Pool, model: str, validation: Validation, loss: Loss = "l2", folds: int = 5, seed: int = 0
+    data: Pool,
+    model: str,
+    validation: Validation,
+    loss: Loss = "l2",
+    folds: int = 5,
+    seed: int = 0,
+    with_coverage: bool = True,
 ) -> Row:
+    """Held-out errors of ``model`` under ``validation``; with ``with_coverage`` each fold's
+    map also learns its 95 % interval (as ``fit`` would) and the row says how many held-out
+    points it held."""
     m = get_model(model)
     n = len(data)
     if validation == "in-sample":
@@ -540,6 +691,7 @@ def validate(
     preds: list[FloatArray] = []
     trues: list[FloatArray] = []
     insides: list[np.ndarray[Any, np.dtype[np.bool_]]] = []
+    halves: list[FloatArray] = []
     fast = loss == "l2" and m.linear_least_squares
     weighted = m.fit_weights(data.throttle_pct[:0]) is not None
     if fast:
@@ -576,9 +728,15 @@ def validate(
                 None if upper_c is None else upper_c[cols],
             )
             pred = dt @ coef_c
+            coef = to_raw(coef_c)
         else:
             coef = fit_coefficients(m, t, b, th, loss, where=f"{model} {validation} fold")
             pred = m.evaluate(coef, tt, bt)
+        halves.append(
+            _fold_half_width(m, coef, data, train, tt, bt, loss)
+            if with_coverage and validation != "in-sample"
+            else np.full(len(tt), np.nan)
+        )
         inside = (
             _in_box(tt, bt, t, b, m.uses_voltage)
             if validation != "in-sample"
@@ -594,7 +752,38 @@ def validate(
         np.concatenate(preds),
         np.concatenate(trues),
         np.concatenate(insides),
+        np.concatenate(halves) if with_coverage and validation != "in-sample" else None,
     )
+
+
+def _fold_half_width(
+    m: Model,
+    coef: FloatArray,
+    data: Pool,
+    train: np.ndarray[Any, np.dtype[np.bool_]],
+    tt: FloatArray,
+    bt: FloatArray,
+    loss: Loss,
+) -> FloatArray:
+    """The fold's map's 95 % interval at the held-out points (NaN: none could be learned)."""
+    t, b, th = data.take(train)
+    files = sorted({int(f) for f in np.unique(data.file_index[train])})
+    try:
+        iv = model_interval(
+            m,
+            coef,
+            t,
+            b,
+            th,
+            data.file_index[train],
+            loss,
+            systematic=systematic_terms([data.points[f] for f in files]),
+        )
+    except (ThrustmapError, np.linalg.LinAlgError, ValueError):
+        iv = None
+    if iv is None:
+        return np.full(len(tt), np.nan)
+    return np.asarray(iv.half_width(tt, bt, m.design(tt, bt)), dtype=float)
 
 
 def compare(
@@ -605,6 +794,7 @@ def compare(
     loss: Loss = "l2",
     selection: Selection | None = None,
     folds: int = 5,
+    with_coverage: bool = True,
 ) -> list[Row]:
     data = pool(datasets, selection or Selection())
     for name in models:
@@ -612,7 +802,7 @@ def compare(
     rows = []
     for name in models:
         try:
-            rows.append(validate(data, name, validation, loss, folds))
+            rows.append(validate(data, name, validation, loss, folds, with_coverage=with_coverage))
         except FitError as exc:  # this model only: the others keep their rows
             log.info("%s: %s", name, exc)
             empty = error_stats(np.zeros(0), np.zeros(0))
@@ -637,5 +827,6 @@ def evaluate(
         p = select(ds, selection or Selection())
         pred = tmap.throttle_pct(p.thrust_n, p.voltage_v, corrected=False)
         inside = tmap.in_box(p.thrust_n, p.voltage_v)
-        rows.append(_row(tmap.model, f"evaluate:{ds.name}", 1, pred, p.throttle_pct, inside))
+        half = tmap.interval_pct(p.thrust_n, p.voltage_v, corrected=False)
+        rows.append(_row(tmap.model, f"evaluate:{ds.name}", 1, pred, p.throttle_pct, inside, half))
     return rows

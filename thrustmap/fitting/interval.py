@@ -4,28 +4,38 @@
 margin of ``VOLTAGE_MARGIN`` of the mean voltage) and, at each voltage B, the thrusts the data
 reached there. A motor that reached thrust T at voltage B1 can reach it at any higher voltage
 (it needs less throttle), and one that made a low thrust at B1 can make it at any lower voltage,
-so the reached range at B is [min thrust of points at or above B, max thrust of points at or
-below B], each widened by ``THRUST_MARGIN`` of the top thrust. A map answers inside it from data,
+so the reached range at B is [the lowest thrust of any point, max thrust of points at or below
+B], widened by ``THRUST_MARGIN`` of the top thrust (an adaptive run that measured low thrusts
+late in a discharge and high ones early still supports 1 N at the start voltage). How far B
+lies from the voltages measured near T is the interval's voltage term, not the region's. A map answers inside it from data,
 outside it by extrapolation. It replaces the (T, B) bounding box, whose corners may hold no
 data at all (a motor fitted on 2S and 3S does not reach its 3S thrust on 2S).
 
-**The interval** (one computation, used by fit, predict, the map file and the report):
+**The interval** (one computation, :meth:`Interval.half_width`, used by fit, predict, the map
+file, the report, ``compare``/``evaluate`` coverage and the adaptive bench's stop rule):
 
-    half_width(T, B) = √(q² + (z·σ_p(T, B))²) · (1 + growth · d(T, B))
+    half_width(T, B) = √(q² + (z·σ_p(T, B))² + s² + (κ·ρ(B))²) · (1 + growth · d(T, B))
 
 ``q`` is the 95th percentile of |held-out error| of points inside their training region (by
-file when there are several files, else k-fold; never below what the map misses on its own
-data); ``σ_p`` is the standard error of the fitted map at (T, B) from the coefficients'
-covariance (zero for coefficients held by physics or at a bound), ``z`` its 95 % quantile;
-``d`` is the distance outside the supported region in units of its size (thrust span; voltage
-span, but at least ``MIN_VOLTAGE_UNIT`` of the mean voltage), and ``growth`` is the median
-relative excess error per unit distance of held-out points that lay outside their training
-region (1 when none did, never below ``MIN_GROWTH``); the interval's ``basis`` says which.
+file when there are several files, so it carries the scatter between files recorded on
+different days; else k-fold; never below what the map misses on its own data); ``σ_p`` is the
+standard error of the fitted map at (T, B) from the coefficients' covariance (zero for
+coefficients held by physics or at a bound), ``z`` its 95 % quantile; ``s`` is what the stand
+showed that residuals hide (``systematic_pct``: half the up/down legs' disagreement at equal
+thrust, and what a coefficient resting on its bound would change if freed); ``ρ(B)`` is how far
+B lies outside the voltages measured, |ln(B / nearest measured voltage)|, and ``κ``
+(``VOLTAGE_EXTRAPOLATION_PCT``) the error per unit of it that the motor physics leaves
+(calibrated on third-party cross-voltage stand data, see the constant); ``d`` is the distance
+outside the supported region's thrust range in units of its thrust span, and ``growth`` the
+median relative excess error per unit distance of held-out points that lay outside their
+training region (1 when none did, never below ``MIN_GROWTH``); the interval's ``basis`` says
+which.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +57,12 @@ KFOLDS = 5
 THRUST_MARGIN = 0.03  # of the top thrust reached
 VOLTAGE_MARGIN = 0.01  # of the mean voltage
 REGION_KNOTS = 24  # voltages at which the reached thrust range is stored
+#: κ: % throttle of error per unit of |ln(B / nearest measured voltage)| that a map carried
+#: across voltage by motor physics still makes. Calibrated by ``benchmarks/bench_cross_voltage.py
+#: --calibrate`` on the Strawson 5-inch motors a1-c8 (24 pairs fitted on 2S, scored on 3S and
+#: back: the smallest κ that covers 95 % of their points); motors d1-f8 were held out and are
+#: scored by the benchmark.
+VOLTAGE_EXTRAPOLATION_PCT = 12.5
 
 
 @dataclass(frozen=True)
@@ -70,10 +86,10 @@ class Region:
         b_lo, b_hi = float(b.min()) - m_b, float(b.max()) + m_b
         knots = np.linspace(b_lo, b_hi, REGION_KNOTS if b_hi > b_lo else 1)
         hi = np.array([np.max(t[b <= k + m_b], initial=-np.inf) for k in knots])
-        lo = np.array([np.min(t[b >= k - m_b], initial=np.inf) for k in knots])
-        # at the ends a knot may see no point: take its neighbour's reach
+        # at the low end a knot may see no point: take its neighbour's reach
         hi = np.maximum.accumulate(np.where(np.isfinite(hi), hi, float(t.min())))
-        lo = np.minimum.accumulate(np.where(np.isfinite(lo), lo, float(t.max()))[::-1])[::-1]
+        # any thrust made at one voltage can be made at every other below the top reached
+        lo = np.full(len(knots), float(t.min()))
         return cls(
             voltage_v=tuple(float(x) for x in knots),
             thrust_lo_n=tuple(float(x) for x in np.maximum(lo - m_t, 0.0)),
@@ -112,6 +128,22 @@ class Region:
         db = np.maximum(np.maximum(self.voltage_lo_v - b, b - self.voltage_hi_v), 0.0) / b_unit
         return np.asarray(np.hypot(dt, db), dtype=float)
 
+    def thrust_distance(
+        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, t_unit: float
+    ) -> FloatArray:
+        """Distance outside the thrust range reached at B (0 inside), in units of t_unit."""
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        lo, hi = self.thrust_range(b)
+        return np.asarray(np.maximum(np.maximum(lo - t, t - hi), 0.0) / t_unit, dtype=float)
+
+    def voltage_log_distance(self, voltage_v: npt.ArrayLike) -> FloatArray:
+        """|ln(B / nearest measured voltage)|: 0 inside the voltages measured."""
+        b = np.asarray(voltage_v, float)
+        edge = np.clip(b, self.voltage_lo_v, self.voltage_hi_v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.abs(np.log(np.where(b > 0, b, np.nan) / edge))
+        return np.asarray(np.where(np.isfinite(rho), rho, np.inf), dtype=float)
+
     def contains(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> BoolArray:
         return np.asarray(self.distance(thrust_n, voltage_v, 1.0, 1.0) <= 0.0)
 
@@ -144,6 +176,67 @@ class Region:
         }
 
 
+#: thrust knots at which the voltages measured are stored (``VoltageSupport``)
+SUPPORT_KNOTS = 12
+
+
+@dataclass(frozen=True)
+class VoltageSupport:
+    """At each thrust knot, the voltages the data were measured at near that thrust: a map
+    fitted on a 3S pack whose voltage collapsed to 7 V at full throttle was measured at 7 V
+    only there, not at 1 N. ``log_distance(T, B)`` is |ln(B / nearest such voltage)|."""
+
+    thrust_n: tuple[float, ...]
+    voltage_lo_v: tuple[float, ...]
+    voltage_hi_v: tuple[float, ...]
+
+    @classmethod
+    def from_points(cls, thrust_n: FloatArray, voltage_v: FloatArray) -> VoltageSupport:
+        t = np.asarray(thrust_n, float)
+        b = np.asarray(voltage_v, float)
+        knots = np.unique(np.quantile(t, np.linspace(0.0, 1.0, SUPPORT_KNOTS)))
+        edges = np.r_[-np.inf, 0.5 * (knots[1:] + knots[:-1]), np.inf]
+        lo, hi = [], []
+        for k in range(len(knots)):
+            near = (t >= edges[k]) & (t <= edges[k + 1])
+            lo.append(float(b[near].min()) if near.any() else float(b.min()))
+            hi.append(float(b[near].max()) if near.any() else float(b.max()))
+        return cls(tuple(float(x) for x in knots), tuple(lo), tuple(hi))
+
+    def log_distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        k = np.asarray(self.thrust_n)
+        lo = np.interp(t, k, np.asarray(self.voltage_lo_v))
+        hi = np.interp(t, k, np.asarray(self.voltage_hi_v))
+        edge = np.clip(b, lo, hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.abs(np.log(np.where(b > 0, b, np.nan) / edge))
+        return np.asarray(np.where(np.isfinite(rho), rho, np.inf), dtype=float)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "thrust_n": list(self.thrust_n),
+            "voltage_lo_v": list(self.voltage_lo_v),
+            "voltage_hi_v": list(self.voltage_hi_v),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any) -> VoltageSupport | None:
+        try:
+            t = tuple(float(x) for x in d["thrust_n"])
+            lo = tuple(float(x) for x in d["voltage_lo_v"])
+            hi = tuple(float(x) for x in d["voltage_hi_v"])
+        except (KeyError, TypeError, ValueError):
+            return None
+        ok = (
+            len(t) == len(lo) == len(hi) >= 1
+            and all(np.isfinite(t + lo + hi))
+            and all(a > 0 and a <= c for a, c in zip(lo, hi, strict=True))
+            and all(np.diff(t) > 0)
+        )
+        return cls(t, lo, hi) if ok else None
+
+
 def _voltage_unit(lo: float, hi: float) -> float:
     return max(hi - lo, MIN_VOLTAGE_UNIT * 0.5 * (lo + hi), 1e-6)
 
@@ -160,6 +253,20 @@ class Interval:
     #: covariance of the raw coefficients (rows × cols), empty: no parameter term
     covariance: tuple[tuple[float, ...], ...] = ()
     z: float = Z_LEVEL
+    #: what the stand showed that residuals hide (legs' disagreement, a coefficient on its
+    #: bound), % throttle, added in quadrature
+    systematic_pct: float = 0.0
+    #: κ, % throttle per unit of |ln(B / nearest measured voltage)| (0: a map written before it)
+    voltage_pct_per_log: float = 0.0
+    #: the voltages measured near each thrust (None: the region's voltage span is used)
+    support: VoltageSupport | None = None
+
+    def voltage_log_distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
+        """ρ: |ln(B / nearest voltage measured near T)|."""
+        if self.support is not None:
+            return self.support.log_distance(thrust_n, voltage_v)
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        return self.region.voltage_log_distance(b)
 
     def distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
         return self.region.distance(thrust_n, voltage_v, self.thrust_unit_n, self.voltage_unit_v)
@@ -180,11 +287,20 @@ class Interval:
         each shaped like the broadcast query. ``design``: the model's rows at the query, flat."""
         t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
         sig = np.reshape(np.broadcast_to(self.parameter_sigma(design), t.size), t.shape)
-        base = np.sqrt(self.half_width_pct**2 + (self.z * sig) ** 2)
+        rho = self.voltage_log_distance(t, b)
+        volt = self.voltage_pct_per_log * rho if self.voltage_pct_per_log else 0.0 * rho
+        base = np.sqrt(
+            self.half_width_pct**2 + (self.z * sig) ** 2 + self.systematic_pct**2 + volt**2
+        )
         d = self.distance(t, b)
+        if self.voltage_pct_per_log:
+            # voltage extrapolation is κ's; the growth factor widens for thrust outside only
+            d_grow = self.region.thrust_distance(t, b, self.thrust_unit_n)
+        else:
+            d_grow = d
         return (
             np.asarray(base, float),
-            np.asarray(1.0 + self.growth_per_span * d, float),
+            np.asarray(1.0 + self.growth_per_span * d_grow, float),
             np.asarray(d, float),
         )
 
@@ -203,10 +319,16 @@ class Interval:
             "voltage_unit_v": self.voltage_unit_v,
             "z": self.z,
             "parameter_covariance": [list(r) for r in self.covariance],
-            "formula": "half_width = sqrt(half_width_pct^2 + (z * sqrt(x' C x))^2) * "
+            "systematic_pct": self.systematic_pct,
+            "voltage_pct_per_log": self.voltage_pct_per_log,
+            **({"voltage_support": self.support.to_dict()} if self.support else {}),
+            "formula": "half_width = sqrt(half_width_pct^2 + (z * sqrt(x' C x))^2 + "
+            "systematic_pct^2 + (voltage_pct_per_log * |ln(B / B_edge)|)^2) * "
             "(1 + growth_per_span * d); x = the model's terms at (T, B), C = "
-            "parameter_covariance, d = distance outside supported_region in units of "
-            "thrust_unit_n / voltage_unit_v",
+            "parameter_covariance, B_edge = B clipped to the voltages measured near T "
+            "(voltage_support, interpolated in thrust), d = "
+            "distance outside the supported region's thrust range at B in units of "
+            "thrust_unit_n",
             "basis": self.basis,
         }
 
@@ -223,6 +345,11 @@ class Interval:
             level=float(d.get("level", LEVEL)),
             covariance=tuple(tuple(float(x) for x in row) for row in cov),
             z=float(d.get("z", Z_LEVEL)),
+            systematic_pct=float(d.get("systematic_pct") or 0.0),
+            voltage_pct_per_log=float(d.get("voltage_pct_per_log") or 0.0),
+            support=VoltageSupport.from_dict(d["voltage_support"])
+            if isinstance(d.get("voltage_support"), dict)
+            else None,
         )
 
 
@@ -241,12 +368,15 @@ def learn_interval(
     region: Region | None = None,
     covariance: FloatArray | None = None,
     file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
+    systematic: Sequence[tuple[float, str]] = (),
+    voltage_pct_per_log: float = VOLTAGE_EXTRAPOLATION_PCT,
 ) -> Interval | None:
     """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor;
     ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term);
     ``file_fit(f)``, when given, is the predictor fitted without file f (by-file folds of a
     map identified from more than the points, e.g. the stand's rpm and current). None when the
-    data is too small to hold anything out."""
+    data is too small to hold anything out. ``systematic``: (% throttle, what) terms the stand
+    showed beyond the residuals, added in quadrature; ``voltage_pct_per_log``: κ."""
     n = len(thrust_n)
     region = region or Region.from_points(thrust_n, voltage_v)
     t_unit = region.thrust_span_n
@@ -273,6 +403,7 @@ def learn_interval(
         how = f"{k}-fold"
     resid: list[FloatArray] = []
     dist: list[FloatArray] = []
+    rhos: list[FloatArray] = []
     for test, held in zip(splits, fold_files, strict=True):
         train = ~test
         if train.sum() < 4 or test.sum() == 0:
@@ -286,14 +417,15 @@ def learn_interval(
             continue  # a fold the model cannot be fitted on contributes nothing
         resid.append(np.abs(predict(t[test], b[test]) - th[test]))
         fold_region = Region.from_points(t[train], b[train])
-        dist.append(
-            fold_region.distance(
-                t[test], b[test], fold_region.thrust_span_n, fold_region.voltage_unit_v
-            )
-        )
+        # the thrust distance only: voltage extrapolation is κ's (calibrated apart)
+        dist.append(fold_region.thrust_distance(t[test], b[test], fold_region.thrust_span_n))
+        rhos.append(VoltageSupport.from_points(t[train], b[train]).log_distance(t[test], b[test]))
     if not resid:
         return None
-    r = np.concatenate(resid)
+    # a held-out point outside its fold's voltages carries κ's share of error: the rest of it
+    # (in quadrature) is what q and the thrust growth must hold
+    rho = np.concatenate(rhos)
+    r = np.sqrt(np.maximum(np.concatenate(resid) ** 2 - (voltage_pct_per_log * rho) ** 2, 0.0))
     d = np.concatenate(dist)
     inside = d == 0
     q_base = r[inside] if inside.any() else r
@@ -318,11 +450,36 @@ def learn_interval(
     if covariance is not None and np.all(np.isfinite(covariance)):
         cov = tuple(tuple(float(x) for x in row) for row in np.asarray(covariance, float))
         p_note = "; combined with the coefficients' uncertainty at each point"
+    terms = [(float(v), w) for v, w in systematic if v > 0 and np.isfinite(v)]
+    sys_pct = float(np.sqrt(sum(v * v for v, _ in terms)))
+    s_note = "; with " + ", ".join(f"±{v:.2f} % {w}" for v, w in terms) if terms else ""
+    if how != "by-file":
+        s_note += "; one file: the scatter between files recorded on different days is not measured"
+    v_note = (
+        f"; away from the voltages measured at that thrust, ±{voltage_pct_per_log:g} % per "
+        "unit of |ln(B/B_edge)| (calibrated on third-party cross-voltage stand data)"
+        if voltage_pct_per_log
+        else ""
+    )
     basis = (
         f"{how} held-out residuals, {int(inside.sum())} inside and {int(out.sum())} outside "
-        f"the training region{note}; {g_note}{p_note}"
+        f"the training region{note}; {g_note}{p_note}{s_note}{v_note}"
     )
-    return Interval(q, growth, t_unit, b_unit, region, basis, LEVEL, cov)
+    support = VoltageSupport.from_points(thrust_n, voltage_v)
+    return Interval(
+        q,
+        growth,
+        t_unit,
+        b_unit,
+        region,
+        basis,
+        LEVEL,
+        cov,
+        Z_LEVEL,
+        sys_pct,
+        voltage_pct_per_log,
+        support,
+    )
 
 
 def interval_range(
@@ -354,10 +511,18 @@ def advice(
     else:
         lo, hi = over_region
         g = interval.growth_per_span
-        widen = (
-            f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
-            f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
-        )
+        if interval.voltage_pct_per_log:
+            widen = (
+                f"; beyond the thrust reached it widens by ×{1 + g:.2f} per "
+                f"{interval.thrust_unit_n:.3f} N, and away from the voltages measured near a "
+                f"thrust by ±{interval.voltage_pct_per_log:g} % per unit |ln(B/B_measured)| "
+                f"(±{interval.voltage_pct_per_log * math.log(1.1):.1f} % at 10 % off)"
+            )
+        else:
+            widen = (
+                f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
+                f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
+            )
         trust = (
             f"trustworthy to ±{lo:.2f}..{hi:.2f} % ({100 * interval.level:.0f} % prediction "
             f"interval) over the supported region{widen}"

@@ -252,6 +252,8 @@ def _motor_features(t: FloatArray, b: FloatArray) -> FloatArray:
 MIN_RELATIVE_SPAN = 0.05
 #: points per coefficient needed before k0 is fitted (below, c and k0/B trade off freely)
 MIN_POINTS_PER_COEFFICIENT = 8
+#: a coefficient within this relative distance of a bound is on it (the solver stops there)
+BOUND_TOLERANCE = 1e-6
 
 
 #: no point's command cell exceeds this share of the commanded span (a ten-step staircase): one
@@ -358,6 +360,68 @@ class MotorModel(FeatureModel):
             )
         return None
 
+    def on_bound(self, coef: FloatArray, skip: Sequence[int] = ()) -> str:
+        """Which coefficient ended on its physical bound ('' when none), e.g. 'c on its bound
+        -20 %'. A coefficient there is not identified by the data: the bound chose it."""
+        lower, upper = self.lower(), self.upper()
+        assert lower is not None and upper is not None
+        for i in range(self.n_coefficients):
+            if i in skip:
+                continue
+            for bound in (lower[i], upper[i]):
+                if np.isfinite(bound) and abs(coef[i] - bound) <= BOUND_TOLERANCE * (
+                    1.0 + abs(bound)
+                ):
+                    label = "c" if i == 0 else ("k0", "k1", "k2")[i - 1]
+                    unit = " %" if i == 0 else ""
+                    return f"{label} on its bound {bound:g}{unit}"
+        return ""
+
+    def released_fit(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, coef: FloatArray
+    ) -> FloatArray:
+        """``coef``'s form refitted with the offset c free of its band (k0 stays 0 if it was):
+        what the data would say without the bound, for the interval's bound term."""
+        design = self.design(t, b)
+        lower, upper = self.lower(), self.upper()
+        assert lower is not None and upper is not None
+        keep = [0, 2, 3] if coef[1] == 0.0 else [0, 1, 2, 3]
+        lo, hi = lower.copy(), upper.copy()
+        lo[0], hi[0] = -np.inf, np.inf
+        out = np.zeros(4)
+        out[keep] = solve(
+            design[:, keep],
+            th,
+            loss=loss,
+            lower=lo[keep],
+            upper=hi[keep],
+            weights=self.fit_weights(th),
+        )
+        return out
+
+    def physics_fit(
+        self,
+        t: FloatArray,
+        b: FloatArray,
+        th: FloatArray,
+        loss: Loss,
+        reason: str,
+        limit: str,
+        evidence: dict[str, float] | None = None,
+    ) -> tuple[FloatArray, Identification]:
+        """The physics prior: k0 = 0 (1/B scaling), c, k1, k2 fitted within their bounds."""
+        coef = self._fit_form(t, b, th, loss, False)
+        span = float(np.ptp(b)) if len(b) else 0.0
+        return coef, Identification(
+            "k0 fixed (physics)",
+            reason,
+            span,
+            ("1/B",),
+            dict(evidence or {}),
+            limit,
+            SCALING_PHYSICS,
+        )
+
     def free_columns(self, thrust_n: FloatArray, voltage_v: FloatArray) -> list[int]:
         return [0, 2, 3] if self._physics_reason(voltage_v) is not None else [0, 1, 2, 3]
 
@@ -369,15 +433,29 @@ class MotorModel(FeatureModel):
         lacking = self._physics_reason(b)
         if lacking is not None:
             limit, reason = lacking
-            coef = self._fit_form(t, b, th, loss, False)
             evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
-            return coef, Identification(
-                "k0 fixed (physics)", reason, span, ("1/B",), evidence, limit, SCALING_PHYSICS
-            )
+            return self.physics_fit(t, b, th, loss, reason, limit, evidence)
         mean_b = float(np.mean(b))
         free = self._free_fit(t, b, th, loss)
         unphysical = _unphysical(free, t)
         coef = self._fit_form(t, b, th, loss, True)
+        on_bound = self.on_bound(coef, skip=(1, 2, 3))  # c trades off with k0/B
+        if on_bound:
+            why = f"fitting k0 freely gave {unphysical}; " if unphysical else ""
+            reason = (
+                f"voltage span {span:.2f} V over {len(b)} points, but {why}the bounded fit ended "
+                f"with {on_bound} (k0 = {coef[1]:.3g}): not identified, the physics prior "
+                "(k0 = 0) is used"
+            )
+            return self.physics_fit(
+                t,
+                b,
+                th,
+                loss,
+                reason,
+                "physical sense" if unphysical else "bound",
+                {"bounded_c_pct": float(coef[0]), "bounded_k0": float(coef[1])},
+            )
         if unphysical:
             k0_zero = coef[1] <= 0.0
             kept = (

@@ -82,6 +82,10 @@ class Selection:
     quasi_static_updates: float = 8.0
     quasi_static_lags: float = 10.0  # ... or that last less than this many lag time constants
     pair_voltage_rel: float = 0.05  # up/down readings paired only this close in voltage
+    # A staircase (up and back down) whose stairs hold at least this many sensor updates after
+    # their transient is read as plateaus on each leg, a point per stair, and the legs'
+    # disagreement at equal command is measured (it enters the map's interval)
+    leg_plateau_updates: int = 5
     # Zero-command points (rotor at rest: thrust is the load cell's offset) are reported as tare
     # information; True also drops them from the map. Off by default for files whose rest reading
     # is not subtracted as the load cell's zero (a step summary's one rest row): there the point
@@ -102,6 +106,7 @@ class Selection:
             "quasi_static_updates": self.quasi_static_updates,
             "quasi_static_lags": self.quasi_static_lags,
             "pair_voltage_rel": self.pair_voltage_rel,
+            "leg_plateau_updates": self.leg_plateau_updates,
             "drop_tare_points": self.drop_tare_points,
         }
 
@@ -123,9 +128,19 @@ class Points:
     # per SAMPLE of the file (before the range filters): what steady-state extraction did with
     # it (ROLE_* codes); None for step summaries and raw samples
     roles: npt.NDArray[np.int8] | None = None
+    # per point: +1 a stair of a staircase's up leg, -1 of its down leg, 0 anything else (None:
+    # no staircase read leg by leg)
+    leg: npt.NDArray[np.int8] | None = None
 
     def __len__(self) -> int:
         return len(self.thrust_n)
+
+    @property
+    def leg_disagreement_pct(self) -> float:
+        """The staircase legs' disagreement at equal thrust, % throttle (95th percentile of the
+        up/down pairs; 0 when the file has no staircase read leg by leg)."""
+        q = self.report.get("staircase_legs")
+        return float(q.get("disagreement_p95_pct", 0.0)) if isinstance(q, dict) else 0.0
 
 
 def _in_range(x: FloatArray, rng: tuple[float, float] | None) -> npt.NDArray[np.bool_]:
@@ -138,6 +153,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
     """Apply steady-state extraction (unless ``all_samples``) and the range filters."""
     report: dict[str, Any] = {"file": ds.name, "samples": len(ds)}
     roles = None
+    leg: npt.NDArray[np.int8] | None = None
     if sel.all_samples:
         t, b, th = ds.thrust_n, ds.voltage_v, ds.throttle_native
         kind = np.full(len(ds), "sample")
@@ -149,8 +165,12 @@ def select(ds: Dataset, sel: Selection) -> Points:
             kind = np.full(len(ds), "step-summary")
             report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
         else:
-            t, b, th, kind, stopped, info, roles = _steady_state(ds, sel, _rotor_stopped(ds, sel))
+            t, b, th, kind, stopped, info, roles, leg = _steady_state(
+                ds, sel, _rotor_stopped(ds, sel)
+            )
             report.update(info)
+            if "staircase_legs" not in info:
+                leg = None
         if stopped.any():
             # The rotor was not turning: the load cell reads its offset (tare information).
             at_zero = stopped & (ds.throttle_scale.to_pct(th) <= sel.plateau_tolerance_pct)
@@ -163,6 +183,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
             if drop.any():
                 report["stopped_rotor_points_dropped"] = int(drop.sum())
                 t, b, th, kind = t[~drop], b[~drop], th[~drop], kind[~drop]
+                leg = None if leg is None else leg[~drop]
         zero = rest_zero(ds, sel)
         if zero is not None:
             # A rotor at rest makes no thrust: the rest plateau's reading is the load cell's
@@ -170,6 +191,7 @@ def select(ds: Dataset, sel: Selection) -> Points:
             # not points of the map (at zero thrust any command up to spin-up holds).
             rest = th_pct_le(ds, th, sel) & (kind != "ramp-pair")
             t, b, th, kind = t[~rest] - zero, b[~rest], th[~rest], kind[~rest]
+            leg = None if leg is None else leg[~rest]
             report["zero_subtracted_n"] = round(zero, 6)
     # Without an explicit thrust range, points at or below zero thrust (rotor stopped, ESC dead
     # band, load-cell offset) say nothing about producing thrust: drop them, as the paper's 0 < T.
@@ -202,11 +224,38 @@ def select(ds: Dataset, sel: Selection) -> Points:
         kind=kind[keep],
         report=report,
         roles=roles,
+        leg=None if leg is None else leg[keep],
     )
 
 
+def describe_legs(legs: dict[str, Any]) -> str:
+    """One line on a staircase read leg by leg: its points, the legs' disagreement, a creep."""
+    line = (
+        f"staircase read leg by leg: {legs.get('legs', 0)} legs, a plateau per stair "
+        f"({legs.get('dwell_sensor_updates_settled', 0):g} sensor updates after the transient); "
+        f"the legs disagree by {legs.get('disagreement_median_pct', 0.0):.2f} % throttle at equal "
+        f"thrust (95th percentile {legs.get('disagreement_p95_pct', 0.0):.2f} %, half of it "
+        "carried in the map's interval)"
+    )
+    creep = legs.get("load_cell_creep")
+    if isinstance(creep, dict):
+        when = (
+            f"{creep['time_s']:g} s" if "time_s" in creep else f"{creep.get('time_rows', 0):g} rows"
+        )
+        line += (
+            f"; a creeping load cell read out first ({100 * creep.get('fraction', 0.0):.0f} % of "
+            f"each load change arriving over {when}: the legs disagreed by "
+            f"{creep.get('thrust_disagreement_before_median_pct', 0.0):g} % in thrust before)"
+        )
+    return line
+
+
 def describe(report: dict[str, Any]) -> str | None:
-    """One line on a quasi-static staircase (what was paired and kept), or None."""
+    """One line on a quasi-static staircase (what was paired and kept), or on a staircase read
+    leg by leg, or None."""
+    legs = report.get("staircase_legs")
+    if isinstance(legs, dict):
+        return describe_legs(legs)
     q = report.get("quasi_static_staircase")
     if not isinstance(q, dict):
         n = report.get("quasi_static_legs_unpaired", 0)
@@ -414,6 +463,170 @@ def _settle_index(thrust: FloatArray, sigmas: float) -> int:
     return last_out + 1
 
 
+def _settle_index_detrended(y: FloatArray, sigmas: float) -> int:
+    """First index from which ``y`` stays within its noise band of the straight line through
+    its second half: a stair's transient (rotor lag, a conversion straddling the step), told
+    from a slow drift (a creeping load cell) that goes on for the whole stair."""
+    n = len(y)
+    if n < 4:
+        return _settle_index(y, sigmas)
+    half = n // 2
+    x = np.arange(n, dtype=float)
+    slope, icpt = np.polyfit(x[half:], y[half:], 1)
+    r = y - (slope * x + icpt)
+    d = np.diff(r[half:])
+    noise = (
+        float(np.median(np.abs(d - np.median(d)))) / 0.6745 / np.sqrt(2.0) if len(d) >= 2 else 0.0
+    )
+    centre = float(np.median(y[half:]))
+    band = sigmas * max(noise, 1e-3 * max(abs(centre), 1e-3), 1e-4)
+    outside = np.abs(r[: half + 1]) > band
+    return int(np.flatnonzero(outside).max()) + 1 if outside.any() else 0
+
+
+def _settled_updates(
+    thrust: FloatArray, fresh: npt.NDArray[np.bool_], st: _Stair, sigmas: float
+) -> npt.NDArray[np.int64]:
+    """The samples of a stair that carry a new sensor reading after its transient."""
+    upd = st.a + np.flatnonzero(fresh[st.a : st.b])
+    if len(upd) < 2:
+        return upd[:0]
+    return np.asarray(upd[_settle_index_detrended(thrust[upd], sigmas) :], dtype=np.int64)
+
+
+#: load-cell creep candidates: the share of a load change that arrives late, and its time
+#: constant in rows (``_creep_correction``)
+CREEP_FRACTIONS = np.linspace(0.0, 0.4, 41)
+CREEP_TIME_ROWS = np.geomspace(10.0, 5000.0, 40)
+#: a creep correction is applied only when it removes this share of the stairs' drift
+CREEP_MIN_GAIN = 0.5
+#: candidates whose legs' disagreement is within this factor of the best are equally good
+CREEP_NEAR_BEST = 2.0
+
+
+def _uncreep(
+    reading: FloatArray,
+    fraction: FloatArray,
+    time_rows: FloatArray,
+    group: npt.NDArray[np.int64] | None = None,
+    groups: int = 0,
+) -> tuple[FloatArray, FloatArray]:
+    """The load on a creeping load cell from its readings, one column per (fraction, time)
+    candidate: reading = F − fraction·(F − S) with S the load through a first-order lag, so
+    S follows S' = p·S + q·reading (exact per row), and F = (reading − fraction·S)/(1 − fraction).
+    Memory stays bounded by the candidates: returns, per ``group`` of rows (−1: none), the sum
+    of F and the sum of |F − reading| (groups × candidates); without groups, F of every row for
+    one candidate (``fraction`` and ``time_rows`` of length 1) as the first array."""
+    a = np.exp(-1.0 / time_rows)
+    p = a - (1.0 - a) * fraction / (1.0 - fraction)
+    q = (1.0 - a) / (1.0 - fraction)
+    s = np.full(len(fraction), float(reading[0]))
+    if group is None:
+        out = np.empty(len(reading))
+        for k, r in enumerate(reading.tolist()):
+            out[k] = float(((r - fraction * s) / (1.0 - fraction))[0])
+            s = p * s + q * r
+        return out, np.zeros(0)
+    sums = np.zeros((groups, len(fraction)))
+    change = np.zeros((groups, len(fraction)))
+    for k, r in enumerate(reading.tolist()):
+        g = int(group[k])
+        if g >= 0:
+            f = (r - fraction * s) / (1.0 - fraction)
+            sums[g] += f
+            change[g] += np.abs(f - r)
+        s = p * s + q * r
+    return sums, change
+
+
+#: a log longer than this is not searched for creep (time and memory grow with it)
+CREEP_MAX_ROWS = 200_000
+
+
+def _creep_correction(
+    thrust: FloatArray,
+    pairs: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]],
+    voltage_v: FloatArray,
+) -> tuple[FloatArray, dict[str, float]] | None:
+    """A creeping load cell reads a staircase low on its way up and high on its way down, by
+    far more than the rotors lag once a stair has settled. ``pairs``: the settled readings of
+    an up stair and of the down stair at the same command (the down stair's thrust scaled by
+    (B_up/B_down)², as ω ∝ duty·B and T ∝ ω²: the battery sagged between them). Find the creep
+    (the share of a load change that arrives late, and its time constant) that makes the legs
+    agree best, and return the file's thrust read through it, with the figures; None when no
+    creep removes ``CREEP_MIN_GAIN`` of the legs' disagreement."""
+    pairs = [(u, d) for u, d in pairs if len(u) >= 2 and len(d) >= 2]
+    if len(pairs) < 3 or len(thrust) > CREEP_MAX_ROWS:
+        return None
+    ff, tt = np.meshgrid(CREEP_FRACTIONS, CREEP_TIME_ROWS, indexing="ij")
+    frac, tau = ff.ravel(), tt.ravel()
+    group = np.full(len(thrust), -1, dtype=np.int64)
+    sizes = np.zeros(2 * len(pairs))
+    for i, (u, d) in enumerate(pairs):
+        # a stair may pair with two (equal commands): its rows count for the first pair only
+        u, d = u[group[u] < 0], d[group[d] < 0]
+        group[u], group[d] = 2 * i, 2 * i + 1
+        sizes[2 * i], sizes[2 * i + 1] = len(u), len(d)
+    if np.any(sizes < 2):
+        return None
+    sums, change_sum = _uncreep(thrust, frac, tau, group, 2 * len(pairs))
+    means = sums / sizes[:, None]
+    cost = np.zeros(len(frac))
+    for i, (u, d) in enumerate(pairs):
+        scale = (float(np.mean(voltage_v[u])) / float(np.mean(voltage_v[d]))) ** 2
+        cost += (means[2 * i] - scale * means[2 * i + 1]) ** 2
+    base = int(np.flatnonzero(frac == 0.0)[0])
+    # a long slow creep and a shorter one can leave the legs agreeing alike (a slow one reads
+    # as a gain): of the candidates that do nearly as well as the best, the smallest correction
+    change = change_sum.sum(axis=0) / float(sizes.sum())
+    near = cost <= CREEP_NEAR_BEST * float(np.min(cost)) + 1e-300
+    best = int(np.flatnonzero(near)[np.argmin(change[near])])
+    if frac[best] <= 0.0 or not cost[best] < (1.0 - CREEP_MIN_GAIN) ** 2 * cost[base]:
+        return None
+    corrected, _ = _uncreep(thrust, frac[best : best + 1], tau[best : best + 1])
+    return corrected, {
+        "fraction": round(float(frac[best]), 3),
+        "time_rows": round(float(tau[best]), 1),
+        "legs_disagreement_removed_pct": round(
+            100.0 * (1.0 - float(np.sqrt(cost[best] / cost[base]))), 1
+        ),
+    }
+
+
+def _legs_disagree(
+    command_pct: FloatArray,
+    thrust_n: FloatArray,
+    voltage_v: FloatArray,
+    leg: npt.NDArray[np.int8],
+) -> tuple[list[float], list[float]]:
+    """The up and down legs' disagreement: at each up point's thrust, the command the down leg
+    needed for it minus the up point's (% throttle), and at each up point's command the down
+    leg's thrust over the up point's (relative, %). Only where the down leg spans the point.
+    The down leg's reading is first carried to the up point's voltage (command × voltage and
+    thrust / voltage² hold, as duty × voltage sets speed): a battery that sagged between the
+    legs is the map's voltage term, not a disagreement."""
+    up, dn = leg > 0, leg < 0
+    d_cmd: list[float] = []
+    d_thr: list[float] = []
+    if up.sum() < 1 or dn.sum() < 2:
+        return d_cmd, d_thr
+    by_t = np.argsort(thrust_n[dn])
+    t_dn, c_dn, v_dn = thrust_n[dn][by_t], command_pct[dn][by_t], voltage_v[dn][by_t]
+    by_c = np.argsort(command_pct[dn])
+    c_dn2, t_dn2, v_dn2 = command_pct[dn][by_c], thrust_n[dn][by_c], voltage_v[dn][by_c]
+    for t, c, v in zip(thrust_n[up], command_pct[up], voltage_v[up], strict=True):
+        if t_dn[0] <= t <= t_dn[-1]:
+            at_b = float(np.interp(t, t_dn, c_dn)) * float(np.interp(t, t_dn, v_dn)) / float(v)
+            d_cmd.append(at_b - float(c))
+        if c_dn2[0] <= c <= c_dn2[-1] and t > 0:
+            t_b = (
+                float(np.interp(c, c_dn2, t_dn2))
+                * (float(v) / float(np.interp(c, c_dn2, v_dn2))) ** 2
+            )
+            d_thr.append(100.0 * (t_b - float(t)) / float(t))
+    return d_cmd, d_thr
+
+
 def _updates(
     thrust: FloatArray, throttle: FloatArray, tol: float, known_held: bool
 ) -> tuple[npt.NDArray[np.bool_], dict[str, Any]]:
@@ -590,6 +803,7 @@ def _steady_state(
     npt.NDArray[np.bool_],
     dict[str, Any],
     npt.NDArray[np.int8],
+    npt.NDArray[np.int8],
 ]:
     """Points, their kinds, whether each was taken with the rotor mostly stopped, a report, and
     each sample's role."""
@@ -655,10 +869,20 @@ def _steady_state(
     legs: list[list[int]] = []
     lags: list[float] = []
     n_turns = 0
+    # staircases whose stairs hold long enough after their transient: a plateau on each leg
+    legged: list[tuple[list[int], list[int], int]] = []
+    settled: dict[int, npt.NDArray[np.int64]] = {}
     for (d1, l1), (d2, l2) in zip(all_legs, all_legs[1:], strict=False):
         if d1 == d2 or l2[0] - l1[-1] > 1:
             continue
         up_leg, down_leg = (l1, l2) if d1 > 0 else (l2, l1)
+        for i in up_leg + down_leg:
+            if i not in settled:
+                settled[i] = _settled_updates(ds.thrust_n, fresh, sub[i], sel.settle_sigmas)
+        held_for = [len(settled[i]) for i in up_leg + down_leg if i != l1[-1]]
+        if held_for and float(np.median(held_for)) >= sel.leg_plateau_updates:
+            legged.append((up_leg, down_leg, l1[-1]))
+            continue
         one = _pair_legs(sub, up_leg, down_leg, l1[-1], rest_n, sel, sub_at_rest)
         both = up_leg + down_leg
         updates = float(np.median([sub[i].updates for i in both]))
@@ -722,6 +946,72 @@ def _steady_state(
         if legpairs.lag_s and ds.time_s is not None:
             # rotor + sensor lag seen between the legs (a first-order time constant)
             staircase["lag_s"] = round(float(np.median(legpairs.lag_s)), 4)
+    # staircases read leg by leg: a plateau per stair (its transient dropped, the rest averaged,
+    # a drift kept: it is what the legs' disagreement measures), the turning stair once
+    leg_of: list[int] = [0] * len(t_out)
+    d_cmd_all: list[float] = []
+    d_thr_all: list[float] = []
+    held_updates: list[int] = []
+    reading = ds.thrust_n
+    creep: dict[str, float] = {}
+    if legged:
+        same_command: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]] = []
+        for up_leg, down_leg, turn_i in legged:
+            for u in up_leg:
+                if u == turn_i:
+                    continue  # (the rest stairs at both ends pair too: unloaded, equal)
+                for d in down_leg:
+                    if d != turn_i and abs(sub[d].command - sub[u].command) <= tol:
+                        same_command.append((settled[u], settled[d]))
+        found = _creep_correction(ds.thrust_n, same_command, ds.voltage_v)
+        if found is not None:
+            reading, creep = found
+            if period > 0:
+                creep["time_s"] = round(creep["time_rows"] * period, 3)
+    raw_of: list[float] = []  # the legged points' thrust as read (before any creep correction)
+    d_thr_raw: list[float] = []
+    for up_leg, down_leg, turn_i in legged:
+        first = len(t_out)
+        for i, sign in [(i, 1) for i in up_leg] + [(i, -1) for i in down_leg if i != turn_i]:
+            li = candidates[i]
+            if li in used:
+                continue
+            st = sub[i]
+            kept = settled[i]
+            used.add(li)
+            in_plateau[st.a : st.b] = True
+            if len(kept) < 2:
+                n_unsettled += 1
+                continue
+            start = int(kept[0])
+            held_updates.append(len(kept))
+            n_plateau_samples += st.b - st.a
+            n_settle_dropped += start - st.a
+            roles[st.a : start] = ROLE_SETTLING
+            roles[start : st.b] = ROLE_PLATEAU
+            t_out.append(float(np.mean(reading[kept])))
+            raw_of.append(float(np.mean(ds.thrust_n[kept])))
+            b_out.append(float(np.mean(ds.voltage_v[start : st.b])))
+            th_out.append(float(np.mean(th[start : st.b])))
+            kinds.append("plateau")
+            point_at_rest.append(bool(stopped[start : st.b].mean() > 0.5))
+            leg_of.append(0 if i == turn_i else sign)
+        mine = np.asarray(leg_of[first:], dtype=np.int8)
+        moving = ~np.asarray(point_at_rest[first:], dtype=bool)
+        dc, dt_rel = _legs_disagree(
+            np.asarray(ds.throttle_scale.to_pct(np.asarray(th_out[first:])))[moving],
+            np.asarray(t_out[first:])[moving],
+            np.asarray(b_out[first:])[moving],
+            mine[moving],
+        )
+        d_cmd_all += dc
+        d_thr_all += dt_rel
+        d_thr_raw += _legs_disagree(
+            np.asarray(ds.throttle_scale.to_pct(np.asarray(th_out[first:])))[moving],
+            np.asarray(raw_of[len(raw_of) - len(mine) :])[moving],
+            np.asarray(b_out[first:])[moving],
+            mine[moving],
+        )[1]
     for li, (a, b, settled_from) in enumerate(levels):
         if li in used:
             continue
@@ -792,6 +1082,7 @@ def _steady_state(
         th_out.extend(th[idx].tolist())
         kinds.extend(["ramp"] * len(idx))
         point_at_rest.extend(stopped[idx].tolist())
+    leg_of += [0] * (len(t_out) - len(leg_of))
     if not t_out:
         why = (
             f"; {n_unpaired} staircase leg{'s' if n_unpaired > 1 else ''} of stairs too short to "
@@ -828,6 +1119,28 @@ def _steady_state(
     info.update({k: v for k, v in rules.items() if v})
     if staircase:
         info["quasi_static_staircase"] = staircase
+    if legged:
+        abs_cmd = np.abs(np.asarray(d_cmd_all, dtype=float))
+        info["staircase_legs"] = {
+            "legs": 2 * len(legged),
+            "dwell_sensor_updates_settled": round(float(np.median(held_updates)), 1)
+            if held_updates
+            else 0.0,
+            "up_down_pairs": len(d_cmd_all),
+            # down leg minus up leg: at equal thrust in % throttle, at equal command in % thrust
+            "disagreement_median_pct": round(float(np.median(abs_cmd)), 4) if len(abs_cmd) else 0.0,
+            "disagreement_p95_pct": round(float(np.percentile(abs_cmd, 95)), 4)
+            if len(abs_cmd)
+            else 0.0,
+            "thrust_disagreement_median_pct": round(float(np.median(d_thr_all)), 2)
+            if d_thr_all
+            else 0.0,
+        }
+        if creep:
+            creep["thrust_disagreement_before_median_pct"] = (
+                round(float(np.median(d_thr_raw)), 2) if d_thr_raw else 0.0
+            )
+            info["staircase_legs"]["load_cell_creep"] = creep
     short_rest = [
         st
         for i, st in enumerate(stairs)
@@ -846,4 +1159,5 @@ def _steady_state(
         np.asarray(point_at_rest, dtype=bool),
         info,
         roles,
+        np.asarray(leg_of, dtype=np.int8),
     )

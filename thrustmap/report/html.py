@@ -302,6 +302,21 @@ def _residuals(rd: ReportData) -> str:
     )
 
 
+def _coverage_cells(r: Row, k: str) -> list[str]:
+    """Two cells: the share of held-out points the fold's 95 % interval held, inside / outside
+    the supported region, and the interval's median half-width there."""
+    ci, co = r.coverage_inside, r.coverage_outside
+    if ci is None or co is None:
+        return [_td("-"), _td("-")]
+    held = " / ".join(f"{c.coverage_pct:.1f}" if c.n else "-" for c in (ci, co))
+    width = " / ".join(f"{c.median_half_width_pct:.2f}" if c.n else "-" for c in (ci, co))
+    return [
+        f'<td data-key="{k}:coverage_pct" data-value="{ci.coverage_pct!r}" '
+        f'data-outside="{co.coverage_pct!r}">{held}</td>',
+        _td(width),
+    ]
+
+
 def _validation(rd: ReportData) -> str:
     if not rd.validation:
         return "<p>No validation was computed.</p>"
@@ -318,6 +333,7 @@ def _validation(rd: ReportData) -> str:
         if m != "in-sample":
             head += "<th>inside box n</th><th>inside mean %</th>"
             head += "<th>outside box n</th><th>outside mean %</th>"
+            head += "<th>95 % interval held in / out %</th><th>median ± %</th>"
         body = []
         for model, per in by_model.items():
             if m not in per:
@@ -339,6 +355,7 @@ def _validation(rd: ReportData) -> str:
                     _num(r.inside.mean_pct, ".3f", f"{k}:inside_mean_pct"),
                     _num(r.outside.n, "d", f"{k}:outside_n"),
                     _num(r.outside.mean_pct, ".3f", f"{k}:outside_mean_pct"),
+                    *_coverage_cells(r, k),
                 ]
             body.append("<tr>" + "".join(cells) + "</tr>")
         tables += (
@@ -349,7 +366,9 @@ def _validation(rd: ReportData) -> str:
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
         "file out in turn, <b>kfold</b> 5 random folds. The held-out figures count every held-out point; "
-        "those inside and outside the training box (extrapolation) are shown beside them. "
+        "those inside and outside the training box (extrapolation) are shown beside them, "
+        "with the share of them each fold's 95 % prediction interval held (coverage) and its "
+        "median half-width. "
         "Same numbers as <code>thrustmap compare --json</code>."
         "</p>" + tables
     )

@@ -26,6 +26,11 @@ log = logging.getLogger(__name__)
 LIMIT_HEADROOM = 0.8
 
 
+#: how far past the plan's range a chosen level may be and still count as its end (the
+#: chooser's own slack, fitting.adaptive)
+RANGE_SLACK_PCT = 0.5
+
+
 @dataclass(frozen=True)
 class Hold:
     """Hold a throttle level. With ``settle``, hold until thrust settles (at most ``dwell_s``)
@@ -462,7 +467,10 @@ class AdaptiveDriver:
                 reason = f"{'no fit' if a is None else a.next_reason}: largest throttle gap"
                 before = None
             clipped = min(max(level, self.lo_pct), self.hi_pct)
-            self._clipped = self._clipped + 1 if abs(clipped - level) > 1e-6 else 0
+            # the chooser allows half a percent of slack at the range's ends (they are
+            # reachable): a level within it, held at the end, is not the envelope outrunning
+            # the range
+            self._clipped = self._clipped + 1 if abs(clipped - level) > RANGE_SLACK_PCT else 0
             if self._clipped:
                 reason += f" (wanted {level:.1f} %, held at the plan's range)"
             self._pending = {"reason": reason, "pi_before_pct": before}

@@ -17,6 +17,8 @@ Model (averaged, per motor i, all rotors on one ESC and one battery):
 - Propeller: T = kt w^2, Q = kq w^2. Battery: soc drains with I_batt, the polarization
   voltage and motor temperatures follow exact first-order updates.
 - Load cell (motor 0): thrust + slow deterministic drift + Gaussian noise; pulling = positive.
+  A creeping load cell (``LoadCellCreep``, ``creeping_reading``) shows part of a load change
+  late: the system-id staircases (``rig.sim.sysid``) use it.
 
 Time is injected: ``state(t)`` integrates up to ``t`` with substeps of at most
 ``max_substep_s`` while a rotor is in transient and ``settled_substep_s`` once all have settled,
@@ -425,6 +427,36 @@ def _cell_ocv_scalar(soc: float) -> float:
     return y0 + (y1 - y0) * (x - x0) / (x1 - x0)
 
 
+@dataclass(frozen=True)
+class LoadCellCreep:
+    """A creeping load cell: of a change in load, ``fraction`` shows at once and the rest
+    arrives over ``time_s`` (first order), as the strain gauges' glue and the beam relax. Under a
+    constant load the reading drifts toward the load; calibrated with weights left on, a
+    settled reading is the load. A staircase reads low on its way up and high on its way down,
+    by more than the rotors lag."""
+
+    fraction: float = 0.10  # share of a load change that arrives late
+    time_s: float = 3.0  # its time constant
+
+
+def creeping_reading(force_n: ArrayLike, step_s: float, creep: LoadCellCreep) -> FloatArray:
+    """What a creeping load cell reads of ``force_n`` sampled every ``step_s`` (the force held
+    over each step): F − fraction·(F − F_slow), F_slow the force through a first-order lag of
+    ``creep.time_s`` (exact for a piecewise-constant force), starting settled at the first
+    sample."""
+    f: FloatArray = np.asarray(force_n, dtype=float)
+    if f.size == 0 or creep.fraction == 0.0:
+        return np.array(f, dtype=float)
+    a = math.exp(-step_s / max(creep.time_s, 1e-12))
+    slow = np.empty_like(f)
+    s = float(f[0])
+    for k, x in enumerate(f.tolist()):
+        s = x + (s - x) * a
+        slow[k] = s
+    out: FloatArray = np.asarray(f - creep.fraction * (f - slow), dtype=float)
+    return out
+
+
 def make_plant(
     preset: str,
     *,
@@ -463,10 +495,12 @@ def make_plant(
 
 __all__ = [
     "PRESETS",
+    "LoadCellCreep",
     "OperatingPoint",
     "PhysicsPlant",
     "PlantParams",
     "cell_ocv_v",
+    "creeping_reading",
     "duty_from_throttle",
     "make_plant",
     "operating_point",

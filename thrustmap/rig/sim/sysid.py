@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
+from thrustmap.rig.sim.physics import LoadCellCreep, PhysicsPlant, creeping_reading, make_plant
 
 FloatArray = NDArray[np.float64]
 
@@ -79,12 +79,14 @@ def simulate_staircase(
     cell_update_s: float = 0.1,
     cell_noise_g: float = 0.3,
     substeps: int = 10,
+    creep: LoadCellCreep | None = None,
 ) -> StaircaseLog:
     """Run the up-then-down staircase on a simulated Crazyflie and log it as the deck does.
 
     The load cell converts over ``cell_update_s`` (the mean force over the conversion, plus
     Gaussian noise of ``cell_noise_g`` rms) and holds the result until the next conversion; its
-    clock is free-running (a seeded phase), not tied to the command steps."""
+    clock is free-running (a seeded phase), not tied to the command steps. ``creep``: the load
+    cell creeps (part of each load change arrives late, ``rig.sim.physics.LoadCellCreep``)."""
     dwell_rows = max(1, round(dwell_s / row_s))
     pwm = staircase_commands(levels=levels, top_pct=top_pct, dwell_rows=dwell_rows)
     plant = make_plant("crazyflie-2.1", rotors_on_esc=4, seed=seed, noise=False, **SYSID_BATTERY)
@@ -105,6 +107,8 @@ def simulate_staircase(
             force[k * substeps + s] = sum(st.motor_thrust_n)
         vbat[k], cur[k], rpm[k] = st.voltage_v, st.current_a, st.rpm
     true_total = force[substeps - 1 :: substeps].copy()
+    if creep is not None:
+        force = creeping_reading(force, h, creep)
     # Load cell: conversions end at phase + j * update; each is the mean force over its window.
     t_sub = (np.arange(n * substeps) + 1) * h
     per = max(1, round(cell_update_s / h))
