@@ -182,3 +182,42 @@ def test_fleet_gamma_with_no_group_fitted_says_so_and_exits_1(
     html = (out / "fleet-report.html").read_text()
     section = html[html.index("<section id='gamma'>") :]
     assert "No group was fitted" in section and "too small: 2 logs" in section
+
+
+def test_the_first_logs_run_in_this_process_while_the_cluster_starts(tmp_path: Path) -> None:
+    """Start-up overlapped with work: until ``ready()``, logs run here (the outcomes are those
+    of the serial loop); a log over BATCH_BYTES waits for a worker (its memory limit)."""
+    from thrustmap.fleet import run
+
+    small = make_fleet(tmp_path, 1, corrupt=False, no_mass=0)
+    config = run.FleetConfig(
+        out_dir=tmp_path / "out",
+        df_options={"rotors": None},
+        masses=run.read_masses(small.masses_csv),
+        map_path=small.stand_map,
+    )
+    asked: list[int] = []
+
+    def never_connect() -> tuple[Any, int]:
+        raise AssertionError("no log was left for the cluster")
+
+    def not_yet() -> bool:
+        asked.append(1)
+        return False
+
+    result = run.fleet_extract([small.folder], config, connect=never_connect, ready=not_yet)
+    assert len(result.outcomes) == len(small.good) and len(asked) >= len(small.good)
+    assert all(o.status == "ok" for o in result.outcomes)
+
+    big = small.folder / "big.bin"
+    big.write_bytes(b"\xa3\x95\x80" + bytes(run.BATCH_BYTES))  # waits for a worker
+    config = run.FleetConfig(out_dir=tmp_path / "out2", df_options={"rotors": None, "mass_kg": 1})
+
+    class Connected(Exception):
+        pass
+
+    def connect() -> tuple[Any, int]:
+        raise Connected
+
+    with pytest.raises(Connected):
+        run.fleet_extract([big], config, connect=connect, ready=lambda: False)

@@ -187,26 +187,33 @@ def extract_cmd(
     started = time.monotonic()
     holder: dict[str, Any] = {}
 
+    def begin() -> Any:
+        """Start the local cluster in the background (once); the caller goes on with logs."""
+        if "start" not in holder:
+            spec = run.local_cluster_spec(workers, mem, dash)
+            click.echo(
+                f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
+                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
+                f"{max_log_mb:g} MB refused unread"
+                + ("" if dash else "; the first logs run here while it starts"),
+                err=True,
+            )
+            holder["local"] = True  # from here, whatever happens, no child may outlive it
+            holder["spec"] = spec
+            # a background thread: a Ctrl-C during the start-up stops the run at once
+            holder["start"] = run.LocalClusterStart(spec)
+        return holder["start"]
+
     def connect() -> tuple[Any, int]:
         if scheduler is not None:
             client = holder["client"] = run.connect(scheduler)
             threads = sum(client.nthreads().values()) or 1
             click.echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
             return client, 2 * threads
-        spec = run.local_cluster_spec(workers, mem, dash)
-        click.echo(
-            f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
-            f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
-            f"{max_log_mb:g} MB refused unread",
-            err=True,
-        )
-        holder["local"] = True  # from here, whatever happens, no child may outlive the command
-        # started in a background thread: a Ctrl-C during the start-up stops the run at once
-        holder["start"] = start = run.LocalClusterStart(spec)
-        _, client = start.wait()
+        _, client = begin().wait()
         if dash is not None:
             click.echo(f"Dask dashboard: {client.dashboard_link}", err=True)
-        return client, 2 * spec.workers
+        return client, 2 * holder["spec"].workers
 
     if workers == 0:
         click.echo("serial loop in this process (no Dask)", err=True)
@@ -216,7 +223,13 @@ def extract_cmd(
             # the table of what finished is written, the workers stopped, the command resumable
             with terminate_as_exception(stopping="the fleet run", sigint_always=False):
                 result = run.fleet_extract(
-                    sources, config, connect=None if workers == 0 else connect, progress=bar
+                    sources,
+                    config,
+                    connect=None if workers == 0 else connect,
+                    progress=bar,
+                    # the first logs run here while the local cluster starts (not with a
+                    # dashboard: whoever asked for one wants to watch the cluster do them)
+                    ready=None if workers == 0 or scheduler or dash else lambda: begin().ready(),
                 )
         except KeyboardInterrupt:
             if bar is not None:
