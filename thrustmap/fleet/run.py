@@ -627,6 +627,16 @@ def connect(address: str) -> Any:
         raise ConfigError(
             f"cannot reach the Dask scheduler at {address}: {one_line(exc)}"
         ) from None
+    except (TypeError, ValueError) as exc:  # e.g. tls:// without Dask's TLS configuration
+        hint = (
+            ": tls:// needs Dask's TLS configuration (distributed.comm.tls.ca-file and "
+            "client.cert/key, see docs/fleet.md)"
+            if address.startswith("tls://")
+            else ""
+        )
+        raise ConfigError(
+            f"cannot connect to the Dask scheduler at {address}: {one_line(exc)}{hint}"
+        ) from None
 
 
 def stop_children(before: set[int], timeout_s: float = 5.0) -> list[int]:
