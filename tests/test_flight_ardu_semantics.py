@@ -59,6 +59,8 @@ def test_ev_burst_at_liftoff_leaves_the_vehicle_flying(
     assert fl.landed.hold(np.array([mid]))[0] == 0.0
     df = df_of(log)
     assert len(df) >= 0.95 * len(clean[1])
+    (line,) = rule_lines(df, "ev-burst")
+    assert "8 land events written within 1 time stamp" in line
 
 
 def test_a_climb_rate_with_an_offset_gives_way_to_the_altitudes(

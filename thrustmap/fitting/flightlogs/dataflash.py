@@ -372,8 +372,12 @@ def _signal(
     return Signal(t[keep], values[keep], unit, origin)
 
 
-def _events(df: DataFlashLog) -> tuple[Signal | None, Signal | None]:
-    """Armed and landed step signals from ARM / EV messages."""
+def _events(
+    df: DataFlashLog, notes: list[str] | None = None
+) -> tuple[Signal | None, Signal | None]:
+    """Armed and landed step signals from ARM / EV messages (what a rule did: ``notes``)."""
+    if notes is None:
+        notes = []
     armed: Signal | None = None
     landed: Signal | None = None
     if df.has("ARM"):
@@ -398,6 +402,14 @@ def _events(df: DataFlashLog) -> tuple[Signal | None, Signal | None]:
         # within one time stamp of the neighbours that time them): the state after a burst
         # is its LAST event (keeping the first read a whole flight as landed)
         m = np.isin(ids, (EV_ARMED, EV_LAND_COMPLETE, EV_NOT_LANDED))
+        tm = t[m]
+        same = np.flatnonzero(np.diff(tm) == 0) if len(tm) > 1 else np.zeros(0, np.int64)
+        if len(same):
+            notes.append(
+                f"ev-burst: {len(same) + len(np.unique(tm[same]))} land events written within "
+                f"{len(np.unique(tm[same]))} time stamp(s) (the land detector and the altitude "
+                "controller toggling the land flag): the state after each burst is its last event"
+            )
         if m.any():
             landed = _signal(
                 t[m],
@@ -726,7 +738,7 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         flight.extras["motb_batvolt"] = _signal(
             df.time_s("MOTB"), c["BatVolt"], "1", "MOTB.BatVolt"
         )
-    flight.armed, flight.landed = _events(df)
+    flight.armed, flight.landed = _events(df, flight.warnings)
     if df.has("RCOU"):
         c = df.columns("RCOU")
         t = df.time_s("RCOU")
