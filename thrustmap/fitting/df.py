@@ -152,6 +152,13 @@ class Df:
     def table(self, value: pd.DataFrame) -> None:
         self._table, self._columns = value, None
 
+    def column(self, name: str) -> npt.NDArray[Any]:
+        """One column as a numpy array, without building the pandas table (KeyError when the
+        Df has no such column)."""
+        if self._table is not None:
+            return np.asarray(self._table[name].to_numpy())
+        return np.asarray((self._columns or {})[name])
+
     def __len__(self) -> int:
         if self._table is not None:
             return len(self._table)
