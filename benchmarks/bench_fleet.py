@@ -71,6 +71,7 @@ def _cpu(procs: list[object]) -> float:
 
 def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
     """``fleet extract`` as a command, 1 worker against 2, taking turns ``runs`` times."""
+    import resource
     import shutil
     import subprocess
 
@@ -86,10 +87,12 @@ def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get(
             "PYTHONPATH", "")]))  # fmt: skip
         times: dict[int, list[float]] = {1: [], 2: []}
+        cpus: dict[int, list[float]] = {1: [], 2: []}
         for k in range(runs):
             for w in (1, 2):
                 out = root / f"out-{w}-{k}"
                 load = os.getloadavg()[0]
+                ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t0 = time.perf_counter()
                 subprocess.run(
                     [sys.executable, "-m", "thrustmap", "fleet", "extract", str(fleet.folder),
@@ -98,15 +101,21 @@ def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
                     env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                 )  # fmt: skip
                 took = time.perf_counter() - t0
+                ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
                 times[w].append(took)
-                print(f"run {k + 1}: {w} worker(s) {took:6.2f} s  (load average before "
-                      f"{load:.1f})")  # fmt: skip
+                cpus[w].append(cpu)
+                print(f"run {k + 1}: {w} worker(s) {took:6.2f} s, CPU {cpu:6.2f} s in all its "
+                      f"processes  (load average before {load:.1f})")  # fmt: skip
                 shutil.rmtree(out)
         one, two = statistics.median(times[1]), statistics.median(times[2])
         ratios = [a / b for a, b in zip(times[1], times[2], strict=True)]
         print(f"median: 1 worker {one:.2f} s ({n / one:.1f} logs/s), 2 workers {two:.2f} s "
               f"({n / two:.1f} logs/s): 2 workers {one / two:.2f}× 1 worker (baseline); each "
               f"turn {', '.join(f'{r:.2f}×' for r in ratios)}")  # fmt: skip
+        print(f"CPU of the whole command (median): 1 worker {statistics.median(cpus[1]):.2f} s, "
+              f"2 workers {statistics.median(cpus[2]):.2f} s: what a second core must absorb; "
+              "unlike the wall time it hardly moves with other jobs' load")  # fmt: skip
         met = sum(r >= 1.7 for r in ratios)
         print(f"target ≥ 1.7× in every turn: {met} of {len(ratios)} turns "
               f"({'met' if met == len(ratios) else 'NOT met'}); load average now "
