@@ -92,7 +92,10 @@ def test_ctrl_c_on_a_local_cluster_leaves_no_process_and_resumes(
     alone (a batch system, systemd, ``kill``): the table of what finished is written, no worker
     outlives the command, and the same command resumes."""
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--workers", "2")]
+    # every log on the workers (with a dashboard the command runs none itself while the
+    # cluster starts), so the stop lands while they are busy
+    cmd = [sys.executable, "-m", "thrustmap",
+           *args(fleet, out, "--workers", "2", "--dashboard", "127.0.0.1:0")]  # fmt: skip
     with sigint_for_children():
         proc = subprocess.Popen(cmd, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True, start_new_session=True)  # fmt: skip
@@ -292,3 +295,82 @@ def test_batches_shrink_to_single_logs_at_the_fleets_tail(tmp_path: Path) -> Non
         p.write_bytes(b"x" * (run.BATCH_BYTES // 4))
         big.append(LogTask(str(p), str(tmp_path), "k", {}))
     assert [len(g) for g in run.batches(big, window=2)] == [4, 4, 2, 1, 1]
+
+
+def _tls_files(d: Path) -> dict[str, Path]:
+    """A throw-away CA and a certificate for 127.0.0.1 signed by it, for the node and the
+    client (openssl on the PATH)."""
+    import shutil
+
+    if shutil.which("openssl") is None:
+        pytest.skip("needs openssl to make test certificates")
+
+    def ssl(*a: str) -> None:
+        subprocess.run(["openssl", *a], cwd=d, check=True, capture_output=True)
+
+    ssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem",
+        "-days", "2", "-subj", "/CN=thrustmap-test-ca")  # fmt: skip
+    for n in ("node", "client"):
+        ssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{n}.key", "-out", f"{n}.csr",
+            "-subj", "/CN=127.0.0.1")  # fmt: skip
+        (d / f"{n}.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+        ssl("x509", "-req", "-in", f"{n}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+            "-CAcreateserial", "-out", f"{n}.pem", "-days", "2", "-extfile", f"{n}.ext")  # fmt: skip
+    return {k: d / k for k in ("ca.pem", "node.pem", "node.key", "client.pem", "client.key")}
+
+
+def test_a_tls_scheduler_with_dasks_security_configuration(
+    fleet: Fleet, serial_table: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    """`--scheduler tls://...`: the command takes Dask's own TLS configuration (here from the
+    environment), gives the local table; without it, one line naming what is missing, exit 2."""
+    tls = _tls_files(tmp_path)
+    sched_file = tmp_path / "scheduler.json"
+    node = ["--tls-ca-file", str(tls["ca.pem"]), "--tls-cert", str(tls["node.pem"]),
+            "--tls-key", str(tls["node.key"])]  # fmt: skip
+    started: list[subprocess.Popen[bytes]] = []
+    try:
+        with sigint_for_children():
+            started.append(subprocess.Popen(
+                [sys.executable, "-m", "dask", "scheduler", "--protocol", "tls", "--host",
+                 "127.0.0.1", "--port", "0", "--dashboard-address", "127.0.0.1:0",
+                 "--scheduler-file", str(sched_file), *node],
+                env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tls://127.0.0.1:")
+        with sigint_for_children():
+            started.append(subprocess.Popen(
+                [sys.executable, "-m", "dask", "worker", address, "--nworkers", "2",
+                 "--nthreads", "1", "--memory-limit", "1GiB", "--no-dashboard", *node],
+                env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+        client_env = {
+            **env(),
+            "DASK_DISTRIBUTED__COMM__TLS__CA_FILE": str(tls["ca.pem"]),
+            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT": str(tls["client.pem"]),
+            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY": str(tls["client.key"]),
+            "DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION": "True",
+        }
+        out = tmp_path / "out"
+        cmd = [sys.executable, "-m", "thrustmap", *args(fleet, out, "--scheduler", address,
+                                                         "--quiet")]  # fmt: skip
+        done = subprocess.run(cmd, env=client_env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        assert comparable(out / "fleet.parquet") == serial_table
+        bare_cmd = [sys.executable, "-m", "thrustmap",
+                    *args(fleet, tmp_path / "out2", "--scheduler", address, "--quiet")]  # fmt: skip
+        bare = subprocess.run(bare_cmd, env=env(), capture_output=True, text=True, timeout=120)
+        assert bare.returncode == 2, bare.stderr
+        (line,) = bare.stderr.strip().splitlines()
+        assert "tls:// needs Dask's TLS configuration" in line and address in line
+    finally:
+        for p in reversed(started):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(started):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()

@@ -106,7 +106,14 @@ def fleet_group() -> None:
 @click.option("--workers", type=int,
               help="Local Dask workers (processes, one log each at a time); default: the "
               "machine's cores; 0: a plain serial loop without Dask.")  # fmt: skip
-@click.option("--scheduler", help="Address of an existing Dask scheduler (tcp://host:8786).")
+@click.option("--scheduler",
+              help="Address of an existing Dask scheduler (tcp://host:8786, or tls://host:8786 "
+              "with Dask's own security configuration: docs/fleet.md).")  # fmt: skip
+@click.option("--dashboard", "dashboard", is_flag=False, flag_value="127.0.0.1:8787",
+              default=None, metavar="[ADDR]",
+              help="Serve the local cluster's Dask dashboard at ADDR (default 127.0.0.1:8787; "
+              "bokeh needed). Off unless given; every server of the cluster is on 127.0.0.1 "
+              "otherwise.")  # fmt: skip
 @click.option("--memory-per-worker", default="auto", show_default=True,
               help="Memory limit of each local worker (e.g. 2GiB); auto: min(4 GiB, RAM/workers).")  # fmt: skip
 @click.option("--max-log-mb", type=float, default=512.0, show_default=True,
@@ -129,6 +136,7 @@ def extract_cmd(
     fmt: str | None,
     workers: int | None,
     scheduler: str | None,
+    dashboard: str | None,
     memory_per_worker: str,
     max_log_mb: float,
     quiet: bool,
@@ -144,6 +152,11 @@ def extract_cmd(
 
     if workers is not None and scheduler is not None:
         raise ConfigError("give --workers (a local cluster) or --scheduler, not both")
+    if dashboard is not None and (scheduler is not None or workers == 0):
+        raise ConfigError(
+            "--dashboard is for the local cluster (not with --scheduler or --workers 0)"
+        )
+    dash = None if dashboard is None else run.dashboard_address(dashboard)
     if max_log_mb <= 0:
         raise ConfigError(f"--max-log-mb must be positive, got {max_log_mb:g}")
     mem = _parse_size(memory_per_worker)
@@ -174,22 +187,33 @@ def extract_cmd(
     started = time.monotonic()
     holder: dict[str, Any] = {}
 
+    def begin() -> Any:
+        """Start the local cluster in the background (once); the caller goes on with logs."""
+        if "start" not in holder:
+            spec = run.local_cluster_spec(workers, mem, dash)
+            click.echo(
+                f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
+                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
+                f"{max_log_mb:g} MB refused unread"
+                + ("" if dash else "; the first logs run here while it starts"),
+                err=True,
+            )
+            holder["local"] = True  # from here, whatever happens, no child may outlive it
+            holder["spec"] = spec
+            # a background thread: a Ctrl-C during the start-up stops the run at once
+            holder["start"] = run.LocalClusterStart(spec)
+        return holder["start"]
+
     def connect() -> tuple[Any, int]:
         if scheduler is not None:
             client = holder["client"] = run.connect(scheduler)
             threads = sum(client.nthreads().values()) or 1
             click.echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
             return client, 2 * threads
-        spec = run.local_cluster_spec(workers, mem)
-        click.echo(
-            f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
-            f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
-            f"{max_log_mb:g} MB refused unread",
-            err=True,
-        )
-        holder["local"] = True  # from here, whatever happens, no child may outlive the command
-        holder["cluster"], holder["client"] = run.start_local_cluster(spec)
-        return holder["client"], 2 * spec.workers
+        _, client = begin().wait()
+        if dash is not None:
+            click.echo(f"Dask dashboard: {client.dashboard_link}", err=True)
+        return client, 2 * holder["spec"].workers
 
     if workers == 0:
         click.echo("serial loop in this process (no Dask)", err=True)
@@ -199,7 +223,13 @@ def extract_cmd(
             # the table of what finished is written, the workers stopped, the command resumable
             with terminate_as_exception(stopping="the fleet run", sigint_always=False):
                 result = run.fleet_extract(
-                    sources, config, connect=None if workers == 0 else connect, progress=bar
+                    sources,
+                    config,
+                    connect=None if workers == 0 else connect,
+                    progress=bar,
+                    # the first logs run here while the local cluster starts (not with a
+                    # dashboard: whoever asked for one wants to watch the cluster do them)
+                    ready=None if workers == 0 or scheduler or dash else lambda: begin().ready(),
                 )
         except KeyboardInterrupt:
             if bar is not None:
@@ -211,14 +241,12 @@ def extract_cmd(
             )
             raise
     finally:
-        client, cluster = holder.get("client"), holder.get("cluster")
         # closing must not hide the real outcome (and stop_children() below is the backstop)
-        if client is not None:
+        if "start" in holder:
+            holder["start"].close()
+        elif holder.get("client") is not None:
             with contextlib.suppress(Exception):
-                client.close(timeout=10)
-        if cluster is not None:
-            with contextlib.suppress(Exception):
-                cluster.close(timeout=10)
+                holder["client"].close(timeout=10)
         if holder.get("local"):
             run.stop_children(before)
     elapsed = time.monotonic() - started
@@ -295,7 +323,8 @@ def gamma_cmd(
     if tmap is not None:
         from thrustmap.fitting.gamma import corrected_map
 
-        (out_dir / "gamma").mkdir(exist_ok=True)
+        if any(g.fit is not None for g in groups):
+            (out_dir / "gamma").mkdir(exist_ok=True)
         for g in groups:
             if g.fit is not None:
                 sources = [{"path": str(p), "sha256": file_sha256(p)} for p in g.df_paths]
@@ -308,6 +337,8 @@ def gamma_cmd(
     write_fleet_report(outcomes, groups, report)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=float))
+        if not any(g.fit is not None for g in groups):
+            raise SystemExit(1)  # as without --json: no group fitted
         return
     for g in groups:
         head = f"{g.label}: {len(g.logs)} logs, {g.samples} samples"
@@ -324,9 +355,28 @@ def gamma_cmd(
             f"{g.fit.degree}{band})"
         )
     refused = sum(o.status == "refused" for o in outcomes)
+    fitted = sum(g.fit is not None for g in groups)
     click.echo(
-        f"{sum(g.fit is not None for g in groups)} of {len(groups)} groups fitted; "
+        f"{fitted} of {len(groups)} groups fitted; "
         f"{refused} logs refused (by reason in the report); wrote {report} and "
         f"{out_dir / 'fleet-gamma.json'}"
-        + (f" and the corrected maps in {out_dir / 'gamma'}" if tmap is not None else "")
+        + (
+            f" and {fitted} corrected map(s) in {out_dir / 'gamma'}"
+            if tmap is not None and fitted
+            else ""
+        )
     )
+    if not fitted:
+        # nothing to apply: said, and the exit code says it too (a script must not go on to
+        # use corrected maps that were never written)
+        click.echo(
+            "no group fitted, so no γ(B)"
+            + (" and no corrected map" if tmap is not None else "")
+            + ": "
+            + (
+                "; ".join(f"{g.label}: {g.status}: {g.reason}" for g in groups)
+                or "no log gave a Df"
+            ),
+            err=True,
+        )
+        raise SystemExit(1)

@@ -167,6 +167,13 @@ class Df:
     def table(self, value: pd.DataFrame) -> None:
         self._table, self._columns = value, None
 
+    def column(self, name: str) -> npt.NDArray[Any]:
+        """One column as a numpy array, without building the pandas table (KeyError when the
+        Df has no such column)."""
+        if self._table is not None:
+            return np.asarray(self._table[name].to_numpy())
+        return np.asarray((self._columns or {})[name])
+
     def __len__(self) -> int:
         if self._table is not None:
             return len(self._table)
@@ -522,9 +529,9 @@ def _in_air_evidence(
     autopilot's hover-thrust estimator must be valid (PX4); each airborne stretch then starts
     only once the vehicle is ``min_height_m`` above the level it took off from (altitude
     signal, when it holds still on the ground) and the command has reached
-    ``liftoff_frac`` of the stretch's hover command (the vehicle cannot leave the ground
-    before), and ends symmetrically before landing; the climb rate must stay within
-    ``climb_max_mps``. A margin of ``settle_s`` is trimmed afterwards by the caller."""
+    before), and ends symmetrically before landing. A margin of ``settle_s`` is trimmed
+    afterwards by the caller, then the climb rate must stay within ``climb_max_mps``
+    (``_climb_rule``)."""
     ex = flight.extras
     n = len(centres)
     gc = ex.get("ground_contact")
@@ -603,7 +610,15 @@ def _in_air_evidence(
                 opts,
             ),  # fmt: skip
         )
-    cs = ex.get("climb_mps")
+
+
+def _climb_rule(
+    flight: FlightLog, rs: Any, opts: DfOptions, apply: Any, warnings: list[str]
+) -> None:
+    """Drop climbs and descents (the rotor's inflow changes its thrust). Applied after the
+    takeoff/landing margin: a brief climb mid-flight is not a takeoff, and trimming
+    ``settle_s`` around each one cost more than the climb itself (old ArduCopter logs)."""
+    cs = flight.extras.get("climb_mps")
     if cs is not None and len(cs) and opts.climb_max_mps > 0:
         climb = rs(cs)
         if np.nanmax(np.abs(climb)) > 50.0:
@@ -611,6 +626,78 @@ def _in_air_evidence(
         else:
             apply("climb", f"|climb rate| > {opts.climb_max_mps:g} m/s ({cs.origin})",
                   np.abs(np.nan_to_num(climb, nan=0.0)) <= opts.climb_max_mps)  # fmt: skip
+
+
+#: an accelerometer reading further than this from g·cos(tilt) at rest is calibrated (m/s²)
+REST_CAL_TOL_MPS2 = 0.1
+#: ... when it rests this steadily there (standard deviation of the bin means, m/s²)
+REST_STEADY_MPS2 = 0.3
+#: the rest judged within this span before takeoff (s), ending this long before it (spool-up)
+REST_SPAN_S, REST_MARGIN_S = 10.0, 1.0
+
+
+def _rest_calibration(
+    a_up: FloatArray,
+    a_raw: FloatArray | None,
+    cmd: FloatArray,
+    tilt_deg: FloatArray | None,
+    opts: DfOptions,
+    apply: Any,
+    warnings: list[str],
+) -> FloatArray:
+    """Rule "accel-calibration": calibrate a_up on the ground-rest segment before takeoff.
+
+    Standing still on the ground the accelerometer must read g·cos(tilt) upward. Old boards
+    logged far from it (8.35 and 10.55 m/s² at rest on the PXF ArduCopter 3.3-dev fleet) and
+    F_m = m·a_up would carry the error whole. Rest: within ``REST_SPAN_S`` before the first
+    time the command reaches ``liftoff_frac`` × the flight's median command (ending
+    ``REST_MARGIN_S`` before it), the command below ``ground_cmd_frac`` of that, at least
+    ``ground_min_s`` of it, a_up steady there. A bias and a scale error cannot be told apart
+    from one attitude, and near hover (where Df keeps samples, a_up ≈ g) they are the same
+    correction: a_up is scaled. Without a rest before takeoff nothing is changed (said)."""
+    rate = opts.rate_hz
+    raw = a_raw if a_raw is not None else a_up
+    fin = np.isfinite(cmd) & np.isfinite(raw)
+    level = float(nanmedian(cmd[fin & (cmd > 0)])) if (fin & (cmd > 0)).any() else float("nan")
+    name, why = "accel-calibration", "a_up calibrated at rest before takeoff (drops nothing)"
+    if not level > 0:
+        apply(name, why, np.ones(len(a_up), bool))
+        return a_up
+    with np.errstate(invalid="ignore"):
+        up = np.flatnonzero(fin & (cmd >= opts.liftoff_frac * level))
+    end = (int(up[0]) if len(up) else 0) - int(round(REST_MARGIN_S * rate))
+    start = max(0, end - int(round(REST_SPAN_S * rate)))
+    seg = np.zeros(len(a_up), bool)
+    if end > start:
+        with np.errstate(invalid="ignore"):
+            seg[start:end] = fin[start:end] & (cmd[start:end] < opts.ground_cmd_frac * level)
+    if seg.sum() < max(2, int(round(opts.ground_min_s * rate))):
+        apply(name, "no rest on the ground before takeoff in the log: a_up not calibrated",
+              np.ones(len(a_up), bool))  # fmt: skip
+        return a_up
+    vals = raw[seg]
+    measured = float(nanmedian(vals))
+    tilt = float(nanmedian(tilt_deg[seg])) if tilt_deg is not None else float("nan")
+    expected = G0 * float(np.cos(np.radians(tilt))) if np.isfinite(tilt) else G0
+    rest_s = float(seg.sum() / rate)
+    if float(np.std(vals)) > REST_STEADY_MPS2 or not 0.7 * G0 < measured < 1.3 * G0:
+        apply(name, f"the {rest_s:.1f} s before takeoff are not a steady rest at about g: a_up "
+              "not calibrated", np.ones(len(a_up), bool))  # fmt: skip
+        return a_up
+    if abs(measured - expected) <= REST_CAL_TOL_MPS2:
+        apply(name, f"a_up at rest before takeoff {measured:.2f} m/s² (expected {expected:.2f}, "
+              f"{rest_s:.1f} s): within {REST_CAL_TOL_MPS2:g}, not changed",
+              np.ones(len(a_up), bool))  # fmt: skip
+        return a_up
+    k = expected / measured
+    text = (
+        f"accelerometer calibrated at rest: a_up read {measured:.2f} m/s² over {rest_s:.1f} s on "
+        f"the ground before takeoff, expected {expected:.2f} (g·cos tilt); a_up × {k:.4f} for the "
+        "whole flight (a bias and a scale error are the same correction near hover)"
+    )
+    warnings.append(text)
+    apply(name, text, np.ones(len(a_up), bool))
+    return np.asarray(a_up * k, float)
 
 
 def _outside(values: FloatArray, lo: float, hi: float, what: str, unit: str) -> list[str]:
@@ -772,7 +859,20 @@ def extract_flight_columns(
             f"upward acceleration logged at only {acc_rate_hz:.0f} Hz ({acc.origin}): vibration "
             "aliases into a_up, so F_m scatters; log the IMU faster for a tighter γ"
         )
-    apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (log gap)", has_data)
+    # Rule "log-pause": no message of any kind within max_gap_s is the log pausing, not a gap
+    # in the IMU: ArduCopter 3.2-3.3 write only while armed (motors.pde: init_disarm_motors
+    # logs DISARMED then DataFlash.EnableWrites(false); init_arm_motors start_logging()), PX4
+    # and others stop a log with the vehicle disarmed. Named apart from an accelerometer gap.
+    paused = ~has_data
+    for other in (flight.thrust_cmd_n, flight.thrust_cmd_norm, flight.motor_outputs,
+                  flight.voltage_v):  # fmt: skip
+        binned_other = rs(other) if other is not None and len(other) else None
+        if binned_other is not None:
+            fin = np.isfinite(binned_other)
+            paused &= ~(fin if fin.ndim == 1 else fin.any(axis=1))
+    apply("log-pause", f"the log pauses (no message within {opts.max_gap_s:g} s): logging "
+          "stopped, e.g. disarmed (ArduCopter 3.2-3.3 log only while armed)", ~paused)  # fmt: skip
+    apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (IMU gap)", has_data)
     if flight.armed is not None:
         apply("armed", "disarmed", flight.armed.hold(centres) > 0.5)
     else:
@@ -794,6 +894,8 @@ def extract_flight_columns(
     cmd_pct = cmd_for_steady
     if cmd_pct is not None and flight.thrust_cmd_n is None and flight.thrust_cmd_norm is not None:
         cmd_pct = cmd_pct * 100.0
+    if cmd_for_steady is not None:
+        a_up = _rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
     _in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
         cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,
@@ -805,6 +907,7 @@ def extract_flight_columns(
         if b - a > 2 * trim:
             settled[a + trim : b - trim] = True
     apply("settle", f"within {opts.settle_s:g} s of takeoff or landing", settled)
+    _climb_rule(flight, rs, opts, apply, warnings)
     apply(
         "hover",
         f"|a_up − g| > {opts.accel_tol_mps2:g} m/s² (not near hover)",

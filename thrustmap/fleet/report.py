@@ -152,6 +152,13 @@ def render(outcomes: list[Outcome], groups: list[Group], title: str) -> str:
         )
     )
     parts.append("</section><section id='gamma'><h2>γ(B) per group</h2>")
+    if not any(g.fit is not None for g in groups):
+        why = (
+            "".join(f"<li>{_e(g.label)}: {_e(g.status)}: {_e(g.reason)}</li>" for g in groups)
+            if groups
+            else "<li>no log of the fleet gave a Df (see the refused logs)</li>"
+        )
+        parts.append(f"<p>No group was fitted, so no γ(B) and no corrected map:</p><ul>{why}</ul>")
     for g in groups:
         if g.fit is None:
             continue

@@ -179,6 +179,19 @@ def run_serial(tasks: list[LogTask]) -> Iterator[Outcome]:
         yield Outcome.from_dict(process_log(t))
 
 
+def run_while_starting(
+    tasks: list[LogTask], connect: Callable[[], tuple[Any, int]], ready: Callable[[], bool]
+) -> Iterator[Outcome]:
+    """The first logs in this process while the cluster starts, the rest on the cluster."""
+    i = 0
+    while i < len(tasks) and not ready() and _size(tasks[i]) <= BATCH_BYTES:
+        yield Outcome.from_dict(process_log(tasks[i]))
+        i += 1
+    if i < len(tasks):
+        client, window = connect()
+        yield from run_on_client(client, tasks[i:], window)
+
+
 #: logs smaller than this together go to a worker as one Dask task (about 0.4 s of work): a task
 #: costs ~10 ms of CPU in the scheduler, the client and the worker together on top of its logs
 #: (bench_fleet.py: 165 one-log tasks against 19 batches), so 4 MB batches (~0.1 s) lost ~8 %
@@ -334,12 +347,18 @@ def fleet_extract(
     *,
     connect: Callable[[], tuple[Any, int]] | None = None,
     progress: Progress | None = None,
+    ready: Callable[[], bool] | None = None,
 ) -> FleetResult:
     """Extract every log of the fleet.
 
     ``connect`` returns a Dask client and the number of logs to keep submitted; it is called
     only when some log is left to do (a re-run with nothing new starts no cluster). Without it
     the logs run in the plain serial loop.
+
+    ``ready`` (with ``connect``) says whether the cluster has started; it is asked first, so it
+    may start it, and until it has, the logs run in this process, one at a time (small ones
+    only: a log over ``BATCH_BYTES`` waits for a worker and its memory limit). The cluster's
+    start-up (~1 s, several on a busy machine) is then spent on logs rather than waited out.
 
     The table (``OUT_DIR/fleet.parquet``) is written at the end, and also when the run is
     interrupted (KeyboardInterrupt is re-raised after the table of what finished is written).
@@ -366,7 +385,9 @@ def fleet_extract(
     if progress is not None:
         for k, o in enumerate(reused, start=1):
             progress(k, total, o)
-    if tasks and connect is not None:
+    if tasks and connect is not None and ready is not None:
+        stream = run_while_starting(tasks, connect, ready)
+    elif tasks and connect is not None:
         client, window = connect()
         stream = run_on_client(client, tasks, window)
     else:
@@ -395,9 +416,18 @@ def fleet_extract(
 class LocalClusterSpec:
     workers: int
     memory_limit_bytes: int
+    #: where the scheduler's dashboard listens (``host:port``); None: no dashboard, and the
+    #: scheduler's HTTP server (health checks) on a free loopback port
+    dashboard_address: str | None = None
 
 
-def local_cluster_spec(workers: int | None, memory_per_worker: int | None) -> LocalClusterSpec:
+#: every server of a local cluster (scheduler, nannies, workers, their HTTP servers) binds here
+LOOPBACK = "127.0.0.1"
+
+
+def local_cluster_spec(
+    workers: int | None, memory_per_worker: int | None, dashboard_address: str | None = None
+) -> LocalClusterSpec:
     """How many local workers and how much memory each may use (stated to the user)."""
     import psutil
 
@@ -406,24 +436,66 @@ def local_cluster_spec(workers: int | None, memory_per_worker: int | None) -> Lo
         raise ConfigError(f"--workers must be at least 1 (0 runs the plain serial loop), got {n}")
     total = psutil.virtual_memory().total
     mem = memory_per_worker if memory_per_worker is not None else min(4 << 30, total // n)
-    return LocalClusterSpec(n, int(mem))
+    return LocalClusterSpec(n, int(mem), dashboard_address)
+
+
+def dashboard_address(text: str) -> str:
+    """``--dashboard [ADDR]``: ``host:port``, ``:port`` (loopback) or a bare port."""
+    t = text.strip()
+    host, sep, port = t.rpartition(":")
+    if not sep:
+        host, port = "", t
+    if not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ConfigError(f"--dashboard '{text}': expected host:port, :port or a port number")
+    return f"{host or LOOPBACK}:{int(port)}"
 
 
 def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
-    """A LocalCluster of ``spec.workers`` processes, one thread each (one log at a time).
+    """A LocalCluster of ``spec.workers`` processes, one thread each (one log at a time), every
+    server of it on 127.0.0.1, the dashboard only when ``spec.dashboard_address`` asks for it.
 
-    The worker processes start with Ctrl-C ignored (an ignored signal is inherited, and Python
-    and asyncio then leave it so): a Ctrl-C at the terminal reaches the whole process group, and
-    only this process must act on it, cancelling the logs and closing the cluster in order.
-    A Ctrl-C during the few seconds of start-up is therefore ignored."""
-    import signal
-    import threading
+    The worker processes start with SIGINT blocked: a Ctrl-C at the terminal reaches the whole
+    process group, and only this process must act on it, cancelling the logs and closing the
+    cluster in order. A blocked signal mask is inherited by the threads the cluster starts and
+    by the processes they spawn (across exec; checked in tests/test_fleet_ways_out.py), so it
+    is blocked in the calling thread for the start-up; unlike an ignored SIGINT (what this did before), a blocked one is not lost: when
+    the start-up is over, a Ctrl-C that came during it is delivered (the cluster is closed
+    first). ``LocalClusterStart`` runs this in a background thread, where the main thread
+    answers Ctrl-C at once."""
+    from multiprocessing import resource_tracker
 
+    main_thread = threading.current_thread() is threading.main_thread()
+    # multiprocessing starts its resource tracker with the first worker and then UNBLOCKS
+    # SIGINT in the starting thread (resource_tracker.ensure_running): started here first, the
+    # mask set below stays as it is for the workers
+    resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    started: tuple[Any, Any] | None = None
+    try:
+        started = _new_local_cluster(spec)
+    finally:
+        held = (
+            main_thread
+            and started is not None
+            and signal.SIGINT not in old
+            and signal.SIGINT in signal.sigpending()
+            and callable(signal.getsignal(signal.SIGINT))
+        )
+        if held and started is not None:  # a Ctrl-C came during the start-up: stop
+            close_cluster(*started)
+            started = None
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a held Ctrl-C is delivered here
+    if started is None:  # pragma: no cover - the handler raised at the line above
+        raise KeyboardInterrupt
+    return started
+
+
+def _new_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
     import dask
     from distributed import Client, LocalCluster
 
     quiet_dask()
-    settings = {
+    settings: dict[str, Any] = {
         "distributed.scheduler.allowed-failures": 0,
         # the workers' statistical profiler samples every thread's stack every 10 ms: on
         # pure-Python log readers that costs ~20 % of each log's time (bench_fleet.py)
@@ -451,29 +523,92 @@ def start_local_cluster(spec: LocalClusterSpec) -> tuple[Any, Any]:
             "OPENBLAS_NUM_THREADS": 1,
         },
     }
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    dashboard = spec.dashboard_address is not None
+    if not dashboard:
+        # the HTTP servers then answer health checks only: Dask's info pages, JSON and event
+        # stream (worker logs, call stacks, the paths they hold) are the dashboard's part
+        settings["distributed.scheduler.http.routes"] = ["distributed.http.health"]
+        settings["distributed.worker.http.routes"] = ["distributed.http.health"]
+    with dask.config.set(settings):
+        cluster = LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=spec.workers,
+            threads_per_worker=1,
+            processes=True,
+            memory_limit=spec.memory_limit_bytes,
+            # scheduler, nannies and workers on loopback (issue 36: Dask's default dashboard
+            # address ':8787' and ':0' listen on every interface)
+            host=LOOPBACK,
+            # no dashboard unless asked for (start-up is ~0.5 s shorter without bokeh); the
+            # scheduler's HTTP server (health checks) stays, on a free loopback port
+            dashboard_address=spec.dashboard_address or f"{LOOPBACK}:0",
+            worker_dashboard_address=None,
+            scheduler_kwargs={"dashboard": dashboard},
+            # Dask's own errors too: every log's fate, a worker's death included, is in the
+            # table and the summary; what is left are races of its shutdown (a worker's
+            # heartbeat to a scheduler already closing), printed as tracebacks after
+            # "interrupted" in 2 of 60 stopped runs (tests/test_fleet_dask.py)
+            silence_logs=logging.CRITICAL,
+        )
     try:
-        with dask.config.set(settings):
-            cluster = LocalCluster(  # type: ignore[no-untyped-call]
-                n_workers=spec.workers,
-                threads_per_worker=1,
-                processes=True,
-                memory_limit=spec.memory_limit_bytes,
-                # no dashboard (nobody is given its address; start-up is ~0.5 s shorter without
-                # bokeh); its HTTP server (health checks) stays on a free port
-                dashboard_address=":0",
-                scheduler_kwargs={"dashboard": False},
-                # Dask's own errors too: every log's fate, a worker's death included, is in the
-                # table and the summary; what is left are races of its shutdown (a worker's
-                # heartbeat to a scheduler already closing), printed as tracebacks after
-                # "interrupted" in 2 of 60 stopped runs (tests/test_fleet_dask.py)
-                silence_logs=logging.CRITICAL,
-            )
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-    return cluster, Client(cluster)  # type: ignore[no-untyped-call]
+        client = Client(cluster)  # type: ignore[no-untyped-call]
+    except BaseException:
+        with contextlib.suppress(Exception):
+            cluster.close()
+        raise
+    return cluster, client
+
+
+def close_cluster(cluster: Any, client: Any, timeout_s: float = 10.0) -> None:
+    """Close a client and its cluster; a failure to close hides nothing (callers then stop the
+    children that are left, ``stop_children``)."""
+    if client is not None:
+        with contextlib.suppress(Exception):
+            client.close(timeout=timeout_s)
+    if cluster is not None:
+        with contextlib.suppress(Exception):
+            cluster.close(timeout=timeout_s)
+
+
+class LocalClusterStart:
+    """A local cluster starting in a background thread while the caller discovers and plans
+    the logs (start-up, ~1 s, overlapped with that work). The main thread keeps answering
+    Ctrl-C and SIGTERM at once: ``wait`` is interruptible, and ``close`` (in every way out)
+    waits for the start to finish and closes what it started."""
+
+    def __init__(self, spec: LocalClusterSpec) -> None:
+        self.spec = spec
+        self._done = threading.Event()
+        self._cluster: Any = None
+        self._client: Any = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(
+            target=self._start, name="thrustmap-cluster-start", daemon=True
+        )
+        self._thread.start()
+
+    def _start(self) -> None:
+        try:
+            self._cluster, self._client = start_local_cluster(self.spec)
+        except BaseException as exc:  # handed to the main thread by wait()
+            self._error = exc
+        finally:
+            self._done.set()
+
+    def ready(self) -> bool:
+        """Whether the start is over (started, or failed: ``wait`` then raises)."""
+        return self._done.is_set()
+
+    def wait(self) -> tuple[Any, Any]:
+        while not self._done.wait(0.05):  # a stop signal lands here
+            pass
+        if self._error is not None:
+            raise self._error
+        return self._cluster, self._client
+
+    def close(self, timeout_s: float = 60.0) -> None:
+        self._done.wait(timeout_s)
+        close_cluster(self._cluster, self._client)
+        self._cluster = self._client = None
 
 
 def quiet_dask() -> None:
@@ -491,6 +626,16 @@ def connect(address: str) -> Any:
     except (OSError, TimeoutError) as exc:
         raise ConfigError(
             f"cannot reach the Dask scheduler at {address}: {one_line(exc)}"
+        ) from None
+    except (TypeError, ValueError) as exc:  # e.g. tls:// without Dask's TLS configuration
+        hint = (
+            ": tls:// needs Dask's TLS configuration (distributed.comm.tls.ca-file and "
+            "client.cert/key, see docs/fleet.md)"
+            if address.startswith("tls://")
+            else ""
+        )
+        raise ConfigError(
+            f"cannot connect to the Dask scheduler at {address}: {one_line(exc)}{hint}"
         ) from None
 
 

@@ -298,7 +298,7 @@ def _extract(task: LogTask, out: Outcome) -> None:
     rel = Path("df") / f"{stem_for(out.sha256, task.options_key)}.csv"
     write_df(df, Path(task.out_dir) / rel)
     out.df_path = rel.as_posix()
-    out.samples = len(df.table)
+    out.samples = len(df)  # the columns, not the pandas table: a worker never imports pandas
     for r in df.reports:
         out.duration_s += r.duration_s
         out.kept_s += r.kept_s
@@ -318,7 +318,7 @@ def _extract(task: LogTask, out: Outcome) -> None:
     out.airframe = json.dumps(af, sort_keys=True, default=str)
     out.airframe_key = airframe_key(af)
     if out.samples:
-        v = df.table["voltage_v"].to_numpy(float)
+        v = np.asarray(df.column("voltage_v"), float)
         v = v[np.isfinite(v)]
         if len(v):
             out.voltage_min_v, out.voltage_max_v = float(v.min()), float(v.max())

@@ -355,22 +355,34 @@ def _instance0(cols: dict[str, npt.NDArray[Any]]) -> npt.NDArray[np.bool_]:
     return np.ones(len(next(iter(cols.values()))), dtype=bool) if cols else np.zeros(0, bool)
 
 
-def _signal(t: FloatArray, v: npt.ArrayLike, unit: str, origin: str) -> Signal:
-    """A signal sorted by time with duplicate timestamps dropped."""
+def _signal(
+    t: FloatArray, v: npt.ArrayLike, unit: str, origin: str, *, state: bool = False
+) -> Signal:
+    """A signal sorted by time with duplicate timestamps dropped: the first sample of each
+    time is kept, or for a ``state`` (events) the last, the state the events leave behind."""
     values = np.asarray(v, dtype=float)
     order = np.argsort(t, kind="stable")
     t, values = t[order], values[order]
-    keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
+    if not len(t):
+        return Signal(t, values, unit, origin)
+    if state:
+        keep = np.concatenate([np.diff(t) > 0, [True]])
+    else:
+        keep = np.concatenate([[True], np.diff(t) > 0])
     return Signal(t[keep], values[keep], unit, origin)
 
 
-def _events(df: DataFlashLog) -> tuple[Signal | None, Signal | None]:
-    """Armed and landed step signals from ARM / EV messages."""
+def _events(
+    df: DataFlashLog, notes: list[str] | None = None
+) -> tuple[Signal | None, Signal | None]:
+    """Armed and landed step signals from ARM / EV messages (what a rule did: ``notes``)."""
+    if notes is None:
+        notes = []
     armed: Signal | None = None
     landed: Signal | None = None
     if df.has("ARM"):
         c = df.columns("ARM")
-        armed = _signal(df.time_s("ARM"), c["ArmState"] != 0, "bool", "ARM.ArmState")
+        armed = _signal(df.time_s("ARM"), c["ArmState"] != 0, "bool", "ARM.ArmState", state=True)
     if df.has("EV"):
         t, ids = df.time_s("EV"), np.asarray(df.columns("EV")["Id"], int)
         if armed is None:
@@ -381,12 +393,30 @@ def _events(df: DataFlashLog) -> tuple[Signal | None, Signal | None]:
                     np.concatenate([[0.0], ids[m] == EV_ARMED]),
                     "bool",
                     "EV.Id 10 ARMED / 11 DISARMED",
+                    state=True,
                 )
         # Landed: ground at each arming, airborne at NOT_LANDED, ground at LAND_COMPLETE.
+        # Rule "ev-burst" (ArduCopter 3.2-3.3 AP_State.pde set_land_complete writes an EV on
+        # every change of ap.land_complete; the 50 Hz land detector of control_land.pde sets it
+        # while an altitude-holding mode clears it again, so a burst of 18/28 pairs is written
+        # within one time stamp of the neighbours that time them): the state after a burst
+        # is its LAST event (keeping the first read a whole flight as landed)
         m = np.isin(ids, (EV_ARMED, EV_LAND_COMPLETE, EV_NOT_LANDED))
+        tm = t[m]
+        same = np.flatnonzero(np.diff(tm) == 0) if len(tm) > 1 else np.zeros(0, np.int64)
+        if len(same):
+            notes.append(
+                f"ev-burst: {len(same) + len(np.unique(tm[same]))} land events written within "
+                f"{len(np.unique(tm[same]))} time stamp(s) (the land detector and the altitude "
+                "controller toggling the land flag): the state after each burst is its last event"
+            )
         if m.any():
             landed = _signal(
-                t[m], ids[m] != EV_NOT_LANDED, "bool", "EV.Id 18 LAND_COMPLETE / 28 NOT_LANDED"
+                t[m],
+                ids[m] != EV_NOT_LANDED,
+                "bool",
+                "EV.Id 18 LAND_COMPLETE / 28 NOT_LANDED",
+                state=True,
             )
     return armed, landed
 
@@ -474,6 +504,92 @@ def pwm_scale(params: dict[str, float]) -> tuple[ThrottleScale, str]:
     if spin is not None:
         src += f"; MOT_SPIN_MIN {spin:g} (idle in flight = {lo + spin * (hi - lo):.0f} us)"
     return ThrottleScale("pwm", float(lo), float(hi), "us"), src
+
+
+#: the inertial-navigation altitude (CTUN.Alt) may depart from the barometer's alone (BarAlt)
+#: by this much (95th percentile, after their offset) before it is taken as diverged
+INAV_BARO_DISAGREE_M = 10.0
+#: the barometer's climb rate: altitude difference over this span (s)
+BARO_CLIMB_SPAN_S = 1.0
+#: an altitude climbing faster than this is jumping (a glitch or a broken sensor), not flying
+BARO_CLIMB_MAX_MPS = 30.0
+
+
+#: CTUN.CRt may differ from the logged altitude's own climb by this much (median, m/s)
+CRT_ALT_DISAGREE_MPS = 0.3
+
+
+def _climb(t: FloatArray, height_m: FloatArray, span_s: float) -> FloatArray:
+    """Climb rate (m/s): the height difference over ``span_s`` centred on each sample."""
+    half = 0.5 * span_s
+    return np.asarray(
+        (np.interp(t + half, t, height_m) - np.interp(t - half, t, height_m)) / span_s, float
+    )
+
+
+def _climb_from_altitude(
+    flight: FlightLog, t: FloatArray, crt_mps: FloatArray, alt_m: FloatArray
+) -> None:
+    """Rule "climb-crt": CTUN.CRt is the inertial-navigation vertical velocity (cm/s in every
+    3.2-3.4 build: ``climb_rate = inertial_nav.get_velocity_z()``, inertia.pde / Log.pde), not
+    the derivative of the altitude logged beside it. In the PXF 3.3-dev builds it carries an
+    offset (an accelerometer off by 0.3 m/s² at rest integrates into it; the barometer pulls
+    the altitude back but hardly the velocity): 75 % of a hover read |CRt| > 1 m/s while
+    CTUN.Alt moved 0.1 m/s. When CRt departs from the climb of CTUN.Alt by more than
+    CRT_ALT_DISAGREE_MPS (median), the climb rate is that of CTUN.Alt over BARO_CLIMB_SPAN_S."""
+    ok = np.isfinite(crt_mps) & np.isfinite(alt_m)
+    if ok.sum() < 20:
+        return
+    tt = t[ok]
+    from_alt = _climb(tt, alt_m[ok], BARO_CLIMB_SPAN_S)
+    off = float(nanmedian(np.abs(crt_mps[ok] - from_alt)))
+    if off <= CRT_ALT_DISAGREE_MPS or np.abs(from_alt).max() > BARO_CLIMB_MAX_MPS:
+        return  # CRt agrees, or the altitude itself jumps (judged downstream)
+    flight.extras["climb_mps"] = _signal(
+        tt, from_alt, "m/s", f"CTUN.Alt climb over {BARO_CLIMB_SPAN_S:g} s"
+    )
+    flight.warnings.append(
+        f"climb-crt: CTUN.CRt (inertial vertical velocity, cm/s) departs from the climb of "
+        f"CTUN.Alt by {off:.2f} m/s (median, more than {CRT_ALT_DISAGREE_MPS:g}): the climb "
+        "rate is taken from CTUN.Alt"
+    )
+
+
+def _inertial_or_baro(
+    flight: FlightLog, t: FloatArray, inav_m: FloatArray, baro_m: FloatArray, baro_origin: str
+) -> None:
+    """Rule "inav-baro": ArduCopter 3.2-3.4 log CTUN.Alt = current_loc.alt / 100 and CTUN.CRt =
+    inertial_nav.get_velocity_z() (cm/s; Log.pde and inertia.pde of those builds), the
+    accelerometers integrated and pulled toward the barometer, and CTUN.BarAlt the barometer
+    alone (cm in the firmware, metres through its FMT 'e'). On boards whose barometer the
+    filter did not follow (PXF/Erle 3.3-dev builds: CTUN.Alt ran 100+ m while the barometer
+    moved 1 m) the inertial altitude and climb rate describe no motion of the vehicle. When the
+    two altitudes depart by more than INAV_BARO_DISAGREE_M (a few metres of barometer drift are common; the
+    inertial altitude is then the better one), height and climb rate come from the barometer
+    (its climb over BARO_CLIMB_SPAN_S), unless the barometer itself jumps; the report says
+    which."""
+    ok = np.isfinite(inav_m) & np.isfinite(baro_m)
+    if ok.sum() < 20:
+        return
+    diff = inav_m[ok] - baro_m[ok]
+    dev = np.abs(diff - float(nanmedian(diff)))
+    ranked = np.sort(dev)
+    dev95 = float(ranked[min(len(ranked) - 1, int(0.95 * len(ranked)))])
+    if dev95 <= INAV_BARO_DISAGREE_M:
+        return
+    tb, hb = t[ok], baro_m[ok]
+    climb = _climb(tb, hb, BARO_CLIMB_SPAN_S)
+    if np.abs(climb).max() > BARO_CLIMB_MAX_MPS:
+        return  # the barometer jumps too: neither is the vehicle's height (judged downstream)
+    flight.extras["height_m"] = _signal(tb, hb, "m", f"{baro_origin} (barometer)")
+    flight.extras["climb_mps"] = _signal(
+        tb, climb, "m/s", f"{baro_origin} climb over {BARO_CLIMB_SPAN_S:g} s (barometer)"
+    )
+    flight.warnings.append(
+        f"inav-baro: CTUN.Alt (inertial navigation) departs from {baro_origin} (barometer) by "
+        f"{dev95:.1f} m (95th percentile, more than {INAV_BARO_DISAGREE_M:g} m): height and "
+        "climb rate taken from the barometer (CTUN.CRt is the inertial climb rate, cm/s)"
+    )
 
 
 #: a stretch without samples longer than this is the log pausing (Copter logs only while armed)
@@ -590,6 +706,12 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         if "CRt" in c:
             crt = np.asarray(c["CRt"], float)
             flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
+            if "Alt" in c:
+                _climb_from_altitude(flight, t, crt / 100.0, np.asarray(c["Alt"], float))
+        baro_col = next((k for k in ("BarAlt", "BAlt") if k in c), None)
+        if "Alt" in c and baro_col is not None:
+            _inertial_or_baro(flight, t, np.asarray(c["Alt"], float),
+                              np.asarray(c[baro_col], float), f"CTUN.{baro_col}")  # fmt: skip
     if df.has("RFND"):  # range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)
         c = df.columns("RFND")
         keep = _instance0(c)
@@ -616,7 +738,7 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         flight.extras["motb_batvolt"] = _signal(
             df.time_s("MOTB"), c["BatVolt"], "1", "MOTB.BatVolt"
         )
-    flight.armed, flight.landed = _events(df)
+    flight.armed, flight.landed = _events(df, flight.warnings)
     if df.has("RCOU"):
         c = df.columns("RCOU")
         t = df.time_s("RCOU")

@@ -1,0 +1,136 @@
+"""Old ArduCopter (3.2-3.4) field semantics, each rule read from that era's firmware (issue 34
+item 2): a simulated 3.3-dev log per defect, against the same flight without it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.copter33 import ACCEL_SCALE, PAUSE_S, Copter33, write_copter33
+
+from thrustmap.fitting.df import G0, Df, DfOptions, extract
+from thrustmap.fitting.flightlogs.detect import read_log
+
+OPTS = DfOptions(mass_kg=1.0)
+
+
+def df_of(log: Copter33) -> Df:
+    return extract(read_log(log.path), OPTS)
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory: pytest.TempPathFactory) -> tuple[Copter33, Df]:
+    log = write_copter33(tmp_path_factory.mktemp("clean") / "clean.bin")
+    return log, df_of(log)
+
+
+def steps(df: Df) -> dict[str, float]:
+    return {s.name: s.dropped_s for s in df.reports[0].steps}
+
+
+def rule_lines(df: Df, name: str) -> list[str]:
+    return [w for w in df.reports[0].warnings if w.startswith(name)]
+
+
+def test_the_clean_log_keeps_most_of_its_hover_and_names_every_rule(
+    clean: tuple[Copter33, Df],
+) -> None:
+    log, df = clean
+    assert len(df) >= 0.5 * log.airborne_s * OPTS.rate_hz
+    names = steps(df)
+    assert names["accel-calibration"] == 0.0  # checked, nothing to change (it reads g at rest)
+    assert "log-pause" in names and names["log-pause"] == 0.0
+    reason = next(s.reason for s in df.reports[0].steps if s.name == "accel-calibration")
+    assert "not changed" in reason
+    assert not rule_lines(df, "climb-crt") and not rule_lines(df, "inav-baro")
+
+
+def test_ev_burst_at_liftoff_leaves_the_vehicle_flying(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    """AP_State.pde set_land_complete writes an EV on every change; untimed, a burst of 18/28
+    takes one neighbour's time. Its first event (LAND_COMPLETE) read the whole flight as landed
+    (94.8 of 96 s on a real PXF log)."""
+    log = write_copter33(tmp_path / "burst.bin", ("ev-burst",))
+    (fl,) = read_log(log.path)
+    assert fl.landed is not None
+    mid = float(log.time_s[len(log.time_s) // 2])
+    assert fl.landed.hold(np.array([mid]))[0] == 0.0
+    df = df_of(log)
+    assert len(df) >= 0.95 * len(clean[1])
+    (line,) = rule_lines(df, "ev-burst")
+    assert "8 land events written within 1 time stamp" in line
+
+
+def test_a_climb_rate_with_an_offset_gives_way_to_the_altitudes(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    """CTUN.CRt = inertial_nav.get_velocity_z() (cm/s, inertia.pde): an accelerometer bias
+    integrates into it while the barometer holds the altitude (75 % of a real hover read
+    |CRt| > 1 m/s while CTUN.Alt moved 0.1 m/s)."""
+    df = df_of(write_copter33(tmp_path / "crt.bin", ("crt-offset",)))
+    (line,) = rule_lines(df, "climb-crt")
+    assert "1.5" in line  # the offset, measured
+    assert len(df) >= 0.9 * len(clean[1])
+    assert steps(df)["climb"] <= steps(clean[1])["climb"] + 2.0
+
+
+def test_a_diverged_inertial_altitude_gives_way_to_the_barometer(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    df = df_of(write_copter33(tmp_path / "inav.bin", ("inav-diverged",)))
+    assert len(rule_lines(df, "inav-baro")) == 1
+    climb = next(s.reason for s in df.reports[0].steps if s.name == "climb")
+    assert "(barometer)" in climb
+    assert len(df) >= 0.8 * len(clean[1])
+
+
+def test_an_accelerometer_off_at_rest_is_calibrated_before_takeoff(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    log = write_copter33(tmp_path / "acc.bin", ("accel-scale",))
+    df = df_of(log)
+    (line,) = rule_lines(df, "accelerometer calibrated at rest")
+    assert f"{G0 * ACCEL_SCALE:.2f}" in line  # what it read at rest, said
+    assert len(df) >= 0.9 * len(clean[1])
+    # the calibrated a_up is the true one: F_m = m·a_up within 0.5 % of the clean log's
+    ratio = float(np.median(df.table["accel_up_mps2"])) / float(
+        np.median(clean[1].table["accel_up_mps2"])
+    )
+    assert ratio == pytest.approx(1.0, abs=0.005)
+
+
+def test_without_rest_before_takeoff_the_accelerometer_is_left_alone() -> None:
+    from test_flight_semantics import _spoolup_flight
+
+    fl = _spoolup_flight(height=False, contact=False)
+    assert fl.accel_up_mps2 is not None
+    acc = fl.accel_up_mps2
+    fl.accel_up_mps2 = type(acc)(acc.time_s, acc.values * 0.9, acc.unit, acc.origin)
+    t = acc.time_s
+    assert fl.thrust_cmd_norm is not None  # the log starts in the air (logging began late)
+    c = fl.thrust_cmd_norm
+    fl.thrust_cmd_norm = type(c)(t, np.where(t < 8, 0.5, c.values), "1", "sim")
+    df = extract([fl], OPTS)
+    reason = next(s.reason for s in df.reports[0].steps if s.name == "accel-calibration")
+    assert "not calibrated" in reason
+    assert not rule_lines(df, "accelerometer calibrated")
+
+
+def test_a_log_pause_is_named_and_both_flights_are_kept(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    """ArduCopter 3.2-3.3 suspend writes on disarm (motors.pde): a pause in the log is
+    disarmed time, named "log-pause" in the report, not an IMU gap, and the flights on both
+    sides of it are kept."""
+    df = df_of(write_copter33(tmp_path / "pause.bin", ("log-pause",)))
+    names = steps(df)
+    assert names["log-pause"] == pytest.approx(PAUSE_S, abs=2.0)
+    assert names.get("data", 0.0) < 0.5
+    assert len(df) >= 1.8 * len(clean[1])
+
+
+def test_every_defect_together(clean: tuple[Copter33, Df], tmp_path: Path) -> None:
+    df = df_of(write_copter33(tmp_path / "all.bin", ("ev-burst", "crt-offset", "accel-scale")))
+    assert len(df) >= 0.85 * len(clean[1])
