@@ -121,6 +121,28 @@ class DecodedLog:
     byte_range: tuple[int, int]
 
 
+@dataclass
+class ResumeState:
+    """Where a bulk decoder stopped in a log: the reference decoder carries on from here with
+    the state it would have had after decoding everything before ``pos`` itself (the frames
+    before ``pos`` were all clean: each parsed, followed by a frame, plausible)."""
+
+    pos: int  # offset in the section of the first frame not yet decoded
+    main: npt.NDArray[np.int64]  # the main frames decoded so far (kept fields)
+    prev: list[int] | None  # the last main frame (None: none yet)
+    prev2: list[int] | None  # the one before it (the last one again after an intra frame)
+    last_iter: int
+    last_time: int
+    home: list[int]
+    work_done: int  # work-budget units spent (see WORK_PER_BYTE)
+    slow_rows: list[list[int]]
+    slow_index: list[int]
+    gps_rows: list[list[int]]
+    events: list[BlackboxEvent]
+    stats: dict[str, int]
+    warnings: list[str]
+
+
 # --- header --------------------------------------------------------------------------------
 
 
@@ -711,15 +733,18 @@ def decode_log(
     stored, and ``main_fields`` lists only the kept ones (a reader needing a handful of the
     40-odd fields saves most of the decoding).
 
-    A clean log (no corrupt frame, gap, rollover, ...) is decoded in bulk by
-    :mod:`blackbox_fast`, ~10x faster; every other log by :func:`decode_log_reference`. Both
-    give the same result (tests/test_blackbox_fast.py compares them frame by frame)."""
-    from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_fast
+    A clean log (no corrupt frame, rollover, ...) is decoded in bulk by :mod:`blackbox_fast`,
+    ~10x faster; a log that is clean up to some point (a truncated tail, a corrupt stretch) is
+    decoded in bulk up to there and by :func:`decode_log_reference` from there on; any other
+    by the reference alone. All give the same result (tests/test_blackbox_fast.py compares them
+    frame by frame)."""
 
-    decoded = decode_log_fast(section, index, offset, keep_field=keep_field)
-    if decoded is not None:
+    from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_bulk
+
+    decoded = decode_log_bulk(section, index, offset, keep_field=keep_field)
+    if isinstance(decoded, DecodedLog):
         return decoded
-    return decode_log_reference(section, index, offset, keep_field=keep_field)
+    return decode_log_reference(section, index, offset, keep_field=keep_field, resume=decoded)
 
 
 def decode_log_reference(
@@ -728,27 +753,38 @@ def decode_log_reference(
     offset: int = 0,
     *,
     keep_field: Callable[[str], bool] | None = None,
+    resume: ResumeState | None = None,
 ) -> DecodedLog:
-    """:func:`decode_log` frame by frame in pure Python: every log, however damaged."""
+    """:func:`decode_log` frame by frame in pure Python: every log, however damaged.
+
+    ``resume``: start where a bulk decoder stopped, with its state (its frames are in range of
+    their fields, so they are the same with or without the 32-bit wrap)."""
     try:
-        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field)
+        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field, resume=resume)
     except OverflowError:  # a value beyond int64: certainly out of range
         fast = None
     if fast is None or not _in_32bit_range(fast):
-        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field)
+        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field, resume=resume)
     return fast
 
 
 def _in_32bit_range(log: DecodedLog) -> bool:
     """True when every main-frame value (but time, kept with its rollovers) fits its field."""
-    if not len(log.main):
+    return in_32bit_range(log.headers, log.main_fields, log.main)
+
+
+def in_32bit_range(
+    headers: dict[str, str], main_fields: list[str], main: npt.NDArray[np.int64]
+) -> bool:
+    """True when every value of ``main`` (columns ``main_fields``) but time fits its field."""
+    if not len(main):
         return True
-    names = [x.strip() for x in log.headers.get("Field I name", "").split(",")]
-    sign_of = dict(zip(names, _main_signed(log.headers, len(names)), strict=True))
-    for k, name in enumerate(log.main_fields):
+    names = [x.strip() for x in headers.get("Field I name", "").split(",")]
+    sign_of = dict(zip(names, _main_signed(headers, len(names)), strict=True))
+    for k, name in enumerate(main_fields):
         if k == 1:
             continue
-        col = log.main[:, k]
+        col = main[:, k]
         lo, hi = (-(1 << 31), (1 << 31) - 1) if sign_of.get(name, 0) else (0, (1 << 32) - 1)
         if int(col.min()) < lo or int(col.max()) > hi:
             return False
@@ -801,6 +837,7 @@ def _decode_log(
     *,
     wrap: bool,
     keep_field: Callable[[str], bool] | None = None,
+    resume: ResumeState | None = None,
 ) -> DecodedLog:
     headers, defs, pos = parse_headers(section)
     warnings: list[str] = []
@@ -870,6 +907,18 @@ def _decode_log(
     widths[mark_i] = widths[mark_p] = max(nfields, 1)
     budget = WORK_PER_BYTE * n + 100_000
     out_of_budget = -1
+    main_offset = 0  # main frames decoded before ``resume.pos`` (not in main_rows)
+    if resume is not None:
+        pos, prev, last_iter, last_time, home = (
+            resume.pos, resume.prev, resume.last_iter, resume.last_time, list(resume.home)
+        )  # fmt: skip
+        prev2 = zeros if resume.prev2 is None else resume.prev2
+        budget -= resume.work_done
+        main_offset = len(resume.main)
+        slow_rows, slow_index = list(resume.slow_rows), list(resume.slow_index)
+        gps_rows, events = list(resume.gps_rows), list(resume.events)
+        stats.update(resume.stats)
+        warnings = list(resume.warnings)
     parse_p = parsers.get(mark_p)
     width_main = widths[mark_p]
     append = main_rows.append
@@ -913,7 +962,7 @@ def _decode_log(
                     continue
         if m not in markers or m not in parsers and m != mark_e:
             stats["skipped_bytes"] += 1
-            if not garbage_run and main_rows:
+            if not garbage_run and (main_rows or main_offset):
                 prev = None
             garbage_run = True
             pos += 1
@@ -991,7 +1040,7 @@ def _decode_log(
         elif event is not None:
             stats["E"] += 1
             kind, payload = event
-            events.append(BlackboxEvent(len(main_rows), kind, payload))
+            events.append(BlackboxEvent(main_offset + len(main_rows), kind, payload))
             if kind == EVENT_LOGGING_RESUME:
                 last_iter, last_time = int(payload[0]), int(payload[1]) + rollover
             elif kind == EVENT_LOG_END:
@@ -1000,7 +1049,7 @@ def _decode_log(
         elif m == mark_s:
             stats["S"] += 1
             slow_rows.append(vals)
-            slow_index.append(len(main_rows))
+            slow_index.append(main_offset + len(main_rows))
         elif m == mark_g:
             stats["G"] += 1
             gps_rows.append(vals)
@@ -1028,11 +1077,14 @@ def _decode_log(
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
+    main = _table(main_rows, nfields if keep is None else len(keep))
+    if resume is not None and main_offset:
+        main = np.concatenate((resume.main, main)) if len(main) else resume.main
     return DecodedLog(
         index=index,
         headers=headers,
         main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
-        main=_table(main_rows, nfields if keep is None else len(keep)),
+        main=main,
         slow_fields=list(sdef.names),
         slow=_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
