@@ -307,3 +307,16 @@ def test_randomly_damaged_gps_logs_decode_as_the_reference_does(
             bd.decode_log(damaged, keep_field=keep),
             bd.decode_log_reference(damaged, keep_field=keep),
         )
+
+
+@pytest.mark.parametrize("shape", ["uniform", "ragged"])
+def test_inter_frame_runs_of_any_lengths(shape: str) -> None:
+    """Inter-frame runs all of one length are predicted on a grid, runs of very different
+    lengths (many intra frames, then one long run) row by row: both as the reference."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    out = bytearray(enc.header_bytes())
+    for k in range(1500):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        intra = k % 8 == 0 if shape == "uniform" else k < 1000 or k == 1200
+        out += enc.i_frame(values) if intra else enc.p_frame(values)
+    compare_fast(bytes(out))

@@ -526,10 +526,15 @@ def _decode(
     last_t = np.concatenate(([-1], t[:-1]))
     home = [0, 0]
     resumed: tuple[int, int, int] | None = None  # (main frames before it, iteration, time)
-    for k in np.flatnonzero(~is_main).tolist():
-        start = int(starts[k])
-        before = int(np.searchsorted(main_starts, start))
-        kind = int(kinds[k])
+    aux_at = np.flatnonzero(~is_main)
+    aux_starts = starts[aux_at]
+    for start, end, kind, before in zip(
+        aux_starts.tolist(),
+        ends[aux_at].tolist(),
+        kinds[aux_at].tolist(),
+        np.searchsorted(main_starts, aux_starts).tolist(),
+        strict=True,
+    ):
         if kind == ord("E"):
             ev, payload, p = bd._parse_event(section, start + 1)
             if ev == bd.EVENT_LOGGING_RESUME:
@@ -559,7 +564,7 @@ def _decode(
             else:
                 stats["H"] += 1
                 home = [row[j] if j >= 0 else 0 for j in home_idx]
-        if p != int(ends[k]):
+        if p != end:
             raise _Unsupported("slow frame or event length disagrees")
 
     # 4. the reference's plausibility checks: all must pass (no rollover, no bad main frame)
@@ -664,11 +669,9 @@ def _main_values(
 
     prev_c, line_c = cols(bd.PRED_PREVIOUS), cols(bd.PRED_STRAIGHT_LINE)
     avg_c, inc_c, mot_c = cols(bd.PRED_AVERAGE_2), cols(bd.PRED_INC), cols(bd.PRED_MOTOR_0)
-    for step in range(1, int(seg_len.max())):  # all segments' step-th inter frame at once
-        rows = i_rows[seg_len > step] + step
-        prev = vals[rows - 1]
-        cur = vals[rows]
-        prev2 = prev if step == 1 else vals[rows - 2]  # after an intra frame: both are it
+
+    def predict(cur: I64, prev: I64, prev2: I64) -> None:
+        """Add their predictions to inter frames ``cur`` (residuals) in place."""
         if prev_c:
             cur[:, prev_c] += prev[:, prev_c]
         if line_c:
@@ -681,4 +684,23 @@ def _main_values(
             cur[:, inc_c] += (last_iter + skip[last_iter % i_interval] + 1)[:, None]
         if mot_c:
             cur[:, mot_c] += cur[:, [col[motor0]]]
+
+    # all segments' step-th inter frame at once (after an intra frame, prev2 is prev)
+    longest = int(seg_len.max())
+    if len(i_rows) * longest <= 2 * len(vals) + 4096:
+        # segments (nearly) all of one length, as in real logs: laid out on a grid (segment,
+        # step) each step is a view, not a gather; the padding rows are never read back
+        at = np.repeat(np.arange(len(i_rows)) * longest - i_rows, seg_len) + np.arange(len(vals))
+        grid = np.zeros((len(i_rows) * longest, vals.shape[1]), dtype=np.int64)
+        grid[at] = vals
+        g = grid.reshape(len(i_rows), longest, vals.shape[1])
+        for step in range(1, longest):
+            predict(g[:, step], g[:, step - 1], g[:, step - 1 if step == 1 else step - 2])
+        vals[:] = grid[at]
+        return
+    for step in range(1, longest):
+        rows = i_rows[seg_len > step] + step
+        cur = vals[rows]
+        prev = vals[rows - 1]
+        predict(cur, prev, prev if step == 1 else vals[rows - 2])
         vals[rows] = cur
