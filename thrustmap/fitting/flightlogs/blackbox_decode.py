@@ -698,8 +698,10 @@ def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
     return num, den
 
 
-def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
-    """For each iteration (mod I interval): iterations skipped before the next logged one."""
+@functools.lru_cache(maxsize=16)
+def _skip_table(i_interval: int, p_num: int, p_den: int) -> tuple[int, ...]:
+    """For each iteration (mod I interval): iterations skipped before the next logged one
+    (cached: the logs of a file share their intervals)."""
 
     def logged(idx: int) -> bool:
         return (idx % i_interval + p_num - 1) % p_den < p_num
@@ -711,7 +713,7 @@ def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
     next_gap = [cap + 1] * (span + 1)
     for idx in range(span - 1, -1, -1):
         next_gap[idx] = 0 if logged(idx) else min(next_gap[idx + 1] + 1, cap + 1)
-    return [min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval)]
+    return tuple(min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval))
 
 
 def decode_log(

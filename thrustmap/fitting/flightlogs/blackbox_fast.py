@@ -132,6 +132,7 @@ def _units(fd: bd.FrameDef) -> list[tuple[int, list[int]]]:
     return units
 
 
+@functools.lru_cache(maxsize=64)
 def _unit_regex(e: int, count: int) -> bytes:
     if e == bd.ENC_TAG8_8SVB:
         if count == 1:
