@@ -320,3 +320,26 @@ def test_inter_frame_runs_of_any_lengths(shape: str) -> None:
         intra = k % 8 == 0 if shape == "uniform" else k < 1000 or k == 1200
         out += enc.i_frame(values) if intra else enc.p_frame(values)
     compare_fast(bytes(out))
+
+
+def test_more_logs_frame_by_frame() -> None:
+    """Blackbox logs not in the repository (THRUSTMAP_BLACKBOX_LOGS: a folder of .bbl/.bfl/.txt,
+    e.g. public logs gathered for a benchmark): every log of every file decodes exactly as the
+    reference decoder decodes it, in bulk where it is clean."""
+    import os
+
+    folder = os.environ.get("THRUSTMAP_BLACKBOX_LOGS")
+    if not folder or not Path(folder).is_dir():
+        pytest.skip("THRUSTMAP_BLACKBOX_LOGS is not set to a folder of blackbox logs")
+    paths = sorted(
+        p for p in Path(folder).rglob("*") if p.suffix.lower() in (".bbl", ".bfl", ".txt")
+    )
+    assert paths, folder
+    for path in paths:
+        data = path.read_bytes()
+        for i, (a, b) in enumerate(bd.split_logs(data)):
+            for keep in (None, used_field):
+                assert_same(
+                    bd.decode_log(data[a:b], i, a, keep_field=keep),
+                    bd.decode_log_reference(data[a:b], i, a, keep_field=keep),
+                )
