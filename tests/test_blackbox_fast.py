@@ -343,3 +343,37 @@ def test_more_logs_frame_by_frame() -> None:
                     bd.decode_log(data[a:b], i, a, keep_field=keep),
                     bd.decode_log_reference(data[a:b], i, a, keep_field=keep),
                 )
+
+
+@pytest.mark.parametrize("case", ["rollover", "time jump"])
+def test_an_implausible_frame_hands_over_to_the_reference_there(case: str) -> None:
+    """The 32-bit microsecond clock rolling over (after 71.6 min powered), or an inter frame
+    11 s after the one before: the frames before it are decoded in bulk, the reference decoder
+    takes over from it (rollover bookkeeping, the frame dropped), with the same result."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
+                     be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
+    out = bytearray(enc.header_bytes())
+    out += enc.h_frame([473_000_000, 85_000_000])
+    start_us = (1 << 32) - 2_000_000 if case == "rollover" else 5_000_000
+    jump_us = 0
+    for k in range(1000):
+        if case == "time jump" and k == 700:
+            jump_us = 11_000_000
+        values = be.sim_frame_values(k, 4096, start_us + jump_us, 10.0)
+        values[1] &= 0xFFFFFFFF  # the firmware's clock is 32-bit
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+        if k % 10 == 3:
+            out += enc.g_frame([values[1] + 50, 9, 473_000_100, 85_000_000 - k, 50, 3, 90])
+    out += enc.event(bd.EVENT_LOG_END)
+    section = bytes(out)
+    got = bf.decode_log_bulk(section)
+    assert isinstance(got, bd.ResumeState)
+    assert len(got.main) >= 480  # the frames before the rollover (~500) or the jump (700)
+    for keep in (None, used_field):
+        assert_same(bd.decode_log(section, keep_field=keep),
+                    bd.decode_log_reference(section, keep_field=keep))  # fmt: skip
+    decoded = bd.decode_log(section)
+    if case == "rollover":  # the reference's time keeps counting past 2**32
+        assert int(decoded.main[-1, 1]) > 1 << 32 and len(decoded.main) >= 990
+    else:
+        assert decoded.stats["invalid_main"] >= 1

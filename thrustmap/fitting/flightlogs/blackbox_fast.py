@@ -76,6 +76,15 @@ class _Unsupported(Exception):
     """The fast path does not cover this log: the reference decoder decodes it."""
 
 
+class _CutBefore(Exception):
+    """Frame ``frame`` is the first implausible main frame (a time rollover, a jump): the
+    frames before it are decoded in bulk, the reference decoder takes over from it."""
+
+    def __init__(self, frame: int) -> None:
+        super().__init__(f"implausible main frame at frame {frame}")
+        self.frame = frame
+
+
 # --- framing ---------------------------------------------------------------------------------
 
 
@@ -374,9 +383,13 @@ def decode_log_bulk(
     clean (a truncated tail, a corrupt frame further on), that stretch decoded in bulk as a
     :class:`ResumeState` for the reference decoder to carry on from; or None (the reference
     decodes it all)."""
+    declined = (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError)
     try:
-        return _decode(section, index, offset, keep_field)
-    except (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError) as exc:
+        try:
+            return _decode(section, index, offset, keep_field)
+        except _CutBefore as cut:
+            return _decode(section, index, offset, keep_field, max_frames=cut.frame)
+    except (*declined, _CutBefore) as exc:
         # the reference decoder decodes (or rejects) it, however odd the log
         log.debug("log %d: bulk decoding declined (%s)", index + 1, exc)
         return None
@@ -425,8 +438,13 @@ def _framing(
 
 
 def _decode(
-    section: bytes, index: int, offset: int, keep_field: Callable[[str], bool] | None
+    section: bytes,
+    index: int,
+    offset: int,
+    keep_field: Callable[[str], bool] | None,
+    max_frames: int | None = None,
 ) -> bd.DecodedLog | bd.ResumeState | None:
+    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`)."""
     headers, defs, pos = bd.parse_headers(section)
     idef = defs.get("I")
     if idef is None or not idef.names or not idef.encoding:
@@ -475,6 +493,8 @@ def _decode(
     # 1. framing: the frames must tile the data up to the end (or the log-end event), or a
     #    first stretch of it that the reference decoder carries on from
     frames, complete, ended = _framing(pattern, section, pos)
+    if max_frames is not None and max_frames < len(frames):
+        frames, complete, ended = frames[:max_frames], False, False
     if not complete and len(frames) < MIN_PREFIX_FRAMES:
         raise _Unsupported("frames do not tile the data")
     n = len(section)
@@ -512,8 +532,6 @@ def _decode(
     #    with the state they see there (the last main frame's time, or a resume event's)
     it = vals[:, 0]
     t = vals[:, 1]
-    if len(t) and (int(t.min()) < 0 or int(t.max()) > 0xFFFFFFFF):
-        raise _Unsupported("time outside 32 bits (a rollover)")
     main_starts = starts[main_at]
     slow_rows: list[list[int]] = []
     slow_index: list[int] = []
@@ -568,21 +586,18 @@ def _decode(
         if p != end:
             raise _Unsupported("slow frame or event length disagrees")
 
-    # 4. the reference's plausibility checks: all must pass (no rollover, no bad main frame)
+    # 4. the reference's plausibility checks: the frames before the first main frame failing
+    #    one (a time rollover, an iteration or time jump) are decoded in bulk, the rest by the
+    #    reference
     di = it - last_it
     dt = t - last_t
     ip, tp = di[p_rows], dt[p_rows]
-    if len(p_rows) and (
-        int(ip.min()) < 0
-        or int(ip.max()) >= bd.MAX_ITERATION_JUMP
-        or int(tp.min()) < 0
-        or int(tp.max()) >= bd.MAX_TIME_JUMP_US
-    ):
-        raise _Unsupported("implausible inter frame")
-    li = last_it[i_rows]
-    checked = i_rows[li >= 0]
-    if len(checked) and (int(di[checked].min()) < 0 or int(dt[checked].min()) < 0):
-        raise _Unsupported("implausible intra frame, or a time rollover")
+    bad = (t < 0) | (t > 0xFFFFFFFF)  # time outside 32 bits: a rollover
+    bad[p_rows] |= (ip < 0) | (ip >= bd.MAX_ITERATION_JUMP) | (tp < 0) | (tp >= bd.MAX_TIME_JUMP_US)
+    checked = i_rows[last_it[i_rows] >= 0]
+    bad[checked] |= (di[checked] < 0) | (dt[checked] < 0)
+    if bad.any():
+        raise _CutBefore(int(main_at[int(np.argmax(bad))]))
     warnings = [
         f"log {index + 1}: {1e-6 * (int(t[r]) - int(last_t[r])):.1f} s gap in the data "
         f"after t = {1e-6 * int(last_t[r]):.3f} s"
