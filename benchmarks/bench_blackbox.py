@@ -52,7 +52,7 @@ ORANGEBOX_ALL_LOGS = (
 def log_files(args: list[str]) -> list[Path]:
     found: list[Path] = []
     for a in args:
-        p = Path(a)
+        p = Path(a).resolve()  # the commands run in a temporary folder
         if p.is_dir():
             found += sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in SUFFIXES)
         elif p.is_file():
