@@ -290,10 +290,11 @@ def test_a_corrupt_stretch_is_left_to_the_reference_from_there_on() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(1, 4), st.booleans())
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4), st.booleans(), st.sampled_from([0, 1, 5000]))
 def test_randomly_damaged_gps_logs_decode_as_the_reference_does(
-    seed: int, flips: int, truncate: bool
+    seed: int, flips: int, truncate: bool, erased: int
 ) -> None:
+    """Flipped bytes, a cut-off tail, erased flash (0xFF) after it: as the reference."""
     rng = np.random.default_rng(seed)
     section, _, _ = gps_log(seed, 160)
     body = section.index(b"\nE") + 1
@@ -301,7 +302,7 @@ def test_randomly_damaged_gps_logs_decode_as_the_reference_does(
     for k in rng.integers(body, len(data), flips):
         data[int(k)] = int(rng.integers(0, 256))
     end = int(rng.integers(body + 100, len(data) + 1)) if truncate else len(data)
-    damaged = bytes(data[:end])
+    damaged = bytes(data[:end]) + b"\xff" * erased
     for keep in (None, used_field):
         assert_same(
             bd.decode_log(damaged, keep_field=keep),

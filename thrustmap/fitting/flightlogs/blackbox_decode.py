@@ -921,6 +921,8 @@ def _decode_log(
         gps_rows, events = list(resume.gps_rows), list(resume.events)
         stats.update(resume.stats)
         warnings = list(resume.warnings)
+    starts_frame = bytes(sorted({*parsers, mark_e} & set(markers)))
+    skip_run = re.compile(b"[^" + re.escape(starts_frame) + b"]+").match
     parse_p = parsers.get(mark_p)
     width_main = widths[mark_p]
     append = main_rows.append
@@ -963,11 +965,15 @@ def _decode_log(
                     pos = p
                     continue
         if m not in markers or m not in parsers and m != mark_e:
-            stats["skipped_bytes"] += 1
+            # a run of bytes no frame starts with (erased flash after a cut-off log: megabytes
+            # of 0xFF) is skipped at once, as byte by byte
+            found = skip_run(d, pos)
+            run = found.end() - pos if found is not None else 1
+            stats["skipped_bytes"] += run
             if not garbage_run and (main_rows or main_offset):
                 prev = None
             garbage_run = True
-            pos += 1
+            pos += run
             continue
         start = pos
         budget -= widths.get(m, 1)

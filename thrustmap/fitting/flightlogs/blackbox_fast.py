@@ -418,8 +418,10 @@ def _framing(
     event), and whether it ended with that event. When they do not, only the frames that tile
     the data up to the first byte no frame covers are returned, less the last of them (the
     reference checks a frame by what follows it, so it takes over one frame early)."""
-    frames: list[bytes] = pattern.findall(section, pos)
     n = len(section)
+    # erased flash (0xFF) after a log cut off by a power loss: no frame there to look for
+    data_end = len(section.rstrip(b"\xff")) if section.endswith(b"\xff\xff") else n
+    frames: list[bytes] = pattern.findall(section, pos, data_end)
     end_marker = b"E\xff" + bd.END_OF_LOG_TEXT
     ended = False
     if end_marker in frames:
