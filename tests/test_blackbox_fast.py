@@ -378,3 +378,28 @@ def test_an_implausible_frame_hands_over_to_the_reference_there(case: str) -> No
         assert int(decoded.main[-1, 1]) > 1 << 32 and len(decoded.main) >= 990
     else:
         assert decoded.stats["invalid_main"] >= 1
+
+
+def test_bulk_decoding_resumes_after_a_corrupt_stretch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long log with a corrupt stretch early on: bulk up to it, frame by frame across it,
+    bulk again from an intra frame past it (not frame by frame to the end); as the reference."""
+    section = be.simulate_hover_log(120.0)  # ~500 kB
+    body = section.index(b"\nE") + 1
+    at = body + (len(section) - body) // 8
+    damaged = section[:at] + b"\x01\x02\x03" + section[at + 40 :]  # a frame lost, garbage
+    passes: list[tuple[bool, str]] = []
+    bulk = bf.decode_log_bulk
+
+    def spy(*args: object, **kwargs: object) -> object:
+        got = bulk(*args, **kwargs)  # type: ignore[arg-type]
+        passes.append((kwargs.get("start") is not None, type(got).__name__))
+        return got
+
+    monkeypatch.setattr(bf, "decode_log_bulk", spy)
+    for keep in (None, used_field):
+        passes.clear()
+        decoded = bd.decode_log(damaged, keep_field=keep)
+        assert passes == [(False, "ResumeState"), (True, "DecodedLog")]
+        assert_same(decoded, bd.decode_log_reference(damaged, keep_field=keep))
+        assert decoded.stats["corrupt"] + decoded.stats["skipped_bytes"] > 0
+        assert any("corrupt frame(s)" in w for w in decoded.warnings)

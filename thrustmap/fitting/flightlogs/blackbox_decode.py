@@ -44,6 +44,13 @@ MAX_INTERVAL = 0xFFFF  # 'I interval' and the 'P interval' numerator/denominator
 #: decoding work budget per input byte (field evaluations, counting failed resync attempts),
 #: so a damaged log decodes in time linear in its size whatever its header claims
 WORK_PER_BYTE = 64
+#: a log with corrupt stretches: back to bulk decoding at an intra frame at least HANDBACK_GAP
+#: bytes past where the frame-by-frame decoder took over, with MIN_HANDBACK_BYTES still to go;
+#: each bulk pass frames the rest of the log, so all of them frame at most HANDBACK_FRAMING
+#: times the log (a log corrupt all over is left to the frame-by-frame decoder)
+HANDBACK_GAP = 16_384
+MIN_HANDBACK_BYTES = 262_144
+HANDBACK_FRAMING = 1
 MAX_ITERATION_JUMP = 5000
 MAX_TIME_JUMP_US = 10_000_000
 
@@ -736,17 +743,46 @@ def decode_log(
     40-odd fields saves most of the decoding).
 
     A clean log (no corrupt frame, rollover, ...) is decoded in bulk by :mod:`blackbox_fast`,
-    ~10x faster; a log that is clean up to some point (a truncated tail, a corrupt stretch) is
-    decoded in bulk up to there and by :func:`decode_log_reference` from there on; any other
-    by the reference alone. All give the same result (tests/test_blackbox_fast.py compares them
+    ~10x faster; a log that is clean up to some point (a truncated tail, a corrupt stretch, a
+    rollover) is decoded in bulk up to there and frame by frame from there on, back in bulk from
+    an intra frame past a corrupt stretch (see HANDBACK_GAP); any other by the reference alone. All give the same result (tests/test_blackbox_fast.py compares them
     frame by frame)."""
 
     from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_bulk
 
-    decoded = decode_log_bulk(section, index, offset, keep_field=keep_field)
-    if isinstance(decoded, DecodedLog):
-        return decoded
-    return decode_log_reference(section, index, offset, keep_field=keep_field, resume=decoded)
+    got = decode_log_bulk(section, index, offset, keep_field=keep_field)
+    if isinstance(got, DecodedLog):
+        return got
+    if got is None:
+        return decode_log_reference(section, index, offset, keep_field=keep_field)
+    # a corrupt stretch: frame by frame from there, back to bulk at an intra frame past it
+    state = got
+    n = len(section)
+    framing_left = HANDBACK_FRAMING * n  # bytes the bulk decoder may frame again, in all
+    while True:  # ends: each pass starts further on, or is the reference's last
+        after: int | None = state.pos + HANDBACK_GAP
+        if n - state.pos < MIN_HANDBACK_BYTES or framing_left < n - state.pos:
+            after = None
+        try:
+            ref = _decode_log(
+                section, index, offset, wrap=False, keep_field=keep_field, resume=state,
+                handback_after=after,
+            )  # fmt: skip
+        except OverflowError:
+            break
+        if isinstance(ref, DecodedLog):
+            if _in_32bit_range(ref):
+                return ref
+            break
+        framing_left -= n - ref.pos
+        got = decode_log_bulk(section, index, offset, keep_field=keep_field, start=ref)
+        if isinstance(got, DecodedLog):
+            if _in_32bit_range(got):
+                return got
+            break
+        state = ref if got is None else got  # declined there: the reference carries on
+    # a value needing the 32-bit wrap somewhere: the reference with the wrap, from the start
+    return decode_log_reference(section, index, offset, keep_field=keep_field)
 
 
 def decode_log_reference(
@@ -761,12 +797,14 @@ def decode_log_reference(
 
     ``resume``: start where a bulk decoder stopped, with its state (its frames are in range of
     their fields, so they are the same with or without the 32-bit wrap)."""
+    fast: DecodedLog | ResumeState | None
     try:
         fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field, resume=resume)
     except OverflowError:  # a value beyond int64: certainly out of range
         fast = None
-    if fast is None or not _in_32bit_range(fast):
+    if not isinstance(fast, DecodedLog) or not _in_32bit_range(fast):
         fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field, resume=resume)
+    assert isinstance(fast, DecodedLog)  # no handback asked
     return fast
 
 
@@ -832,6 +870,18 @@ def _table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
     return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
 
 
+def corruption_summary(index: int, stats: dict[str, int]) -> str | None:
+    """The warning closing a log with corrupt or implausible frames (None when it has none)."""
+    if not (stats["corrupt"] or stats["invalid_main"]):
+        return None
+    return (
+        f"log {index + 1}: {stats['corrupt']} corrupt frame(s) and {stats['invalid_main']} "
+        f"implausible main frame(s) skipped, resynchronised at the next frame marker "
+        f"({stats['dropped_p']} inter frames dropped until the next intra frame, "
+        f"{stats['skipped_bytes']} unparseable bytes)"
+    )
+
+
 def _decode_log(
     section: bytes,
     index: int,
@@ -840,7 +890,11 @@ def _decode_log(
     wrap: bool,
     keep_field: Callable[[str], bool] | None = None,
     resume: ResumeState | None = None,
-) -> DecodedLog:
+    handback_after: int | None = None,
+) -> DecodedLog | ResumeState:
+    """Decode frame by frame (from ``resume`` when given). ``handback_after``: stop at the first
+    intra frame from that byte on that follows a good frame (no rollover so far), and return
+    the state there for the bulk decoder to carry on from."""
     headers, defs, pos = parse_headers(section)
     warnings: list[str] = []
     idef = defs.get("I")
@@ -964,6 +1018,23 @@ def _decode_log(
                     garbage_run = False
                     pos = p
                     continue
+        if (
+            m == mark_i
+            and handback_after is not None
+            and pos >= handback_after
+            and not garbage_run
+            and not rollover
+        ):
+            main_now = _table(main_rows, nfields if keep is None else len(keep))
+            if resume is not None and main_offset:
+                main_now = np.concatenate((resume.main, main_now))
+            return ResumeState(
+                pos=pos, main=main_now, prev=prev, prev2=prev2, last_iter=last_iter,
+                last_time=last_time, home=list(home),
+                work_done=WORK_PER_BYTE * n + 100_000 - budget, slow_rows=slow_rows,
+                slow_index=slow_index, gps_rows=gps_rows, events=events, stats=dict(stats),
+                warnings=list(warnings),
+            )  # fmt: skip
         if m not in markers or m not in parsers and m != mark_e:
             # a run of bytes no frame starts with (erased flash after a cut-off log: megabytes
             # of 0xFF) is skipped at once, as byte by byte
@@ -1075,13 +1146,8 @@ def _decode_log(
             f"log {index + 1}: too corrupt to resynchronise economically; decoding stopped at "
             f"byte {offset + out_of_budget} ({n - out_of_budget} bytes ignored)"
         )
-    if stats["corrupt"] or stats["invalid_main"]:
-        warnings.append(
-            f"log {index + 1}: {stats['corrupt']} corrupt frame(s) and {stats['invalid_main']} "
-            f"implausible main frame(s) skipped, resynchronised at the next frame marker "
-            f"({stats['dropped_p']} inter frames dropped until the next intra frame, "
-            f"{stats['skipped_bytes']} unparseable bytes)"
-        )
+    if (summary := corruption_summary(index, stats)) is not None:
+        warnings.append(summary)
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())

@@ -17,12 +17,13 @@ Slow (S), GPS (G) and GPS-home (H) frames and events are framed by the same expr
 parsed one by one by the reference's own frame parsers (a few hundred in a log), with the state
 the reference would give them (the home position, the last main frame's time).
 
-A log whose frames tile the data only up to some point (a truncated tail, a corrupt frame) is
-decoded in bulk up to the last frame before it, and :func:`decode_log_bulk` returns the state
-there for the reference decoder to carry on from. Anything else the fast path does not cover
-(time rollovers, data version 1, home or last-time predictors in main frames, values needing
-the 32-bit wrap, an implausible main frame in the clean stretch) leaves the whole log to the
-reference decoder, so decoded values never depend on which path ran.
+A log whose frames tile the data only up to some point (a truncated tail, a corrupt frame, an
+implausible one such as a clock rollover) is decoded in bulk up to the last frame before it, and
+:func:`decode_log_bulk` returns the state there for the reference decoder to carry on from; the
+reference can hand back at an intra frame past a corrupt stretch (``start``, see
+:func:`blackbox_decode.decode_log`). Anything else the fast path does not cover (data version
+1, home or last-time predictors in main frames, values needing the 32-bit wrap, a damaged start)
+leaves the whole log to the reference decoder, so decoded values never depend on which path ran.
 """
 
 from __future__ import annotations
@@ -378,17 +379,19 @@ def decode_log_bulk(
     offset: int = 0,
     *,
     keep_field: Callable[[str], bool] | None = None,
+    start: bd.ResumeState | None = None,
 ) -> bd.DecodedLog | bd.ResumeState | None:
     """The log decoded in bulk (a :class:`DecodedLog`); or, when only a first stretch of it is
     clean (a truncated tail, a corrupt frame further on), that stretch decoded in bulk as a
     :class:`ResumeState` for the reference decoder to carry on from; or None (the reference
-    decodes it all)."""
+    decodes it all). ``start``: carry on from where the reference decoder stopped (at an intra
+    frame), with its state."""
     declined = (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError)
     try:
         try:
-            return _decode(section, index, offset, keep_field)
+            return _decode(section, index, offset, keep_field, start=start)
         except _CutBefore as cut:
-            return _decode(section, index, offset, keep_field, max_frames=cut.frame)
+            return _decode(section, index, offset, keep_field, cut.frame, start=start)
     except (*declined, _CutBefore) as exc:
         # the reference decoder decodes (or rejects) it, however odd the log
         log.debug("log %d: bulk decoding declined (%s)", index + 1, exc)
@@ -445,9 +448,14 @@ def _decode(
     offset: int,
     keep_field: Callable[[str], bool] | None,
     max_frames: int | None = None,
+    *,
+    start: bd.ResumeState | None = None,
 ) -> bd.DecodedLog | bd.ResumeState | None:
-    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`)."""
+    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`);
+    from ``start`` on when given."""
     headers, defs, pos = bd.parse_headers(section)
+    if start is not None:
+        pos = start.pos
     idef = defs.get("I")
     if idef is None or not idef.names or not idef.encoding:
         raise _Unsupported("no main-frame layout")
@@ -512,7 +520,7 @@ def _decode(
     widths = np.where(is_main, max(nf, 1), 1)
     for m, fd in aux_defs.items():
         widths[kinds == m] = max(len(fd.names), 1)
-    work_done = int(widths.sum())
+    work_done = int(widths.sum()) + (start.work_done if start is not None else 0)
     if work_done + bd.MAX_FIELDS >= bd.WORK_PER_BYTE * n + 100_000:
         raise _Unsupported("work budget")
 
@@ -541,15 +549,23 @@ def _decode(
     events: list[bd.BlackboxEvent] = []
     stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
     stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
-    stats["I"], stats["P"] = len(i_rows), len(p_rows)
-    # the history each main frame is checked against: the previous one, or a logging resume
-    last_it = np.concatenate(([-1], it[:-1]))
-    last_t = np.concatenate(([-1], t[:-1]))
     home = [0, 0]
+    first_it, first_t, base = -1, -1, 0  # the state before the first frame here
+    if start is not None:
+        slow_rows, slow_index = list(start.slow_rows), list(start.slow_index)
+        gps_rows, events = list(start.gps_rows), list(start.events)
+        stats.update(start.stats)
+        home = list(start.home)
+        first_it, first_t, base = start.last_iter, start.last_time, len(start.main)
+    stats["I"] += len(i_rows)
+    stats["P"] += len(p_rows)
+    # the history each main frame is checked against: the previous one, or a logging resume
+    last_it = np.concatenate(([first_it], it[:-1]))
+    last_t = np.concatenate(([first_t], t[:-1]))
     resumed: tuple[int, int, int] | None = None  # (main frames before it, iteration, time)
     aux_at = np.flatnonzero(~is_main)
     aux_starts = starts[aux_at]
-    for start, end, kind, before in zip(
+    for at, end, kind, before in zip(
         aux_starts.tolist(),
         ends[aux_at].tolist(),
         kinds[aux_at].tolist(),
@@ -557,7 +573,7 @@ def _decode(
         strict=True,
     ):
         if kind == ord("E"):
-            ev, payload, p = bd._parse_event(section, start + 1)
+            ev, payload, p = bd._parse_event(section, at + 1)
             if ev == bd.EVENT_LOGGING_RESUME:
                 resumed = (before, int(payload[0]), int(payload[1]))
                 if before < len(main_at):
@@ -565,20 +581,18 @@ def _decode(
                         raise _Unsupported("an inter frame right after logging resumed")
                     last_it[before], last_t[before] = resumed[1], resumed[2]
             stats["E"] += 1
-            events.append(bd.BlackboxEvent(before, ev, payload))
+            events.append(bd.BlackboxEvent(base + before, ev, payload))
         else:
             if resumed is not None and resumed[0] == before:
                 last_time = resumed[2]
             else:
-                last_time = int(t[before - 1]) if before else -1
+                last_time = int(t[before - 1]) if before else first_t
             fd = aux_defs[kind]
-            row, p = aux_parsers[kind](
-                section, start + 1, [0] * len(fd.names), [], 0, last_time, home
-            )
+            row, p = aux_parsers[kind](section, at + 1, [0] * len(fd.names), [], 0, last_time, home)
             if kind == ord("S"):
                 stats["S"] += 1
                 slow_rows.append(row)
-                slow_index.append(before)
+                slow_index.append(base + before)
             elif kind == ord("G"):
                 stats["G"] += 1
                 gps_rows.append(row)
@@ -600,7 +614,8 @@ def _decode(
     bad[checked] |= (di[checked] < 0) | (dt[checked] < 0)
     if bad.any():
         raise _CutBefore(int(main_at[int(np.argmax(bad))]))
-    warnings = [
+    warnings = list(start.warnings) if start is not None else []
+    warnings += [
         f"log {index + 1}: {1e-6 * (int(t[r]) - int(last_t[r])):.1f} s gap in the data "
         f"after t = {1e-6 * int(last_t[r]):.3f} s"
         for r in checked[dt[checked] >= bd.MAX_TIME_JUMP_US].tolist()
@@ -608,28 +623,33 @@ def _decode(
     if not bd.in_32bit_range(headers, [names[k] for k in kept], vals):
         raise _Unsupported("a value needs the 32-bit wrap")
 
+    main = vals if start is None else np.concatenate((start.main, vals))
     if not complete:
         log.debug("log %d: bulk decoded up to byte %d of %d", index + 1, stop, n)
-        last_iter, last_time = (int(it[-1]), int(t[-1])) if len(it) else (-1, -1)
+        last_iter, last_time = (int(it[-1]), int(t[-1])) if len(it) else (first_it, first_t)
         if resumed is not None and resumed[0] == len(main_at):
             last_iter, last_time = resumed[1], resumed[2]
         prev = vals[-1].tolist() if len(vals) else None
         prev2 = None
         if len(vals):
             prev2 = prev if mk[-1] == ord("I") else vals[-2].tolist()
+        elif start is not None:
+            prev, prev2 = start.prev, start.prev2
         return bd.ResumeState(
-            pos=stop, main=vals, prev=prev, prev2=prev2, last_iter=last_iter,
+            pos=stop, main=main, prev=prev, prev2=prev2, last_iter=last_iter,
             last_time=last_time, home=home, work_done=work_done, slow_rows=slow_rows,
             slow_index=slow_index, gps_rows=gps_rows, events=events, stats=stats,
             warnings=warnings,
         )  # fmt: skip
+    if start is not None and (summary := bd.corruption_summary(index, stats)) is not None:
+        warnings.append(summary)  # the reference's closing warning on the stretch it decoded
     sdef = defs.get("S", bd.FrameDef())
     gdef = defs.get("G", bd.FrameDef())
     return bd.DecodedLog(
         index=index,
         headers=headers,
         main_fields=[names[k] for k in kept],
-        main=vals,
+        main=main,
         slow_fields=list(sdef.names),
         slow=bd._table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
