@@ -169,3 +169,237 @@ def test_a_value_needing_the_32_bit_wrap_goes_to_the_reference() -> None:
     decoded = bd.decode_log(section)
     assert int(decoded.main[:, 6].max()) <= 0xFFFFFFFF
     assert_same(decoded, bd.decode_log_reference(section))
+
+
+# --- what real pilots' logs hold: GPS and GPS-home frames, several logs in one file -------------
+
+
+def gps_log(seed: int, frames: int, start_iteration: int = 4096, start_time_us: int = 5_000_000):
+    """A hover log with GPS (G) frames every 5th main frame, a GPS-home (H) frame before the
+    first and a new home half way, slow frames, events and an announced logging pause followed
+    by a GPS frame (its time is relative to the resume event's). Returns the log and the GPS
+    rows and homes it encodes."""
+    rng = np.random.default_rng(seed)
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
+                     be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
+    out = bytearray(enc.header_bytes())
+    out += enc.event(bd.EVENT_SYNC_BEEP, start_time_us - 1000)
+    out += enc.s_frame([1, 0, 0, 1])
+    gps: list[list[int]] = []
+    homes: list[list[int]] = []
+    home = [
+        int(rng.integers(-900_000_000, 900_000_000)),
+        int(rng.integers(-1_800_000_000, 1_800_000_000)),
+    ]
+    resume_at = frames // 2
+    pause_us = 0
+    for k in range(frames):
+        if k in (0, frames // 3):
+            homes.append(list(home))
+            out += enc.h_frame(home)
+        if k == resume_at:
+            pause_us += 3_000_000
+        values = be.sim_frame_values(k, start_iteration, start_time_us + pause_us, 10.0)
+        if k == resume_at:  # a resume event, a GPS frame, then the intra frame
+            out += enc.event(bd.EVENT_LOGGING_RESUME, values[0], values[1] - 70)
+            row = [values[1] - 70 + 9, 11, home[0] + 5, home[1] - 5, 120, 30, 1800]
+            gps.append(row)
+            out += enc.g_frame(row)
+            out += enc.i_frame(values)
+        else:
+            out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+        if k % 5 == 2:
+            row = [values[1] + int(rng.integers(0, 4000)), int(rng.integers(0, 30)),
+                   home[0] + int(rng.integers(-20_000, 20_000)),
+                   home[1] + int(rng.integers(-20_000, 20_000)),
+                   int(rng.integers(0, 20_000)), int(rng.integers(0, 3000)),
+                   int(rng.integers(0, 3600))]  # fmt: skip
+            gps.append(row)
+            out += enc.g_frame(row)
+        if k == frames // 3:
+            home = [home[0] + 1000, home[1] - 2000]  # a new home (re-armed)
+        if k == frames // 4:
+            out += enc.s_frame([int(rng.integers(0, 1 << 20)), 3, 0, 1])
+            out += enc.event(bd.EVENT_FLIGHT_MODE, 5, 1)
+    out += enc.event(bd.EVENT_DISARM, 4)
+    out += enc.event(bd.EVENT_LOG_END)
+    return bytes(out), gps, homes
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(12, 300))
+def test_gps_logs_frame_by_frame_with_their_values(seed: int, frames: int) -> None:
+    """GPS and GPS-home frames are covered by the fast path, equal to the reference, and
+    decode to the coordinates written (relative to the home of their time)."""
+    section, gps, homes = gps_log(seed, frames)
+    compare_fast(section)
+    fast = bf.decode_log_fast(section)
+    assert fast is not None
+    assert fast.gps_fields == be.SIM_GPS.names
+    assert fast.gps.tolist() == gps
+    assert fast.stats["G"] == len(gps) and fast.stats["H"] == len(homes)
+
+
+def test_a_file_of_several_gps_logs_is_decoded_in_bulk_log_by_log() -> None:
+    """A flash dump: several logs one after another (one holding no main frame at all, as
+    logging started and stopped at once), then erased flash. Every log takes the fast path,
+    and decode_file gives the reference's result for each."""
+    logs = [gps_log(s, n, 4096 * (s + 1), 5_000_000 * (s + 1)) for s, n in ((1, 200), (2, 40))]
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
+                     be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
+    empty = enc.header_bytes() + enc.event(bd.EVENT_SYNC_BEEP, 99) + enc.event(bd.EVENT_LOG_END)
+    data = logs[0][0] + empty + logs[1][0] + b"\xff" * 5000
+    ranges = bd.split_logs(data)
+    assert len(ranges) == 3
+    for i, (a, b) in enumerate(ranges):
+        for keep in (None, used_field):
+            got = bf.decode_log_bulk(data[a:b], i, a, keep_field=keep)
+            assert isinstance(got, bd.DecodedLog), f"log {i + 1} left to the reference"
+            assert_same(got, bd.decode_log_reference(data[a:b], i, a, keep_field=keep))
+    decoded = bd.decode_file(data)
+    assert [len(d.main) for d in decoded] == [200, 0, 40]
+    assert decoded[0].gps.tolist() == logs[0][1] and decoded[2].gps.tolist() == logs[1][1]
+
+
+# --- a log clean up to some point: bulk up to there, the reference from there -------------------
+
+
+@pytest.mark.parametrize("cut", [-40, -7, -1])
+def test_a_truncated_log_is_decoded_in_bulk_up_to_its_tail(cut: int) -> None:
+    section, _, _ = gps_log(5, 300)
+    truncated = section[:cut]
+    got = bf.decode_log_bulk(truncated)
+    assert isinstance(got, bd.ResumeState)
+    assert len(got.main) >= 290  # all but the last frames in bulk
+    for keep in (None, used_field):
+        assert_same(bd.decode_log(truncated, keep_field=keep),
+                    bd.decode_log_reference(truncated, keep_field=keep))  # fmt: skip
+
+
+def test_a_corrupt_stretch_is_left_to_the_reference_from_there_on() -> None:
+    section, gps, _ = gps_log(6, 300)
+    body = section.index(b"\nE") + 1
+    at = body + (len(section) - body) * 2 // 3
+    damaged = section[:at] + b"\x01\x02\x03" + section[at:]  # bytes no frame starts with
+    got = bf.decode_log_bulk(damaged)
+    assert isinstance(got, bd.ResumeState) and body < got.pos <= at
+    decoded = bd.decode_log(damaged)
+    assert_same(decoded, bd.decode_log_reference(damaged))
+    assert decoded.stats["skipped_bytes"] >= 3 and decoded.ended_cleanly
+    assert len(decoded.main) >= 290
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4), st.booleans(), st.sampled_from([0, 1, 5000]))
+def test_randomly_damaged_gps_logs_decode_as_the_reference_does(
+    seed: int, flips: int, truncate: bool, erased: int
+) -> None:
+    """Flipped bytes, a cut-off tail, erased flash (0xFF) after it: as the reference."""
+    rng = np.random.default_rng(seed)
+    section, _, _ = gps_log(seed, 160)
+    body = section.index(b"\nE") + 1
+    data = bytearray(section)
+    for k in rng.integers(body, len(data), flips):
+        data[int(k)] = int(rng.integers(0, 256))
+    end = int(rng.integers(body + 100, len(data) + 1)) if truncate else len(data)
+    damaged = bytes(data[:end]) + b"\xff" * erased
+    for keep in (None, used_field):
+        assert_same(
+            bd.decode_log(damaged, keep_field=keep),
+            bd.decode_log_reference(damaged, keep_field=keep),
+        )
+
+
+@pytest.mark.parametrize("shape", ["uniform", "ragged"])
+def test_inter_frame_runs_of_any_lengths(shape: str) -> None:
+    """Inter-frame runs all of one length are predicted on a grid, runs of very different
+    lengths (many intra frames, then one long run) row by row: both as the reference."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    out = bytearray(enc.header_bytes())
+    for k in range(1500):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        intra = k % 8 == 0 if shape == "uniform" else k < 1000 or k == 1200
+        out += enc.i_frame(values) if intra else enc.p_frame(values)
+    compare_fast(bytes(out))
+
+
+def test_more_logs_frame_by_frame() -> None:
+    """Blackbox logs not in the repository (THRUSTMAP_BLACKBOX_LOGS: a folder of .bbl/.bfl/.txt,
+    e.g. public logs gathered for a benchmark): every log of every file decodes exactly as the
+    reference decoder decodes it, in bulk where it is clean."""
+    import os
+
+    folder = os.environ.get("THRUSTMAP_BLACKBOX_LOGS")
+    if not folder or not Path(folder).is_dir():
+        pytest.skip("THRUSTMAP_BLACKBOX_LOGS is not set to a folder of blackbox logs")
+    paths = sorted(
+        p for p in Path(folder).rglob("*") if p.suffix.lower() in (".bbl", ".bfl", ".txt")
+    )
+    assert paths, folder
+    for path in paths:
+        data = path.read_bytes()
+        for i, (a, b) in enumerate(bd.split_logs(data)):
+            for keep in (None, used_field):
+                assert_same(
+                    bd.decode_log(data[a:b], i, a, keep_field=keep),
+                    bd.decode_log_reference(data[a:b], i, a, keep_field=keep),
+                )
+
+
+@pytest.mark.parametrize("case", ["rollover", "time jump"])
+def test_an_implausible_frame_hands_over_to_the_reference_there(case: str) -> None:
+    """The 32-bit microsecond clock rolling over (after 71.6 min powered), or an inter frame
+    11 s after the one before: the frames before it are decoded in bulk, the reference decoder
+    takes over from it (rollover bookkeeping, the frame dropped), with the same result."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
+                     be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
+    out = bytearray(enc.header_bytes())
+    out += enc.h_frame([473_000_000, 85_000_000])
+    start_us = (1 << 32) - 2_000_000 if case == "rollover" else 5_000_000
+    jump_us = 0
+    for k in range(1000):
+        if case == "time jump" and k == 700:
+            jump_us = 11_000_000
+        values = be.sim_frame_values(k, 4096, start_us + jump_us, 10.0)
+        values[1] &= 0xFFFFFFFF  # the firmware's clock is 32-bit
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+        if k % 10 == 3:
+            out += enc.g_frame([values[1] + 50, 9, 473_000_100, 85_000_000 - k, 50, 3, 90])
+    out += enc.event(bd.EVENT_LOG_END)
+    section = bytes(out)
+    got = bf.decode_log_bulk(section)
+    assert isinstance(got, bd.ResumeState)
+    assert len(got.main) >= 480  # the frames before the rollover (~500) or the jump (700)
+    for keep in (None, used_field):
+        assert_same(bd.decode_log(section, keep_field=keep),
+                    bd.decode_log_reference(section, keep_field=keep))  # fmt: skip
+    decoded = bd.decode_log(section)
+    if case == "rollover":  # the reference's time keeps counting past 2**32
+        assert int(decoded.main[-1, 1]) > 1 << 32 and len(decoded.main) >= 990
+    else:
+        assert decoded.stats["invalid_main"] >= 1
+
+
+def test_bulk_decoding_resumes_after_a_corrupt_stretch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long log with a corrupt stretch early on: bulk up to it, frame by frame across it,
+    bulk again from an intra frame past it (not frame by frame to the end); as the reference."""
+    section = be.simulate_hover_log(120.0)  # ~500 kB
+    body = section.index(b"\nE") + 1
+    at = body + (len(section) - body) // 8
+    damaged = section[:at] + b"\x01\x02\x03" + section[at + 40 :]  # a frame lost, garbage
+    passes: list[tuple[bool, str]] = []
+    bulk = bf.decode_log_bulk
+
+    def spy(*args: object, **kwargs: object) -> object:
+        got = bulk(*args, **kwargs)  # type: ignore[arg-type]
+        passes.append((kwargs.get("start") is not None, type(got).__name__))
+        return got
+
+    monkeypatch.setattr(bf, "decode_log_bulk", spy)
+    for keep in (None, used_field):
+        passes.clear()
+        decoded = bd.decode_log(damaged, keep_field=keep)
+        assert passes == [(False, "ResumeState"), (True, "DecodedLog")]
+        assert_same(decoded, bd.decode_log_reference(damaged, keep_field=keep))
+        assert decoded.stats["corrupt"] + decoded.stats["skipped_bytes"] > 0
+        assert any("corrupt frame(s)" in w for w in decoded.warnings)

@@ -92,6 +92,8 @@ class Encoder:
     p_predictor: list[int]
     p_encoding: list[int]
     sdef: bd.FrameDef | None = None
+    gdef: bd.FrameDef | None = None  # GPS frames (time from the last main frame, home coords)
+    hdef: bd.FrameDef | None = None  # GPS-home frames
 
     def __post_init__(self) -> None:
         hd = dict(self.headers)
@@ -106,6 +108,8 @@ class Encoder:
         self.motor0 = self.idef.names.index("motor[0]") if "motor[0]" in self.idef.names else -1
         self.prev: list[int] | None = None
         self.prev2: list[int] | None = None
+        self.last_time = -1  # the last main frame's time, or a logging-resume event's
+        self.home = [0, 0]
 
     def header_bytes(self) -> bytes:
         def line(k: str, v: str) -> bytes:
@@ -122,11 +126,12 @@ class Encoder:
         out += line("Field I encoding", ints(self.idef.encoding))
         out += line("Field P predictor", ints(self.p_predictor))
         out += line("Field P encoding", ints(self.p_encoding))
-        if self.sdef is not None:
-            out += line("Field S name", ",".join(self.sdef.names))
-            out += line("Field S signed", ints(self.sdef.signed))
-            out += line("Field S predictor", ints(self.sdef.predictor))
-            out += line("Field S encoding", ints(self.sdef.encoding))
+        for marker, fd in (("H", self.hdef), ("G", self.gdef), ("S", self.sdef)):
+            if fd is not None:
+                out += line(f"Field {marker} name", ",".join(fd.names))
+                out += line(f"Field {marker} signed", ints(fd.signed))
+                out += line(f"Field {marker} predictor", ints(fd.predictor))
+                out += line(f"Field {marker} encoding", ints(fd.encoding))
         for k, v in self.headers:
             out += line(k, v)
         return bytes(out)
@@ -152,6 +157,12 @@ class Encoder:
             return c["vbatref"]
         if pred == bd.PRED_MINMOTOR:
             return c["motor_low"]
+        if pred == bd.PRED_HOME_COORD:
+            return self.home[0]
+        if pred == bd.PRED_HOME_COORD_1:
+            return self.home[1]
+        if pred == bd.PRED_LAST_MAIN_FRAME_TIME:
+            return self.last_time
         raise ValueError(f"encoder does not support predictor {pred}")
 
     def _frame(
@@ -166,6 +177,10 @@ class Encoder:
     ) -> bytes:
         cur = list(values)
         n = len(fd.names)
+        predictor = list(predictor)
+        for i in range(1, n):  # home coordinates: (lat, lon) pairs sharing one predictor id
+            if predictor[i - 1] == bd.PRED_HOME_COORD and predictor[i] == bd.PRED_HOME_COORD:
+                predictor[i] = bd.PRED_HOME_COORD_1
         res: list[int] = []
         for i in range(n):
             if predictor[i] == bd.PRED_INC:
@@ -220,6 +235,7 @@ class Encoder:
             values, self.idef, self.idef.predictor, self.idef.encoding, zeros, zeros, 0
         )
         self.prev = self.prev2 = list(values)
+        self.last_time = values[1]
         return b"I" + body
 
     def p_frame(self, values: Sequence[int]) -> bytes:
@@ -230,6 +246,7 @@ class Encoder:
             values, self.idef, self.p_predictor, self.p_encoding, self.prev, self.prev2, skipped
         )
         self.prev2, self.prev = self.prev, list(values)
+        self.last_time = values[1]
         return b"P" + body
 
     def s_frame(self, values: Sequence[int]) -> bytes:
@@ -240,8 +257,29 @@ class Encoder:
             values, self.sdef, self.sdef.predictor, self.sdef.encoding, zeros, zeros, 0
         )
 
-    @staticmethod
-    def event(kind: int, *args: int) -> bytes:
+    def g_frame(self, values: Sequence[int]) -> bytes:
+        """A GPS frame: its time relative to the last main frame, its coordinates to home."""
+        if self.gdef is None:
+            raise ValueError("no GPS-frame definition")
+        zeros = [0] * len(self.gdef.names)
+        return b"G" + self._frame(
+            values, self.gdef, self.gdef.predictor, self.gdef.encoding, zeros, zeros, 0
+        )
+
+    def h_frame(self, values: Sequence[int]) -> bytes:
+        """A GPS-home frame (GPS_home[0], GPS_home[1]): later GPS frames are relative to it."""
+        if self.hdef is None:
+            raise ValueError("no GPS-home-frame definition")
+        zeros = [0] * len(self.hdef.names)
+        out = b"H" + self._frame(
+            values, self.hdef, self.hdef.predictor, self.hdef.encoding, zeros, zeros, 0
+        )
+        self.home = [int(values[0]), int(values[1])]
+        return out
+
+    def event(self, kind: int, *args: int) -> bytes:
+        if kind == bd.EVENT_LOGGING_RESUME:
+            self.last_time = args[1]
         if kind == bd.EVENT_LOG_END:
             return b"E\xff" + bd.END_OF_LOG_TEXT
         return b"E" + bytes([kind]) + b"".join(uvb(a) for a in args)
@@ -281,6 +319,17 @@ SIM_SLOW = bd.FrameDef(
     signed=[0, 0, 0, 0],
     predictor=[0, 0, 0, 0],
     encoding=[1, 1, 7, 7],
+)
+#: GPS frames as Betaflight 4.2 logs them (time from the last main frame, coordinates from home)
+SIM_GPS = bd.FrameDef(
+    names=["time", "GPS_numSat", "GPS_coord[0]", "GPS_coord[1]", "GPS_altitude", "GPS_speed",
+           "GPS_ground_course"],
+    signed=[0, 0, 1, 1, 0, 0, 0],
+    predictor=[10, 0, 7, 7, 0, 0, 0],
+    encoding=[1, 1, 0, 0, 1, 1, 1],
+)  # fmt: skip
+SIM_GPS_HOME = bd.FrameDef(
+    names=["GPS_home[0]", "GPS_home[1]"], signed=[1, 1], predictor=[0, 0], encoding=[0, 0]
 )
 SIM_HEADERS = [
     ("Firmware type", "Cleanflight"),

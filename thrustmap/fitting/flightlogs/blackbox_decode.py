@@ -44,6 +44,13 @@ MAX_INTERVAL = 0xFFFF  # 'I interval' and the 'P interval' numerator/denominator
 #: decoding work budget per input byte (field evaluations, counting failed resync attempts),
 #: so a damaged log decodes in time linear in its size whatever its header claims
 WORK_PER_BYTE = 64
+#: a log with corrupt stretches: back to bulk decoding at an intra frame at least HANDBACK_GAP
+#: bytes past where the frame-by-frame decoder took over, with MIN_HANDBACK_BYTES still to go;
+#: each bulk pass frames the rest of the log, so all of them frame at most HANDBACK_FRAMING
+#: times the log (a log corrupt all over is left to the frame-by-frame decoder)
+HANDBACK_GAP = 16_384
+MIN_HANDBACK_BYTES = 262_144
+HANDBACK_FRAMING = 1
 MAX_ITERATION_JUMP = 5000
 MAX_TIME_JUMP_US = 10_000_000
 
@@ -119,6 +126,28 @@ class DecodedLog:
     warnings: list[str]
     ended_cleanly: bool
     byte_range: tuple[int, int]
+
+
+@dataclass
+class ResumeState:
+    """Where a bulk decoder stopped in a log: the reference decoder carries on from here with
+    the state it would have had after decoding everything before ``pos`` itself (the frames
+    before ``pos`` were all clean: each parsed, followed by a frame, plausible)."""
+
+    pos: int  # offset in the section of the first frame not yet decoded
+    main: npt.NDArray[np.int64]  # the main frames decoded so far (kept fields)
+    prev: list[int] | None  # the last main frame (None: none yet)
+    prev2: list[int] | None  # the one before it (the last one again after an intra frame)
+    last_iter: int
+    last_time: int
+    home: list[int]
+    work_done: int  # work-budget units spent (see WORK_PER_BYTE)
+    slow_rows: list[list[int]]
+    slow_index: list[int]
+    gps_rows: list[list[int]]
+    events: list[BlackboxEvent]
+    stats: dict[str, int]
+    warnings: list[str]
 
 
 # --- header --------------------------------------------------------------------------------
@@ -676,8 +705,10 @@ def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
     return num, den
 
 
-def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
-    """For each iteration (mod I interval): iterations skipped before the next logged one."""
+@functools.lru_cache(maxsize=16)
+def _skip_table(i_interval: int, p_num: int, p_den: int) -> tuple[int, ...]:
+    """For each iteration (mod I interval): iterations skipped before the next logged one
+    (cached: the logs of a file share their intervals)."""
 
     def logged(idx: int) -> bool:
         return (idx % i_interval + p_num - 1) % p_den < p_num
@@ -689,7 +720,7 @@ def _skip_table(i_interval: int, p_num: int, p_den: int) -> list[int]:
     next_gap = [cap + 1] * (span + 1)
     for idx in range(span - 1, -1, -1):
         next_gap[idx] = 0 if logged(idx) else min(next_gap[idx + 1] + 1, cap + 1)
-    return [min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval)]
+    return tuple(min(next_gap[r + 1] + 1, cap + 1) - 1 for r in range(i_interval))
 
 
 def decode_log(
@@ -711,14 +742,46 @@ def decode_log(
     stored, and ``main_fields`` lists only the kept ones (a reader needing a handful of the
     40-odd fields saves most of the decoding).
 
-    A clean log (no corrupt frame, gap, rollover, ...) is decoded in bulk by
-    :mod:`blackbox_fast`, ~10x faster; every other log by :func:`decode_log_reference`. Both
-    give the same result (tests/test_blackbox_fast.py compares them frame by frame)."""
-    from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_fast
+    A clean log (no corrupt frame, rollover, ...) is decoded in bulk by :mod:`blackbox_fast`,
+    ~10x faster; a log that is clean up to some point (a truncated tail, a corrupt stretch, a
+    rollover) is decoded in bulk up to there and frame by frame from there on, back in bulk from
+    an intra frame past a corrupt stretch (see HANDBACK_GAP); any other by the reference alone. All give the same result (tests/test_blackbox_fast.py compares them
+    frame by frame)."""
 
-    decoded = decode_log_fast(section, index, offset, keep_field=keep_field)
-    if decoded is not None:
-        return decoded
+    from thrustmap.fitting.flightlogs.blackbox_fast import decode_log_bulk
+
+    got = decode_log_bulk(section, index, offset, keep_field=keep_field)
+    if isinstance(got, DecodedLog):
+        return got
+    if got is None:
+        return decode_log_reference(section, index, offset, keep_field=keep_field)
+    # a corrupt stretch: frame by frame from there, back to bulk at an intra frame past it
+    state = got
+    n = len(section)
+    framing_left = HANDBACK_FRAMING * n  # bytes the bulk decoder may frame again, in all
+    while True:  # ends: each pass starts further on, or is the reference's last
+        after: int | None = state.pos + HANDBACK_GAP
+        if n - state.pos < MIN_HANDBACK_BYTES or framing_left < n - state.pos:
+            after = None
+        try:
+            ref = _decode_log(
+                section, index, offset, wrap=False, keep_field=keep_field, resume=state,
+                handback_after=after,
+            )  # fmt: skip
+        except OverflowError:
+            break
+        if isinstance(ref, DecodedLog):
+            if _in_32bit_range(ref):
+                return ref
+            break
+        framing_left -= n - ref.pos
+        got = decode_log_bulk(section, index, offset, keep_field=keep_field, start=ref)
+        if isinstance(got, DecodedLog):
+            if _in_32bit_range(got):
+                return got
+            break
+        state = ref if got is None else got  # declined there: the reference carries on
+    # a value needing the 32-bit wrap somewhere: the reference with the wrap, from the start
     return decode_log_reference(section, index, offset, keep_field=keep_field)
 
 
@@ -728,27 +791,40 @@ def decode_log_reference(
     offset: int = 0,
     *,
     keep_field: Callable[[str], bool] | None = None,
+    resume: ResumeState | None = None,
 ) -> DecodedLog:
-    """:func:`decode_log` frame by frame in pure Python: every log, however damaged."""
+    """:func:`decode_log` frame by frame in pure Python: every log, however damaged.
+
+    ``resume``: start where a bulk decoder stopped, with its state (its frames are in range of
+    their fields, so they are the same with or without the 32-bit wrap)."""
+    fast: DecodedLog | ResumeState | None
     try:
-        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field)
+        fast = _decode_log(section, index, offset, wrap=False, keep_field=keep_field, resume=resume)
     except OverflowError:  # a value beyond int64: certainly out of range
         fast = None
-    if fast is None or not _in_32bit_range(fast):
-        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field)
+    if not isinstance(fast, DecodedLog) or not _in_32bit_range(fast):
+        fast = _decode_log(section, index, offset, wrap=True, keep_field=keep_field, resume=resume)
+    assert isinstance(fast, DecodedLog)  # no handback asked
     return fast
 
 
 def _in_32bit_range(log: DecodedLog) -> bool:
     """True when every main-frame value (but time, kept with its rollovers) fits its field."""
-    if not len(log.main):
+    return in_32bit_range(log.headers, log.main_fields, log.main)
+
+
+def in_32bit_range(
+    headers: dict[str, str], main_fields: list[str], main: npt.NDArray[np.int64]
+) -> bool:
+    """True when every value of ``main`` (columns ``main_fields``) but time fits its field."""
+    if not len(main):
         return True
-    names = [x.strip() for x in log.headers.get("Field I name", "").split(",")]
-    sign_of = dict(zip(names, _main_signed(log.headers, len(names)), strict=True))
-    for k, name in enumerate(log.main_fields):
+    names = [x.strip() for x in headers.get("Field I name", "").split(",")]
+    sign_of = dict(zip(names, _main_signed(headers, len(names)), strict=True))
+    for k, name in enumerate(main_fields):
         if k == 1:
             continue
-        col = log.main[:, k]
+        col = main[:, k]
         lo, hi = (-(1 << 31), (1 << 31) - 1) if sign_of.get(name, 0) else (0, (1 << 32) - 1)
         if int(col.min()) < lo or int(col.max()) > hi:
             return False
@@ -794,6 +870,18 @@ def _table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
     return np.fromiter(flat, dtype=np.int64, count=len(rows) * width).reshape(-1, width)
 
 
+def corruption_summary(index: int, stats: dict[str, int]) -> str | None:
+    """The warning closing a log with corrupt or implausible frames (None when it has none)."""
+    if not (stats["corrupt"] or stats["invalid_main"]):
+        return None
+    return (
+        f"log {index + 1}: {stats['corrupt']} corrupt frame(s) and {stats['invalid_main']} "
+        f"implausible main frame(s) skipped, resynchronised at the next frame marker "
+        f"({stats['dropped_p']} inter frames dropped until the next intra frame, "
+        f"{stats['skipped_bytes']} unparseable bytes)"
+    )
+
+
 def _decode_log(
     section: bytes,
     index: int,
@@ -801,7 +889,12 @@ def _decode_log(
     *,
     wrap: bool,
     keep_field: Callable[[str], bool] | None = None,
-) -> DecodedLog:
+    resume: ResumeState | None = None,
+    handback_after: int | None = None,
+) -> DecodedLog | ResumeState:
+    """Decode frame by frame (from ``resume`` when given). ``handback_after``: stop at the first
+    intra frame from that byte on that follows a good frame (no rollover so far), and return
+    the state there for the bulk decoder to carry on from."""
     headers, defs, pos = parse_headers(section)
     warnings: list[str] = []
     idef = defs.get("I")
@@ -870,6 +963,20 @@ def _decode_log(
     widths[mark_i] = widths[mark_p] = max(nfields, 1)
     budget = WORK_PER_BYTE * n + 100_000
     out_of_budget = -1
+    main_offset = 0  # main frames decoded before ``resume.pos`` (not in main_rows)
+    if resume is not None:
+        pos, prev, last_iter, last_time, home = (
+            resume.pos, resume.prev, resume.last_iter, resume.last_time, list(resume.home)
+        )  # fmt: skip
+        prev2 = zeros if resume.prev2 is None else resume.prev2
+        budget -= resume.work_done
+        main_offset = len(resume.main)
+        slow_rows, slow_index = list(resume.slow_rows), list(resume.slow_index)
+        gps_rows, events = list(resume.gps_rows), list(resume.events)
+        stats.update(resume.stats)
+        warnings = list(resume.warnings)
+    starts_frame = bytes(sorted({*parsers, mark_e} & set(markers)))
+    skip_run = re.compile(b"[^" + re.escape(starts_frame) + b"]+").match
     parse_p = parsers.get(mark_p)
     width_main = widths[mark_p]
     append = main_rows.append
@@ -911,12 +1018,33 @@ def _decode_log(
                     garbage_run = False
                     pos = p
                     continue
+        if (
+            m == mark_i
+            and handback_after is not None
+            and pos >= handback_after
+            and not garbage_run
+            and not rollover
+        ):
+            main_now = _table(main_rows, nfields if keep is None else len(keep))
+            if resume is not None and main_offset:
+                main_now = np.concatenate((resume.main, main_now))
+            return ResumeState(
+                pos=pos, main=main_now, prev=prev, prev2=prev2, last_iter=last_iter,
+                last_time=last_time, home=list(home),
+                work_done=WORK_PER_BYTE * n + 100_000 - budget, slow_rows=slow_rows,
+                slow_index=slow_index, gps_rows=gps_rows, events=events, stats=dict(stats),
+                warnings=list(warnings),
+            )  # fmt: skip
         if m not in markers or m not in parsers and m != mark_e:
-            stats["skipped_bytes"] += 1
-            if not garbage_run and main_rows:
+            # a run of bytes no frame starts with (erased flash after a cut-off log: megabytes
+            # of 0xFF) is skipped at once, as byte by byte
+            found = skip_run(d, pos)
+            run = found.end() - pos if found is not None else 1
+            stats["skipped_bytes"] += run
+            if not garbage_run and (main_rows or main_offset):
                 prev = None
             garbage_run = True
-            pos += 1
+            pos += run
             continue
         start = pos
         budget -= widths.get(m, 1)
@@ -991,7 +1119,7 @@ def _decode_log(
         elif event is not None:
             stats["E"] += 1
             kind, payload = event
-            events.append(BlackboxEvent(len(main_rows), kind, payload))
+            events.append(BlackboxEvent(main_offset + len(main_rows), kind, payload))
             if kind == EVENT_LOGGING_RESUME:
                 last_iter, last_time = int(payload[0]), int(payload[1]) + rollover
             elif kind == EVENT_LOG_END:
@@ -1000,7 +1128,7 @@ def _decode_log(
         elif m == mark_s:
             stats["S"] += 1
             slow_rows.append(vals)
-            slow_index.append(len(main_rows))
+            slow_index.append(main_offset + len(main_rows))
         elif m == mark_g:
             stats["G"] += 1
             gps_rows.append(vals)
@@ -1018,21 +1146,19 @@ def _decode_log(
             f"log {index + 1}: too corrupt to resynchronise economically; decoding stopped at "
             f"byte {offset + out_of_budget} ({n - out_of_budget} bytes ignored)"
         )
-    if stats["corrupt"] or stats["invalid_main"]:
-        warnings.append(
-            f"log {index + 1}: {stats['corrupt']} corrupt frame(s) and {stats['invalid_main']} "
-            f"implausible main frame(s) skipped, resynchronised at the next frame marker "
-            f"({stats['dropped_p']} inter frames dropped until the next intra frame, "
-            f"{stats['skipped_bytes']} unparseable bytes)"
-        )
+    if (summary := corruption_summary(index, stats)) is not None:
+        warnings.append(summary)
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
+    main = _table(main_rows, nfields if keep is None else len(keep))
+    if resume is not None and main_offset:
+        main = np.concatenate((resume.main, main)) if len(main) else resume.main
     return DecodedLog(
         index=index,
         headers=headers,
         main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
-        main=_table(main_rows, nfields if keep is None else len(keep)),
+        main=main,
         slow_fields=list(sdef.names),
         slow=_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),

@@ -13,10 +13,17 @@ The per-frame Python parser costs ~5 µs a frame (0.3 s of a 2 MB log). Here:
 3. **The reference's checks, vectorised.** Iteration and time plausibility, 32-bit range, frame
    length and work budget are checked as the reference checks them.
 
-Anything the fast path does not cover (corrupt or truncated data, time rollovers, data gaps,
-logging resumed, GPS frames, data version 1, home or last-time predictors in main frames,
-values needing the 32-bit wrap) makes :func:`decode_log_fast` return None, and the caller runs
-the reference decoder, so decoded values never depend on which path ran.
+Slow (S), GPS (G) and GPS-home (H) frames and events are framed by the same expression and
+parsed one by one by the reference's own frame parsers (a few hundred in a log), with the state
+the reference would give them (the home position, the last main frame's time).
+
+A log whose frames tile the data only up to some point (a truncated tail, a corrupt frame, an
+implausible one such as a clock rollover) is decoded in bulk up to the last frame before it, and
+:func:`decode_log_bulk` returns the state there for the reference decoder to carry on from; the
+reference can hand back at an intra frame past a corrupt stretch (``start``, see
+:func:`blackbox_decode.decode_log`). Anything else the fast path does not cover (data version
+1, home or last-time predictors in main frames, values needing the 32-bit wrap, a damaged start)
+leaves the whole log to the reference decoder, so decoded values never depend on which path ran.
 """
 
 from __future__ import annotations
@@ -68,6 +75,15 @@ _T4SIGN = np.array([1, 0x8, 0x80, 0x8000], dtype=np.int64)
 
 class _Unsupported(Exception):
     """The fast path does not cover this log: the reference decoder decodes it."""
+
+
+class _CutBefore(Exception):
+    """Frame ``frame`` is the first implausible main frame (a time rollover, a jump): the
+    frames before it are decoded in bulk, the reference decoder takes over from it."""
+
+    def __init__(self, frame: int) -> None:
+        super().__init__(f"implausible main frame at frame {frame}")
+        self.frame = frame
 
 
 # --- framing ---------------------------------------------------------------------------------
@@ -126,6 +142,7 @@ def _units(fd: bd.FrameDef) -> list[tuple[int, list[int]]]:
     return units
 
 
+@functools.lru_cache(maxsize=64)
 def _unit_regex(e: int, count: int) -> bytes:
     if e == bd.ENC_TAG8_8SVB:
         if count == 1:
@@ -161,10 +178,13 @@ _EVENT_REGEX = (
 
 
 @functools.lru_cache(maxsize=8)
-def _frames_pattern(i_re: bytes, p_re: bytes, s_re: bytes | None) -> re.Pattern[bytes]:
+def _frames_pattern(
+    i_re: bytes, p_re: bytes, aux: tuple[tuple[bytes, bytes], ...]
+) -> re.Pattern[bytes]:
+    """Any one frame: main frames first (most frames), then events and ``aux`` (marker,
+    layout regex): slow, GPS and GPS-home frames."""
     alts = [b"P" + p_re, b"I" + i_re, _EVENT_REGEX]
-    if s_re is not None:
-        alts.append(b"S" + s_re)
+    alts += [re.escape(marker) + layout for marker, layout in aux]
     return re.compile(b"|".join(alts), re.DOTALL)
 
 
@@ -336,6 +356,9 @@ def _constant(pred: int, constants: dict[str, int]) -> int | None:
 
 # --- the log ---------------------------------------------------------------------------------
 
+#: a clean stretch shorter than this many frames is left to the reference decoder whole
+MIN_PREFIX_FRAMES = 64
+
 
 def decode_log_fast(
     section: bytes,
@@ -344,20 +367,95 @@ def decode_log_fast(
     *,
     keep_field: Callable[[str], bool] | None = None,
 ) -> bd.DecodedLog | None:
-    """What :func:`blackbox_decode.decode_log` returns for ``section``, or None when the fast
-    path does not cover it (the caller then runs the reference decoder)."""
+    """What :func:`blackbox_decode.decode_log` returns for ``section`` when the fast path covers
+    all of it, else None (the caller then runs the reference decoder)."""
+    got = decode_log_bulk(section, index, offset, keep_field=keep_field)
+    return got if isinstance(got, bd.DecodedLog) else None
+
+
+def decode_log_bulk(
+    section: bytes,
+    index: int = 0,
+    offset: int = 0,
+    *,
+    keep_field: Callable[[str], bool] | None = None,
+    start: bd.ResumeState | None = None,
+) -> bd.DecodedLog | bd.ResumeState | None:
+    """The log decoded in bulk (a :class:`DecodedLog`); or, when only a first stretch of it is
+    clean (a truncated tail, a corrupt frame further on), that stretch decoded in bulk as a
+    :class:`ResumeState` for the reference decoder to carry on from; or None (the reference
+    decodes it all). ``start``: carry on from where the reference decoder stopped (at an intra
+    frame), with its state."""
+    declined = (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError)
     try:
-        return _decode(section, index, offset, keep_field)
-    except (_Unsupported, bd.CorruptFrame, IndexError, ValueError, OverflowError) as exc:
+        try:
+            return _decode(section, index, offset, keep_field, start=start)
+        except _CutBefore as cut:
+            return _decode(section, index, offset, keep_field, cut.frame, start=start)
+    except (*declined, _CutBefore) as exc:
         # the reference decoder decodes (or rejects) it, however odd the log
         log.debug("log %d: bulk decoding declined (%s)", index + 1, exc)
         return None
 
 
+@functools.lru_cache(maxsize=32)
+def _compiled(
+    layout: tuple[tuple[str, ...], tuple[int, ...], tuple[int, ...], tuple[int, ...]],
+    constants: tuple[tuple[str, int], ...],
+) -> bd.FrameParser:
+    fd = bd.FrameDef(*(list(x) for x in layout))  # type: ignore[arg-type]
+    return bd.compile_frame(fd, constants=dict(constants), data_version=2)
+
+
+def _aux_parser(fd: bd.FrameDef, constants: dict[str, int]) -> bd.FrameParser:
+    """The reference's parser of a slow, GPS or GPS-home frame layout (data version 2),
+    compiled once per layout: a flash dump holds dozens of logs sharing one layout."""
+    layout = (tuple(fd.names), tuple(fd.signed), tuple(fd.predictor), tuple(fd.encoding))
+    return _compiled(layout, tuple(sorted(constants.items())))
+
+
+def _framing(
+    pattern: re.Pattern[bytes], section: bytes, pos: int
+) -> tuple[list[bytes], bool, bool]:
+    """The frames from ``pos`` on, whether they tile the whole log (to its end or its log-end
+    event), and whether it ended with that event. When they do not, only the frames that tile
+    the data up to the first byte no frame covers are returned, less the last of them (the
+    reference checks a frame by what follows it, so it takes over one frame early)."""
+    n = len(section)
+    # erased flash (0xFF) after a log cut off by a power loss: no frame there to look for
+    data_end = len(section.rstrip(b"\xff")) if section.endswith(b"\xff\xff") else n
+    frames: list[bytes] = pattern.findall(section, pos, data_end)
+    end_marker = b"E\xff" + bd.END_OF_LOG_TEXT
+    ended = False
+    if end_marker in frames:
+        frames = frames[: frames.index(end_marker) + 1]
+        ended = True
+    joined = b"".join(frames)
+    if section.startswith(joined, pos) and (ended or pos + len(joined) == n):
+        return frames, True, ended
+    a = np.frombuffer(joined, dtype=np.uint8)
+    b = np.frombuffer(section, dtype=np.uint8)[pos : pos + len(a)]
+    differ = np.flatnonzero(a[: len(b)] != b)
+    first_bad = int(differ[0]) if len(differ) else len(b)
+    ends = np.cumsum(np.fromiter(map(len, frames), dtype=np.int64, count=len(frames)))
+    count = int(np.searchsorted(ends, first_bad, side="right")) - 1
+    return frames[: max(count, 0)], False, False
+
+
 def _decode(
-    section: bytes, index: int, offset: int, keep_field: Callable[[str], bool] | None
-) -> bd.DecodedLog | None:
+    section: bytes,
+    index: int,
+    offset: int,
+    keep_field: Callable[[str], bool] | None,
+    max_frames: int | None = None,
+    *,
+    start: bd.ResumeState | None = None,
+) -> bd.DecodedLog | bd.ResumeState | None:
+    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`);
+    from ``start`` on when given."""
     headers, defs, pos = bd.parse_headers(section)
+    if start is not None:
+        pos = start.pos
     idef = defs.get("I")
     if idef is None or not idef.names or not idef.encoding:
         raise _Unsupported("no main-frame layout")
@@ -389,51 +487,202 @@ def _decode(
     p_num, p_den = bd._p_interval(headers)
     skip = np.asarray(bd._skip_table(i_interval, p_num, p_den), dtype=np.int64)
     keep = bd._kept_fields(names, idef, pdef, motor0, keep_field)
-    sdef = defs.get("S", bd.FrameDef())
-    s_parser = None
-    if sdef.names and sdef.encoding:
-        s_parser = bd.compile_frame(sdef, constants=constants, data_version=2)
+    # slow (S), GPS (G) and GPS-home (H) frames: few, parsed by the reference's own parsers
+    aux_defs = {ord(m): defs[m] for m in "SGH" if m in defs and defs[m].names and defs[m].encoding}
+    aux_parsers = {m: _aux_parser(fd, constants) for m, fd in aux_defs.items()}
     pattern = _frames_pattern(
-        _frame_regex(idef), _frame_regex(pdef), _frame_regex(sdef) if s_parser else None
+        _frame_regex(idef),
+        _frame_regex(pdef),
+        tuple((bytes([m]), _frame_regex(fd)) for m, fd in aux_defs.items()),
     )
+    hdef = defs.get("H", bd.FrameDef())
+    home_idx = [
+        hdef.names.index(k) if k in hdef.names else -1 for k in ("GPS_home[0]", "GPS_home[1]")
+    ]
 
-    # 1. framing: the frames must tile the data up to the end (or the log-end event)
-    frames = pattern.findall(section, pos)
-    n = len(section)
-    end_marker = b"E\xff" + bd.END_OF_LOG_TEXT
-    ended = False
-    if end_marker in frames:
-        cut = frames.index(end_marker) + 1
-        frames = frames[:cut]
-        ended = True
-    lengths = np.fromiter(map(len, frames), dtype=np.int64, count=len(frames))
-    total = int(lengths.sum())
-    if not ended and pos + total != n:
-        raise _Unsupported("frames do not reach the end of the data")
-    if b"".join(frames) != section[pos : pos + total]:
+    # 1. framing: the frames must tile the data up to the end (or the log-end event), or a
+    #    first stretch of it that the reference decoder carries on from
+    frames, complete, ended = _framing(pattern, section, pos)
+    if max_frames is not None and max_frames < len(frames):
+        frames, complete, ended = frames[:max_frames], False, False
+    if not complete and len(frames) < MIN_PREFIX_FRAMES:
         raise _Unsupported("frames do not tile the data")
-    if len(frames) == 0 or int(lengths.max()) - 1 > bd.MAX_FRAME_BYTES:
-        raise _Unsupported("empty or over-long frame")
+    n = len(section)
+    lengths = np.fromiter(map(len, frames), dtype=np.int64, count=len(frames))
+    if len(frames) and int(lengths.max()) - 1 > bd.MAX_FRAME_BYTES:
+        raise _Unsupported("over-long frame")
     ends = pos + np.cumsum(lengths)
     starts = ends - lengths
+    stop = int(ends[-1]) if len(frames) else pos
     buf = np.frombuffer(section + _PAD, dtype=np.uint8)
     kinds = buf[starts]
     is_main = (kinds == ord("I")) | (kinds == ord("P"))
     widths = np.where(is_main, max(nf, 1), 1)
-    if s_parser is not None:
-        widths[kinds == ord("S")] = max(len(sdef.names), 1)
-    if int(widths.sum()) + bd.MAX_FIELDS >= bd.WORK_PER_BYTE * n + 100_000:
+    for m, fd in aux_defs.items():
+        widths[kinds == m] = max(len(fd.names), 1)
+    work_done = int(widths.sum()) + (start.work_done if start is not None else 0)
+    if work_done + bd.MAX_FIELDS >= bd.WORK_PER_BYTE * n + 100_000:
         raise _Unsupported("work budget")
 
     # 2. main frames: residuals, then predictions segment by segment
     main_at = np.flatnonzero(is_main)
-    if not len(main_at) or kinds[main_at[0]] != ord("I"):
-        raise _Unsupported("no main frame, or an inter frame before the first intra frame")
+    if len(main_at) and kinds[main_at[0]] != ord("I"):
+        raise _Unsupported("an inter frame before the first intra frame")
     mk = kinds[main_at]
     i_rows = np.flatnonzero(mk == ord("I"))
     p_rows = np.flatnonzero(mk == ord("P"))
     kept = list(range(nf)) if keep is None else sorted(keep)
     col = {fi: c for c, fi in enumerate(kept)}
+    vals = np.empty((len(main_at), len(kept)), dtype=np.int64)
+    if len(main_at):
+        _main_values(buf, starts, ends, main_at, i_rows, p_rows, idef, pdef, col, kept, vals,
+                     ipred, ppred, constants, motor0, skip, i_interval)  # fmt: skip
+
+    # 3. slow, GPS and GPS-home frames and events, few: the reference's own parsers, in order,
+    #    with the state they see there (the last main frame's time, or a resume event's)
+    it = vals[:, 0]
+    t = vals[:, 1]
+    main_starts = starts[main_at]
+    slow_rows: list[list[int]] = []
+    slow_index: list[int] = []
+    gps_rows: list[list[int]] = []
+    events: list[bd.BlackboxEvent] = []
+    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
+    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+    home = [0, 0]
+    first_it, first_t, base = -1, -1, 0  # the state before the first frame here
+    if start is not None:
+        slow_rows, slow_index = list(start.slow_rows), list(start.slow_index)
+        gps_rows, events = list(start.gps_rows), list(start.events)
+        stats.update(start.stats)
+        home = list(start.home)
+        first_it, first_t, base = start.last_iter, start.last_time, len(start.main)
+    stats["I"] += len(i_rows)
+    stats["P"] += len(p_rows)
+    # the history each main frame is checked against: the previous one, or a logging resume
+    last_it = np.concatenate(([first_it], it[:-1]))
+    last_t = np.concatenate(([first_t], t[:-1]))
+    resumed: tuple[int, int, int] | None = None  # (main frames before it, iteration, time)
+    aux_at = np.flatnonzero(~is_main)
+    aux_starts = starts[aux_at]
+    for at, end, kind, before in zip(
+        aux_starts.tolist(),
+        ends[aux_at].tolist(),
+        kinds[aux_at].tolist(),
+        np.searchsorted(main_starts, aux_starts).tolist(),
+        strict=True,
+    ):
+        if kind == ord("E"):
+            ev, payload, p = bd._parse_event(section, at + 1)
+            if ev == bd.EVENT_LOGGING_RESUME:
+                resumed = (before, int(payload[0]), int(payload[1]))
+                if before < len(main_at):
+                    if mk[before] != ord("I"):
+                        raise _Unsupported("an inter frame right after logging resumed")
+                    last_it[before], last_t[before] = resumed[1], resumed[2]
+            stats["E"] += 1
+            events.append(bd.BlackboxEvent(base + before, ev, payload))
+        else:
+            if resumed is not None and resumed[0] == before:
+                last_time = resumed[2]
+            else:
+                last_time = int(t[before - 1]) if before else first_t
+            fd = aux_defs[kind]
+            row, p = aux_parsers[kind](section, at + 1, [0] * len(fd.names), [], 0, last_time, home)
+            if kind == ord("S"):
+                stats["S"] += 1
+                slow_rows.append(row)
+                slow_index.append(base + before)
+            elif kind == ord("G"):
+                stats["G"] += 1
+                gps_rows.append(row)
+            else:
+                stats["H"] += 1
+                home = [row[j] if j >= 0 else 0 for j in home_idx]
+        if p != end:
+            raise _Unsupported("slow frame or event length disagrees")
+
+    # 4. the reference's plausibility checks: the frames before the first main frame failing
+    #    one (a time rollover, an iteration or time jump) are decoded in bulk, the rest by the
+    #    reference
+    di = it - last_it
+    dt = t - last_t
+    ip, tp = di[p_rows], dt[p_rows]
+    bad = (t < 0) | (t > 0xFFFFFFFF)  # time outside 32 bits: a rollover
+    bad[p_rows] |= (ip < 0) | (ip >= bd.MAX_ITERATION_JUMP) | (tp < 0) | (tp >= bd.MAX_TIME_JUMP_US)
+    checked = i_rows[last_it[i_rows] >= 0]
+    bad[checked] |= (di[checked] < 0) | (dt[checked] < 0)
+    if bad.any():
+        raise _CutBefore(int(main_at[int(np.argmax(bad))]))
+    warnings = list(start.warnings) if start is not None else []
+    warnings += [
+        f"log {index + 1}: {1e-6 * (int(t[r]) - int(last_t[r])):.1f} s gap in the data "
+        f"after t = {1e-6 * int(last_t[r]):.3f} s"
+        for r in checked[dt[checked] >= bd.MAX_TIME_JUMP_US].tolist()
+    ]
+    if not bd.in_32bit_range(headers, [names[k] for k in kept], vals):
+        raise _Unsupported("a value needs the 32-bit wrap")
+
+    main = vals if start is None else np.concatenate((start.main, vals))
+    if not complete:
+        log.debug("log %d: bulk decoded up to byte %d of %d", index + 1, stop, n)
+        last_iter, last_time = (int(it[-1]), int(t[-1])) if len(it) else (first_it, first_t)
+        if resumed is not None and resumed[0] == len(main_at):
+            last_iter, last_time = resumed[1], resumed[2]
+        prev = vals[-1].tolist() if len(vals) else None
+        prev2 = None
+        if len(vals):
+            prev2 = prev if mk[-1] == ord("I") else vals[-2].tolist()
+        elif start is not None:
+            prev, prev2 = start.prev, start.prev2
+        return bd.ResumeState(
+            pos=stop, main=main, prev=prev, prev2=prev2, last_iter=last_iter,
+            last_time=last_time, home=home, work_done=work_done, slow_rows=slow_rows,
+            slow_index=slow_index, gps_rows=gps_rows, events=events, stats=stats,
+            warnings=warnings,
+        )  # fmt: skip
+    if start is not None and (summary := bd.corruption_summary(index, stats)) is not None:
+        warnings.append(summary)  # the reference's closing warning on the stretch it decoded
+    sdef = defs.get("S", bd.FrameDef())
+    gdef = defs.get("G", bd.FrameDef())
+    return bd.DecodedLog(
+        index=index,
+        headers=headers,
+        main_fields=[names[k] for k in kept],
+        main=main,
+        slow_fields=list(sdef.names),
+        slow=bd._table(slow_rows, len(sdef.names)),
+        slow_frame_index=np.array(slow_index, dtype=np.int64),
+        gps_fields=list(gdef.names),
+        gps=bd._table(gps_rows, len(gdef.names)),
+        events=events,
+        stats=stats,
+        warnings=warnings,
+        ended_cleanly=ended,
+        byte_range=(offset, offset + n),
+    )
+
+
+def _main_values(
+    buf: npt.NDArray[np.uint8],
+    starts: I64,
+    ends: I64,
+    main_at: I64,
+    i_rows: I64,
+    p_rows: I64,
+    idef: bd.FrameDef,
+    pdef: bd.FrameDef,
+    col: dict[int, int],
+    kept: list[int],
+    vals: I64,
+    ipred: list[int],
+    ppred: list[int],
+    constants: dict[str, int],
+    motor0: int,
+    skip: I64,
+    i_interval: int,
+) -> None:
+    """Every main frame's values into ``vals`` (rows in frame order, columns ``kept``)."""
     ires, iend = _residuals(buf, starts[main_at[i_rows]], idef, col)
     pres, pend = _residuals(buf, starts[main_at[p_rows]], pdef, col)
     if not (
@@ -447,7 +696,6 @@ def _decode(
         c = _constant(ppred[fi], constants)
         if c:
             pres[:, col[fi]] += c
-    vals = np.empty((len(main_at), len(kept)), dtype=np.int64)
     vals[i_rows] = ires
     vals[p_rows] = pres
     seg_len = np.diff(np.append(i_rows, len(main_at)))
@@ -459,11 +707,9 @@ def _decode(
 
     prev_c, line_c = cols(bd.PRED_PREVIOUS), cols(bd.PRED_STRAIGHT_LINE)
     avg_c, inc_c, mot_c = cols(bd.PRED_AVERAGE_2), cols(bd.PRED_INC), cols(bd.PRED_MOTOR_0)
-    for step in range(1, int(seg_len.max())):  # all segments' step-th inter frame at once
-        rows = i_rows[seg_len > step] + step
-        prev = vals[rows - 1]
-        cur = vals[rows]
-        prev2 = prev if step == 1 else vals[rows - 2]  # after an intra frame: both are it
+
+    def predict(cur: I64, prev: I64, prev2: I64) -> None:
+        """Add their predictions to inter frames ``cur`` (residuals) in place."""
         if prev_c:
             cur[:, prev_c] += prev[:, prev_c]
         if line_c:
@@ -476,82 +722,23 @@ def _decode(
             cur[:, inc_c] += (last_iter + skip[last_iter % i_interval] + 1)[:, None]
         if mot_c:
             cur[:, mot_c] += cur[:, [col[motor0]]]
+
+    # all segments' step-th inter frame at once (after an intra frame, prev2 is prev)
+    longest = int(seg_len.max())
+    if len(i_rows) * longest <= 2 * len(vals) + 4096:
+        # segments (nearly) all of one length, as in real logs: laid out on a grid (segment,
+        # step) each step is a view, not a gather; the padding rows are never read back
+        at = np.repeat(np.arange(len(i_rows)) * longest - i_rows, seg_len) + np.arange(len(vals))
+        grid = np.zeros((len(i_rows) * longest, vals.shape[1]), dtype=np.int64)
+        grid[at] = vals
+        g = grid.reshape(len(i_rows), longest, vals.shape[1])
+        for step in range(1, longest):
+            predict(g[:, step], g[:, step - 1], g[:, step - 1 if step == 1 else step - 2])
+        vals[:] = grid[at]
+        return
+    for step in range(1, longest):
+        rows = i_rows[seg_len > step] + step
+        cur = vals[rows]
+        prev = vals[rows - 1]
+        predict(cur, prev, prev if step == 1 else vals[rows - 2])
         vals[rows] = cur
-
-    # 3. slow frames and events, few: the reference's own parsers
-    it = vals[:, 0]
-    t = vals[:, 1]
-    if int(t.min()) < 0 or int(t.max()) > 0xFFFFFFFF:
-        raise _Unsupported("time outside 32 bits (a rollover)")
-    main_starts = starts[main_at]
-    slow_rows: list[list[int]] = []
-    slow_index: list[int] = []
-    events: list[bd.BlackboxEvent] = []
-    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
-    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
-    stats["I"], stats["P"] = len(i_rows), len(p_rows)
-    # the history each main frame is checked against: the previous one, or a logging resume
-    last_it = np.concatenate(([-1], it[:-1]))
-    last_t = np.concatenate(([-1], t[:-1]))
-    for k in np.flatnonzero(~is_main).tolist():
-        start = int(starts[k])
-        before = int(np.searchsorted(main_starts, start))
-        if kinds[k] == ord("E"):
-            kind, payload, p = bd._parse_event(section, start + 1)
-            if kind == bd.EVENT_LOGGING_RESUME and before < len(main_at):
-                if mk[before] != ord("I"):
-                    raise _Unsupported("an inter frame right after logging resumed")
-                last_it[before], last_t[before] = int(payload[0]), int(payload[1])
-            stats["E"] += 1
-            events.append(bd.BlackboxEvent(before, kind, payload))
-        else:
-            assert s_parser is not None
-            last_time = int(t[before - 1]) if before else -1
-            row, p = s_parser(section, start + 1, [0] * len(sdef.names), [], 0, last_time, [0, 0])
-            stats["S"] += 1
-            slow_rows.append(row)
-            slow_index.append(before)
-        if p != int(ends[k]):
-            raise _Unsupported("slow frame or event length disagrees")
-
-    # 4. the reference's plausibility checks: all must pass (no rollover, no bad main frame)
-    di = it - last_it
-    dt = t - last_t
-    ip, tp = di[p_rows], dt[p_rows]
-    if len(p_rows) and (
-        int(ip.min()) < 0
-        or int(ip.max()) >= bd.MAX_ITERATION_JUMP
-        or int(tp.min()) < 0
-        or int(tp.max()) >= bd.MAX_TIME_JUMP_US
-    ):
-        raise _Unsupported("implausible inter frame")
-    li = last_it[i_rows]
-    checked = i_rows[li >= 0]
-    if len(checked) and (int(di[checked].min()) < 0 or int(dt[checked].min()) < 0):
-        raise _Unsupported("implausible intra frame, or a time rollover")
-    warnings = [
-        f"log {index + 1}: {1e-6 * (int(t[r]) - int(last_t[r])):.1f} s gap in the data "
-        f"after t = {1e-6 * int(last_t[r]):.3f} s"
-        for r in checked[dt[checked] >= bd.MAX_TIME_JUMP_US].tolist()
-    ]
-
-    gdef = defs.get("G", bd.FrameDef())
-    decoded = bd.DecodedLog(
-        index=index,
-        headers=headers,
-        main_fields=[names[k] for k in kept],
-        main=vals,
-        slow_fields=list(sdef.names),
-        slow=bd._table(slow_rows, len(sdef.names)),
-        slow_frame_index=np.array(slow_index, dtype=np.int64),
-        gps_fields=list(gdef.names),
-        gps=bd._table([], len(gdef.names)),
-        events=events,
-        stats=stats,
-        warnings=warnings,
-        ended_cleanly=ended,
-        byte_range=(offset, offset + n),
-    )
-    if not bd._in_32bit_range(decoded):
-        raise _Unsupported("a value needs the 32-bit wrap")
-    return decoded

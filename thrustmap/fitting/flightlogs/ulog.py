@@ -324,12 +324,6 @@ def _release(code: Any) -> str | None:
 
 
 def read(path: Path, **_: Any) -> list[FlightLog]:
-    try:
-        from pyulog import ULog
-    except ImportError:  # pragma: no cover - exercised only without pyulog
-        raise DataFormatError(
-            "reading PX4 ULog needs pyulog (pip install pyulog)", file=str(path)
-        ) from None
     warnings: list[str] = []
     try:
         raw = path.read_bytes()
@@ -340,7 +334,13 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
     ulog: Any = ulog_fast.parse(raw, TOPICS)  # vectorised; None: something pyulog must handle
     if ulog is not None:
         problem = ulog.problem
-    else:
+    else:  # pyulog is imported only here: the vectorised reader needs numpy alone
+        try:
+            from pyulog import ULog
+        except ImportError:  # pragma: no cover - exercised only without pyulog
+            raise DataFormatError(
+                "reading this PX4 ULog needs pyulog (pip install pyulog)", file=str(path)
+            ) from None
         intact = walk(raw)
         problem = intact.problem
         chatter = io.StringIO()
