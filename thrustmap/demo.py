@@ -9,6 +9,8 @@ in-sample (the paper's Table 3), held out by file, and against the simulator's t
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.files import atomic_write_text
 from thrustmap.fitting.fit import compare, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
@@ -35,6 +39,62 @@ log = logging.getLogger(__name__)
 
 MODELS = ("poly2", "poly2-trunc", "poly3", "poly3-trunc", "motor")
 STRATEGIES = {"SR": 1, "MR": 4}
+#: the demo's list of the recordings it wrote (relative path -> sha256), in its output folder
+MANIFEST = "thrustmap-demo.json"
+
+
+def recording_paths(out_dir: Path) -> list[Path]:
+    """Every Ds log (and sidecar) the demo writes into ``out_dir``."""
+    paths = []
+    for strategy in STRATEGIES:
+        for name in experiments():
+            csv = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
+            paths += [csv, csv.with_suffix(".meta.json")]
+    return paths
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _owned(out_dir: Path) -> dict[str, str]:
+    try:
+        files = json.loads((out_dir / MANIFEST).read_text(encoding="utf-8")).get("files", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {str(k): str(v) for k, v in files.items()} if isinstance(files, dict) else {}
+
+
+def clear_previous_run(out_dir: Path) -> int:
+    """Remove the recordings a previous demo wrote into ``out_dir``, so it runs again in place.
+
+    A recording is removed only when the demo's manifest lists it with the same content (sha256):
+    a user's recording, or one changed since, is never touched, and the run is refused before
+    anything is removed. Returns the number of files removed.
+    """
+    owned = _owned(out_dir)
+    present = [p for p in recording_paths(out_dir) if p.exists()]
+    for p in present:
+        rel = p.relative_to(out_dir).as_posix()
+        if owned.get(rel) != _sha256(p):
+            raise ConfigError(
+                "a recording thrustmap demo did not write (or one changed since) is here; "
+                "it is kept: run the demo in another folder (thrustmap demo -o FOLDER)",
+                file=str(p),
+            )
+    for p in present:
+        p.unlink()
+    return len(present)
+
+
+def _remember(out_dir: Path, written: list[Path]) -> None:
+    """Add ``written`` (with their content hashes) to the demo's manifest in ``out_dir``."""
+    files = _owned(out_dir)
+    for p in written:
+        if p.exists():
+            files[p.relative_to(out_dir).as_posix()] = _sha256(p)
+    text = json.dumps({"written_by": "thrustmap demo", "files": files}, indent=2)
+    atomic_write_text(out_dir / MANIFEST, text + "\n")
 
 
 def experiments() -> dict[str, plans.Plan]:
@@ -95,6 +155,8 @@ def run_demo(
 ) -> list[StrategyResult]:
     say = progress or (lambda _msg: None)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if removed := clear_previous_run(out_dir):
+        say(f"replacing the previous demo's {removed} files in {out_dir}")
     results = []
     for strategy, rotors in STRATEGIES.items():
         peers.reset_benches()
@@ -135,6 +197,7 @@ def run_demo(
                 )
                 logs.append(path)
                 runs.append(run)
+                _remember(out_dir, [path, path.with_suffix(".meta.json")])
         datasets = load_datasets(logs)
         outcome = fit_map(datasets)
         map_path = out_dir / f"{strategy.lower()}-map.json"
@@ -151,19 +214,34 @@ def run_demo(
     return results
 
 
-def report(results: list[StrategyResult], out_dir: Path) -> str:
-    names = [r.name for r in results]
+def report(results: list[StrategyResult], out_dir: Path, cols: int | None = None) -> str:
+    """The comparison as text: one table with a column group per strategy, or, when that is
+    wider than ``cols`` (the terminal's width), one table per strategy."""
+    from thrustmap.cli.textwidth import table
+
     lines = ["Thrust-map errors, % of the 1000–2000 µs range (simulated xNova 2207 on 6S)", ""]
-    head = f"{'model':<12}" + "".join(
-        f" | {n + ' in-sample':>18} {n + ' held-out':>12} {n + ' vs truth':>12}" for n in names
+    right = [False] + [True] * (3 * len(results))
+
+    def cells(r: StrategyResult, m: str) -> list[str]:
+        mean, std = r.in_sample[m]
+        return [f"{mean:.3f} ± {std:.3f}", f"{r.held_out[m]:.3f}", f"{r.truth[m]:.3f}"]
+
+    def heads(r: StrategyResult) -> list[str]:
+        return [f"{r.name} in-sample", f"{r.name} held-out", f"{r.name} vs truth"]
+
+    wide = table(
+        ["model", *(h for r in results for h in heads(r))],
+        [[m, *(c for r in results for c in cells(r, m))] for m in MODELS],
+        right=right,
+        cols=10_000,
     )
-    lines += [head, "-" * len(head)]
-    for m in MODELS:
-        row = f"{m:<12}"
-        for r in results:
-            mean, std = r.in_sample[m]
-            row += f" | {mean:>9.3f} ± {std:<6.3f} {r.held_out[m]:>12.3f} {r.truth[m]:>12.3f}"
-        lines.append(row)
+    if cols is None or max(len(line) for line in wide.splitlines()) <= cols:
+        lines.append(wide)
+    else:
+        for i, r in enumerate(results):
+            rows = [[m, *cells(r, m)] for m in MODELS]
+            lines += [""] if i else []
+            lines.append(table(["model", *heads(r)], rows, right=right[:4], cols=cols))
     lines += [
         "",
         "in-sample: the paper's method (all samples, 1300 < µs < 1500, 0 < T < 11 N, least squares);",

@@ -220,6 +220,8 @@ class _CliLogHandler(logging.Handler):
             self.held.append(line)
 
     def _write(self, line: str) -> None:
+        if not line.startswith(("error: ", "CRITICAL: ")):  # an error stays one line
+            line = textwidth.wrap(line, err=True)  # a note fits the terminal, between words
         try:
             self.stream.write(line + "\n")
             self.stream.flush()

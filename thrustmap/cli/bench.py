@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from thrustmap.cli.textwidth import echo, width
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
 
@@ -43,11 +44,11 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
 
     start = time.perf_counter()
     results = run_demo(
-        Path(out_dir), seed=seed, progress=None if quiet else (lambda m: click.echo(m, err=True))
+        Path(out_dir), seed=seed, progress=None if quiet else (lambda m: echo(m, err=True))
     )
-    click.echo(report(results, Path(out_dir)))
+    echo(report(results, Path(out_dir), cols=width()))
     for path in write_reports(results):
-        click.echo(f"Report: {path} (open it in a browser)")
+        echo(f"Report: {path} (open it in a browser)")
     if not quiet:
         click.echo(f"({time.perf_counter() - start:.1f} s)", err=True)
 
@@ -343,19 +344,19 @@ def sweep_cmd(
         watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the recording
     )
     for warning in pairing_warnings(rig):
-        click.echo(f"warning: {warning}", err=True)
+        echo(f"warning: {warning}", err=True)
     if _stand_cannot_see_the_motor(rig.stand, rig.throttle) and limits.min_thrust_by_pct > 0:
         # a simulated stand beside a real motor measures noise by design: the thrust-response
         # interlock would stop every such run, so it is off, and said so
         limits = dataclasses.replace(limits, min_thrust_by_pct=0.0)
-        click.echo(
+        echo(
             "warning: the thrust-response interlock (--min-thrust-by) is off: "
             "a simulated stand cannot measure a real motor",
             err=True,
         )
     if kw["dry_run"]:
-        click.echo(plan.describe())
-        click.echo(
+        echo(plan.describe())
+        echo(
             f"limits ok: ceiling {plan.max_throttle_pct:.1f} % <= {limits.max_throttle_pct:.1f} %, "
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
@@ -366,7 +367,7 @@ def sweep_cmd(
         check_output_path(output, what="Ds log").path, siblings=(".meta.json",)
     )
     if str(chosen) != output:  # a sweep never overwrites a recording
-        click.echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
+        echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
         output = str(chosen)
         rig = dataclasses.replace(rig, watchdog_log=str(chosen.with_suffix(".watchdog.log")))
     realtime = kw["realtime"]
@@ -377,7 +378,7 @@ def sweep_cmd(
         f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",
         err=True,
     ):
-        click.echo("refused: nothing spun", err=True)
+        echo("refused: nothing spun", err=True)
         sys.exit(2)
     session = BenchSession(rig, clock)
     try:
@@ -393,16 +394,14 @@ def sweep_cmd(
             )
     except KeyboardInterrupt:  # before the run started (the runner reports its own)
         verified = session.stop_verified is not False
-        click.echo(
-            "interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True
-        )
+        echo("interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True)
         sys.exit(exit_code("interrupted", verified))
     verified = result.stop_verified and session.stop_verified is not False
     verdict = "stop verified" if verified else "STOP NOT VERIFIED - disconnect the battery"
     blind = session.stop_unverifiable
     if blind and not verified:
         verdict = f"stop sent and acknowledged, NOT verified ({blind})"
-    click.echo(
+    echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
         + (f" (after {result.wait_s:.1f} s at rest and taring)" if result.wait_s >= 0.05 else "")
         + (f" - {result.reason}" if result.reason else "")

@@ -1,16 +1,19 @@
 """Text that fits the terminal: help, wrapped lines, and tables that turn vertical.
 
-Every human-readable line the CLI prints goes through here, so it wraps at the terminal's
-width (never narrower than :data:`MIN_WIDTH`) between words, never inside one: a word longer
-than the line (a path, a URL) stays whole on a line of its own. Hyphens are not break points
-(``stairs-up``, ``sim://tyto-1585`` stay whole). A table that does not fit is printed as one
-block of ``name: value`` lines per row. Machine-readable output (``--json``, CSV) never
-passes through here.
+Every human-readable line the CLI prints goes through here, so on a terminal it wraps at the
+terminal's width (never narrower than :data:`MIN_WIDTH`) between words, never inside one: a
+word longer than the line (a path, a URL) stays whole on a line of its own. Hyphens are not
+break points (``stairs-up``, ``sim://tyto-1585`` stay whole). A table that does not fit is
+printed as one block of ``name: value`` lines per row.
+
+Output that is not a terminal (a pipe, a file) keeps whole lines, so ``grep`` finds them.
+Machine-readable output (``--json``, CSV, an export written to stdout) never passes through here.
 """
 
 from __future__ import annotations
 
-import shutil
+import os
+import sys
 from collections.abc import Iterable, Sequence
 
 import click
@@ -20,9 +23,20 @@ from click._textwrap import TextWrapper
 MIN_WIDTH = 80
 
 
-def width() -> int:
-    """The terminal's width in columns ($COLUMNS when set), at least :data:`MIN_WIDTH`."""
-    return max(MIN_WIDTH, shutil.get_terminal_size((MIN_WIDTH, 24)).columns)
+def width(*, err: bool = False) -> int | None:
+    """Columns to wrap stdout (stderr with ``err``) at: the terminal's width, at least
+    :data:`MIN_WIDTH`; None (do not wrap) when that stream is not a terminal.
+
+    ``$COLUMNS`` is not read: a pipe keeps whole lines even where it is set (GNU readline, which
+    Python's debugger and REPL load, exports it into every child process).
+    """
+    stream = sys.stderr if err else sys.stdout  # the stream click writes to (a test swaps it)
+    try:
+        if stream is not None and stream.isatty():
+            return max(MIN_WIDTH, os.get_terminal_size(stream.fileno()).columns)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return None
 
 
 def _wrapper(cols: int, initial_indent: str = "", subsequent_indent: str = "") -> TextWrapper:
@@ -36,13 +50,16 @@ def _wrapper(cols: int, initial_indent: str = "", subsequent_indent: str = "") -
     )
 
 
-def wrap(text: str, cols: int | None = None, *, hang: int = 2) -> str:
-    """Each line of ``text`` wrapped at ``cols`` (default: the terminal) between words.
+def wrap(text: str, cols: int | None = None, *, err: bool = False, hang: int = 2) -> str:
+    """Each line of ``text`` wrapped at ``cols`` (default: the width of stdout, or of stderr
+    with ``err``, see :func:`width`) between words.
 
     A continuation line keeps the line's own indentation plus ``hang`` spaces, so a wrapped
     item still reads as one. Lines that fit are left exactly as they are.
     """
-    cols = width() if cols is None else cols
+    cols = width(err=err) if cols is None else cols
+    if cols is None:
+        return text
     out: list[str] = []
     for line in text.expandtabs().split("\n"):
         if len(line) <= cols:
@@ -56,7 +73,7 @@ def wrap(text: str, cols: int | None = None, *, hang: int = 2) -> str:
 
 def echo(text: str = "", *, err: bool = False, nl: bool = True) -> None:
     """``click.echo`` for human-readable text: wrapped at the terminal's width."""
-    click.echo(wrap(text), err=err, nl=nl)
+    click.echo(wrap(text, err=err), err=err, nl=nl)
 
 
 def table(
@@ -67,7 +84,8 @@ def table(
     cols: int | None = None,
     sep: str = "  ",
 ) -> str:
-    """Rows under their headers, or, when that is wider than the terminal, one block per row.
+    """Rows under their headers, or, when that is wider than the terminal (or ``cols``), one
+    block per row.
 
     ``right`` marks the columns aligned right (numbers). The vertical layout repeats the
     header before each value (``mean %: 0.388``), one value a line, a blank line between rows,
@@ -79,7 +97,7 @@ def table(
     cells = [[str(c) for c in row] for row in rows]
     widths = [max([len(headers[i]), *(len(r[i]) for r in cells)]) for i in range(n)]
     total = sum(widths) + len(sep) * (n - 1)
-    if total <= cols:
+    if cols is None or total <= cols:
 
         def line(values: Sequence[str]) -> str:
             parts = [

@@ -316,8 +316,8 @@ def _validation(rd: ReportData) -> str:
     for m in modes:
         head = '<th class="l">model</th><th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>'
         if m != "in-sample":
-            head += "<th>inside box n</th><th>inside mean %</th>"
-            head += "<th>outside box n</th><th>outside mean %</th>"
+            head += "<th>inside supported region n</th><th>inside mean %</th>"
+            head += "<th>outside it n</th><th>outside mean %</th>"
         body = []
         for model, per in by_model.items():
             if m not in per:
@@ -349,7 +349,7 @@ def _validation(rd: ReportData) -> str:
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
         "file out in turn, <b>kfold</b> 5 random folds. The held-out figures count every held-out point; "
-        "those inside and outside the training box (extrapolation) are shown beside them. "
+        "those inside and outside the training points' supported region (extrapolation) are shown beside them. "
         "Same numbers as <code>thrustmap compare --json</code>."
         "</p>" + tables
     )
