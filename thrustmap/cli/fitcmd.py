@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from thrustmap.cli.textwidth import echo, table
+from thrustmap.cli.textwidth import echo, plural, table
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, ThrottleScale, parse_range, scale
 from thrustmap.fitting.names import DEFAULT_MODEL, LOSSES, MODEL_NAMES, VALIDATIONS
@@ -243,10 +243,11 @@ def fit_cmd(
     for p in out.pool.points:
         r = p.report
         echo(
-            f"{r['file']}: {r['samples']} samples -> {len(p)} points"
+            f"{r['file']}: {plural(r['samples'], 'sample')} -> {plural(len(p), 'point')}"
             + (
-                f" ({r['plateaus']} plateaus, {r.get('ramp_samples_kept', 0)} quasi-static ramp samples, "
-                f"{r['settling_samples_dropped']} settling samples dropped)"
+                f" ({plural(r['plateaus'], 'plateau')}, "
+                f"{plural(r.get('ramp_samples_kept', 0), 'quasi-static ramp sample')}, "
+                f"{plural(r['settling_samples_dropped'], 'settling sample')} dropped)"
                 if "plateaus" in r
                 else ""
             )

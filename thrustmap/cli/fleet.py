@@ -11,7 +11,7 @@ from typing import Any
 
 import click
 
-from thrustmap.cli.textwidth import echo
+from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.safety import terminate_as_exception
 
@@ -61,7 +61,7 @@ class _Bar:
         self.refused += int(outcome.status == "refused")
         rate = done / max(time.monotonic() - self.started, 1e-9)
         frac = done / total if total else 1.0
-        text = f"{done}/{total} logs ({rate:.1f}/s, {self.refused} refused)"
+        text = f"{done}/{plural(total, 'log')} ({rate:.1f}/s, {self.refused} refused)"
         now = time.monotonic()
         if self.tty and (now - self.shown >= 0.1 or done >= total):
             self.shown = now
@@ -227,7 +227,7 @@ def extract_cmd(
     for o in result.outcomes:
         counts[o.status] = counts.get(o.status, 0) + 1
     echo(
-        f"{result.total} logs: {counts.get('ok', 0)} extracted, {counts.get('empty', 0)} with no "
+        f"{plural(result.total, 'log')}: {counts.get('ok', 0)} extracted, {counts.get('empty', 0)} with no "
         f"steady flight, {counts.get('refused', 0)} refused; {result.reused} already done "
         f"(skipped); {elapsed:.1f} s"
     )
@@ -311,7 +311,7 @@ def gamma_cmd(
         click.echo(json.dumps(summary, indent=2, default=float))
         return
     for g in groups:
-        head = f"{g.label}: {len(g.logs)} logs, {g.samples} samples"
+        head = f"{g.label}: {plural(len(g.logs), 'log')}, {plural(g.samples, 'sample')}"
         if g.voltage_v is not None:
             head += f", {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V"
         if g.fit is None:
@@ -327,7 +327,7 @@ def gamma_cmd(
     refused = sum(o.status == "refused" for o in outcomes)
     echo(
         f"{sum(g.fit is not None for g in groups)} of {len(groups)} groups fitted; "
-        f"{refused} logs refused (by reason in the report); wrote {report} and "
+        f"{plural(refused, 'log')} refused (by reason in the report); wrote {report} and "
         f"{out_dir / 'fleet-gamma.json'}"
         + (f" and the corrected maps in {out_dir / 'gamma'}" if tmap is not None else "")
     )

@@ -65,6 +65,9 @@ def inspect_flight(flight: FlightLog) -> dict[str, Any]:
         "format": flight.format,
         "index": flight.index,
         "duration_s": end - start,
+        # the log's own time base, which the airborne windows are given in
+        "start_s": start,
+        "end_s": end,
         "fields": fields,
         "extras": extras,
         "missing": [n for n in _FIELDS if n not in fields],
@@ -103,7 +106,10 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
         return
     for info in out:
         echo(f"{info['path']} [{info['reader']}, flight {info['index']}]")
-        echo(f"  duration {info['duration_s']:.1f} s")
+        echo(
+            f"  duration {info['duration_s']:.1f} s (log time {info['start_s']:.1f} .. "
+            f"{info['end_s']:.1f} s; the airborne windows below are in log time too)"
+        )
         for name, f in {**info["fields"], **info["extras"]}.items():
             rng = f" {f['min']:.4g}..{f['max']:.4g}" if "min" in f else ""
             rate = f" {f['rate_hz']} Hz" if f["rate_hz"] else ""
@@ -112,7 +118,7 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
             echo(f"  missing: {', '.join(info['missing'])}")
         wins = info["airborne_windows_s"]
         echo(
-            f"  airborne windows: {len(wins)}"
+            f"  airborne windows (log time): {len(wins)}"
             + "".join(f"\n    {a:.1f} .. {b:.1f} s ({b - a:.1f} s)" for a, b in wins)
         )
         for w in info["warnings"]:
@@ -219,9 +225,9 @@ def extract_cmd(
         if r.voltage_unknown is not None:
             echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
     if not len(df):
-        echo(
-            "warning: no steady flight to extract (0 samples; too short for a Df), wrote an "
-            "empty Df: " + "; ".join(_summary(r) for r in df.reports),
+        echo(  # each log's summary (on stdout below) says which filter dropped what: once
+            "warning: no steady flight to extract (0 samples; too short for a Df): wrote an "
+            "empty Df; the line of each log says which filters dropped its time",
             err=True,
         )
     if as_json:

@@ -195,7 +195,8 @@ def probe_cmd(
         echo(f"  throttle scale: {report.throttle_scale}")
     tel = report.telemetry
     if tel is not None:
-        echo(f"  battery: {_fmt(tel.voltage_v, 'V', 2)}  {_fmt(tel.current_a, 'A', 2)}")
+        current = "current not measured" if tel.current_a is None else _fmt(tel.current_a, "A", 2)
+        echo(f"  battery: {_fmt(tel.voltage_v, 'V', 2)}  {current}")
         if tel.rpm is not None:
             echo("  rpm: " + " ".join(f"{r:.0f}" for r in tel.rpm))
     if report.motor_values is not None:

@@ -71,6 +71,11 @@ def wrap(text: str, cols: int | None = None, *, err: bool = False, hang: int = 2
     return "\n".join(out)
 
 
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``n`` and ``word`` agreeing in number: "1 log", "2 logs", "1 sample" ("many" if not +s)."""
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
 def echo(text: str = "", *, err: bool = False, nl: bool = True) -> None:
     """``click.echo`` for human-readable text: wrapped at the terminal's width."""
     click.echo(wrap(text, err=err), err=err, nl=nl)
