@@ -236,7 +236,8 @@ def extract_cmd(
     for r in df.reports:
         echo(_summary(r))
         for w in r.warnings:
-            if w != r.voltage_unknown:
+            # an empty Df's "only 0 samples ... most time dropped by ..." repeats its summary
+            if w != r.voltage_unknown and not (not len(df) and w.startswith("only 0 samples")):
                 echo(f"  warning: {w}")
     replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
     echo(
