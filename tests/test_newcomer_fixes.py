@@ -139,7 +139,7 @@ def test_an_empty_df_is_summarised_once(tmp_path: Path) -> None:
         "-o", str(tmp_path / "df.csv"),
     )  # fmt: skip
     assert code == 0, err
-    assert "no steady flight to extract" in err and "kept 0.0 of" in out
+    assert "no steady flight to extract" in err and "kept 0.0 of" in err
     assert (out + err).count("within 100 s of takeoff or landing") == 1, out + err
 
 

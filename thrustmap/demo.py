@@ -12,7 +12,9 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -151,8 +153,14 @@ def truth_error_pct(tmap: ThrustMap, plant: PhysicsPlant, n: int = 40) -> float:
 
 
 def run_demo(
-    out_dir: Path, *, seed: int = 1, progress: Callable[[str], None] | None = None
+    out_dir: Path,
+    *,
+    seed: int = 1,
+    progress: Callable[[str], None] | None = None,
+    on_result: Callable[[StrategyResult], None] | None = None,
 ) -> list[StrategyResult]:
+    """The paper's campaign for each strategy, fitted and scored; ``on_result`` is called with
+    each strategy's result as soon as its map is written (the CLI starts its report then)."""
     say = progress or (lambda _msg: None)
     out_dir.mkdir(parents=True, exist_ok=True)
     if removed := clear_previous_run(out_dir):
@@ -211,6 +219,8 @@ def run_demo(
         for model in MODELS:
             res.truth[model] = truth_error_pct(fit_map(datasets, model=model).map, plant)
         results.append(res)
+        if on_result is not None:
+            on_result(res)
     return results
 
 
@@ -266,14 +276,75 @@ def report(results: list[StrategyResult], out_dir: Path, cols: int | None = None
     return "\n".join(lines)
 
 
-def write_reports(results: list[StrategyResult]) -> list[Path]:
-    """An HTML report next to each map (``thrustmap report``), returned in order."""
+def report_path(result: StrategyResult) -> Path:
+    """Where the HTML report of ``result``'s map goes: beside the map."""
+    return result.map_path.with_name(result.map_path.stem + "-report.html")
+
+
+def _write_report(map_path: str, logs: list[str], out: str) -> str:
     from thrustmap.report.data import build
     from thrustmap.report.html import write_report
 
-    paths = []
-    for r in results:
-        out = r.map_path.with_name(r.map_path.stem + "-report.html")
-        write_report(build(r.map_path, [str(p) for p in r.logs]), str(out))
-        paths.append(out)
-    return paths
+    write_report(build(map_path, logs), out)
+    return out
+
+
+class Reports:
+    """The HTML report of each map, drawn in a worker process while the demo goes on.
+
+    Drawing a report's figures takes about as long as one strategy's campaign, so with two or
+    more cores (and ``fork``) the SR report is drawn while the MR campaign runs. Otherwise, or
+    when a worker fails, each report is written in this process, in turn. Use as a context
+    manager: leaving it (also by an exception or Ctrl-C) cancels what has not started and waits
+    for the worker, so no process is left behind.
+    """
+
+    def __init__(self, *, parallel: bool | None = None) -> None:
+        import multiprocessing as mp
+
+        if parallel is None:
+            parallel = (os.cpu_count() or 1) > 1 and "fork" in mp.get_all_start_methods()
+        self._pool: ProcessPoolExecutor | None = (
+            ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("fork"))
+            if parallel
+            else None
+        )
+        self._jobs: list[tuple[StrategyResult, Future[str] | None]] = []
+
+    def add(self, result: StrategyResult) -> None:
+        """Start (or, without a worker, write) the report of ``result``."""
+        args = (str(result.map_path), [str(p) for p in result.logs], str(report_path(result)))
+        if self._pool is None:
+            _write_report(*args)
+            self._jobs.append((result, None))
+        else:
+            self._jobs.append((result, self._pool.submit(_write_report, *args)))
+
+    def wait(self) -> list[Path]:
+        """Every report's path, in order, once written."""
+        for result, job in self._jobs:
+            if job is None:
+                continue
+            try:
+                job.result()
+            except Exception as exc:  # written here instead, where its error reads as usual
+                log.debug("report worker failed (%r): writing %s here", exc, report_path(result))
+                _write_report(
+                    str(result.map_path), [str(p) for p in result.logs], str(report_path(result))
+                )
+        return [report_path(r) for r, _ in self._jobs]
+
+    def __enter__(self) -> Reports:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def write_reports(results: list[StrategyResult]) -> list[Path]:
+    """An HTML report next to each map (``thrustmap report``), returned in order."""
+    with Reports(parallel=False) as reports:
+        for r in results:
+            reports.add(r)
+        return reports.wait()

@@ -225,16 +225,17 @@ def extract_cmd(
         if r.voltage_unknown is not None:
             echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
     if not len(df):
-        echo(  # each log's summary (on stdout below) says which filter dropped what: once
-            "warning: no steady flight to extract (0 samples; too short for a Df): wrote an "
-            "empty Df; the line of each log says which filters dropped its time",
+        echo(
+            "warning: no steady flight to extract (0 samples; too short for a Df), wrote an "
+            "empty Df: " + "; ".join(_summary(r) for r in df.reports),
             err=True,
         )
     if as_json:
         click.echo(json.dumps([r.to_dict() for r in df.reports], indent=2))
         return
     for r in df.reports:
-        echo(_summary(r))
+        if len(df):  # an empty Df's summaries are in the warning above: said once
+            echo(_summary(r))
         for w in r.warnings:
             # an empty Df's "only 0 samples ... most time dropped by ..." repeats its summary
             if w != r.voltage_unknown and not (not len(df) and w.startswith("only 0 samples")):
