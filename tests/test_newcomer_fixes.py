@@ -161,7 +161,7 @@ def test_the_demo_replaces_its_own_recordings(tmp_path: Path) -> None:
 
     paths = _fake_demo_output(tmp_path)
     _remember(tmp_path, paths)
-    assert (tmp_path / MANIFEST).exists()
+    assert (tmp_path / "sr" / MANIFEST).exists() and (tmp_path / "mr" / MANIFEST).exists()
     assert clear_previous_run(tmp_path) == len(paths)
     assert not any(p.exists() for p in paths)
 
@@ -179,7 +179,8 @@ def test_the_demo_never_replaces_a_users_recording(tmp_path: Path) -> None:
     assert all(p.exists() for p in paths)  # refused before anything was removed
     for p in paths:  # no manifest at all: nothing is the demo's
         p.write_text("x\n")
-    (tmp_path / "thrustmap-demo.json").unlink()
+    for manifest in tmp_path.glob("*/thrustmap-demo.json"):
+        manifest.unlink()
     with pytest.raises(ConfigError):
         clear_previous_run(tmp_path)
 

@@ -14,8 +14,8 @@ import json
 import logging
 import os
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +41,8 @@ log = logging.getLogger(__name__)
 
 MODELS = ("poly2", "poly2-trunc", "poly3", "poly3-trunc", "motor")
 STRATEGIES = {"SR": 1, "MR": 4}
-#: the demo's list of the recordings it wrote (relative path -> sha256), in its output folder
+#: the demo's list of the recordings it wrote (path relative to the output folder -> sha256), one
+#: in each strategy's folder
 MANIFEST = "thrustmap-demo.json"
 
 
@@ -59,12 +60,21 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _owned(out_dir: Path) -> dict[str, str]:
+def _manifest_files(path: Path) -> dict[str, str]:
     try:
-        files = json.loads((out_dir / MANIFEST).read_text(encoding="utf-8")).get("files", {})
+        files = json.loads(path.read_text(encoding="utf-8")).get("files", {})
     except (OSError, ValueError, AttributeError):
         return {}
     return {str(k): str(v) for k, v in files.items()} if isinstance(files, dict) else {}
+
+
+def _owned(out_dir: Path) -> dict[str, str]:
+    """Every recording the demo's manifests list (one manifest per strategy folder, so the
+    strategies' workers never write the same file)."""
+    owned: dict[str, str] = {}
+    for strategy in STRATEGIES:
+        owned.update(_manifest_files(out_dir / strategy.lower() / MANIFEST))
+    return owned
 
 
 def clear_previous_run(out_dir: Path) -> int:
@@ -90,13 +100,19 @@ def clear_previous_run(out_dir: Path) -> int:
 
 
 def _remember(out_dir: Path, written: list[Path]) -> None:
-    """Add ``written`` (with their content hashes) to the demo's manifest in ``out_dir``."""
-    files = _owned(out_dir)
+    """Add ``written`` (with their content hashes) to the manifest of the strategy folder each
+    lies in (``out_dir/sr/thrustmap-demo.json``)."""
+    by_folder: dict[str, list[Path]] = {}
     for p in written:
-        if p.exists():
-            files[p.relative_to(out_dir).as_posix()] = _sha256(p)
-    text = json.dumps({"written_by": "thrustmap demo", "files": files}, indent=2)
-    atomic_write_text(out_dir / MANIFEST, text + "\n")
+        by_folder.setdefault(p.relative_to(out_dir).parts[0], []).append(p)
+    for folder, paths in by_folder.items():
+        manifest = out_dir / folder / MANIFEST
+        files = _manifest_files(manifest)
+        for p in paths:
+            if p.exists():
+                files[p.relative_to(out_dir).as_posix()] = _sha256(p)
+        text = json.dumps({"written_by": "thrustmap demo", "files": files}, indent=2)
+        atomic_write_text(manifest, text + "\n")
 
 
 def experiments() -> dict[str, plans.Plan]:
@@ -152,76 +168,161 @@ def truth_error_pct(tmap: ThrustMap, plant: PhysicsPlant, n: int = 40) -> float:
     return float(np.mean(np.abs(tmap.throttle_pct(tt[ok], bb[ok], corrected=False) - truth[ok])))
 
 
+def run_strategy(
+    strategy: str, rotors: int, out_dir: Path, seed: int, say: Callable[[str], None]
+) -> StrategyResult:
+    """One strategy's campaign (the paper's four experiments) on its own simulated bench,
+    fitted, and every model scored in-sample, held out by file and against the true map."""
+    peers.reset_benches()
+    clock = SimClock()
+    bench = f"demo-{strategy.lower()}"
+    fc = MspThrottleOutput(
+        open_transport(
+            f"sim://betaflight?bench={bench}&rotors={rotors}&seed={seed}&protocol=PWM",
+            clock=clock,
+            timeout=0,
+        ),
+        clock,
+    )
+    stand = TytoStand(
+        open_transport(f"sim://tyto-1585?bench={bench}&drive_esc=0", clock=clock, timeout=0),
+        clock,
+        SIM_TYTO_CALIBRATION,
+    )
+    plant = peers.bench_plant({"bench": bench})
+    logs, runs = [], []
+    limits = Limits(max_current_a=120.0, max_throttle_pct=75.0)
+    with fc, stand:
+        for name, plan in experiments().items():
+            path = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            run = record_sweep(
+                plan,
+                fc,
+                stand,
+                str(path),
+                clock,
+                limits=limits,
+                config=RunConfig(rotors_on_esc=rotors),
+                meta={"simulated": True},
+            )
+            say(
+                f"{strategy} {name:<11} {run.status}: {run.samples} samples, {run.duration_s:.0f} s simulated"
+            )
+            logs.append(path)
+            runs.append(run)
+            _remember(out_dir, [path, path.with_suffix(".meta.json")])
+    datasets = load_datasets(logs)
+    outcome = fit_map(datasets)
+    map_path = out_dir / f"{strategy.lower()}-map.json"
+    outcome.map.save(map_path)
+    res = StrategyResult(strategy, logs, runs, map_path, outcome.map)
+    paper_sel = Selection(all_samples=True, throttle_range=(1300, 1500), thrust_range=(0, 11))
+    for row in compare(datasets, MODELS, "in-sample", selection=paper_sel):
+        res.in_sample[row.model] = (row.inside.mean_pct, row.inside.std_pct)
+    for row in compare(datasets, MODELS, "by-file"):
+        res.held_out[row.model] = row.all.mean_pct  # every held-out point
+    for model in MODELS:
+        res.truth[model] = truth_error_pct(fit_map(datasets, model=model).map, plant)
+    return res
+
+
+def _strategy_worker(
+    conn: Connection,
+    strategy: str,
+    rotors: int,
+    out_dir: Path,
+    seed: int,
+    say: Callable[[str], None],
+    with_report: bool,
+) -> None:
+    """A forked worker: one strategy (and its report); sends ("ok", result) or ("error", exc)."""
+    try:
+        res = run_strategy(strategy, rotors, out_dir, seed, say)
+        if with_report:
+            _write_report(str(res.map_path), [str(p) for p in res.logs], str(report_path(res)))
+        conn.send(("ok", res))
+    except BaseException as exc:  # reported to the parent, which raises it
+        try:
+            conn.send(("error", exc))
+        except Exception:  # an exception that does not pickle: its text
+            conn.send(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+    finally:
+        conn.close()
+
+
+def _parallel_ok() -> bool:
+    import multiprocessing as mp
+
+    return (os.cpu_count() or 1) > 1 and "fork" in mp.get_all_start_methods()
+
+
 def run_demo(
     out_dir: Path,
     *,
     seed: int = 1,
     progress: Callable[[str], None] | None = None,
-    on_result: Callable[[StrategyResult], None] | None = None,
+    reports: bool = False,
+    parallel: bool | None = None,
 ) -> list[StrategyResult]:
-    """The paper's campaign for each strategy, fitted and scored; ``on_result`` is called with
-    each strategy's result as soon as its map is written (the CLI starts its report then)."""
+    """The paper's campaign for each strategy (SR, MR), fitted and scored; with ``reports``, an
+    HTML report beside each map (:func:`report_path`).
+
+    The strategies are independent (each its own simulated bench, clock and seed), so with two
+    or more cores (``parallel`` None: when ``fork`` is available) each runs in a forked worker
+    process and the demo takes about as long as one; otherwise they run here, in turn. The
+    results are the same either way. Leaving early (an error, Ctrl-C) stops every worker.
+    """
     say = progress or (lambda _msg: None)
     out_dir.mkdir(parents=True, exist_ok=True)
     if removed := clear_previous_run(out_dir):
         say(f"replacing the previous demo's {removed} files in {out_dir}")
-    results = []
-    for strategy, rotors in STRATEGIES.items():
-        peers.reset_benches()
-        clock = SimClock()
-        bench = f"demo-{strategy.lower()}"
-        fc = MspThrottleOutput(
-            open_transport(
-                f"sim://betaflight?bench={bench}&rotors={rotors}&seed={seed}&protocol=PWM",
-                clock=clock,
-                timeout=0,
-            ),
-            clock,
-        )
-        stand = TytoStand(
-            open_transport(f"sim://tyto-1585?bench={bench}&drive_esc=0", clock=clock, timeout=0),
-            clock,
-            SIM_TYTO_CALIBRATION,
-        )
-        plant = peers.bench_plant({"bench": bench})
-        logs, runs = [], []
-        limits = Limits(max_current_a=120.0, max_throttle_pct=75.0)
-        with fc, stand:
-            for name, plan in experiments().items():
-                path = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
-                path.parent.mkdir(parents=True, exist_ok=True)
-                run = record_sweep(
-                    plan,
-                    fc,
-                    stand,
-                    str(path),
-                    clock,
-                    limits=limits,
-                    config=RunConfig(rotors_on_esc=rotors),
-                    meta={"simulated": True},
-                )
-                say(
-                    f"{strategy} {name:<11} {run.status}: {run.samples} samples, {run.duration_s:.0f} s simulated"
-                )
-                logs.append(path)
-                runs.append(run)
-                _remember(out_dir, [path, path.with_suffix(".meta.json")])
-        datasets = load_datasets(logs)
-        outcome = fit_map(datasets)
-        map_path = out_dir / f"{strategy.lower()}-map.json"
-        outcome.map.save(map_path)
-        res = StrategyResult(strategy, logs, runs, map_path, outcome.map)
-        paper_sel = Selection(all_samples=True, throttle_range=(1300, 1500), thrust_range=(0, 11))
-        for row in compare(datasets, MODELS, "in-sample", selection=paper_sel):
-            res.in_sample[row.model] = (row.inside.mean_pct, row.inside.std_pct)
-        for row in compare(datasets, MODELS, "by-file"):
-            res.held_out[row.model] = row.all.mean_pct  # every held-out point
-        for model in MODELS:
-            res.truth[model] = truth_error_pct(fit_map(datasets, model=model).map, plant)
-        results.append(res)
-        if on_result is not None:
-            on_result(res)
-    return results
+    if parallel is None:
+        parallel = _parallel_ok()
+    if not parallel:
+        results = []
+        for strategy, rotors in STRATEGIES.items():
+            res = run_strategy(strategy, rotors, out_dir, seed, say)
+            if reports:
+                _write_report(str(res.map_path), [str(p) for p in res.logs], str(report_path(res)))
+            results.append(res)
+        return results
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    workers = []
+    try:
+        for strategy, rotors in STRATEGIES.items():
+            receive, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(
+                target=_strategy_worker,
+                args=(send, strategy, rotors, out_dir, seed, say, reports),
+                name=f"thrustmap-demo-{strategy.lower()}",
+            )
+            proc.start()
+            send.close()  # the worker holds the sending end: EOF here when it dies
+            workers.append((strategy, receive, proc))
+        results = []
+        for strategy, receive, proc in workers:
+            try:
+                kind, value = receive.recv()
+            except EOFError:
+                proc.join()
+                raise RuntimeError(
+                    f"the demo's {strategy} worker ended without a result (exit {proc.exitcode})"
+                ) from None
+            if kind != "ok":
+                raise value
+            results.append(value)
+        return results
+    finally:
+        for _, receive, proc in workers:
+            if proc.is_alive():
+                proc.join(timeout=5.0)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join()
+            receive.close()
 
 
 def report(results: list[StrategyResult], out_dir: Path, cols: int | None = None) -> str:
@@ -289,62 +390,8 @@ def _write_report(map_path: str, logs: list[str], out: str) -> str:
     return out
 
 
-class Reports:
-    """The HTML report of each map, drawn in a worker process while the demo goes on.
-
-    Drawing a report's figures takes about as long as one strategy's campaign, so with two or
-    more cores (and ``fork``) the SR report is drawn while the MR campaign runs. Otherwise, or
-    when a worker fails, each report is written in this process, in turn. Use as a context
-    manager: leaving it (also by an exception or Ctrl-C) cancels what has not started and waits
-    for the worker, so no process is left behind.
-    """
-
-    def __init__(self, *, parallel: bool | None = None) -> None:
-        import multiprocessing as mp
-
-        if parallel is None:
-            parallel = (os.cpu_count() or 1) > 1 and "fork" in mp.get_all_start_methods()
-        self._pool: ProcessPoolExecutor | None = (
-            ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("fork"))
-            if parallel
-            else None
-        )
-        self._jobs: list[tuple[StrategyResult, Future[str] | None]] = []
-
-    def add(self, result: StrategyResult) -> None:
-        """Start (or, without a worker, write) the report of ``result``."""
-        args = (str(result.map_path), [str(p) for p in result.logs], str(report_path(result)))
-        if self._pool is None:
-            _write_report(*args)
-            self._jobs.append((result, None))
-        else:
-            self._jobs.append((result, self._pool.submit(_write_report, *args)))
-
-    def wait(self) -> list[Path]:
-        """Every report's path, in order, once written."""
-        for result, job in self._jobs:
-            if job is None:
-                continue
-            try:
-                job.result()
-            except Exception as exc:  # written here instead, where its error reads as usual
-                log.debug("report worker failed (%r): writing %s here", exc, report_path(result))
-                _write_report(
-                    str(result.map_path), [str(p) for p in result.logs], str(report_path(result))
-                )
-        return [report_path(r) for r, _ in self._jobs]
-
-    def __enter__(self) -> Reports:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-
-
 def write_reports(results: list[StrategyResult]) -> list[Path]:
     """An HTML report next to each map (``thrustmap report``), returned in order."""
-    with Reports(parallel=False) as reports:
-        for r in results:
-            reports.add(r)
-        return reports.wait()
+    for r in results:
+        _write_report(str(r.map_path), [str(p) for p in r.logs], str(report_path(r)))
+    return [report_path(r) for r in results]

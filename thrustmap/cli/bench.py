@@ -40,19 +40,18 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
     real drivers and runner; the paper's four experiments are recorded, every model is fitted,
     and a Table-3-style comparison is printed (in-sample, held-out, and against the simulator's
     true map)."""
-    from thrustmap.demo import Reports, report, run_demo
+    from thrustmap.demo import report, report_path, run_demo
 
     start = time.perf_counter()
-    with Reports() as reports:  # each map's report drawn while the next campaign runs
-        results = run_demo(
-            Path(out_dir),
-            seed=seed,
-            progress=None if quiet else (lambda m: echo(m, err=True)),
-            on_result=reports.add,
-        )
-        echo(report(results, Path(out_dir), cols=width()))
-        for path in reports.wait():
-            echo(f"Report: {path} (open it in a browser)")
+    results = run_demo(
+        Path(out_dir),
+        seed=seed,
+        progress=None if quiet else (lambda m: echo(m, err=True)),
+        reports=True,
+    )
+    echo(report(results, Path(out_dir), cols=width()))
+    for r in results:
+        echo(f"Report: {report_path(r)} (open it in a browser)")
     if not quiet:
         click.echo(f"({time.perf_counter() - start:.1f} s)", err=True)
 
