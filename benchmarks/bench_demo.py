@@ -63,10 +63,9 @@ def main() -> None:
     py = sys.executable
     with tempfile.TemporaryDirectory() as tmp:
         ours_dir, base_dir = Path(tmp) / "thrustmap-demo", Path(tmp) / "baseline"
-        ours = [_timed([py, "-m", "thrustmap", "demo", "-q", "-o", str(ours_dir)])
-                for _ in range(args.runs)]  # fmt: skip
-        base = []
-        for _ in range(args.runs):
+        ours, base = [], []
+        for _ in range(args.runs):  # interleaved, so a change in the machine's load hits both
+            ours.append(_timed([py, "-m", "thrustmap", "demo", "-q", "-o", str(ours_dir)]))
             base.append(_timed([py, "-c", BASELINE, str(base_dir)]))  # replaces its own run
         phases = subprocess.run(
             [py, "-c", PHASES, str(Path(tmp) / "phases")],
