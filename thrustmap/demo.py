@@ -263,15 +263,16 @@ def run_demo(
     seed: int = 1,
     progress: Callable[[str], None] | None = None,
     reports: bool = False,
-    parallel: bool | None = None,
+    parallel: bool | None = False,
 ) -> list[StrategyResult]:
     """The paper's campaign for each strategy (SR, MR), fitted and scored; with ``reports``, an
     HTML report beside each map (:func:`report_path`).
 
-    The strategies are independent (each its own simulated bench, clock and seed), so with two
-    or more cores (``parallel`` None: when ``fork`` is available) each runs in a forked worker
-    process and the demo takes about as long as one; otherwise they run here, in turn. The
-    results are the same either way. Leaving early (an error, Ctrl-C) stops every worker.
+    The strategies are independent (each its own simulated bench, clock and seed), so with
+    ``parallel`` each runs in a forked worker process and the demo takes about as long as one
+    (None: when there are two or more cores and ``fork``, as the CLI asks; the default False
+    runs them here, in turn, as a caller with threads of its own needs). The results are the
+    same either way. Leaving early (an error, Ctrl-C) stops every worker.
     """
     say = progress or (lambda _msg: None)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -48,6 +48,7 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
         seed=seed,
         progress=None if quiet else (lambda m: echo(m, err=True)),
         reports=True,
+        parallel=None,  # SR and MR in two worker processes where there are two cores
     )
     echo(report(results, Path(out_dir), cols=width()))
     for r in results:
