@@ -9,14 +9,20 @@ in-sample (the paper's Table 3), held out by file, and against the simulator's t
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
 from pathlib import Path
 
 import numpy as np
 
 from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.files import atomic_write_text
 from thrustmap.fitting.fit import compare, fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
@@ -35,6 +41,78 @@ log = logging.getLogger(__name__)
 
 MODELS = ("poly2", "poly2-trunc", "poly3", "poly3-trunc", "motor")
 STRATEGIES = {"SR": 1, "MR": 4}
+#: the demo's list of the recordings it wrote (path relative to the output folder -> sha256), one
+#: in each strategy's folder
+MANIFEST = "thrustmap-demo.json"
+
+
+def recording_paths(out_dir: Path) -> list[Path]:
+    """Every Ds log (and sidecar) the demo writes into ``out_dir``."""
+    paths = []
+    for strategy in STRATEGIES:
+        for name in experiments():
+            csv = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
+            paths += [csv, csv.with_suffix(".meta.json")]
+    return paths
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _manifest_files(path: Path) -> dict[str, str]:
+    try:
+        files = json.loads(path.read_text(encoding="utf-8")).get("files", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {str(k): str(v) for k, v in files.items()} if isinstance(files, dict) else {}
+
+
+def _owned(out_dir: Path) -> dict[str, str]:
+    """Every recording the demo's manifests list (one manifest per strategy folder, so the
+    strategies' workers never write the same file)."""
+    owned: dict[str, str] = {}
+    for strategy in STRATEGIES:
+        owned.update(_manifest_files(out_dir / strategy.lower() / MANIFEST))
+    return owned
+
+
+def clear_previous_run(out_dir: Path) -> int:
+    """Remove the recordings a previous demo wrote into ``out_dir``, so it runs again in place.
+
+    A recording is removed only when the demo's manifest lists it with the same content (sha256):
+    a user's recording, or one changed since, is never touched, and the run is refused before
+    anything is removed. Returns the number of files removed.
+    """
+    owned = _owned(out_dir)
+    present = [p for p in recording_paths(out_dir) if p.exists()]
+    for p in present:
+        rel = p.relative_to(out_dir).as_posix()
+        if owned.get(rel) != _sha256(p):
+            raise ConfigError(
+                "a recording thrustmap demo did not write (or one changed since) is here; "
+                "it is kept: run the demo in another folder (thrustmap demo -o FOLDER)",
+                file=str(p),
+            )
+    for p in present:
+        p.unlink()
+    return len(present)
+
+
+def _remember(out_dir: Path, written: list[Path]) -> None:
+    """Add ``written`` (with their content hashes) to the manifest of the strategy folder each
+    lies in (``out_dir/sr/thrustmap-demo.json``)."""
+    by_folder: dict[str, list[Path]] = {}
+    for p in written:
+        by_folder.setdefault(p.relative_to(out_dir).parts[0], []).append(p)
+    for folder, paths in by_folder.items():
+        manifest = out_dir / folder / MANIFEST
+        files = _manifest_files(manifest)
+        for p in paths:
+            if p.exists():
+                files[p.relative_to(out_dir).as_posix()] = _sha256(p)
+        text = json.dumps({"written_by": "thrustmap demo", "files": files}, indent=2)
+        atomic_write_text(manifest, text + "\n")
 
 
 def experiments() -> dict[str, plans.Plan]:
@@ -90,85 +168,197 @@ def truth_error_pct(tmap: ThrustMap, plant: PhysicsPlant, n: int = 40) -> float:
     return float(np.mean(np.abs(tmap.throttle_pct(tt[ok], bb[ok], corrected=False) - truth[ok])))
 
 
+def run_strategy(
+    strategy: str, rotors: int, out_dir: Path, seed: int, say: Callable[[str], None]
+) -> StrategyResult:
+    """One strategy's campaign (the paper's four experiments) on its own simulated bench,
+    fitted, and every model scored in-sample, held out by file and against the true map."""
+    peers.reset_benches()
+    clock = SimClock()
+    bench = f"demo-{strategy.lower()}"
+    fc = MspThrottleOutput(
+        open_transport(
+            f"sim://betaflight?bench={bench}&rotors={rotors}&seed={seed}&protocol=PWM",
+            clock=clock,
+            timeout=0,
+        ),
+        clock,
+    )
+    stand = TytoStand(
+        open_transport(f"sim://tyto-1585?bench={bench}&drive_esc=0", clock=clock, timeout=0),
+        clock,
+        SIM_TYTO_CALIBRATION,
+    )
+    plant = peers.bench_plant({"bench": bench})
+    logs, runs = [], []
+    limits = Limits(max_current_a=120.0, max_throttle_pct=75.0)
+    with fc, stand:
+        for name, plan in experiments().items():
+            path = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            run = record_sweep(
+                plan,
+                fc,
+                stand,
+                str(path),
+                clock,
+                limits=limits,
+                config=RunConfig(rotors_on_esc=rotors),
+                meta={"simulated": True},
+            )
+            say(
+                f"{strategy} {name:<11} {run.status}: {run.samples} samples, {run.duration_s:.0f} s simulated"
+            )
+            logs.append(path)
+            runs.append(run)
+            _remember(out_dir, [path, path.with_suffix(".meta.json")])
+            if run.interrupted:  # Ctrl-C/SIGTERM stops the demo: nothing fitted on part
+                raise KeyboardInterrupt(
+                    f"{strategy} {name} sweep stopped ({run.reason}); no map fitted and no "
+                    f"report written (partial logs in {path.parent})"
+                )
+    datasets = load_datasets(logs)
+    outcome = fit_map(datasets)
+    map_path = out_dir / f"{strategy.lower()}-map.json"
+    outcome.map.save(map_path)
+    res = StrategyResult(strategy, logs, runs, map_path, outcome.map)
+    paper_sel = Selection(all_samples=True, throttle_range=(1300, 1500), thrust_range=(0, 11))
+    for row in compare(datasets, MODELS, "in-sample", selection=paper_sel):
+        res.in_sample[row.model] = (row.inside.mean_pct, row.inside.std_pct)
+    for row in compare(datasets, MODELS, "by-file"):
+        res.held_out[row.model] = row.all.mean_pct  # every held-out point
+    for model in MODELS:
+        res.truth[model] = truth_error_pct(fit_map(datasets, model=model).map, plant)
+    return res
+
+
+def _strategy_worker(
+    conn: Connection,
+    strategy: str,
+    rotors: int,
+    out_dir: Path,
+    seed: int,
+    say: Callable[[str], None],
+    with_report: bool,
+) -> None:
+    """A forked worker: one strategy (and its report); sends ("ok", result) or ("error", exc)."""
+    try:
+        res = run_strategy(strategy, rotors, out_dir, seed, say)
+        if with_report:
+            _write_report(str(res.map_path), [str(p) for p in res.logs], str(report_path(res)))
+        conn.send(("ok", res))
+    except BaseException as exc:  # reported to the parent, which raises it
+        try:
+            conn.send(("error", exc))
+        except Exception:  # an exception that does not pickle: its text
+            conn.send(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+    finally:
+        conn.close()
+
+
+def _parallel_ok() -> bool:
+    import multiprocessing as mp
+
+    return (os.cpu_count() or 1) > 1 and "fork" in mp.get_all_start_methods()
+
+
 def run_demo(
-    out_dir: Path, *, seed: int = 1, progress: Callable[[str], None] | None = None
+    out_dir: Path,
+    *,
+    seed: int = 1,
+    progress: Callable[[str], None] | None = None,
+    reports: bool = False,
+    parallel: bool | None = False,
 ) -> list[StrategyResult]:
+    """The paper's campaign for each strategy (SR, MR), fitted and scored; with ``reports``, an
+    HTML report beside each map (:func:`report_path`).
+
+    The strategies are independent (each its own simulated bench, clock and seed), so with
+    ``parallel`` each runs in a forked worker process and the demo takes about as long as one
+    (None: when there are two or more cores and ``fork``, as the CLI asks; the default False
+    runs them here, in turn, as a caller with threads of its own needs). The results are the
+    same either way. Leaving early (an error, Ctrl-C) stops every worker.
+    """
     say = progress or (lambda _msg: None)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = []
-    for strategy, rotors in STRATEGIES.items():
-        peers.reset_benches()
-        clock = SimClock()
-        bench = f"demo-{strategy.lower()}"
-        fc = MspThrottleOutput(
-            open_transport(
-                f"sim://betaflight?bench={bench}&rotors={rotors}&seed={seed}&protocol=PWM",
-                clock=clock,
-                timeout=0,
-            ),
-            clock,
-        )
-        stand = TytoStand(
-            open_transport(f"sim://tyto-1585?bench={bench}&drive_esc=0", clock=clock, timeout=0),
-            clock,
-            SIM_TYTO_CALIBRATION,
-        )
-        plant = peers.bench_plant({"bench": bench})
-        logs, runs = [], []
-        limits = Limits(max_current_a=120.0, max_throttle_pct=75.0)
-        with fc, stand:
-            for name, plan in experiments().items():
-                path = out_dir / strategy.lower() / f"xnova-{strategy}-{name}.csv"
-                path.parent.mkdir(parents=True, exist_ok=True)
-                run = record_sweep(
-                    plan,
-                    fc,
-                    stand,
-                    str(path),
-                    clock,
-                    limits=limits,
-                    config=RunConfig(rotors_on_esc=rotors),
-                    meta={"simulated": True},
-                )
-                say(
-                    f"{strategy} {name:<11} {run.status}: {run.samples} samples, {run.duration_s:.0f} s simulated"
-                )
-                logs.append(path)
-                runs.append(run)
-                if run.interrupted:  # Ctrl-C/SIGTERM stops the demo: nothing fitted on part
-                    raise KeyboardInterrupt(
-                        f"{strategy} {name} sweep stopped ({run.reason}); no map fitted and no "
-                        f"report written (partial logs in {path.parent})"
-                    )
-        datasets = load_datasets(logs)
-        outcome = fit_map(datasets)
-        map_path = out_dir / f"{strategy.lower()}-map.json"
-        outcome.map.save(map_path)
-        res = StrategyResult(strategy, logs, runs, map_path, outcome.map)
-        paper_sel = Selection(all_samples=True, throttle_range=(1300, 1500), thrust_range=(0, 11))
-        for row in compare(datasets, MODELS, "in-sample", selection=paper_sel):
-            res.in_sample[row.model] = (row.inside.mean_pct, row.inside.std_pct)
-        for row in compare(datasets, MODELS, "by-file"):
-            res.held_out[row.model] = row.all.mean_pct  # every held-out point
-        for model in MODELS:
-            res.truth[model] = truth_error_pct(fit_map(datasets, model=model).map, plant)
-        results.append(res)
-    return results
+    if removed := clear_previous_run(out_dir):
+        say(f"replacing the previous demo's {removed} files in {out_dir}")
+    if parallel is None:
+        parallel = _parallel_ok()
+    if not parallel:
+        results = []
+        for strategy, rotors in STRATEGIES.items():
+            res = run_strategy(strategy, rotors, out_dir, seed, say)
+            if reports:
+                _write_report(str(res.map_path), [str(p) for p in res.logs], str(report_path(res)))
+            results.append(res)
+        return results
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    workers = []
+    try:
+        for strategy, rotors in STRATEGIES.items():
+            receive, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(
+                target=_strategy_worker,
+                args=(send, strategy, rotors, out_dir, seed, say, reports),
+                name=f"thrustmap-demo-{strategy.lower()}",
+            )
+            proc.start()
+            send.close()  # the worker holds the sending end: EOF here when it dies
+            workers.append((strategy, receive, proc))
+        results = []
+        for strategy, receive, proc in workers:
+            try:
+                kind, value = receive.recv()
+            except EOFError:
+                proc.join()
+                raise RuntimeError(
+                    f"the demo's {strategy} worker ended without a result (exit {proc.exitcode})"
+                ) from None
+            if kind != "ok":
+                raise value
+            results.append(value)
+        return results
+    finally:
+        for _, receive, proc in workers:
+            if proc.is_alive():
+                proc.join(timeout=5.0)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join()
+            receive.close()
 
 
-def report(results: list[StrategyResult], out_dir: Path) -> str:
-    names = [r.name for r in results]
+def report(results: list[StrategyResult], out_dir: Path, cols: int | None = None) -> str:
+    """The comparison as text: one table with a column group per strategy, or, when that is
+    wider than ``cols`` (the terminal's width), one table per strategy."""
+    from thrustmap.cli.textwidth import table
+
     lines = ["Thrust-map errors, % of the 1000–2000 µs range (simulated xNova 2207 on 6S)", ""]
-    head = f"{'model':<12}" + "".join(
-        f" | {n + ' in-sample':>18} {n + ' held-out':>12} {n + ' vs truth':>12}" for n in names
+    right = [False] + [True] * (3 * len(results))
+
+    def cells(r: StrategyResult, m: str) -> list[str]:
+        mean, std = r.in_sample[m]
+        return [f"{mean:.3f} ± {std:.3f}", f"{r.held_out[m]:.3f}", f"{r.truth[m]:.3f}"]
+
+    def heads(r: StrategyResult) -> list[str]:
+        return [f"{r.name} in-sample", f"{r.name} held-out", f"{r.name} vs truth"]
+
+    wide = table(
+        ["model", *(h for r in results for h in heads(r))],
+        [[m, *(c for r in results for c in cells(r, m))] for m in MODELS],
+        right=right,
+        cols=10_000,
     )
-    lines += [head, "-" * len(head)]
-    for m in MODELS:
-        row = f"{m:<12}"
-        for r in results:
-            mean, std = r.in_sample[m]
-            row += f" | {mean:>9.3f} ± {std:<6.3f} {r.held_out[m]:>12.3f} {r.truth[m]:>12.3f}"
-        lines.append(row)
+    if cols is None or max(len(line) for line in wide.splitlines()) <= cols:
+        lines.append(wide)
+    else:
+        for i, r in enumerate(results):
+            rows = [[m, *cells(r, m)] for m in MODELS]
+            lines += [""] if i else []
+            lines.append(table(["model", *heads(r)], rows, right=right[:4], cols=cols))
     lines += [
         "",
         "in-sample: the paper's method (all samples, 1300 < µs < 1500, 0 < T < 11 N, least squares);",
@@ -193,14 +383,21 @@ def report(results: list[StrategyResult], out_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def write_reports(results: list[StrategyResult]) -> list[Path]:
-    """An HTML report next to each map (``thrustmap report``), returned in order."""
+def report_path(result: StrategyResult) -> Path:
+    """Where the HTML report of ``result``'s map goes: beside the map."""
+    return result.map_path.with_name(result.map_path.stem + "-report.html")
+
+
+def _write_report(map_path: str, logs: list[str], out: str) -> str:
     from thrustmap.report.data import build
     from thrustmap.report.html import write_report
 
-    paths = []
+    write_report(build(map_path, logs), out)
+    return out
+
+
+def write_reports(results: list[StrategyResult]) -> list[Path]:
+    """An HTML report next to each map (``thrustmap report``), returned in order."""
     for r in results:
-        out = r.map_path.with_name(r.map_path.stem + "-report.html")
-        write_report(build(r.map_path, [str(p) for p in r.logs]), str(out))
-        paths.append(out)
-    return paths
+        _write_report(str(r.map_path), [str(p) for p in r.logs], str(report_path(r)))
+    return [report_path(r) for r in results]

@@ -15,6 +15,7 @@ from typing import Any, TextIO
 
 import click
 
+from thrustmap.cli import textwidth
 from thrustmap.core.errors import ThrustmapError
 
 log = logging.getLogger("thrustmap")
@@ -65,6 +66,33 @@ SUMMARIES: dict[str, str] = {
 
 
 class LazyGroup(click.Group):
+    """The top-level group: commands imported when used, help wrapped between words.
+
+    Bare ``thrustmap`` prints its help (exit 0); a group given no subcommand
+    (``thrustmap flightlog``) prints a short usage on stderr (exit 2).
+    """
+
+    context_class = textwidth.Context
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if not args and not ctx.resilient_parsing:
+            click.echo(ctx.get_help())
+            ctx.exit(0)
+        return super().parse_args(ctx, args)
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except click.exceptions.NoArgsIsHelpError as exc:
+            click.echo(textwidth.short_usage(exc.ctx), err=True)
+            # SystemExit, not click's Exit: cli.main(standalone_mode=False) returns Exit's code
+            # as the command's result, which main() does not read
+            raise SystemExit(2) from None
+        except click.MissingParameter as exc:
+            # click lists choices on tab-indented lines; one line of plain words instead
+            message = " ".join(exc.format_message().split())
+            raise click.UsageError(message, ctx=exc.ctx) from None
+
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(COMMANDS)
 
@@ -98,7 +126,8 @@ class LazyGroup(click.Group):
             return None
         from thrustmap.cli.pictures import attach
 
-        return attach(command, cmd_name)  # every --help says where the pictures are
+        # every --help says where the pictures are, wrapped between words
+        return textwidth.use_formatter(attach(command, cmd_name))
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -191,6 +220,8 @@ class _CliLogHandler(logging.Handler):
             self.held.append(line)
 
     def _write(self, line: str) -> None:
+        if not line.startswith(("error: ", "CRITICAL: ")):  # an error stays one line
+            line = textwidth.wrap(line, err=True)  # a note fits the terminal, between words
         try:
             self.stream.write(line + "\n")
             self.stream.flush()

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from thrustmap.cli.textwidth import echo, width
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
 
@@ -39,16 +40,19 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
     real drivers and runner; the paper's four experiments are recorded, every model is fitted,
     and a Table-3-style comparison is printed (in-sample, held-out, and against the simulator's
     true map)."""
-    from thrustmap.demo import report, run_demo, write_reports
+    from thrustmap.demo import report, report_path, run_demo
 
     start = time.perf_counter()
     results = run_demo(
-        Path(out_dir), seed=seed, progress=None if quiet else (lambda m: click.echo(m, err=True))
+        Path(out_dir),
+        seed=seed,
+        progress=None if quiet else (lambda m: echo(m, err=True)),
+        reports=True,
+        parallel=None,  # SR and MR in two worker processes where there are two cores
     )
-    paths = write_reports(results)  # everything is written before anything is presented
-    click.echo(report(results, Path(out_dir)))
-    for path in paths:
-        click.echo(f"Report: {path} (open it in a browser)")
+    echo(report(results, Path(out_dir), cols=width()))
+    for r in results:
+        echo(f"Report: {report_path(r)} (open it in a browser)")
     if not quiet:
         click.echo(f"({time.perf_counter() - start:.1f} s)", err=True)
 
@@ -374,19 +378,19 @@ def sweep_cmd(
         watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the recording
     )
     for warning in pairing_warnings(rig):
-        click.echo(f"warning: {warning}", err=True)
+        echo(f"warning: {warning}", err=True)
     if _stand_cannot_see_the_motor(rig.stand, rig.throttle) and limits.min_thrust_by_pct > 0:
         # a simulated stand beside a real motor measures noise by design: the thrust-response
         # interlock would stop every such run, so it is off, and said so
         limits = dataclasses.replace(limits, min_thrust_by_pct=0.0)
-        click.echo(
+        echo(
             "warning: the thrust-response interlock (--min-thrust-by) is off: "
             "a simulated stand cannot measure a real motor",
             err=True,
         )
     if kw["dry_run"]:
-        click.echo(plan.describe())
-        click.echo(
+        echo(plan.describe())
+        echo(
             f"limits ok: ceiling {plan.max_throttle_pct:.1f} % <= {limits.max_throttle_pct:.1f} %, "
             f"ramp slew {plan.max_ramp_slew_pct_s():.2f} %/s <= {limits.max_slew_pct_s:.1f} %/s"
         )
@@ -397,7 +401,7 @@ def sweep_cmd(
         check_output_path(output, what="Ds log").path, siblings=(".meta.json",)
     )
     if str(chosen) != output:  # a sweep never overwrites a recording
-        click.echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
+        echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)
         output = str(chosen)
         rig = dataclasses.replace(rig, watchdog_log=str(chosen.with_suffix(".watchdog.log")))
     realtime = kw["realtime"]
@@ -424,16 +428,14 @@ def sweep_cmd(
             )
     except KeyboardInterrupt:  # before the run started (the runner reports its own)
         verified = session.stop_verified is not False
-        click.echo(
-            "interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True
-        )
+        echo("interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"), err=True)
         sys.exit(exit_code("interrupted", verified))
     verified = result.stop_verified and session.stop_verified is not False
     verdict = "stop verified" if verified else "STOP NOT VERIFIED - disconnect the battery"
     blind = session.stop_unverifiable
     if blind and not verified:
         verdict = f"stop sent and acknowledged, NOT verified ({blind})"
-    click.echo(
+    echo(
         f"{result.status}: {result.samples} samples in {result.duration_s:.1f} s"
         + (f" (after {result.wait_s:.1f} s at rest and taring)" if result.wait_s >= 0.05 else "")
         + (f" - {result.reason}" if result.reason else "")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from thrustmap.cli.textwidth import echo
 from thrustmap.core import physical
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, parse_range
@@ -126,11 +127,11 @@ def export_cmd(
         ),
     )
     if output is None or plan is None:
-        click.echo(result.text, nl=False)
+        click.echo(result.text, nl=False)  # the file itself: never wrapped
         return
     from thrustmap.core.files import atomic_write_text
 
     atomic_write_text(output, result.text)
     summary = ", ".join(f"{k} {v:.3g}" for k, v in result.residual.items())
     replaced = "; replaced the previous file" if plan.replaced else ""
-    click.echo(f"wrote {output} ({target}; residual {summary or 'n/a'}{replaced})", err=True)
+    echo(f"wrote {output} ({target}; residual {summary or 'n/a'}{replaced})", err=True)

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from thrustmap.cli.textwidth import echo, plural, table
 from thrustmap.core import physical
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, ThrottleScale, parse_range, scale
@@ -124,54 +125,68 @@ def _given(name: str) -> bool:
     return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
 
 
-def _fmt(x: float, width: int) -> str:
-    return f"{x:>{width}.3f}" if math.isfinite(x) else f"{'-':>{width}}"
-
-
 def _rows_table(rows: list[Row]) -> str:
     """Every evaluated point is the headline (n, mean, std, p95, max); the split into points
-    inside and outside the training box is the detail beside it. Columns are as wide as their
-    longest entry, so a long model or validation name never shifts the numbers."""
-    w_model = max([len("model"), *(len(r.model) for r in rows)])
-    w_val = max([len("validation"), *(len(r.validation) for r in rows)])
-    head = (
-        f"{'model':<{w_model}} {'validation':<{w_val}} {'n':>5} {'mean %':>8} {'std %':>7} "
-        f"{'p95 %':>7} {'max %':>8}  inside box | outside box"
-    )
-    lines = [head, "-" * len(head)]
+    inside and outside the training points' supported region is the detail beside it, and the
+    share of them the map's 95 % interval held. A table wider than the terminal is printed one
+    block per row (see textwidth.table); a model that could not be fitted says why."""
+
+    def split(n: int, mean_pct: float) -> str:
+        return f"n={n}, mean {mean_pct:.3f} %" if n else "n=0"
+
+    def num(x: float) -> str:
+        return f"{x:.3f}" if math.isfinite(x) else "-"
+
+    def held(r: Row) -> str:
+        if r.coverage_inside is None or r.coverage_outside is None:
+            return "-"
+        cells = [
+            f"{where} {c.coverage_pct:.1f} % (±{c.median_half_width_pct:.2f} %)"
+            for where, c in (("in", r.coverage_inside), ("out", r.coverage_outside))
+            if c.n
+        ]
+        return ", ".join(cells) or "-"
+
+    head = ["model", "validation", "n", "mean %", "std %", "p95 %", "max %"]
+    head += ["inside supported region", "outside it"]
+    with_coverage = any(r.coverage_inside is not None for r in rows)
+    if with_coverage:
+        head.append("interval held")
+    body = []
     for r in rows:
         if r.error:  # the model could not be fitted: its row says why
-            lines.append(f"{r.model:<{w_model}} {r.validation:<{w_val}} not fitted: {r.error}")
-            continue
-        s, i, o = r.all, r.inside, r.outside
-        ins = f"n={i.n} mean {i.mean_pct:.3f} %" if i.n else "n=0"
-        out = f"n={o.n} mean {o.mean_pct:.3f} %" if o.n else "n=0"
-        held = ""
-        if r.coverage_inside is not None and r.coverage_outside is not None:
-            cells = [
-                f"{where} {c.coverage_pct:.1f} % (median ±{c.median_half_width_pct:.2f} %)"
-                for where, c in (("in", r.coverage_inside), ("out", r.coverage_outside))
-                if c.n
+            row = [r.model, r.validation, "0", "-", "-", "-", "-", f"not fitted: {r.error}", "-"]
+        else:
+            row = [
+                r.model,
+                r.validation,
+                str(r.all.n),
+                num(r.all.mean_pct),
+                num(r.all.std_pct),
+                num(r.all.p95_pct),
+                num(r.all.max_pct),
+                split(r.inside.n, r.inside.mean_pct),
+                split(r.outside.n, r.outside.mean_pct),
             ]
-            held = "  | interval held: " + ", ".join(cells) if cells else ""
-        lines.append(
-            f"{r.model:<{w_model}} {r.validation:<{w_val}} {s.n:>5} {_fmt(s.mean_pct, 8)} "
-            f"{_fmt(s.std_pct, 7)} {_fmt(s.p95_pct, 7)} {_fmt(s.max_pct, 8)}  {ins} | {out}{held}"
-        )
+        if with_coverage:
+            row.append("-" if r.error else held(r))
+        body.append(row)
+    right = [False, False, True, True, True, True, True, False, False] + [False] * with_coverage
+    lines = [table(head, body, right=right)]
     kinds = {r.validation.split(":", 1)[0] for r in rows}
     if kinds == {"evaluate"}:
         lines.append(
-            "(every point of the new data; the split by the map's training box beside them)"
+            "(every point of the new data; the split by the map's supported region beside them)"
         )
     elif kinds == {"in-sample"}:
         lines.append("(in-sample: every fitted point, scored by the map fitted on it)")
     elif "in-sample" in kinds:
         lines.append(
             "(in-sample rows: the fitted points themselves; other rows: all held-out points; "
-            "the split by the training box beside them)"
+            "the split by the supported region beside them)"
         )
     else:
-        lines.append("(all held-out points; the split by the training box beside them)")
+        lines.append("(all held-out points; the split by the supported region beside them)")
     if any(r.coverage_inside is not None for r in rows):
         lines.append(
             "(interval held: the share of those points inside the map's 95 % prediction "
@@ -223,7 +238,7 @@ def models_cmd(as_json: bool) -> None:
         return
     for m in MODELS.values():
         mark = " (default)" if m.name == DEFAULT_MODEL else ""
-        click.echo(f"{m.name}{mark}\n    {m.formula}\n    {m.description}")
+        echo(f"{m.name}{mark}\n    {m.formula}\n    {m.description}")
 
 
 @click.command("fit")
@@ -269,43 +284,44 @@ def fit_cmd(
     s = out.map.metrics["in_sample"]
     for p in out.pool.points:
         r = p.report
-        click.echo(
-            f"{r['file']}: {r['samples']} samples -> {len(p)} points"
+        echo(
+            f"{r['file']}: {plural(r['samples'], 'sample')} -> {plural(len(p), 'point')}"
             + (
-                f" ({r['plateaus']} plateaus, {r.get('ramp_samples_kept', 0)} quasi-static ramp samples, "
-                f"{r['settling_samples_dropped']} settling samples dropped)"
+                f" ({plural(r['plateaus'], 'plateau')}, "
+                f"{plural(r.get('ramp_samples_kept', 0), 'quasi-static ramp sample')}, "
+                f"{plural(r['settling_samples_dropped'], 'settling sample')} dropped)"
                 if "plateaus" in r
                 else ""
             )
         )
         if stair := describe_selection(r):
-            click.echo(f"  {stair}")
+            echo(f"  {stair}")
         if "zero_subtracted_n" in r:
-            click.echo(
+            echo(
                 f"  thrust read from the load cell's zero: its rest plateau read "
                 f"{r['zero_subtracted_n']:.4f} N, subtracted (a rotor at rest makes no thrust)"
             )
-    click.echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
+    echo(f"model {out.map.model} ({out.map.loss}): {out.map.model_def.formula}")
     if out.weighting:
-        click.echo(out.weighting)
-    click.echo(
+        echo(out.weighting)
+    echo(
         f"in-sample e_Th: mean {s['mean_pct']:.3f} % ± {s['std_pct']:.3f}, p95 {s['p95_pct']:.3f} %, "
         f"max {s['max_pct']:.3f} %, n={s['n']}"
     )
-    click.echo(
+    echo(
         f"supported region (where the data are; outside it the map extrapolates): "
         f"{out.map.supported_region().describe()}"
     )
     ident = out.map.identification
     if ident:
-        click.echo(f"identification: {ident['reason']}")
+        echo(f"identification: {ident['reason']}")
         if ident.get("voltage_scaling"):
-            click.echo(f"voltage scaling: {ident['voltage_scaling']}")
-    click.echo(out.trust)
-    click.echo(out.more_data)
+            echo(f"voltage scaling: {ident['voltage_scaling']}")
+    echo(out.trust)
+    echo(out.more_data)
     for w in out.warnings:
-        click.echo(f"warning: {w}", err=True)
-    click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+        echo(f"warning: {w}", err=True)
+    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
 
 
 @click.command("compare")
@@ -352,7 +368,7 @@ def compare_cmd(
     if as_json:
         click.echo(_json({"rows": [r.to_dict() for r in rows]}))
     else:
-        click.echo(_rows_table(rows))
+        echo(_rows_table(rows))
 
 
 @click.command("evaluate")
@@ -361,7 +377,7 @@ def compare_cmd(
 @click.option("--json", "as_json", is_flag=True, help='Print {"rows": [...]}.')
 @selection_options
 def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any) -> None:
-    """Score an existing map on stand logs: every point, and inside/outside its box beside it."""
+    """Score an existing map on stand logs: every point, and inside/outside its supported region beside it."""
     from thrustmap.fitting.fit import evaluate
     from thrustmap.fitting.loaders import load_datasets
     from thrustmap.fitting.mapfile import ThrustMap
@@ -371,7 +387,7 @@ def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any
     if as_json:
         click.echo(_json({"rows": [r.to_dict() for r in rows]}))
     else:
-        click.echo(_rows_table(rows))
+        echo(_rows_table(rows))
 
 
 @click.command("predict")
@@ -475,7 +491,7 @@ def predict_cmd(
         if as_json:
             click.echo(_json(result))
         else:
-            click.echo(
+            echo(
                 f"unreachable: T={t:.4f} N at {voltage_v:.2f} V would need "
                 f"{'more than 100' if edge else 'less than 0'} % of the throttle scale "
                 f"({pct:.1f} % by the map); the nearest reachable thrust at {voltage_v:.2f} V is "
@@ -509,7 +525,7 @@ def predict_cmd(
             if half is None or base is None or factor is None
             else f"; interval widened ×{factor:.2f}, from ±{base:.2f} % to ±{half:.2f} %"
         )
-        click.echo(
+        echo(
             f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's supported region "
             f"({where}): extrapolated{widened}",
             err=True,
@@ -520,7 +536,7 @@ def predict_cmd(
         pm = "" if half is None else f" ± {half:.2f}"
         pm_native = "" if half is None else f" ± {half * sc.span / 100.0:.2f}"
         level = "" if interval is None else f" ({100 * interval.level:.0f} % prediction interval)"
-        click.echo(
+        echo(
             f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
             f"{native:.2f}{pm_native} {sc.unit_label}{level}"
         )
@@ -554,21 +570,21 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
     for ds in load_datasets(files, _column_map(kw)):
         p = select(ds, sel)
         sc = ds.throttle_scale
-        click.echo(
+        echo(
             f"{ds.path}\n  format {ds.format}, {len(ds)} samples, throttle scale {sc.name} "
             f"{sc.lo:g}..{sc.hi:g} {sc.unit_label}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
         )
-        click.echo(
+        echo(
             f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g} {sc.unit_label}, "
             f"thrust {np.min(ds.thrust_n):.3f}..{np.max(ds.thrust_n):.3f} N, "
             f"voltage {np.min(ds.voltage_v):.2f}..{np.max(ds.voltage_v):.2f} V"
         )
         for k, v in ds.meta.items():
             note = LAYOUTS.get(v, "") if k == "layout" else ""
-            click.echo(f"  {k}: {_meta_value(k, v)}" + (f" ({note})" if note else ""))
+            echo(f"  {k}: {_meta_value(k, v)}" + (f" ({note})" if note else ""))
         rules = ", ".join(
             f"{k}={v}" for k, v in p.report.items() if k != "file" and not isinstance(v, dict)
         )
-        click.echo(f"  selection (what each rule did): {rules}")
+        echo(f"  selection (what each rule did): {rules}")
         if stair := describe_selection(p.report):
-            click.echo(f"  {stair}")
+            echo(f"  {stair}")

@@ -11,6 +11,7 @@ from typing import Any
 
 import click
 
+from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.safety import terminate_as_exception
 
@@ -60,7 +61,7 @@ class _Bar:
         self.refused += int(outcome.status == "refused")
         rate = done / max(time.monotonic() - self.started, 1e-9)
         frac = done / total if total else 1.0
-        text = f"{done}/{total} logs ({rate:.1f}/s, {self.refused} refused)"
+        text = f"{done}/{plural(total, 'log')} ({rate:.1f}/s, {self.refused} refused)"
         now = time.monotonic()
         if self.tty and (now - self.shown >= 0.1 or done >= total):
             self.shown = now
@@ -208,7 +209,7 @@ def extract_cmd(
         if scheduler is not None:
             client = holder["client"] = run.connect(scheduler)
             threads = sum(client.nthreads().values()) or 1
-            click.echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
+            echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
             return client, 2 * threads
         _, client = begin().wait()
         if dash is not None:
@@ -216,7 +217,7 @@ def extract_cmd(
         return client, 2 * holder["spec"].workers
 
     if workers == 0:
-        click.echo("serial loop in this process (no Dask)", err=True)
+        echo("serial loop in this process (no Dask)", err=True)
     try:
         try:
             # SIGTERM (a batch system, systemd, kill) or SIGHUP ends the run as Ctrl-C does:
@@ -234,7 +235,7 @@ def extract_cmd(
         except KeyboardInterrupt:
             if bar is not None:
                 bar.end()
-            click.echo(
+            echo(
                 f"interrupted: the table of the logs finished so far is in "
                 f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume",
                 err=True,
@@ -253,17 +254,17 @@ def extract_cmd(
     counts: dict[str, int] = {}
     for o in result.outcomes:
         counts[o.status] = counts.get(o.status, 0) + 1
-    click.echo(
-        f"{result.total} logs: {counts.get('ok', 0)} extracted, {counts.get('empty', 0)} with no "
+    echo(
+        f"{plural(result.total, 'log')}: {counts.get('ok', 0)} extracted, {counts.get('empty', 0)} with no "
         f"steady flight, {counts.get('refused', 0)} refused; {result.reused} already done "
         f"(skipped); {elapsed:.1f} s"
     )
     refused = sorted((o for o in result.outcomes if o.status == "refused"), key=lambda o: o.path)
     for o in refused[:SHOW_REFUSED]:
-        click.echo(f"  refused: {o.reason}")
+        echo(f"  refused: {o.reason}")
     if len(refused) > SHOW_REFUSED:
-        click.echo(f"  ... and {len(refused) - SHOW_REFUSED} more refused (see the table)")
-    click.echo(f"wrote {result.table_path}")
+        echo(f"  ... and {len(refused) - SHOW_REFUSED} more refused (see the table)")
+    echo(f"wrote {result.table_path}")
 
 
 @fleet_group.command("gamma")
@@ -341,24 +342,24 @@ def gamma_cmd(
             raise SystemExit(1)  # as without --json: no group fitted
         return
     for g in groups:
-        head = f"{g.label}: {len(g.logs)} logs, {g.samples} samples"
+        head = f"{g.label}: {plural(len(g.logs), 'log')}, {plural(g.samples, 'sample')}"
         if g.voltage_v is not None:
             head += f", {g.voltage_v[0]:.2f}..{g.voltage_v[1]:.2f} V"
         if g.fit is None:
-            click.echo(f"{head}: {g.status}: {g.reason}")
+            echo(f"{head}: {g.status}: {g.reason}")
             continue
         band = (
             "" if g.band is None else f", 95 % of samples within {g.band[0]:+.4f}/{g.band[1]:+.4f}"
         )
-        click.echo(
+        echo(
             f"{head}: γ(B) = {gamma_formula(g.fit.correction.coefficients)} (degree "
             f"{g.fit.degree}{band})"
         )
     refused = sum(o.status == "refused" for o in outcomes)
     fitted = sum(g.fit is not None for g in groups)
-    click.echo(
+    echo(
         f"{fitted} of {len(groups)} groups fitted; "
-        f"{refused} logs refused (by reason in the report); wrote {report} and "
+        f"{plural(refused, 'log')} refused (by reason in the report); wrote {report} and "
         f"{out_dir / 'fleet-gamma.json'}"
         + (
             f" and {fitted} corrected map(s) in {out_dir / 'gamma'}"

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError, DataFormatError
 
 if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
@@ -64,6 +65,9 @@ def inspect_flight(flight: FlightLog) -> dict[str, Any]:
         "format": flight.format,
         "index": flight.index,
         "duration_s": end - start,
+        # the log's own time base, which the airborne windows are given in
+        "start_s": start,
+        "end_s": end,
         "fields": fields,
         "extras": extras,
         "missing": [n for n in _FIELDS if n not in fields],
@@ -101,21 +105,24 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
         click.echo(json.dumps(out, indent=2, default=str))
         return
     for info in out:
-        click.echo(f"{info['path']} [{info['reader']}, flight {info['index']}]")
-        click.echo(f"  duration {info['duration_s']:.1f} s")
+        echo(f"{info['path']} [{info['reader']}, flight {info['index']}]")
+        echo(
+            f"  duration {info['duration_s']:.1f} s (log time {info['start_s']:.1f} .. "
+            f"{info['end_s']:.1f} s; the airborne windows below are in log time too)"
+        )
         for name, f in {**info["fields"], **info["extras"]}.items():
             rng = f" {f['min']:.4g}..{f['max']:.4g}" if "min" in f else ""
             rate = f" {f['rate_hz']} Hz" if f["rate_hz"] else ""
-            click.echo(f"  {name:22s} {f['origin']} [{f['unit']}]{rate}{rng}")
+            echo(f"  {name:22s} {f['origin']} [{f['unit']}]{rate}{rng}")
         if info["missing"]:
-            click.echo(f"  missing: {', '.join(info['missing'])}")
+            echo(f"  missing: {', '.join(info['missing'])}")
         wins = info["airborne_windows_s"]
-        click.echo(
-            f"  airborne windows: {len(wins)}"
+        echo(
+            f"  airborne windows (log time): {len(wins)}"
             + "".join(f"\n    {a:.1f} .. {b:.1f} s ({b - a:.1f} s)" for a, b in wins)
         )
         for w in info["warnings"]:
-            click.echo(f"  warning: {w}")
+            echo(f"  warning: {w}")
 
 
 @flightlog_group.command("readers")
@@ -125,7 +132,7 @@ def readers_cmd() -> None:
 
     for reader, why in available():
         state = "ok" if why is None else f"unavailable: {why}"
-        click.echo(f"{reader.name:14s} {reader.description} ({state})")
+        echo(f"{reader.name:14s} {reader.description} ({state})")
 
 
 @flightlog_group.command("extract")
@@ -228,9 +235,9 @@ def extract_cmd(
     side = write_df(df, output)
     for r in df.reports:
         if r.voltage_unknown is not None:
-            click.echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
+            echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
     if not len(df):
-        click.echo(
+        echo(
             "warning: no steady flight to extract (0 samples; too short for a Df), wrote an "
             "empty Df: " + "; ".join(_summary(r) for r in df.reports),
             err=True,
@@ -239,12 +246,14 @@ def extract_cmd(
         click.echo(json.dumps([r.to_dict() for r in df.reports], indent=2))
         return
     for r in df.reports:
-        click.echo(_summary(r))
+        if len(df):  # an empty Df's summaries are in the warning above: said once
+            echo(_summary(r))
         for w in r.warnings:
-            if w != r.voltage_unknown:
-                click.echo(f"  warning: {w}")
+            # an empty Df's "only 0 samples ... most time dropped by ..." repeats its summary
+            if w != r.voltage_unknown and not (not len(df) and w.startswith("only 0 samples")):
+                echo(f"  warning: {w}")
     replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
-    click.echo(
+    echo(
         f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
     )
@@ -393,14 +402,14 @@ def gamma_fit_cmd(
         return
     c = fit.correction
     terms = " + ".join(f"{v:.6g}·B^{k}" if k else f"{v:.6g}" for k, v in enumerate(c.coefficients))
-    click.echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
+    echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
     flown = (
         "unknown (no battery voltage in the Df)"
         if fit.metrics.get("voltage_unknown")
         else f"{c.voltage_v.lo:.2f}..{c.voltage_v.hi:.2f} V"
     )
-    click.echo(f"flown voltage {flown}; {fit.validation}")
-    click.echo(
+    echo(f"flown voltage {flown}; {fit.validation}")
+    echo(
         "held-out error by degree (± standard error; the simplest within one SE of the best "
         "wins, among the degrees that leave no populated voltage bin worse than uncorrected): "
         + ", ".join(
@@ -413,11 +422,11 @@ def gamma_fit_cmd(
     for key in ("e_Th", "e_T"):
         b, a = m.get(f"{key}_before_pct"), m.get(f"{key}_after_pct")
         if b and a:
-            click.echo(
+            echo(
                 f"{key} %: before {b['mean']:.3f} ± {b['std']:.3f}, after "
                 f"{a['mean']:.3f} ± {a['std']:.3f}"
             )
-    click.echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
+    echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
     g = fit.guard
     floor = int(g.get("min_bin_samples", 20))
     worse_at = {tuple(w["voltage_v"]) for r in g.get("rejected", []) for w in r["worse"]}
@@ -436,7 +445,7 @@ def gamma_fit_cmd(
             flag = "  WORSE after γ"
         elif tuple(row["voltage_v"]) in worse_at:
             flag = "  (worse with the degree not used)"
-        click.echo(
+        echo(
             f"  {lo:6.2f}..{hi:6.2f} {row['samples']:6d} {row['gamma']['mean']:6.4f}  {eth}"
             f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
             + flag
@@ -449,7 +458,7 @@ def gamma_fit_cmd(
             f"{w['before_pct']:.3f} → {w['after_pct']:.3f} %"
             for w in r["worse"]
         )
-        click.echo(f"no-worse check: degree {r['degree']} makes {metric} worse at {bins}")
+        echo(f"no-worse check: degree {r['degree']} makes {metric} worse at {bins}")
     if m["by_voltage"]:
         worse_now = [
             row
@@ -460,18 +469,14 @@ def gamma_fit_cmd(
         head = f"no-worse check ({metric}, bins with {floor}+ samples): "
         populated = [row for row in m["by_voltage"] if row["samples"] >= floor]
         if not populated:
-            click.echo(
+            echo(
                 head + f"no voltage bin has {floor}+ samples, so none could be judged: degree "
                 f"{fit.degree} rests on held-out error alone (too little data per voltage)"
             )
         elif not fit.corrected:
-            click.echo(
-                head + "every γ(B) tried was worse somewhere: kept the uncorrected map (γ = 1)"
-            )
+            echo(head + "every γ(B) tried was worse somewhere: kept the uncorrected map (γ = 1)")
         elif worse_now:
-            click.echo(
-                head + f"the requested degree {fit.degree} is worse in the bins marked WORSE"
-            )
+            echo(head + f"the requested degree {fit.degree} is worse in the bins marked WORSE")
         else:
-            click.echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
-    click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+            echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
+    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))

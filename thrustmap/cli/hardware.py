@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from thrustmap.cli.bench import limit_options_except
+from thrustmap.cli.textwidth import echo
 from thrustmap.core.clock import Clock, MonotonicClock
 from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.rig.interlocks import SPIN_MAX_SECONDS as MAX_SECONDS
@@ -107,17 +108,17 @@ def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
         click.echo(json.dumps(rows, indent=2))
         return
     if not rows:
-        click.echo("no serial ports found")
+        echo("no serial ports found")
         return
     width = max(len(p.device) for p in ports)
     for port, row in zip(ports, rows, strict=True):
         usb = port.usb_id or "-        "
         label = port.product or port.description
-        click.echo(f"{port.device:<{width}}  {usb}  {port.guess}")
+        echo(f"{port.device:<{width}}  {usb}  {port.guess}")
         if label and label not in port.guess:
-            click.echo(f"{'':<{width}}             {label}")
+            echo(f"{'':<{width}}             {label}")
         if "probe" in row:
-            click.echo(f"{'':<{width}}             probe: {row['probe']}")
+            echo(f"{'':<{width}}             probe: {row['probe']}")
 
 
 def _probe_port(port: PortDescription, listen_s: float) -> str:
@@ -174,8 +175,8 @@ def probe_cmd(
         click.echo(json.dumps(report.to_dict(), indent=2))
         return
     det = report.detection
-    click.echo(f"{url}: {det.kind}" + (f" ({det.firmware})" if det.firmware else ""))
-    click.echo(f"  found by: {det.evidence}")
+    echo(f"{url}: {det.kind}" + (f" ({det.firmware})" if det.firmware else ""))
+    echo(f"  found by: {det.evidence}")
     ident = report.identity
     if ident is not None:
         for label, value in (
@@ -187,22 +188,23 @@ def probe_cmd(
             ("battery cells", ident.battery_cells or ""),
         ):
             if value:
-                click.echo(f"  {label}: {value}")
+                echo(f"  {label}: {value}")
         for key, value in sorted(ident.details.items()):
-            click.echo(f"  {key}: {value}")
+            echo(f"  {key}: {value}")
     if report.throttle_scale:
-        click.echo(f"  throttle scale: {report.throttle_scale}")
+        echo(f"  throttle scale: {report.throttle_scale}")
     tel = report.telemetry
     if tel is not None:
-        click.echo(f"  battery: {_fmt(tel.voltage_v, 'V', 2)}  {_fmt(tel.current_a, 'A', 2)}")
+        current = "current not measured" if tel.current_a is None else _fmt(tel.current_a, "A", 2)
+        echo(f"  battery: {_fmt(tel.voltage_v, 'V', 2)}  {current}")
         if tel.rpm is not None:
-            click.echo("  rpm: " + " ".join(f"{r:.0f}" for r in tel.rpm))
+            echo("  rpm: " + " ".join(f"{r:.0f}" for r in tel.rpm))
     if report.motor_values is not None:
-        click.echo("  motor values: " + " ".join(str(v) for v in report.motor_values))
+        echo("  motor values: " + " ".join(str(v) for v in report.motor_values))
     stand = report.stand
     if stand is not None:
         rate = f" at {stand.rate_hz:.0f} Hz" if stand.rate_hz else ""
-        click.echo(f"  {stand.samples} samples in {stand.duration_s:.2f} s{rate}")
+        echo(f"  {stand.samples} samples in {stand.duration_s:.2f} s{rate}")
         units = {
             "thrust_n": "N",
             "torque_nm": "N·m",
@@ -212,11 +214,11 @@ def probe_cmd(
             "temperature_c": "°C",
         }
         for key, mean in stand.means.items():
-            click.echo(f"  mean {key.rsplit('_', 1)[0]}: {mean:.4g} {units.get(key, '')}")
+            echo(f"  mean {key.rsplit('_', 1)[0]}: {mean:.4g} {units.get(key, '')}")
         if stand.bad_lines:
-            click.echo(f"  bad lines: {stand.bad_lines}")
+            echo(f"  bad lines: {stand.bad_lines}")
     for warning in report.warnings:
-        click.echo(f"  warning: {warning}")
+        echo(f"  warning: {warning}")
 
 
 def _fmt(value: float | None, unit: str, digits: int) -> str:
@@ -311,7 +313,7 @@ def spin_cmd(
     )
     clock = make_clock(clock_choice, rig.urls())
     for warning in pairing_warnings(rig):
-        click.echo(f"warning: {warning}", err=True)
+        echo(f"warning: {warning}", err=True)
     confirm_spin(
         f"Motor {motor} on {url} will spin at {throttle:g} % for {seconds:g} s.\n"
         "Propellers on? The stand must be secured and the area clear. Spin now?",
@@ -322,7 +324,7 @@ def spin_cmd(
         with session:
             index, label = session.resolve_motor(motor)
             request = dataclasses.replace(request, motor=index)
-            click.echo(f"spinning {label}")
+            echo(f"spinning {label}")
             unit = session.output.throttle_scale.unit
             number = index + 1
             with LiveView(f"spin {label}", total_s=seconds, phase="spinning") as view:
@@ -332,28 +334,28 @@ def spin_cmd(
                     limits=Limits.from_options(limit_values),
                     on_report=(lambda r: view.spin_report(r, number, unit, seconds))
                     if view.live
-                    else (lambda r: click.echo(_report_line(r, number, unit))),
+                    else (lambda r: echo(_report_line(r, number, unit))),
                 )
     except KeyboardInterrupt:  # while opening the devices (a spin reports its own)
         verified = session.stop_verified is not False
-        click.echo("interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"))
+        echo("interrupted; " + ("stop verified" if verified else "STOP NOT VERIFIED"))
         sys.exit(exit_code("interrupted", verified))
     verified = result.stop_verified and session.stop_verified is not False
     number = request.motor + 1
     if verified:
-        click.echo(f"motor {number} stopped (verified) after {result.duration_s:.1f} s")
+        echo(f"motor {number} stopped (verified) after {result.duration_s:.1f} s")
     elif session.stop_unverifiable:
-        click.echo(
+        echo(
             f"motor {number}: stop sent and acknowledged, NOT verified: "
             f"{session.stop_unverifiable}",
             err=True,
         )
     else:
-        click.echo(f"STOP NOT VERIFIED on motor {number} - disconnect the battery now", err=True)
+        echo(f"STOP NOT VERIFIED on motor {number} - disconnect the battery now", err=True)
     if result.status == "interrupted":
-        click.echo(f"spin {result.reason}", err=True)
+        echo(f"spin {result.reason}", err=True)
     elif result.status == "failed" and (not verified or result.max_commanded_pct > 0):
-        click.echo(f"error: {result.reason}", err=True)
+        echo(f"error: {result.reason}", err=True)
         if verified and not isinstance(result.error, ThrustmapError):
             result.raise_error()  # a bug in a driver: the CLI reports it as an internal error
     else:

@@ -63,9 +63,12 @@ def sparkline(values: list[float], width: int) -> str:
 
 
 def _native(value: float, unit: str) -> str:
-    """A native throttle: "1100 µs"; a dimensionless one (PX4's 0..1) as the fraction "0.100"."""
-    if unit in ("1", ""):
-        return f"{value:.3f}"
+    """A native throttle with its unit: "1100 µs"; a dimensionless one (PX4's 0..1) as
+    "0.100 of full scale"; one without a unit as "647.7 raw"."""
+    if unit == "1":
+        return f"{value:.3f} of full scale"
+    if not unit:
+        return f"{value:.1f} raw"
     return f"{value:.0f} {unit}"
 
 
@@ -250,6 +253,8 @@ class LiveView:
     def plain_line(self) -> str:
         s = self.snap
         eta = max(s.total_s - s.elapsed_s, 0.0)
+        # before the plan (connecting, at rest, taring) there is no progress or ETA to show
+        clock = f"{s.elapsed_s:5.0f}/{s.total_s:.0f} s ETA {eta:.0f} s" if s.total_s > 0 else ""
         seg = f" seg {s.segment + 1}/{s.segments}" if s.segments else ""
         margin = ""
         if self.margins:
@@ -257,8 +262,8 @@ class LiveView:
             margin = f"  tightest margin {name} {m * 100:.0f} %"
         native = "" if s.throttle_native is None else f" ({_native(s.throttle_native, s.unit)})"
         return (
-            f"{s.elapsed_s:5.0f}/{s.total_s:.0f} s ETA {eta:.0f} s{seg} {s.label}  "
-            f"thr {_fmt(s.throttle_pct, '.1f', '%')}{native}  T {_fmt(s.thrust_n, '.2f', 'N')}  "
+            f"{clock}{seg} {s.label}  ".lstrip()
+            + f"thr {_fmt(s.throttle_pct, '.1f', '%')}{native}  T {_fmt(s.thrust_n, '.2f', 'N')}  "
             f"{_fmt(s.voltage_v, '.2f', 'V')}  {_fmt(s.current_a, '.1f', 'A')}  "
             f"{_fmt(s.rpm, '.0f', 'rpm')}{margin}" + (f"  {s.plan_note}" if s.plan_note else "")
         )
@@ -309,10 +314,13 @@ class LiveView:
         )
         frac = min(max(s.elapsed_s / s.total_s, 0.0), 1.0) if s.total_s > 0 else 0.0
         eta = max(s.total_s - s.elapsed_s, 0.0)
-        tail = f" {frac * 100:3.0f} %  {s.elapsed_s:.0f}/{s.total_s:.0f} s  ETA {eta:.0f} s"
-        bar_w = max(w - len(tail) - 2, 4)
-        filled = int(round(frac * bar_w))
-        line(("█" * filled, "green"), ("░" * (bar_w - filled), "grey50"), (tail, ""))
+        if s.total_s > 0:
+            tail = f" {frac * 100:3.0f} %  {s.elapsed_s:.0f}/{s.total_s:.0f} s  ETA {eta:.0f} s"
+            bar_w = max(w - len(tail) - 2, 4)
+            filled = int(round(frac * bar_w))
+            line(("█" * filled, "green"), ("░" * (bar_w - filled), "grey50"), (tail, ""))
+        else:  # connecting, waiting for rest, taring: no plan progress yet, so no bar or ETA
+            line((f"{self.phase}: the plan has not started", "grey50"))
         if s.plan_note:
             line(("adaptive: ", "grey50"), (s.plan_note, "bold cyan"))
         native = "" if s.throttle_native is None else f" ({_native(s.throttle_native, s.unit)})"

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError
 
 FIGURE_NAMES = (
@@ -51,8 +52,8 @@ def report_cmd(map_file: str, data: tuple[str, ...], output: str) -> None:
     rd = build(map_file, list(data) or None)
     size = write_report(rd, output)
     for note in rd.notes:
-        click.echo(f"note: {note}", err=True)
-    click.echo(
+        echo(f"note: {note}", err=True)
+    echo(
         f"wrote {output} ({size / 1e6:.1f} MB, {time.perf_counter() - start:.1f} s): "
         f"open it in any browser, no network needed"
     )
@@ -95,4 +96,4 @@ def plot_cmd(figure: str, map_file: str, data: tuple[str, ...], output: str, dpi
             f"{map_file}: the map has no γ(B) correction; fit one with `thrustmap gamma fit`"
         )
     atomic_write_bytes(output, render(figure, rd, fmt, dpi=dpi))
-    click.echo(f"wrote {output}")
+    echo(f"wrote {output}")

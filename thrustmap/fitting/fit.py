@@ -2,7 +2,8 @@
 
 ``fit_map``: selection -> model fit -> checks (monotone in T, conditioning) -> ``ThrustMap``.
 ``compare``: several models under one validation mode (in-sample, by-file, k-fold); the headline
-counts every held-out point, with the points inside and outside the training box beside it.
+counts every held-out point, with the points inside and outside the training points' supported
+region beside it.
 ``evaluate``: an existing map against new files.
 """
 
@@ -565,12 +566,12 @@ def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:
 @dataclass(frozen=True)
 class Row:
     """Held-out errors of one model: ALL held-out points (the headline), and the same points
-    split into inside and outside the training box (detail)."""
+    split into inside and outside the training points' supported region (detail)."""
 
     model: str
     validation: str
-    inside: ErrorStats  # held-out points inside the training box
-    outside: ErrorStats  # held-out points outside the training box
+    inside: ErrorStats  # held-out points inside the training points' supported region
+    outside: ErrorStats  # held-out points outside it
     folds: int
     all: ErrorStats  # every held-out point: the headline
     #: why the model could not be fitted under this validation ("" when it was: a model that
@@ -583,7 +584,8 @@ class Row:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (no NaN: a figure with no points is null). Top-level figures are over all
-        held-out points; ``inside_box`` and ``outside_box`` give the split."""
+        held-out points; ``inside_supported_region`` and ``outside_supported_region`` give the
+        split (``inside_box``/``outside_box``, their names before, are kept as aliases)."""
         d: dict[str, Any] = {
             "model": self.model,
             "validation": self.validation,
@@ -592,8 +594,10 @@ class Row:
         if self.error:
             d["error"] = self.error
         d.update(self.all.to_dict())
-        d["inside_box"] = self.inside.to_dict()
-        d["outside_box"] = self.outside.to_dict()
+        d["inside_supported_region"] = self.inside.to_dict()
+        d["outside_supported_region"] = self.outside.to_dict()
+        d["inside_box"] = d["inside_supported_region"]  # the names before: kept for old readers
+        d["outside_box"] = d["outside_supported_region"]
         if self.coverage_inside is not None and self.coverage_outside is not None:
             cells = {
                 "inside_supported_region": self.coverage_inside.to_dict(),

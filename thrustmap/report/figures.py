@@ -201,7 +201,6 @@ def coverage(rd: ReportData) -> Figure:
             clip_on=False,
             zorder=5,
         )
-        a2.legend(loc="upper left")
         # keep the star whole: a suggestion at the grid's corner gets a margin around it
         t_s, b_s = rd.suggestion
         for (lo, hi), x, setter in (
@@ -218,7 +217,14 @@ def coverage(rd: ReportData) -> Figure:
     outline_b = np.concatenate([rb, rb[::-1], rb[:1]])
     for ax in (a1, a2):
         ax.plot(outline_t, outline_b, "--", color="tab:green", lw=1.2, label="supported region")
-    a1.legend(loc="upper left", fontsize="small")
+    # one legend below both panels: inside them it covered the star and the data points
+    handles, labels = a1.get_legend_handles_labels()
+    for h, lab in zip(*a2.get_legend_handles_labels(), strict=True):
+        if lab not in labels:
+            handles.append(h)
+            labels.append(lab)
+    fig.subplots_adjust(bottom=0.27)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
     for ax in (a1, a2):
         ax.set_xlabel(T)
     a1.set_ylabel(B)
@@ -268,12 +274,16 @@ def errors_by_voltage(rd: ReportData) -> Figure:
     a1, a2 = fig.subplots(1, 2)
     fig.subplots_adjust(wspace=0.25, bottom=0.2)
     mid = np.array([0.5 * (r["voltage_v"][0] + r["voltage_v"][1]) for r in bins])
+    # the two maps side by side within each bin: a fixed offset put them a bin apart in
+    # narrow bins, so it is a fraction of the narrowest bin
+    widths = [r["voltage_v"][1] - r["voltage_v"][0] for r in bins]
+    shift = 0.12 * min((w for w in widths if w > 0), default=0.1)
     few = np.array([r["samples"] < floor for r in bins], dtype=bool)
     kept = str(check.get("kept", ""))
     after_label = "map + γ(B)" + (f", {kept}" if kept else "")
     for ax, key, title in ((a1, "e_Th", "e_Th (% throttle)"), (a2, "e_T", "e_T (% of F_m)")):
         series: dict[str, np.ndarray] = {}
-        for when, color, off in (("before", "tab:orange", -0.02), ("after", "tab:blue", 0.02)):
+        for when, color, off in (("before", "tab:orange", -shift), ("after", "tab:blue", shift)):
             k = f"{key}_{when}_pct"
             if not bins or k not in bins[0]:
                 continue
@@ -295,7 +305,7 @@ def errors_by_voltage(rd: ReportData) -> Figure:
             worse = (series["after"] > series["before"]) & ~few
             if worse.any():
                 ax.plot(
-                    mid[worse] + 0.02,
+                    mid[worse] + shift,
                     series["after"][worse],
                     "o",
                     ms=11,

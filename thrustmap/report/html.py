@@ -31,11 +31,21 @@ SECTIONS = (
     ("exports", "Firmware exports"),
 )
 
+#: the nav bar's short labels: one line at 1280 px (the section headings keep the long titles)
+NAV = {
+    "sweeps": "Sweeps",
+    "surface": "Map",
+    "validation": "Validation",
+    "coverage": "Coverage",
+    "gamma": "γ(B)",
+    "exports": "Exports",
+}
+
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;color:#1d2330;
 background:#fff;line-height:1.45}
 header{background:#1d2330;color:#fff;padding:18px 28px}header h1{margin:0;font-size:22px}
-header p{margin:4px 0 0;opacity:.8}nav{padding:8px 28px;background:#eef1f6;font-size:14px}
+header p{margin:4px 0 0;opacity:.8}nav{padding:8px 28px;background:#eef1f6;font-size:14px;white-space:nowrap;overflow-x:auto}
 nav a{margin-right:14px;color:#1d4ed8;text-decoration:none}
 main{padding:0 28px 40px;max-width:1400px}section{border-bottom:1px solid #e3e6ec;padding:10px 0}
 h2{font-size:18px;margin:18px 0 8px}h3{font-size:15px;margin:14px 0 6px}
@@ -257,10 +267,13 @@ def _surface_data(rd: ReportData) -> str:
 
 def _surface(rd: ReportData) -> str:
     c = rd.tmap.coefficients
+    # a coefficient held at its bound (k0 = 0) comes out of the solver as rounding noise
+    # (3.6e-14): shown as the 0 it is
+    floor = 1e-9 * max((abs(float(x)) for x in c), default=0.0)
     coef = _table(
         ("term", "coefficient"),
         (
-            [_td(n), _num(x, ".6g", f"coef:{n}")]
+            [_td(n), _num(0.0 if abs(float(x)) <= floor else x, ".6g", f"coef:{n}")]
             for n, x in zip(rd.tmap.model_def.term_names, c, strict=True)
         ),
     )
@@ -331,8 +344,8 @@ def _validation(rd: ReportData) -> str:
     for m in modes:
         head = '<th class="l">model</th><th>n</th><th>mean ± std %</th><th>p95 %</th><th>max %</th>'
         if m != "in-sample":
-            head += "<th>inside box n</th><th>inside mean %</th>"
-            head += "<th>outside box n</th><th>outside mean %</th>"
+            head += "<th>inside supported region n</th><th>inside mean %</th>"
+            head += "<th>outside it n</th><th>outside mean %</th>"
             head += "<th>95 % interval held in / out %</th><th>median ± %</th>"
         body = []
         for model, per in by_model.items():
@@ -366,9 +379,9 @@ def _validation(rd: ReportData) -> str:
         "<p>Mean |e_Th| ± std in % of the throttle range (seed paper Table 3 layout), on the "
         f"map's selection and loss ({_e(rd.tmap.loss)}). Held out: <b>by-file</b> leaves each "
         "file out in turn, <b>kfold</b> 5 random folds. The held-out figures count every held-out point; "
-        "those inside and outside the training box (extrapolation) are shown beside them, "
-        "with the share of them each fold's 95 % prediction interval held (coverage) and its "
-        "median half-width. "
+        "those inside and outside the training points' supported region (extrapolation) are "
+        "shown beside them, with the share of them each fold's 95 % prediction interval held "
+        "(coverage) and its median half-width. "
         "Same numbers as <code>thrustmap compare --json</code>."
         "</p>" + tables
     )
@@ -379,10 +392,17 @@ def _coverage(rd: ReportData) -> str:
     txt = ""
     over = rd.tmap.interval_over_region()
     if over is not None and np.isfinite(pi).any():
+        inside = rd.tmap.supported_region().contains(rd.grid_t, rd.grid_b)
+        outside = pi[~inside & np.isfinite(pi)]
+        beyond = (
+            f"; outside it, over the rest of the (T, B) box, up to ±{np.max(outside):.2f} %, "
+            "widening with the distance from the region"
+            if outside.size
+            else ""
+        )
         txt = (
             f"<p>95 % prediction interval of the {_e(rd.tmap.model)} map over its supported "
-            f"region (where the data are): ±{over[0]:.2f}..{over[1]:.2f} % throttle; over the "
-            f"whole box ±{np.nanmin(pi):.2f}..{np.nanmax(pi):.2f} %, wider outside the region "
+            f"region (where the data are): ±{over[0]:.2f}..{over[1]:.2f} % throttle{beyond} "
             "(the same interval as <code>thrustmap fit</code> and <code>predict</code>: held-out "
             "residuals and the coefficients' uncertainty at each point)."
         )
@@ -497,7 +517,7 @@ def render_html(rd: ReportData) -> str:
         "gamma": _gamma,
         "exports": _exports,
     }
-    nav = "".join(f'<a href="#{k}">{_e(t)}</a>' for k, t in SECTIONS)
+    nav = "".join(f'<a href="#{k}">{_e(NAV.get(k, t))}</a>' for k, t in SECTIONS)
     body = []
     for key, title in SECTIONS:
         body.append(f'<section id="{key}"><h2>{_e(title)}</h2>{builders[key](rd)}</section>')

@@ -160,6 +160,36 @@ def idle_low_end(
     )
 
 
+#: a LiPo/LiHV cell on the stand, under load to full charge (V per cell): reads a cell count
+CELL_V_RANGE = (3.0, 4.35)
+
+
+def cells_from_voltage(lo_v: float, hi_v: float) -> int | None:
+    """The fewest cells whose per-cell voltage holds ``lo_v..hi_v`` within :data:`CELL_V_RANGE`
+    (a stand's pack is near charged, so the fewest cells is the likely count); None if none."""
+    for cells in range(1, 15):
+        if hi_v / cells <= CELL_V_RANGE[1] and lo_v / cells >= CELL_V_RANGE[0]:
+            return cells
+    return None
+
+
+def _bat_v_charged_note(tmap: ThrustMap, b_ref: float) -> str:
+    """The header line on BAT1_V_CHARGED, which PX4 reads PER CELL (V_charged = it x cells)."""
+    head = "MC_BAT_SCALE_EN scales the thrust setpoint by V_charged/V_now (1..1.3); "
+    box = tmap.validity.voltage_v
+    cells = cells_from_voltage(box.lo, box.hi)
+    if cells is None:
+        return head + (
+            f"set BAT1_V_CHARGED (per cell) to {b_ref:g} V / BAT1_N_CELLS: the map's "
+            f"{box.lo:g}..{box.hi:g} V does not tell the cell count"
+        )
+    return head + (
+        f"set BAT1_V_CHARGED = {b_ref / cells:.3f} V (per cell: {b_ref:g} V on {cells} cells, the "
+        f"count read from the map's {box.lo:.2f}..{box.hi:.2f} V at "
+        f"{CELL_V_RANGE[0]:g}-{CELL_V_RANGE[1]:g} V a cell; on N cells use {b_ref:g} V / N)"
+    )
+
+
 def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     rules = px4_rules(opts.firmware)
     scale = _pwm_scale(opts)
@@ -221,8 +251,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
             if pwm_params
             else f"; set it on the {scale.name} outputs yourself"
         ),
-        "MC_BAT_SCALE_EN scales the thrust setpoint by V_charged/V_now (1..1.3); set "
-        f"BAT1_V_CHARGED so that V_charged = {b_ref:g} V; recommended value below",
+        _bat_v_charged_note(tmap, b_ref),
     ]
     if f in (0.0, 1.0):
         notes.append(

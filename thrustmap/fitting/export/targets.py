@@ -1,7 +1,8 @@
 """``export_map``: one entry point for every export target (an encoding, the C header, the
 firmware curves, the platform parameters). It sits above the modules that implement them, so
 they never import each other in a cycle: ``encodings`` is the base (options, results, exact
-rescaling), and ``c_header``, ``firmware`` and ``platforms`` build on it."""
+rescaling), and ``c_header``, ``firmware``, ``platforms`` and ``encoding_yaml`` (the encoding
+export, which uses ``platforms``' Crazyflie polynomial) build on it."""
 
 from __future__ import annotations
 
@@ -10,12 +11,8 @@ from collections.abc import Callable
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.export import c_header, firmware, platforms
-from thrustmap.fitting.export.encodings import (
-    ExportOptions,
-    ExportResult,
-    export_encoding,
-    target_scale,
-)
+from thrustmap.fitting.export.encoding_yaml import export_encoding
+from thrustmap.fitting.export.encodings import ExportOptions, ExportResult, target_scale
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.names import TARGETS
 

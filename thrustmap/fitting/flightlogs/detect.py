@@ -195,6 +195,12 @@ def detect(path: str | Path) -> Reader:
                 raise DataFormatError(
                     f"looks like a {reader.description} but {reason}", file=str(p)
                 )
+    if p.is_dir():  # only a ROS 2 bag is read as a folder
+        raise DataFormatError(
+            "is a folder, not a ROS 2 bag: name the log files in it (thrustmap fleet extract "
+            "FOLDER reads every log in a folder)",
+            file=str(p),
+        )
     known = "; ".join(f"{r.name} ({r.description})" for r in READERS)
     raise DataFormatError(
         f"unrecognised flight-log format (first bytes {head[:16]!r}); readers tried: {known}",

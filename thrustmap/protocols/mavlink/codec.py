@@ -468,6 +468,8 @@ def decode_heartbeat(msg: Any) -> Heartbeat:
 
 def decode_sys_status(msg: Any) -> SysStatus:
     mv, ca, pct = int(msg.voltage_battery), int(msg.current_battery), int(msg.battery_remaining)
+    if ca == -100:  # PX4 sends its "no current sensor" (-1 A) as -100 cA, not MAVLink's -1
+        ca = -1
     return SysStatus(
         voltage_v=None if mv == UINT16_MAX else mv / 1000.0,
         current_a=None if ca == -1 else ca / 100.0,
@@ -481,6 +483,8 @@ def decode_battery_status(msg: Any) -> BatteryStatus:
         int(v) for v in getattr(msg, "voltages_ext", ()) or () if int(v) not in (0, UINT16_MAX)
     ]
     ca, temp = int(msg.current_battery), int(msg.temperature)
+    if ca == -100:  # PX4 sends its "no current sensor" (-1 A) as -100 cA, not MAVLink's -1
+        ca = -1
     consumed, energy, pct = (
         int(msg.current_consumed),
         int(msg.energy_consumed),

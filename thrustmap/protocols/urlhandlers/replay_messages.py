@@ -19,7 +19,9 @@ The rules, all in message terms:
   later in the recording (the driver stopped sooner, or after a divergence; what lies between is
   skipped), or when the recording runs a motor next, its next stop of the same command; a stop
   the recording lacks (another output, one more retry) is answered as the recording answered a
-  stop of the same command (none: no answer, as from a lossy link). Anything else is a divergence, reported as "expected <recorded message>,
+  stop of the same command (none: no answer, as from a lossy link). A recorded stop a driver
+  that has run no motor does not send (a probe needs none) is skipped. Anything else is a
+  divergence, reported as "expected <recorded message>,
   driver sent <message>" with the transcript line.
 - A query matches the first recorded, not yet used, equal query before the next recorded motor
   run command, in any order; a query asked more often than recorded gets a copy of the latest
@@ -478,6 +480,7 @@ class MessageReplay:
         self._r = 0  # index into _runs: next unresolved run barrier
         self._s = 0  # index into _stream: next stream read not released
         self._last_barrier: Unit | None = None
+        self._driver_ran = False  # the driver sent a motor run command (not only stops)
         self._offset_s = 0.0
         self._pending: list[tuple[float, int, int, bytes]] = []  # (time, pos, seq, bytes)
         self._seq = 0
@@ -617,6 +620,12 @@ class MessageReplay:
             if not msg.run and msg.throttle_field is not None:
                 self._on_stop(msg, nxt, now_s)
                 return
+            if nxt is not None and not self._driver_ran and _stop_kind(nxt) is not None:
+                # a driver that never ran a motor needs no stop (a probe): the recorded one is
+                # skipped, and the driver's message matched against what follows it
+                nxt.resolved = True
+                self._frontier_update()
+                continue
             raise Divergence(nxt, msg, chunk)
 
     def _on_stop(self, msg: Message, nxt: Unit | None, now_s: float | None) -> None:
@@ -662,6 +671,7 @@ class MessageReplay:
         return best
 
     def _match_barrier(self, unit: Unit, now_s: float | None) -> None:
+        self._driver_ran = self._driver_ran or _is_run(unit)
         for pos in self._writes[self._w :]:
             if pos >= unit.pos:
                 break

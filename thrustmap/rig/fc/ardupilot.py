@@ -162,13 +162,18 @@ class ArduPilotThrottleOutput(MavlinkThrottleOutput):
         if self.order is None:
             self.order = motor_order(*self._frame(), self.motor_count or 4)
         order = self.order
+        frame = order.frame
+        if self._frame()[0] is None:  # never answered: say so, not "FRAME_CLASS None None"
+            frame = "unknown (the FC did not answer FRAME_CLASS)"
         if not order.known:
             log.warning(
-                "frame %s is not in thrustmap's ArduPilot motor table: assuming test order = "
-                "motor number; check on the Motor Test page (or pass the test-order letter)",
-                order.frame,
+                "%s: assuming test order = motor number; check on the Motor Test page (or pass "
+                "the test-order letter)",
+                f"the frame is {frame}"
+                if self._frame()[0] is None
+                else f"frame {frame} is not in thrustmap's ArduPilot motor table",
             )
-        return {"frame": order.frame, "test_order_known": str(order.known)}
+        return {"frame": frame, "test_order_known": str(order.known)}
 
     def motor_protocol(self) -> str:
         if self._pwm_type is None:

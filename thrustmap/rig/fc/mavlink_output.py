@@ -446,10 +446,13 @@ class MavlinkThrottleOutput(ThrottleOutput):
 
     def verify_stopped(self) -> bool:
         if self._stop_acked_s is None:
-            log.warning("verify_stopped: the last stop was not acknowledged")
+            if self._started:
+                log.warning("stop not verified: the FC did not acknowledge the last stop")
+            else:  # the check before a run: nothing commanded yet, a stop follows
+                log.info("motors at rest not confirmed yet: no stop sent so far")
             return False
         if self._stop_refused and not self._has_output_evidence():
-            log.warning("verify_stopped: the stop was refused and the vehicle reports no outputs")
+            log.warning("stop not verified: the FC refused the stop and reports no outputs")
             return False
         outcome: list[str] = []
 
