@@ -5,6 +5,7 @@ outside the supported region, with the interval's median width beside it."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -58,14 +59,16 @@ def test_evaluate_and_compare_report_coverage_in_table_and_json(
     assert 0.0 <= cov["inside_supported_region"] <= 100.0
     assert row["interval_median_half_width_pct"]["inside_supported_region"] > 0
     main(["evaluate", str(m), str(b)])
-    assert "interval held: in " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "interval held" in out and re.search(r"\bin \d+\.\d % \(±", out)
     main(["compare", str(a), str(b), "--models", "motor,linear", "--validate", "by-file", "--json"])
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [r["model"] for r in rows] == ["motor", "linear"]
     for r in rows:
         assert "coverage_pct" in r and "interval_median_half_width_pct" in r
     main(["compare", str(a), str(b), "--models", "motor", "--validate", "by-file"])
-    assert "interval held: in " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "interval held" in out and re.search(r"\bin \d+\.\d % \(±", out)
 
 
 def test_compare_coverage_is_the_fitted_maps_interval() -> None:
