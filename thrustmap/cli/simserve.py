@@ -34,9 +34,7 @@ import click
     show_default=True,
     help="Heartbeat gap (s) after which an active output is cut off.",
 )
-@click.option(
-    "--duration", type=click.FloatRange(min=0.0), help="Stop after this many seconds."
-)
+@click.option("--duration", type=click.FloatRange(min=0.0), help="Stop after this many seconds.")
 def simserve_cmd(
     device: str,
     host: str,

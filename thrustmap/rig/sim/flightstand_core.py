@@ -11,8 +11,9 @@ generated classes, for the calls the official client (the ``FlightStand`` helper
 - inputs (thrust ``FORCE_FZ``, torque ``TORQUE_MZ``, voltage, current, rotation speed, motor
   temperature, the ESC signal read back) and outputs (``ESC``, standard PWM in µs), with the
   user cutoff range of each input (``UpdateInput``) enforced as a cutoff condition;
-- samples (``ListSamples``: the latest group; ``WatchSamples``: every group as it is taken),
-  stamped with the core's sample time;
+- samples (``ListSamples``: the latest group; ``WatchSamples``: the bidirectional stream the
+  service documents, fixed at 10 Hz, one response per acknowledging request), stamped with the
+  core's sample time;
 - tare (``TareInputs``), the cutoff (``TriggerCutoff``, ``ClearCutoff`` refused while a condition
   holds, ``ListCutoffConditions``, ``GetCore.cutoff_active``) and the heartbeat
   (``GetServerStatus``), and the test recorder (manual samples, continuous recording, save,
@@ -37,6 +38,7 @@ this is a stand for clients that run in real time.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -45,7 +47,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent import futures
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
@@ -63,6 +65,8 @@ SYSTEM_CUTOFFS = {"FORCE_FZ": 500.0, "TORQUE_MZ": 50.0, "CURRENT_HALL_CURRENT": 
 HISTORY_GROUPS = 4000  # sample groups kept for ListSamples, tare and the watchers
 RECORDING_MAX_GROUPS = 360_000  # one hour at 100 Hz: continuous recording stops beyond this
 MAX_WATCHERS = 8
+WATCH_RATE_HZ = 10.0  # WatchSamples: "The sample rate is fixed at 10 Hz and cannot be configured"
+WATCH_BUFFER_GROUPS = 100  # what WatchSamples keeps for a slow client ("up to a reasonable limit")
 
 
 def _fs() -> Any:
@@ -140,6 +144,9 @@ class FlightStandCore:
         self.last_poll_s: float | None = None
         self.heartbeating = False
         self.watchers = 0
+        self.watch_history: deque[Any] = deque(maxlen=WATCH_BUFFER_GROUPS)  # the 10 Hz groups
+        self.watch_count = 0
+        self._watch_every = max(1, round(rate_hz / WATCH_RATE_HZ))
         # the test recorder
         self.recorder_title = ""
         self.manual: list[Any] = []
@@ -224,6 +231,10 @@ class FlightStandCore:
     def closed(self) -> bool:
         return self._stop.is_set()
 
+    def has_news(self, seen: int) -> bool:
+        """A 10 Hz group newer than the ``seen``-th was taken (or the core is closing)."""
+        return self.watch_count > seen or self.closed
+
     def _run(self) -> None:
         next_s = time.monotonic()
         while not self._stop.is_set():
@@ -284,6 +295,9 @@ class FlightStandCore:
             group.group_time.CopyFrom(_timestamp(fs, wall))
             self.history.append(group)
             self.group_count += 1
+            if self.group_count % self._watch_every == 0:
+                self.watch_history.append(group)
+                self.watch_count += 1
             if self.continuous is not None:
                 self.continuous.append(group)
                 if len(self.continuous) >= RECORDING_MAX_GROUPS:
@@ -419,7 +433,7 @@ def _timestamp(fs: Any, wall_s: float) -> Any:
 
 
 def _seconds(ts: Any) -> float:
-    return float(ts.seconds) + ts.nanos * 1e-9
+    return float(ts.seconds) + float(ts.nanos) * 1e-9
 
 
 def resample(groups: list[Any], step_s: float, fs: Any) -> list[Any]:
@@ -427,7 +441,7 @@ def resample(groups: list[Any], step_s: float, fs: Any) -> list[Any]:
     if step_s <= 0 or len(groups) < 2:
         return list(groups)
     times = [_seconds(g.group_time) for g in groups]
-    out = []
+    out: list[Any] = []
     j = 0
     t = times[0]
     while t <= times[-1] and len(out) < 2_000_000:
@@ -457,10 +471,14 @@ def make_servicer(core: FlightStandCore) -> Any:
 
     fs = core.fs
 
+    def abort(context: Any, code: Any, message: str) -> NoReturn:
+        context.abort(code, message)  # raises
+        raise AssertionError("unreachable")
+
     def board_of(context: Any, name: str) -> _Board:
         board = core.boards.get(name)
         if board is None:
-            context.abort(grpc.StatusCode.NOT_FOUND, f"no board {name!r}")
+            abort(context, grpc.StatusCode.NOT_FOUND, f"no board {name!r}")
         return board
 
     class Servicer(fs_grpc.FlightStandServicer):  # type: ignore[misc]
@@ -508,7 +526,7 @@ def make_servicer(core: FlightStandCore) -> Any:
                     for i in b.inputs.values():
                         if i.name == request.name:
                             return i
-            context.abort(grpc.StatusCode.NOT_FOUND, f"no input {request.name!r}")
+            abort(context, grpc.StatusCode.NOT_FOUND, f"no input {request.name!r}")
 
         def UpdateInput(self, request: Any, context: Any) -> Any:  # noqa: N802
             allowed = {"alias", "reversed", "min_user_cutoff", "max_user_cutoff",
@@ -516,7 +534,7 @@ def make_servicer(core: FlightStandCore) -> Any:
             paths = list(request.mask.paths)
             bad = [p for p in paths if p not in allowed]
             if bad or not paths:
-                context.abort(grpc.StatusCode.INVALID_ARGUMENT,
+                abort(context, grpc.StatusCode.INVALID_ARGUMENT,
                               f"mask paths {bad or paths} cannot be updated")  # fmt: skip
             with core.lock:
                 for b in core.boards.values():
@@ -525,7 +543,7 @@ def make_servicer(core: FlightStandCore) -> Any:
                             for p in paths:
                                 setattr(i, p, getattr(request.input, p))
                             return i
-            context.abort(grpc.StatusCode.NOT_FOUND, f"no input {request.input.name!r}")
+            abort(context, grpc.StatusCode.NOT_FOUND, f"no input {request.input.name!r}")
 
         def ListOutputs(self, request: Any, context: Any) -> Any:  # noqa: N802
             with core.lock:
@@ -536,18 +554,18 @@ def make_servicer(core: FlightStandCore) -> Any:
                 for b in core.boards.values():
                     if b.esc.name == request.name:
                         return b.esc
-            context.abort(grpc.StatusCode.NOT_FOUND, f"no output {request.name!r}")
+            abort(context, grpc.StatusCode.NOT_FOUND, f"no output {request.name!r}")
 
         def UpdateOutput(self, request: Any, context: Any) -> Any:  # noqa: N802
             paths = list(request.mask.paths)
             if paths != ["output_target"]:
-                context.abort(grpc.StatusCode.INVALID_ARGUMENT,
+                abort(context, grpc.StatusCode.INVALID_ARGUMENT,
                               f"this simulated core updates output_target only, not {paths}")  # fmt: skip
             with core.lock:
                 board = next((b for b in core.boards.values() if b.esc.name == request.output.name),
                              None)  # fmt: skip
                 if board is None:
-                    context.abort(grpc.StatusCode.NOT_FOUND, f"no output {request.output.name!r}")
+                    abort(context, grpc.StatusCode.NOT_FOUND, f"no output {request.output.name!r}")
                 target = request.output.output_target
                 esc = board.esc
                 if target.active and not (
@@ -562,7 +580,7 @@ def make_servicer(core: FlightStandCore) -> Any:
                     target.active != esc.cutoff_target.active
                     or target.target_value != esc.cutoff_target.target_value
                 ):
-                    context.abort(grpc.StatusCode.FAILED_PRECONDITION,
+                    abort(context, grpc.StatusCode.FAILED_PRECONDITION,
                                   "a cutoff is active: clear it before changing an output")  # fmt: skip
                 esc.output_target.CopyFrom(target)
                 esc.output_target.target_value = round(target.target_value / esc.step_size) * (
@@ -575,24 +593,31 @@ def make_servicer(core: FlightStandCore) -> Any:
                 group = core.history[-1] if core.history else fs.SampleGroup()
                 return fs.ListSamplesResponse(sample_group=group)
 
-        def WatchSamples(self, request: Any, context: Any) -> Iterator[Any]:  # noqa: N802
+        def WatchSamples(self, requests: Any, context: Any) -> Iterator[Any]:  # noqa: N802
+            """As the service documents it: a bidirectional stream at a fixed 10 Hz, one
+            response per request (the client acknowledges each), the groups taken since the last
+            response buffered up to ``WATCH_BUFFER_GROUPS``."""
             with core.lock:
                 if core.watchers >= MAX_WATCHERS:
-                    context.abort(grpc.StatusCode.RESOURCE_EXHAUSTED,
-                                  f"at most {MAX_WATCHERS} sample watchers")  # fmt: skip
+                    abort(context, grpc.StatusCode.RESOURCE_EXHAUSTED,
+                          f"at most {MAX_WATCHERS} sample watchers")  # fmt: skip
                 core.watchers += 1
-                seen = core.group_count
+                seen = core.watch_count
             try:
-                while context.is_active() and not core.closed:
-                    with core.new_group:
-                        core.new_group.wait_for(
-                            lambda: core.group_count > seen or core.closed, timeout=0.5
-                        )
-                        fresh = min(core.group_count - seen, len(core.history))
-                        groups = list(core.history)[len(core.history) - fresh :] if fresh else []
-                        seen = core.group_count
-                    if groups:
-                        yield fs.WatchSamplesResponse(sample_groups=groups)
+                for _ in requests:
+                    groups: list[Any] = []
+                    while not groups and context.is_active() and not core.closed:
+                        with core.new_group:
+                            core.new_group.wait_for(
+                                functools.partial(core.has_news, seen), timeout=0.5
+                            )
+                            fresh = min(core.watch_count - seen, len(core.watch_history))
+                            if fresh:
+                                groups = list(core.watch_history)[-fresh:]
+                            seen = core.watch_count
+                    if not groups:
+                        return
+                    yield fs.WatchSamplesResponse(sample_groups=groups)
             finally:
                 with core.lock:
                     core.watchers -= 1
@@ -619,7 +644,7 @@ def make_servicer(core: FlightStandCore) -> Any:
                 if core.cutoff is None:
                     return fs.ClearCutoffResponse()
                 if holding:
-                    context.abort(grpc.StatusCode.FAILED_PRECONDITION,
+                    abort(context, grpc.StatusCode.FAILED_PRECONDITION,
                                   "a cutoff condition still holds")  # fmt: skip
                 core.cutoff = None
                 log.info("simulated Flight Stand core: cutoff cleared")
@@ -630,7 +655,9 @@ def make_servicer(core: FlightStandCore) -> Any:
 
         def TakeSampleTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
             if not core.take_manual_sample():
-                context.abort(grpc.StatusCode.RESOURCE_EXHAUSTED, "manual samples are rate limited")
+                abort(
+                    context, grpc.StatusCode.RESOURCE_EXHAUSTED, "manual samples are rate limited"
+                )
             return fs.TakeSampleTestRecorderResponse()
 
         def ClearTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
@@ -653,24 +680,24 @@ def make_servicer(core: FlightStandCore) -> Any:
                     with core.lock:
                         core.recorder_title = request.test_recorder.title
                 else:
-                    context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"cannot update {path!r}")
+                    abort(context, grpc.StatusCode.INVALID_ARGUMENT, f"cannot update {path!r}")
             return self.GetTestRecorder(fs.GetTestRecorderRequest(), context)
 
         def SaveTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
             with core.lock:
                 if not core.recorder_title:
-                    context.abort(grpc.StatusCode.FAILED_PRECONDITION, "a test needs a title")
+                    abort(context, grpc.StatusCode.FAILED_PRECONDITION, "a test needs a title")
                 return fs.SaveTestRecorderResponse(test_name=core.save())
 
         def ListTestData(self, request: Any, context: Any) -> Any:  # noqa: N802
             with core.lock:
                 test = core.tests.get(request.test_name)
             if test is None:
-                context.abort(grpc.StatusCode.NOT_FOUND, f"no test {request.test_name!r}")
+                abort(context, grpc.StatusCode.NOT_FOUND, f"no test {request.test_name!r}")
             _, manual, segments = test
             if request.continuous_recording:
                 if not 0 <= request.continuous_segment_index < len(segments):
-                    context.abort(grpc.StatusCode.OUT_OF_RANGE, "no such continuous segment")
+                    abort(context, grpc.StatusCode.OUT_OF_RANGE, "no such continuous segment")
                 step = _seconds(request.resample_step_duration)
                 rows = resample(segments[request.continuous_segment_index], step, fs)
             else:
