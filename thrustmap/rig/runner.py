@@ -289,6 +289,7 @@ class Runner:
 
     def _abort(self, reason: str, trip: Trip | None = None) -> NoReturn:
         self._abort_at = self.clock.now_s()
+        log.info("aborting: %s", reason)  # when it was decided (-v); the verdict follows the stop
         raise Aborted(reason, trip)
 
     def _preflight(self) -> None:

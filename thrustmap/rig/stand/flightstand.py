@@ -299,6 +299,8 @@ class FlightStandStand(Stand):
         self.fs = self.client.fs
         self._offset_s: float | None = None
         self._saved_cutoffs: dict[str, Any] = {}  # input name -> its original Input
+        #: the heartbeat may go unanswered this long before the output reports a lost link
+        self.link_timeout_s = 2.0 * self.options.timeout_s
         self.drives_esc = False
         try:
             self._discover()
@@ -442,7 +444,9 @@ class FlightStandStand(Stand):
             f"{self.esc.min_user_value:g}-{self.esc.max_user_value:g} µs)",
         }  # fmt: skip
         if self.rate_hz:
-            details["sample_rate"] = f"{self.rate_hz:g} Hz at the core, 10 Hz streamed (WatchSamples)"
+            details["sample_rate"] = (
+                f"{self.rate_hz:g} Hz at the core, 10 Hz streamed (WatchSamples)"
+            )
         if ident.get("serialNumber"):
             details["serial"] = ident["serialNumber"]
         return DeviceIdentity(
@@ -509,6 +513,9 @@ class FlightStandStand(Stand):
         ever lowering one the user set; the originals are restored on close. Returns what was
         installed ("thrust_n <= 20 N", ...)."""
         fs = self.fs
+        link_timeout_s = getattr(limits, "link_timeout_s", None)
+        if link_timeout_s is not None and math.isfinite(link_timeout_s):
+            self.link_timeout_s = float(link_timeout_s)
         done = []
         for field_name, stream in LIMIT_STREAMS.items():
             inp = self.inputs.get(stream)
@@ -608,7 +615,7 @@ class FlightStandEscOutput(ThrottleOutput):
 
     def _check_link(self) -> None:
         age = time.monotonic() - self.client.heartbeat_ok_s
-        if age > 2.0 * CALL_TIMEOUT_S:
+        if age > self.stand.link_timeout_s:
             raise FlightStandError(
                 f"no heartbeat answer from the Flight Stand core for {age:.1f} s"
                 + (f" ({self.client.heartbeat_error})" if self.client.heartbeat_error else "")
