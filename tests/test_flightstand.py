@@ -221,6 +221,7 @@ def test_ctrl_c_and_sigterm_stop_within_1s_verified(
         assert time.monotonic() - sent < 10
         time.sleep(0.01)
     stdout, stderr = proc.communicate()
+    print(f"{signal.Signals(signum).name}: ESC at the stop {stopped_at} s after the signal")
     assert stopped_at is not None and stopped_at < 1.0, stopped_at
     assert proc.returncode == 130, stderr + stdout
     assert "stop verified" in stdout, stdout
@@ -354,6 +355,9 @@ def test_a_lost_link_aborts_within_the_link_timeout_and_the_core_stops_the_esc(
         reader.join(timeout=5)
     finally:
         proxy.close()
+    print(
+        f"link frozen: the core's cutoff at {esc_zero_s} s; thrustmap aborting after {[t - lost for t, ln in lines if 'aborting:' in ln][:1]} s"
+    )
     # the core cut the ESC off on the missing heartbeat, within its 1 s (+ one sample)
     assert esc_zero_s is not None and esc_zero_s < 3.0, esc_zero_s
     assert cutoff_of(stub) == "NO_CLIENT"

@@ -514,8 +514,10 @@ class FlightStandStand(Stand):
         installed ("thrust_n <= 20 N", ...)."""
         fs = self.fs
         link_timeout_s = getattr(limits, "link_timeout_s", None)
-        if link_timeout_s is not None and math.isfinite(link_timeout_s):
+        if link_timeout_s is not None and math.isfinite(link_timeout_s) and link_timeout_s > 0:
             self.link_timeout_s = float(link_timeout_s)
+            # a call on a silent link must not outlast the link timeout
+            self.client.timeout_s = min(self.client.timeout_s, self.link_timeout_s)
         done = []
         for field_name, stream in LIMIT_STREAMS.items():
             inp = self.inputs.get(stream)
