@@ -61,6 +61,7 @@ HEARTBEAT_PERIOD_S = 0.25  # the service asks for one call per second at least; 
 CALL_TIMEOUT_S = 1.0
 SAMPLE_QUEUE_GROUPS = 20_000  # sample groups buffered between two reads (200 s at 100 Hz)
 TARE_TIMEOUT_S = 10.0
+VERIFY_WAIT_S = 1.0  # for a sample of the ESC signal taken after the stop
 
 #: thrustmap stream -> the core's input types for it, in order of preference
 STREAMS: dict[str, tuple[str, ...]] = {
@@ -593,6 +594,7 @@ class FlightStandEscOutput(ThrottleOutput):
             )
         self._commanded = False
         self._stop_sent_at: float | None = None  # core group time seen when the stop went out
+        self._stop_verified = False  # verified since the last command
         self.esc: Any = esc
         stand.drives_esc = True
         self.client.start_heartbeat()
@@ -641,6 +643,7 @@ class FlightStandEscOutput(ThrottleOutput):
             raise
         self._commanded = True
         self._stop_sent_at = None
+        self._stop_verified = False
 
     def keepalive(self) -> None:
         self._check_link()
@@ -661,12 +664,18 @@ class FlightStandEscOutput(ThrottleOutput):
     def verify_stopped(self) -> bool:
         """The output's target is the stop (or the output is off), and a sample of its signal
         taken after the stop reads it back."""
+        ok = self._verify()
+        if ok and self._stop_sent_at is not None:
+            self._stop_verified = True
+        return ok
+
+    def _verify(self) -> bool:
         esc = self.client.call("GetOutput", self.fs.GetOutputRequest(name=self.esc.name))
         target = esc.output_target
         if target.active and target.target_value > self.stop_us + self.step_us / 2:
             return False
         after = self._stop_sent_at if self._stop_sent_at is not None else -math.inf
-        deadline = time.monotonic() + 0.5
+        deadline = time.monotonic() + VERIFY_WAIT_S
         while True:
             group = self.client.call("ListSamples", self.fs.ListSamplesRequest()).sample_group
             if _seconds(group.group_time) > after:
@@ -688,7 +697,7 @@ class FlightStandEscOutput(ThrottleOutput):
         """Switch the ESC signal off once the stop was verified, then end the heartbeat (the
         core's own cutoff stops the output if it is still active then)."""
         try:
-            if self._commanded and self.verify_stopped():
+            if self._commanded and (self._stop_verified or self.verify_stopped()):
                 self._write(False, self.stop_us)
         except ThrustmapError as exc:
             log.warning("could not switch the ESC signal off after the stop: %s", exc)
