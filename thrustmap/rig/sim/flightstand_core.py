@@ -41,6 +41,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -71,6 +72,7 @@ WATCH_BUFFER_GROUPS = 100  # what WatchSamples keeps for a slow client ("up to a
 
 def _fs() -> Any:
     """The official package's generated messages (``FlightStand.flight_stand_api_v1_pb2``)."""
+    os.environ.setdefault("GRPC_VERBOSITY", "NONE")  # errors are said in one line, not by gRPC
     try:
         import FlightStand  # noqa: F401  (registers the generated modules' absolute names)
         from FlightStand import flight_stand_api_v1_pb2 as fs

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -93,6 +94,9 @@ class FlightStandCutoff(DeviceAbort):
 
 def _package() -> tuple[Any, Any, Any]:
     """The official package's generated modules and grpc (``pip install thrustmap[flightstand]``)."""
+    # gRPC's C core logs to stderr on its own (a refused bind, a dropped link): thrustmap says
+    # what happened in one line itself; GRPC_VERBOSITY set by the user wins
+    os.environ.setdefault("GRPC_VERBOSITY", "NONE")
     try:
         import grpc
         from FlightStand import flight_stand_api_v1_pb2 as fs
@@ -305,7 +309,8 @@ class FlightStandStand(Stand):
         self.drives_esc = False
         try:
             self._discover()
-            self.check_cutoff(at_start=True)
+            #: the cutoff the core held when the stand was opened (commanding refuses it)
+            self.cutoff_at_open = self.cutoff()
             self.client.start_watch()
         except BaseException:
             self.client.close()
@@ -444,6 +449,8 @@ class FlightStandStand(Stand):
             f"{self.esc.name} ({fs.OutputProtocolType.Name(self.esc.protocol)}, "
             f"{self.esc.min_user_value:g}-{self.esc.max_user_value:g} µs)",
         }  # fmt: skip
+        if self.cutoff_at_open is not None:
+            details["cutoff_active"] = self.cutoff_at_open
         if self.rate_hz:
             details["sample_rate"] = (
                 f"{self.rate_hz:g} Hz at the core, 10 Hz streamed (WatchSamples)"
@@ -596,6 +603,7 @@ class FlightStandEscOutput(ThrottleOutput):
         self._stop_sent_at: float | None = None  # core group time seen when the stop went out
         self._stop_verified = False  # verified since the last command
         self.esc: Any = esc
+        stand.check_cutoff(at_start=True)  # never command over a cutoff; clear only if asked
         stand.drives_esc = True
         self.client.start_heartbeat()
 
