@@ -657,13 +657,14 @@ class FlightStandEscOutput(ThrottleOutput):
         self._check_link()
 
     def stop(self) -> None:
-        self._stop_sent_at = self._latest_group_time()
         try:
             self._write(True, self.stop_us)
         except FlightStandError as exc:
             # under a cutoff the core holds the output at its cutoff target: verify reads it
             if self.client.code_of(exc) != "FAILED_PRECONDITION":
                 raise
+        # the newest group now: any group taken after it was taken after the stop was applied
+        self._stop_sent_at = self._latest_group_time()
 
     def _latest_group_time(self) -> float:
         group = self.client.call("ListSamples", self.fs.ListSamplesRequest()).sample_group
@@ -684,15 +685,16 @@ class FlightStandEscOutput(ThrottleOutput):
             return False
         after = self._stop_sent_at if self._stop_sent_at is not None else -math.inf
         deadline = time.monotonic() + VERIFY_WAIT_S
-        while True:
+        while True:  # a sample of the output's signal taken after the stop, reading the stop
             group = self.client.call("ListSamples", self.fs.ListSamplesRequest()).sample_group
             if _seconds(group.group_time) > after:
                 for sample in group.samples:
-                    if sample.signal_name == esc.signal_name:
-                        return not sample.active or sample.value <= self.stop_us + self.step_us / 2
-                return False  # no readback of the output's signal: not verified
+                    if sample.signal_name == esc.signal_name and (
+                        not sample.active or sample.value <= self.stop_us + self.step_us / 2
+                    ):
+                        return True
             if time.monotonic() > deadline:
-                return False
+                return False  # no such readback (or none of the signal at all): not verified
             time.sleep(0.01)
 
     def read_telemetry(self) -> Telemetry:
