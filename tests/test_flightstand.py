@@ -259,6 +259,24 @@ def test_a_cutoff_tripped_in_the_core_aborts_the_sweep_naming_it(
     assert again.has_max_user_cutoff and again.max_user_cutoff == pytest.approx(2.0)
 
 
+def test_a_thrust_input_reading_a_pulling_propeller_negative_is_questioned(
+    core: FlightStandServer, tmp_path: Path
+) -> None:
+    from google.protobuf.field_mask_pb2 import FieldMask
+
+    stub = official(core.address)
+    thrust = next(i for i in stub.ListInputs(fs.ListInputsRequest()).inputs
+                  if i.input_type == fs.FORCE_FZ)  # fmt: skip
+    stub.UpdateInput(fs.UpdateInputRequest(input=fs.Input(name=thrust.name, reversed=True),
+                                           mask=FieldMask(paths=["reversed"])))  # fmt: skip
+    proc = start_sweep(f"flightstand://{core.address}", tmp_path / "n.csv", "explicit",
+                       "--levels", "30,40", "--dwell", "3")  # fmt: skip
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 1, stderr + stdout
+    assert "aborted" in stdout and "stop verified" in stdout
+    assert "thrust input reads -" in stdout and "reverse the thrust input" in stdout, stdout
+
+
 def test_thrustmaps_limits_are_the_cores_cutoffs_during_the_run_and_restored_after(
     core: FlightStandServer, tmp_path: Path
 ) -> None:
@@ -419,6 +437,21 @@ def test_no_core_is_one_line_and_exit_2() -> None:
     r = thrustmap("probe", f"flightstand://127.0.0.1:{port}?timeout=0.5")
     assert r.returncode == 2
     assert "cannot reach a Flight Stand core" in r.stderr and len(r.stderr.splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("url", "said"),
+    [
+        ("flightstand://127.0.0.1:50051?bord=x", "unknown option(s) bord"),
+        ("flightstand://127.0.0.1:50051?timeout=soon", "timeout='soon': expected seconds"),
+        ("flightstand://127.0.0.1:99999", "the port must be a number"),
+        ("flightstand://", "expected flightstand://HOST:PORT"),
+    ],
+)
+def test_a_bad_url_is_one_line_and_exit_2(url: str, said: str) -> None:
+    r = thrustmap("probe", url)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert said in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
 def test_sim_serve_listens_on_loopback_only_by_default() -> None:

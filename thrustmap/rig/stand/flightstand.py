@@ -62,6 +62,10 @@ HEARTBEAT_PERIOD_S = 0.25  # the service asks for one call per second at least; 
 CALL_TIMEOUT_S = 1.0
 SAMPLE_QUEUE_GROUPS = 20_000  # sample groups buffered between two reads (200 s at 100 Hz)
 TARE_TIMEOUT_S = 10.0
+#: thrust below this while the ESC is well above its stop is not a pulling propeller's ...
+NEGATIVE_THRUST_N = -0.05
+NEGATIVE_THRUST_ESC_FRACTION = 0.15  # ... above the stop by this fraction of the range ...
+NEGATIVE_THRUST_SAMPLES = 5  # ... in this many samples in a row (0.5 s at 10 Hz)
 VERIFY_WAIT_S = 1.0  # for a sample of the ESC signal taken after the stop
 
 #: thrustmap stream -> the core's input types for it, in order of preference
@@ -90,6 +94,10 @@ class FlightStandError(ThrustmapError):
 
 class FlightStandCutoff(DeviceAbort):
     """The Flight Stand core holds a cutoff: its outputs are at their cutoff targets."""
+
+
+class ThrustReadsNegative(DeviceAbort):
+    """The thrust input reads a pulling propeller negative: the data would be unusable."""
 
 
 def _package() -> tuple[Any, Any, Any]:
@@ -303,6 +311,9 @@ class FlightStandStand(Stand):
         )
         self.fs = self.client.fs
         self._offset_s: float | None = None
+        self._dropped_said = 0
+        self._negative_run = 0
+        self.esc_range_us: tuple[float, float] | None = None  # (stop, top), set by the output
         self._saved_cutoffs: dict[str, Any] = {}  # input name -> its original Input
         #: the heartbeat may go unanswered this long before the output reports a lost link
         self.link_timeout_s = 2.0 * self.options.timeout_s
@@ -470,6 +481,12 @@ class FlightStandStand(Stand):
                 f"Flight Stand core at {self.options.address}: {self.client.watch_error}"
             )
         groups = self.client.take_groups()
+        if self.client.groups_dropped > self._dropped_said:
+            log.warning(
+                "%d sample groups from the Flight Stand core were dropped (read too slowly)",
+                self.client.groups_dropped - self._dropped_said,
+            )
+            self._dropped_said = self.client.groups_dropped
         out = []
         thrust_signal = self.inputs["thrust_n"].signal_name
         for group in groups:
@@ -484,6 +501,7 @@ class FlightStandStand(Stand):
                     stamp = _seconds(sample.sample_time)
             if stamp is None or not math.isfinite(values.get("thrust_n", math.nan)):
                 continue
+            self._question_sign(values)
             if self._offset_s is None:
                 self._offset_s = self.clock.now_s() - stamp
             out.append(
@@ -499,6 +517,25 @@ class FlightStandStand(Stand):
                 )
             )
         return out
+
+    def _question_sign(self, values: Mapping[str, float]) -> None:
+        """A thrust that stays negative while the ESC output drives the motor is not used: the
+        stand reads a pulling propeller negative (or the propeller is mounted to push)."""
+        esc_us = values.get("esc_us")
+        if self.esc_range_us is None or esc_us is None:
+            return
+        stop, top = self.esc_range_us
+        driven = esc_us >= stop + NEGATIVE_THRUST_ESC_FRACTION * (top - stop)
+        if driven and values["thrust_n"] < NEGATIVE_THRUST_N:
+            self._negative_run += 1
+        else:
+            self._negative_run = 0
+        if self._negative_run >= NEGATIVE_THRUST_SAMPLES:
+            raise ThrustReadsNegative(
+                f"the Flight Stand's thrust input reads {values['thrust_n']:.3g} N with the ESC at "
+                f"{esc_us:g} µs: a pulling propeller must read positive; reverse the thrust input "
+                "in the Flight Stand software (or check the propeller's direction)"
+            )
 
     def tare(self, service: Callable[[], None] | None = None) -> None:
         """``TareInputs``, then wait until the core says it is done (``service`` between)."""
@@ -604,6 +641,7 @@ class FlightStandEscOutput(ThrottleOutput):
         self._stop_verified = False  # verified since the last command
         self.esc: Any = esc
         stand.check_cutoff(at_start=True)  # never command over a cutoff; clear only if asked
+        stand.esc_range_us = (self.stop_us, self.max_us)
         stand.drives_esc = True
         self.client.start_heartbeat()
 
