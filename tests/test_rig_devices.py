@@ -83,7 +83,7 @@ def test_registry_refuses_a_duplicate_and_unknown_kinds(acme: Driver) -> None:
 
 
 def test_builtin_drivers_in_detection_order() -> None:
-    assert connect.kinds() == ("msp", "mavlink", "tyto-1585", "line-stand")
+    assert connect.kinds() == ("msp", "mavlink", "tyto-1585", "line-stand", "flightstand")
     assert connect.kinds("fc") == ("msp", "mavlink")
     req = OpenRequest("x", SimClock())
     assert req.wait_s == 3.0 and dict(req.opts) == {}

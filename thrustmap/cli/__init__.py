@@ -39,6 +39,7 @@ COMMANDS: dict[str, str] = {
     "export": "exportcmd:export_cmd",
     "report": "report:report_cmd",
     "plot": "report:plot_cmd",
+    "sim-serve": "simserve:simserve_cmd",
 }
 
 
@@ -62,6 +63,7 @@ SUMMARIES: dict[str, str] = {
     "export": "Export a map for a throttle encoding or a firmware.",
     "report": "A self-contained HTML report of a map and its data.",
     "plot": "Publication figures of a map: surface, slices, residuals, coverage, gamma...",
+    "sim-serve": "Serve a simulated device (a Flight Stand core) for scripts and drivers.",
 }
 
 

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
 
+from thrustmap.core.errors import SafetyError
 from thrustmap.core.units import ThrottleScale
 
 log = logging.getLogger(__name__)
@@ -69,6 +70,11 @@ class StandSample:
     temperature_c: float | None = None
     vibration_g: float | None = None
     throttle_native: float | None = None  # what the stand itself sent to the ESC, if it drives it
+
+
+class DeviceAbort(SafetyError):
+    """The device itself stopped the run (a stand core's cutoff): the runner aborts naming it
+    (exit 1), stops and verifies as on every way out, and never clears what the device raised."""
 
 
 class StopNotVerified(RuntimeError):

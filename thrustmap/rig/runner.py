@@ -21,7 +21,7 @@ import numpy as np
 from thrustmap.core.clock import Clock
 from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import SafetyError
-from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutput
+from thrustmap.rig.interfaces import DeviceAbort, Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import (
     Limits,
     Reading,
@@ -183,6 +183,8 @@ class Runner:
                         reason = self.plan.adaptive.stop_reason
                 except Aborted as exc:
                     reason, trip = exc.reason, exc.trip
+                except DeviceAbort as exc:  # the device stopped the run (a core's cutoff)
+                    reason = str(exc)
                 except Terminated as exc:
                     reason, interrupted = f"terminated ({exc})", True
                 except KeyboardInterrupt:
@@ -287,6 +289,7 @@ class Runner:
 
     def _abort(self, reason: str, trip: Trip | None = None) -> NoReturn:
         self._abort_at = self.clock.now_s()
+        log.info("aborting: %s", reason)  # when it was decided (-v); the verdict follows the stop
         raise Aborted(reason, trip)
 
     def _preflight(self) -> None:
@@ -308,6 +311,10 @@ class Runner:
                     raise SafetyError("motors are not at rest before the run; refusing to start")
                 log.warning("cannot confirm the motors are at rest: %s", blind)
         self._last_link_ok = self.clock.now_s()
+        for device in (self.stand, self.output):  # limits the device enforces itself too
+            install = getattr(device, "install_limits", None)
+            if callable(install):
+                install(self.limits)
         if self.cfg.tare and self.stand is not None:
             self._wait_at_rest()
             self._phase = "tare"

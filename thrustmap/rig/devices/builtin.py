@@ -57,6 +57,7 @@ MSP = Driver(
     sim_detect=_msp_sim,
     host_prefixes=(b"$M<", b"$X<"),
     open_output=_open_msp,
+    verified="against real Betaflight 4.6.0 SITL (tests/test_betaflight_sitl.py)",
 )
 
 # --------------------------------------------------------------------------- MAVLink
@@ -142,6 +143,7 @@ MAVLINK = Driver(
     classify=_mavlink_classify,
     host_prefixes=(b"\xfd", b"\xfe"),
     open_output=_open_mavlink,
+    verified="against ArduCopter 4.7-dev and PX4 v1.17 SITL (docs/mavlink.md)",
 )
 
 # --------------------------------------------------------------------------- Tyto 1585
@@ -209,6 +211,8 @@ TYTO = Driver(
     host_prefixes=(b"$R<",),
     open_stand=_open_tyto,
     esc_output=_tyto_esc,
+    verified="written from documentation only: not checked against a Series 1585 or an "
+    "official client",
 )
 
 # --------------------------------------------------------------------------- line stands
@@ -326,7 +330,38 @@ LINE = Driver(
     classify=_line_classify,
     open_stand=_open_line,
     esc_output=_line_esc,
+    verified="thrustmap's own line format and presets written from their projects' "
+    "documentation: not checked against a device",
+)
+
+# --------------------------------------------------------------------------- Flight Stand
+
+
+def _open_flightstand(req: OpenRequest) -> Stand:
+    from thrustmap.rig.stand.flightstand import FlightStandStand
+
+    return FlightStandStand(req.url, req.clock)
+
+
+def _flightstand_esc(stand: Stand, motor: int) -> ThrottleOutput | None:
+    from thrustmap.rig.stand.flightstand import FlightStandEscOutput, FlightStandStand
+
+    return FlightStandEscOutput(stand, motor) if isinstance(stand, FlightStandStand) else None
+
+
+FLIGHTSTAND = Driver(
+    kind="flightstand",
+    role="stand",
+    description="Tyto Robotics Flight Stand (15/50/150/500) through its official Python API",
+    default_baud=0,
+    aliases={"flightstand": None, "flight-stand": None},
+    open_stand=_open_flightstand,
+    esc_output=_flightstand_esc,
+    url_schemes=("flightstand",),
+    verified="against Tyto's official client (package flightstand 3.0.2: its generated gRPC "
+    "classes and example scripts) talking to thrustmap's simulated core; not yet against a "
+    "real Flight Stand core",
 )
 
 #: detection order: a MAVLink HEARTBEAT first, then the Tyto banner, then line-stand text
-BUILTIN: tuple[Driver, ...] = (MSP, MAVLINK, TYTO, LINE)
+BUILTIN: tuple[Driver, ...] = (MSP, MAVLINK, TYTO, LINE, FLIGHTSTAND)

@@ -41,6 +41,9 @@ def detect_from_url(url: str) -> Detection | None:
     inner = innermost_url(url)  # also recorded: record://udpin:0.0.0.0:14550?file=x.jsonl
     if MAVLINK_CONNECTION.match(inner) or url_scheme(inner) in ("udpin", "udpout"):
         return Detection("mavlink", evidence="pymavlink connection string")
+    for drv in drivers():
+        if url_scheme(inner) in drv.url_schemes:
+            return Detection(drv.kind, evidence=f"{url_scheme(inner)}:// URL")
     peer = sim_peer(url)
     if peer is not None:
         name, options = peer

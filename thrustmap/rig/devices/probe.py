@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import SafetyError, ThrustmapError
@@ -93,11 +93,33 @@ def probe_device(
 ) -> ProbeReport:
     """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
     output (its exit commands stop and verifies it, as always) but no motor is commanded."""
+    found = resolve(url, clock, kind, baudrate)
+    report = ProbeReport(url, found)
+    try:
+        return _probe(report, url, clock, kind, baudrate, calibration, line_preset,
+                      line_spec_file, seconds)  # fmt: skip
+    finally:  # say how this kind's protocol was checked (a real device, an official client...)
+        checked = driver(found.kind).verified
+        if report.identity is not None and checked:
+            details = {**report.identity.details, "protocol_checked": checked}
+            report.identity = replace(report.identity, details=details)
+
+
+def _probe(
+    report: ProbeReport,
+    url: str,
+    clock: Clock,
+    kind: str | None,
+    baudrate: int | None,
+    calibration: str | None,
+    line_preset: str | None,
+    line_spec_file: str | None,
+    seconds: float,
+) -> ProbeReport:
     from thrustmap.rig.connect import open_stand, open_throttle_output
     from thrustmap.rig.stand.line import LineStand
 
-    found = resolve(url, clock, kind, baudrate)
-    report = ProbeReport(url, found)
+    found = report.detection
     if driver(found.kind).role == "fc":
         output = open_throttle_output(url, clock, kind=kind or found.kind, baudrate=baudrate)
         with output:

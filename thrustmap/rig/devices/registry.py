@@ -71,6 +71,10 @@ class Driver:
     open_stand: Callable[[OpenRequest], Stand] | None = None
     #: a stand's own ESC output (None when ``stand`` is not this driver's)
     esc_output: Callable[[Stand, int], ThrottleOutput | None] | None = None
+    #: URL schemes that name this driver (``flightstand://host:port``)
+    url_schemes: tuple[str, ...] = ()
+    #: how its protocol was checked (``thrustmap probe`` says it)
+    verified: str = ""
 
 
 _DRIVERS: dict[str, Driver] = {}

@@ -1,0 +1,757 @@
+"""Tyto Robotics Flight Stand (15/50/150/500) through its official Python API.
+
+The Flight Stand core software runs on the bench computer and serves a gRPC service on
+localhost:50051; Tyto's package ``flightstand`` ships its generated classes
+(``FlightStand.flight_stand_api_v1_pb2*``). Every message thrustmap sends is built from them.
+thrustmap does not use the package's ``FlightStand`` helper class: it prints, calls ``exit()``
+when the core is not there, and clears any active cutoff when it is constructed, which
+thrustmap must never do silently.
+
+URL: ``flightstand://HOST:PORT`` with options ``?board=NAME`` (a board's resource name, path,
+display name or serial; needed when several boards are connected), ``clear_cutoff=1`` (clear a
+cutoff the core holds before starting, said in a warning; without it thrustmap refuses to start
+on an active cutoff) and ``timeout=S`` (the deadline of each call, default 1 s).
+
+- ``FlightStandStand``: the board's inputs mapped to thrustmap's streams (thrust ``FORCE_FZ``,
+  torque ``TORQUE_MZ``, voltage, current, rotation speed, temperature, the ESC signal read back),
+  every sample group the core streams through ``WatchSamples`` (the stream the service offers
+  for live data: 10 Hz, fixed), stamped with the core's sample times;
+  tare through ``TareInputs``; thrustmap's limits installed as the inputs' user cutoffs (only
+  ever tightened, restored on close).
+- ``FlightStandEscOutput``: the board's ESC output as the throttle output (PWM µs). While it is
+  open it sends the heartbeat the core requires (``GetServerStatus`` every 0.25 s), so the
+  core's own cutoff stops the ESC when thrustmap dies or the link drops. A cutoff the core raises
+  aborts the run naming it (``FlightStandCutoff``); thrustmap never clears it. The stop is the
+  output's cutoff target value (the value the core itself uses to stop the motor), verified by
+  reading the output back and a newer sample of its signal.
+
+Assumed units (the package does not state them): rotation speed in Hz (revolutions per second),
+temperatures in °C.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import parse_qsl, urlsplit
+
+from thrustmap.core.clock import Clock
+from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
+from thrustmap.core.units import SCALES
+from thrustmap.rig.interfaces import (
+    DeviceAbort,
+    DeviceIdentity,
+    Stand,
+    StandSample,
+    Telemetry,
+    ThrottleOutput,
+)
+
+log = logging.getLogger(__name__)
+
+SCHEME = "flightstand"
+DEFAULT_PORT = 50051
+HEARTBEAT_PERIOD_S = 0.25  # the service asks for one call per second at least; 1/2 s works
+CALL_TIMEOUT_S = 1.0
+SAMPLE_QUEUE_GROUPS = 20_000  # sample groups buffered between two reads (200 s at 100 Hz)
+TARE_TIMEOUT_S = 10.0
+#: thrust below this while the ESC is well above its stop is not a pulling propeller's ...
+NEGATIVE_THRUST_N = -0.05
+NEGATIVE_THRUST_ESC_FRACTION = 0.15  # ... above the stop by this fraction of the range ...
+NEGATIVE_THRUST_SAMPLES = 5  # ... in this many samples in a row (0.5 s at 10 Hz)
+VERIFY_WAIT_S = 1.0  # for a sample of the ESC signal taken after the stop
+
+#: thrustmap stream -> the core's input types for it, in order of preference
+STREAMS: dict[str, tuple[str, ...]] = {
+    "thrust_n": ("FORCE_FZ",),
+    "torque_nm": ("TORQUE_MZ",),
+    "voltage_v": ("VOLTAGE_HV_INPUT",),
+    "current_a": ("CURRENT_HALL_CURRENT",),
+    "rpm": ("ROTATION_SPEED_FREQUENCY",),
+    "temperature_c": ("TEMPERATURE_PROBE", "TEMPERATURE_IR", "TEMPERATURE_PT100"),
+    "esc_us": ("OUTPUT_VALUE_ESC_SIGNAL",),
+}
+#: stream -> factor from the core's value (SI; rotation speed assumed in Hz)
+FACTORS = {"rpm": 60.0}
+#: limit field -> the stream its cutoff is installed on
+LIMIT_STREAMS = {
+    "max_thrust_n": "thrust_n",
+    "max_current_a": "current_a",
+    "max_temperature_c": "temperature_c",
+}
+
+
+class FlightStandError(ThrustmapError):
+    """The core refused a call or cannot be reached."""
+
+
+class FlightStandCutoff(DeviceAbort):
+    """The Flight Stand core holds a cutoff: its outputs are at their cutoff targets."""
+
+
+class ThrustReadsNegative(DeviceAbort):
+    """The thrust input reads a pulling propeller negative: the data would be unusable."""
+
+
+def _package() -> tuple[Any, Any, Any]:
+    """The official package's generated modules and grpc (``pip install thrustmap[flightstand]``)."""
+    # gRPC's C core logs to stderr on its own (a refused bind, a dropped link): thrustmap says
+    # what happened in one line itself; GRPC_VERBOSITY set by the user wins
+    os.environ.setdefault("GRPC_VERBOSITY", "NONE")
+    try:
+        import grpc
+        from FlightStand import flight_stand_api_v1_pb2 as fs
+        from FlightStand import flight_stand_api_v1_pb2_grpc as fs_grpc
+    except ImportError as exc:
+        raise ConfigError(
+            "flightstand:// needs Tyto's official Python API: pip install 'thrustmap[flightstand]'"
+            f" ({exc})"
+        ) from None
+    return fs, fs_grpc, grpc
+
+
+@dataclass(frozen=True)
+class FlightStandUrl:
+    address: str  # host:port
+    board: str | None = None
+    clear_cutoff: bool = False
+    timeout_s: float = CALL_TIMEOUT_S
+
+
+def parse_url(url: str) -> FlightStandUrl:
+    """``flightstand://HOST[:PORT][?board=NAME&clear_cutoff=1&timeout=S]``."""
+    parts = urlsplit(url)
+    if parts.scheme.lower() != SCHEME or not parts.hostname:
+        raise ConfigError(
+            f"{url}: expected flightstand://HOST:PORT (e.g. flightstand://127.0.0.1:50051)"
+        )
+    try:
+        port = parts.port or DEFAULT_PORT
+    except ValueError:
+        raise ConfigError(f"{url}: the port must be a number 1..65535") from None
+    options = dict(parse_qsl(parts.query, keep_blank_values=True))
+    unknown = sorted(set(options) - {"board", "clear_cutoff", "timeout"})
+    if unknown:
+        raise ConfigError(
+            f"{url}: unknown option(s) {', '.join(unknown)}; expected board, clear_cutoff, timeout"
+        )
+    try:
+        timeout_s = float(options.get("timeout", CALL_TIMEOUT_S))
+    except ValueError:
+        timeout_s = -1.0
+    if not 0.05 <= timeout_s <= 30.0:
+        raise ConfigError(f"{url}: timeout={options['timeout']!r}: expected seconds, 0.05 to 30")
+    host = parts.hostname
+    address = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    clear = options.get("clear_cutoff", "0").lower() in ("1", "true", "yes")
+    return FlightStandUrl(address, options.get("board") or None, clear, timeout_s)
+
+
+def _seconds(ts: Any) -> float:
+    return float(ts.seconds) + float(ts.nanos) * 1e-9
+
+
+class FlightStandClient:
+    """The gRPC channel to a core: every call with a deadline, errors as ``FlightStandError``;
+    the heartbeat thread; the sample stream thread."""
+
+    def __init__(self, address: str, *, timeout_s: float = CALL_TIMEOUT_S) -> None:
+        self.fs, fs_grpc, self.grpc = _package()
+        self.address = address
+        self.timeout_s = timeout_s
+        self.channel = self.grpc.insecure_channel(address)
+        self.stub = fs_grpc.FlightStandStub(self.channel)
+        self._heartbeat_stop = threading.Event()
+        self._heartbeat: threading.Thread | None = None
+        self.heartbeat_ok_s = time.monotonic()
+        self.heartbeat_error: str | None = None
+        self._watch: Any = None
+        self._watch_thread: threading.Thread | None = None
+        self.groups: deque[Any] = deque(maxlen=SAMPLE_QUEUE_GROUPS)
+        self.groups_dropped = 0
+        self.watch_error: str | None = None
+        self._lock = threading.Lock()
+        self._watch_stop = threading.Event()
+        self._ack = threading.Event()
+
+    def call(self, method: str, request: Any, *, timeout_s: float | None = None) -> Any:
+        try:
+            return getattr(self.stub, method)(request, timeout=timeout_s or self.timeout_s)
+        except self.grpc.RpcError as exc:
+            raise FlightStandError(
+                f"Flight Stand core at {self.address}: {method} failed: "
+                f"{exc.code().name} {exc.details() or ''}".rstrip()
+            ) from None
+
+    def code_of(self, exc: BaseException) -> str:
+        text = str(exc)
+        for code in ("FAILED_PRECONDITION", "UNAVAILABLE", "DEADLINE_EXCEEDED", "NOT_FOUND"):
+            if f" {code}" in text:
+                return code
+        return ""
+
+    # -- heartbeat ----------------------------------------------------------------------------
+    def start_heartbeat(self) -> None:
+        if self._heartbeat is not None:
+            return
+        self._heartbeat_stop.clear()
+        self.heartbeat_ok_s = time.monotonic()
+        self._heartbeat = threading.Thread(
+            target=self._beat, name="flightstand-heartbeat", daemon=True
+        )
+        self._heartbeat.start()
+
+    def _beat(self) -> None:
+        request = self.fs.GetServerStatusRequest()
+        while not self._heartbeat_stop.is_set():
+            try:
+                self.stub.GetServerStatus(request, timeout=2 * HEARTBEAT_PERIOD_S)
+                self.heartbeat_ok_s = time.monotonic()
+                self.heartbeat_error = None
+            except self.grpc.RpcError as exc:
+                self.heartbeat_error = f"{exc.code().name} {exc.details() or ''}".rstrip()
+            except Exception as exc:  # the channel closed under us
+                self.heartbeat_error = str(exc)
+            self._heartbeat_stop.wait(HEARTBEAT_PERIOD_S)
+
+    def stop_heartbeat(self) -> None:
+        self._heartbeat_stop.set()
+        if self._heartbeat is not None:
+            self._heartbeat.join(timeout=2.0)
+            self._heartbeat = None
+
+    # -- samples ------------------------------------------------------------------------------
+    def start_watch(self) -> None:
+        """``WatchSamples``, used as the service requires: a request, then one more after each
+        response (the acknowledgement); responses are read on a thread into a bounded queue."""
+        self._watch_stop.clear()
+        self._watch = self.stub.WatchSamples(self._watch_requests())
+        self._watch_thread = threading.Thread(
+            target=self._read_watch, name="flightstand-samples", daemon=True
+        )
+        self._watch_thread.start()
+
+    def _watch_requests(self) -> Iterator[Any]:
+        while not self._watch_stop.is_set():
+            yield self.fs.WatchSamplesRequest()
+            self._ack.wait(timeout=1.0)
+            self._ack.clear()
+
+    def _read_watch(self) -> None:
+        try:
+            for response in self._watch:
+                with self._lock:
+                    room = self.groups.maxlen or 0
+                    extra = len(self.groups) + len(response.sample_groups) - room
+                    if extra > 0:
+                        self.groups_dropped += extra
+                    self.groups.extend(response.sample_groups)
+                self._ack.set()
+            if not self._watch_stop.is_set():
+                self.watch_error = "the core ended the sample stream"
+        except self.grpc.RpcError as exc:
+            if exc.code() != self.grpc.StatusCode.CANCELLED or not self._watch_stop.is_set():
+                self.watch_error = (
+                    f"sample stream: {exc.code().name} {exc.details() or ''}".rstrip()
+                )
+        except Exception as exc:
+            self.watch_error = f"sample stream: {exc}"
+
+    def take_groups(self) -> list[Any]:
+        with self._lock:
+            out = list(self.groups)
+            self.groups.clear()
+        return out
+
+    def close(self) -> None:
+        self.stop_heartbeat()
+        self._watch_stop.set()
+        self._ack.set()
+        if self._watch is not None:
+            self._watch.cancel()
+        if self._watch_thread is not None:
+            self._watch_thread.join(timeout=2.0)
+        self.channel.close()
+
+
+def describe_cutoff(condition: Any, fs: Any, inputs: Mapping[str, Any]) -> str:
+    """'OUT_OF_RANGE_SIGNAL: Thrust (/boards/x/inputs/thrust) 3.06 above its cutoff 3'."""
+    kind = str(fs.CutoffConditionType.Name(condition.type))
+    if not condition.HasField("cutoff_trigger_signal"):
+        return kind
+    signal = condition.cutoff_trigger_signal.name
+    value = condition.cutoff_trigger_sample.value
+    inp = inputs.get(signal)
+    if inp is None:
+        return f"{kind}: signal {signal} at {value:.4g}"
+    what = f"{inp.display_name or inp.name} ({inp.name}) at {value:.4g}"
+    if inp.has_max_user_cutoff and value > inp.max_user_cutoff:
+        what += f", above its cutoff {inp.max_user_cutoff:.4g}"
+    elif inp.has_min_user_cutoff and value < inp.min_user_cutoff:
+        what += f", below its cutoff {inp.min_user_cutoff:.4g}"
+    return f"{kind}: {what}"
+
+
+class FlightStandStand(Stand):
+    """One board of a Flight Stand core as thrustmap's stand (see module)."""
+
+    def __init__(self, url: str, clock: Clock, *, client: FlightStandClient | None = None) -> None:
+        self.url = url
+        self.clock = clock
+        self.options = parse_url(url)
+        self.client = client or FlightStandClient(
+            self.options.address, timeout_s=self.options.timeout_s
+        )
+        self.fs = self.client.fs
+        self._offset_s: float | None = None
+        self._dropped_said = 0
+        self._negative_run = 0
+        self.esc_range_us: tuple[float, float] | None = None  # (stop, top), set by the output
+        self._saved_cutoffs: dict[str, Any] = {}  # input name -> its original Input
+        #: the heartbeat may go unanswered this long before the output reports a lost link
+        self.link_timeout_s = 2.0 * self.options.timeout_s
+        self.drives_esc = False
+        try:
+            self._discover()
+            #: the cutoff the core held when the stand was opened (commanding refuses it)
+            self.cutoff_at_open = self.cutoff()
+            self.client.start_watch()
+        except BaseException:
+            self.client.close()
+            raise
+
+    # -- discovery ----------------------------------------------------------------------------
+    def _discover(self) -> None:
+        fs = self.fs
+        try:
+            boards = self.client.call("ListBoards", fs.ListBoardsRequest()).boards
+        except FlightStandError as exc:
+            raise ConfigError(
+                f"cannot reach a Flight Stand core at {self.options.address} ({exc}); is the "
+                "Flight Stand software (or `thrustmap sim-serve flightstand`) running?"
+            ) from None
+        ready = [b for b in boards if b.ready and not b.disconnected]
+        self.board = self._choose(ready)
+        prefix = f"{self.board.name}/"
+        inputs = [i for i in self.client.call("ListInputs", fs.ListInputsRequest()).inputs
+                  if i.name.startswith(prefix) and not i.closed]  # fmt: skip
+        outputs = [o for o in self.client.call("ListOutputs", fs.ListOutputsRequest()).outputs
+                   if o.name.startswith(prefix) and not o.closed]  # fmt: skip
+        self.inputs: dict[str, Any] = {}  # stream -> fs.Input
+        for stream, type_names in STREAMS.items():
+            for type_name in type_names:
+                found = [i for i in inputs if i.input_type == fs.InputType.Value(type_name)]
+                if found:
+                    if len(found) > 1:
+                        log.info(
+                            "%s: %d %s inputs, using %s",
+                            self.url,
+                            len(found),
+                            type_name,
+                            found[0].name,
+                        )
+                    self.inputs[stream] = found[0]
+                    break
+        if "thrust_n" not in self.inputs:
+            raise ConfigError(
+                f"{self.url}: board {self.board.name} has no thrust input (FORCE_FZ); inputs: "
+                + (
+                    ", ".join(f"{i.name} {fs.InputType.Name(i.input_type)}" for i in inputs)
+                    or "none"
+                )
+            )
+        self.by_signal = {i.signal_name: i for i in inputs}
+        self.streams_by_signal = {i.signal_name: s for s, i in self.inputs.items()}
+        escs = [o for o in outputs if o.output_type == fs.ESC]
+        self.esc = escs[0] if escs else None
+        try:
+            stats = self.client.call("ListSignalStats", fs.ListSignalStatsRequest()).signal_stats
+            rates = {s.signal_name: s.update_rate_hz for s in stats}
+            self.rate_hz: float | None = rates.get(self.inputs["thrust_n"].signal_name)
+        except FlightStandError:
+            self.rate_hz = None
+
+    def _choose(self, boards: list[Any]) -> Any:
+        def names(b: Any) -> set[str]:
+            ident = dict(b.identification)
+            return {b.name, b.path, ident.get("displayName", ""), ident.get("serialNumber", "")} - {
+                ""
+            }
+
+        def label(b: Any) -> str:
+            shown = dict(b.identification).get("displayName", "")
+            return f"{b.name} ({shown})" if shown else b.name
+
+        where = self.options.address
+        if self.options.board is not None:
+            match = [b for b in boards if self.options.board in names(b)]
+            if len(match) == 1:
+                return match[0]
+            listed = ", ".join(label(b) for b in boards) or "none"
+            if not match:
+                raise ConfigError(
+                    f"no board '{self.options.board}' ready on the Flight Stand core at {where}; boards: {listed}"
+                )
+            raise ConfigError(
+                f"board '{self.options.board}' names {len(match)} boards on {where}: {listed}"
+            )
+        if not boards:
+            raise ConfigError(
+                f"no board is ready on the Flight Stand core at {where}: connect the stand (or create a simulated board)"
+            )
+        if len(boards) > 1:
+            raise ConfigError(
+                f"{len(boards)} boards on the Flight Stand core at {where}: "
+                f"{', '.join(label(b) for b in boards)}; choose one: flightstand://{where}?board=NAME"
+            )
+        return boards[0]
+
+    # -- cutoff ---------------------------------------------------------------------------------
+    def cutoff(self) -> str | None:
+        """The core's active cutoff, described, or None."""
+        core = self.client.call("GetCore", self.fs.GetCoreRequest())
+        if not core.HasField("cutoff_active"):
+            return None
+        return describe_cutoff(core.cutoff_active, self.fs, self.by_signal)
+
+    def check_cutoff(self, *, at_start: bool = False) -> None:
+        """Raise ``FlightStandCutoff`` while the core holds a cutoff. At the start, with
+        ``clear_cutoff=1`` in the URL, clear it instead (a warning says which)."""
+        active = self.cutoff()
+        if active is None:
+            return
+        if at_start and self.options.clear_cutoff:
+            log.warning("clearing the Flight Stand core's cutoff (%s), as the URL asks", active)
+            try:
+                self.client.call("ClearCutoff", self.fs.ClearCutoffRequest())
+            except FlightStandError as exc:
+                raise FlightStandCutoff(
+                    f"the Flight Stand core's cutoff ({active}) cannot be cleared: {exc}"
+                ) from None
+            return
+        if at_start:
+            raise FlightStandCutoff(
+                f"the Flight Stand core at {self.options.address} holds a cutoff ({active}): "
+                f"check the stand, then clear it in the Flight Stand software or add "
+                f"?clear_cutoff=1 to the URL"
+            )
+        raise FlightStandCutoff(f"the Flight Stand core cut off the stand: {active}")
+
+    # -- Stand ----------------------------------------------------------------------------------
+    def identify(self) -> DeviceIdentity:
+        fs = self.fs
+        ident = dict(self.board.identification)
+        sensors = ", ".join(
+            f"{stream} <- {i.display_name or i.name} ({fs.InputType.Name(i.input_type)})"
+            for stream, i in self.inputs.items()
+        )
+        details = {
+            "core": self.options.address,
+            "board_name": self.board.name,
+            "sensors": sensors,
+            "esc_output": "none" if self.esc is None else
+            f"{self.esc.name} ({fs.OutputProtocolType.Name(self.esc.protocol)}, "
+            f"{self.esc.min_user_value:g}-{self.esc.max_user_value:g} µs)",
+        }  # fmt: skip
+        if self.cutoff_at_open is not None:
+            details["cutoff_active"] = self.cutoff_at_open
+        if self.rate_hz:
+            details["sample_rate"] = (
+                f"{self.rate_hz:g} Hz at the core, 10 Hz streamed (WatchSamples)"
+            )
+        if ident.get("serialNumber"):
+            details["serial"] = ident["serialNumber"]
+        return DeviceIdentity(
+            kind="flightstand",
+            board=ident.get("displayName", self.board.name),
+            firmware_version=ident.get("firmwareVersion", ""),
+            details=details,
+        )
+
+    def read_samples(self) -> list[StandSample]:
+        if self.client.watch_error is not None:
+            raise FlightStandError(
+                f"Flight Stand core at {self.options.address}: {self.client.watch_error}"
+            )
+        groups = self.client.take_groups()
+        if self.client.groups_dropped > self._dropped_said:
+            log.warning(
+                "%d sample groups from the Flight Stand core were dropped (read too slowly)",
+                self.client.groups_dropped - self._dropped_said,
+            )
+            self._dropped_said = self.client.groups_dropped
+        out = []
+        thrust_signal = self.inputs["thrust_n"].signal_name
+        for group in groups:
+            values: dict[str, float] = {}
+            stamp: float | None = None
+            for sample in group.samples:
+                stream = self.streams_by_signal.get(sample.signal_name)
+                if stream is None:
+                    continue
+                values[stream] = sample.value * FACTORS.get(stream, 1.0)
+                if sample.signal_name == thrust_signal:
+                    stamp = _seconds(sample.sample_time)
+            if stamp is None or not math.isfinite(values.get("thrust_n", math.nan)):
+                continue
+            self._question_sign(values)
+            if self._offset_s is None:
+                self._offset_s = self.clock.now_s() - stamp
+            out.append(
+                StandSample(
+                    time_s=stamp + self._offset_s,
+                    thrust_n=values["thrust_n"],
+                    torque_nm=values.get("torque_nm"),
+                    voltage_v=values.get("voltage_v"),
+                    current_a=values.get("current_a"),
+                    rpm=values.get("rpm"),
+                    temperature_c=values.get("temperature_c"),
+                    throttle_native=values.get("esc_us") if self.drives_esc else None,
+                )
+            )
+        return out
+
+    def _question_sign(self, values: Mapping[str, float]) -> None:
+        """A thrust that stays negative while the ESC output drives the motor is not used: the
+        stand reads a pulling propeller negative (or the propeller is mounted to push)."""
+        esc_us = values.get("esc_us")
+        if self.esc_range_us is None or esc_us is None:
+            return
+        stop, top = self.esc_range_us
+        driven = esc_us >= stop + NEGATIVE_THRUST_ESC_FRACTION * (top - stop)
+        if driven and values["thrust_n"] < NEGATIVE_THRUST_N:
+            self._negative_run += 1
+        else:
+            self._negative_run = 0
+        if self._negative_run >= NEGATIVE_THRUST_SAMPLES:
+            raise ThrustReadsNegative(
+                f"the Flight Stand's thrust input reads {values['thrust_n']:.3g} N with the ESC at "
+                f"{esc_us:g} µs: a pulling propeller must read positive; reverse the thrust input "
+                "in the Flight Stand software (or check the propeller's direction)"
+            )
+
+    def tare(self, service: Callable[[], None] | None = None) -> None:
+        """``TareInputs``, then wait until the core says it is done (``service`` between)."""
+        fs = self.fs
+        self.client.call("TareInputs", fs.TareInputsRequest(), timeout_s=TARE_TIMEOUT_S)
+        deadline = self.clock.now_s() + TARE_TIMEOUT_S
+        while self.client.call("GetCore", fs.GetCoreRequest()).inputs_taring:
+            if self.clock.now_s() > deadline:
+                raise FlightStandError(
+                    f"the Flight Stand core was still taring after {TARE_TIMEOUT_S:.0f} s"
+                )
+            if service is not None:
+                service()
+            self.clock.sleep_s(0.05)
+        self.client.take_groups()  # readings from before the tare
+        log.info("Flight Stand inputs tared through the API")
+
+    def install_limits(self, limits: Any) -> list[str]:
+        """thrustmap's limits as the inputs' user cutoffs (thrust, current, temperature), only
+        ever lowering one the user set; the originals are restored on close. Returns what was
+        installed ("thrust_n <= 20 N", ...)."""
+        fs = self.fs
+        link_timeout_s = getattr(limits, "link_timeout_s", None)
+        if link_timeout_s is not None and math.isfinite(link_timeout_s) and link_timeout_s > 0:
+            self.link_timeout_s = float(link_timeout_s)
+            # a call on a silent link must not outlast the link timeout
+            self.client.timeout_s = min(self.client.timeout_s, self.link_timeout_s)
+        done = []
+        for field_name, stream in LIMIT_STREAMS.items():
+            inp = self.inputs.get(stream)
+            value = getattr(limits, field_name, None)
+            if inp is None or value is None or not math.isfinite(value):
+                continue
+            if inp.has_max_user_cutoff and inp.max_user_cutoff <= value:
+                done.append(f"{stream} <= {inp.max_user_cutoff:g} (the stand's own, kept)")
+                continue
+            self._saved_cutoffs.setdefault(inp.name, fs.Input().FromString(inp.SerializeToString()))
+            update = fs.Input(name=inp.name, max_user_cutoff=value, has_max_user_cutoff=True)
+            mask = _mask(["max_user_cutoff", "has_max_user_cutoff"])
+            new = self.client.call("UpdateInput", fs.UpdateInputRequest(input=update, mask=mask))
+            if not (
+                new.has_max_user_cutoff
+                and abs(new.max_user_cutoff - value) <= 1e-6 * max(1.0, value)
+            ):
+                raise FlightStandError(
+                    f"the core did not take the cutoff {stream} <= {value:g} on {inp.name}"
+                )
+            self.inputs[stream] = new
+            self.by_signal[new.signal_name] = new
+            done.append(f"{stream} <= {value:g}")
+        log.info("installed as the Flight Stand core's cutoffs: %s", "; ".join(done) or "none")
+        return done
+
+    def _restore_cutoffs(self) -> None:
+        fs = self.fs
+        for name, original in self._saved_cutoffs.items():
+            update = fs.Input(name=name, max_user_cutoff=original.max_user_cutoff,
+                              has_max_user_cutoff=original.has_max_user_cutoff)  # fmt: skip
+            try:
+                self.client.call("UpdateInput", fs.UpdateInputRequest(
+                    input=update, mask=_mask(["max_user_cutoff", "has_max_user_cutoff"])))  # fmt: skip
+            except FlightStandError as exc:
+                log.warning("could not restore the user cutoff of %s: %s", name, exc)
+        self._saved_cutoffs.clear()
+
+    def close(self) -> None:
+        try:
+            self._restore_cutoffs()
+        finally:
+            self.client.close()
+
+
+def _mask(paths: list[str]) -> Any:
+    from google.protobuf.field_mask_pb2 import FieldMask
+
+    return FieldMask(paths=paths)
+
+
+class FlightStandEscOutput(ThrottleOutput):
+    """The board's ESC output as the throttle output, in PWM µs (see module)."""
+
+    throttle_scale = SCALES["pwm"]
+
+    def __init__(self, stand: FlightStandStand, motor: int = 0) -> None:
+        if stand.esc is None:
+            raise ConfigError(f"{stand.url}: board {stand.board.name} has no ESC output")
+        self.stand = stand
+        self.client = stand.client
+        self.fs = stand.fs
+        self.motor = motor
+        esc = stand.esc
+        cut = esc.cutoff_target
+        # the stop is the value the core itself stops the motor with
+        self.stop_us = float(cut.target_value) if cut.active else float(esc.min_user_value)
+        self.max_us = float(esc.max_user_value)
+        self.step_us = float(esc.step_size)
+        if not self.stop_us < self.max_us:
+            raise ConfigError(
+                f"{esc.name}: its stop value {self.stop_us:g} is not below its range top {self.max_us:g}"
+            )
+        self._commanded = False
+        self._stop_sent_at: float | None = None  # core group time seen when the stop went out
+        self._stop_verified = False  # verified since the last command
+        self.esc: Any = esc
+        stand.check_cutoff(at_start=True)  # never command over a cutoff; clear only if asked
+        stand.esc_range_us = (self.stop_us, self.max_us)
+        stand.drives_esc = True
+        self.client.start_heartbeat()
+
+    def identify(self) -> DeviceIdentity:
+        esc = self.esc
+        return DeviceIdentity(
+            kind="flightstand-esc",
+            board=self.stand.identify().board,
+            motor_protocol=self.fs.OutputProtocolType.Name(esc.protocol),
+            motor_count=1,
+        )
+
+    def _write(self, active: bool, value_us: float) -> None:
+        fs = self.fs
+        target = fs.OutputTarget(active=active, target_value=value_us)
+        request = fs.UpdateOutputRequest(
+            output=fs.Output(name=self.esc.name, output_target=target),
+            mask=_mask(["output_target"]),
+        )
+        self.client.call("UpdateOutput", request)
+
+    def _check_link(self) -> None:
+        age = time.monotonic() - self.client.heartbeat_ok_s
+        if age > self.stand.link_timeout_s:
+            raise FlightStandError(
+                f"no heartbeat answer from the Flight Stand core for {age:.1f} s"
+                + (f" ({self.client.heartbeat_error})" if self.client.heartbeat_error else "")
+            )
+
+    def set_throttle(self, values: Mapping[int, float]) -> None:
+        if set(values) - {self.motor}:
+            raise SafetyError(
+                f"the Flight Stand's ESC output drives one motor ({self.motor}), asked {sorted(values)}"
+            )
+        us = float(values.get(self.motor, self.stop_us))
+        if not math.isfinite(us):
+            raise SafetyError(f"throttle {us} µs is not a number")
+        us = min(max(us, self.stop_us), self.max_us)
+        self._check_link()
+        try:
+            self._write(True, us)
+        except FlightStandError as exc:
+            if self.client.code_of(exc) == "FAILED_PRECONDITION":
+                self.stand.check_cutoff()  # raises naming the cutoff, if that was it
+            raise
+        self._commanded = True
+        self._stop_sent_at = None
+        self._stop_verified = False
+
+    def keepalive(self) -> None:
+        self._check_link()
+
+    def stop(self) -> None:
+        try:
+            self._write(True, self.stop_us)
+        except FlightStandError as exc:
+            # under a cutoff the core holds the output at its cutoff target: verify reads it
+            if self.client.code_of(exc) != "FAILED_PRECONDITION":
+                raise
+        # the newest group now: any group taken after it was taken after the stop was applied
+        self._stop_sent_at = self._latest_group_time()
+
+    def _latest_group_time(self) -> float:
+        group = self.client.call("ListSamples", self.fs.ListSamplesRequest()).sample_group
+        return _seconds(group.group_time)
+
+    def verify_stopped(self) -> bool:
+        """The output's target is the stop (or the output is off), and a sample of its signal
+        taken after the stop reads it back."""
+        ok = self._verify()
+        if ok and self._stop_sent_at is not None:
+            self._stop_verified = True
+        return ok
+
+    def _verify(self) -> bool:
+        esc = self.client.call("GetOutput", self.fs.GetOutputRequest(name=self.esc.name))
+        target = esc.output_target
+        if target.active and target.target_value > self.stop_us + self.step_us / 2:
+            return False
+        after = self._stop_sent_at if self._stop_sent_at is not None else -math.inf
+        deadline = time.monotonic() + VERIFY_WAIT_S
+        while True:  # a sample of the output's signal taken after the stop, reading the stop
+            group = self.client.call("ListSamples", self.fs.ListSamplesRequest()).sample_group
+            if _seconds(group.group_time) > after:
+                for sample in group.samples:
+                    if sample.signal_name == esc.signal_name and (
+                        not sample.active or sample.value <= self.stop_us + self.step_us / 2
+                    ):
+                        return True
+            if time.monotonic() > deadline:
+                return False  # no such readback (or none of the signal at all): not verified
+            time.sleep(0.01)
+
+    def read_telemetry(self) -> Telemetry:
+        """Checks the core's cutoff (raises ``FlightStandCutoff`` naming it) and the heartbeat."""
+        self._check_link()
+        self.stand.check_cutoff()
+        return Telemetry(self.stand.clock.now_s())
+
+    def close(self) -> None:
+        """Switch the ESC signal off once the stop was verified, then end the heartbeat (the
+        core's own cutoff stops the output if it is still active then)."""
+        try:
+            if self._commanded and (self._stop_verified or self.verify_stopped()):
+                self._write(False, self.stop_us)
+        except ThrustmapError as exc:
+            log.warning("could not switch the ESC signal off after the stop: %s", exc)
+        finally:
+            self.client.stop_heartbeat()
+
+
+def open_flightstand(url: str, clock: Clock) -> FlightStandStand:
+    return FlightStandStand(url, clock)
