@@ -9,9 +9,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from thrustmap.core.clock import Clock
-from thrustmap.core.errors import SafetyError, ThrustmapError
+from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.rig.devices.detect import resolve
 from thrustmap.rig.devices.registry import Detection, driver
 from thrustmap.rig.interfaces import DeviceIdentity, StandSample, Telemetry
@@ -90,6 +91,7 @@ def probe_device(
     line_preset: str | None = None,
     line_spec_file: str | None = None,
     seconds: float = 1.0,
+    signing_key: Any = None,
 ) -> ProbeReport:
     """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
     output (its exit commands stop and verifies it, as always) but no motor is commanded."""
@@ -97,9 +99,15 @@ def probe_device(
     from thrustmap.rig.stand.line import LineStand
 
     found = resolve(url, clock, kind, baudrate)
+    if signing_key is not None and found.kind != "mavlink":
+        raise ConfigError(
+            f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
+        )
     report = ProbeReport(url, found)
     if driver(found.kind).role == "fc":
-        output = open_throttle_output(url, clock, kind=kind or found.kind, baudrate=baudrate)
+        output = open_throttle_output(
+            url, clock, kind=kind or found.kind, baudrate=baudrate, signing_key=signing_key
+        )
         with output:
             try:
                 report.identity = output.identify()
