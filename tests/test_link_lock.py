@@ -10,6 +10,7 @@ the host side is the real CLI), the intruder a second local socket sending HEART
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -285,3 +286,122 @@ def test_spin_completes_on_a_quiet_udp_link() -> None:
         )
     assert done.exit_code == 0, done.output
     assert "stopped (verified)" in done.output
+
+
+# ------------------------------------------------------------------------------------------
+# tcpin: the first connection is the peer; a reconnect from elsewhere is refused
+# ------------------------------------------------------------------------------------------
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def connect_when_listening(port: int) -> socket.socket:
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=2)
+        except ConnectionRefusedError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.02)
+
+
+def test_tcpin_talks_to_its_first_connection_only() -> None:
+    port = free_tcp_port()
+    endpoint: Any = open_transport(f"tcpin://127.0.0.1:{port}", timeout=0.5)
+    first = connect_when_listening(port)
+    try:
+        first.sendall(b"vehicle")
+        assert endpoint.read(100) == b"vehicle"
+        second = socket.create_connection(("127.0.0.1", port), timeout=2)
+        second.sendall(b"intruder")
+        assert endpoint.read(100) == b""  # accepted only to be closed
+        with contextlib.suppress(ConnectionResetError):  # a reset: its bytes were never read
+            assert second.recv(100) == b""  # closed at once, never answered
+        second.close()
+        endpoint.write(b"command")
+        assert first.recv(100) == b"command"
+        assert endpoint.intrusions == 1 and endpoint.last_foreign is not None
+        first.close()
+        with pytest.raises(OSError, match="closed the connection"):
+            for _ in range(20):
+                endpoint.read(100)
+    finally:
+        endpoint.close()
+
+
+class TcpVehicle:
+    """The vehicle connects to ``tcpin`` as a TCP client (once it listens), pumped by a thread
+    (bounded: 30 s at most, stopped on exit)."""
+
+    def __init__(self, vehicle: SimMavlinkVehicle, port: int) -> None:
+        self.vehicle = vehicle
+        self.port = port
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        clock = MonotonicClock()
+        with connect_when_listening(self.port) as sock:
+            sock.settimeout(0.005)
+            deadline = time.monotonic() + 30
+            while not self._stop.is_set() and time.monotonic() < deadline:
+                try:
+                    data = sock.recv(65536)
+                    if not data:
+                        return
+                    self.vehicle.write(data, clock.now_s())
+                except TimeoutError:
+                    pass
+                except OSError:
+                    return
+                out = self.vehicle.read(clock.now_s())
+                if out:
+                    sock.sendall(out)
+
+    def __enter__(self) -> TcpVehicle:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def test_spin_on_tcpin_aborts_when_a_peer_connects_from_elsewhere() -> None:
+    port = free_tcp_port()
+    vehicle = ArduPilotVehicle(ConstantPlant())
+    received: list[int] = []
+    stop = threading.Event()
+
+    def intrude() -> None:
+        deadline = time.monotonic() + 30
+        while not vehicle.motor_test_running and time.monotonic() < deadline:
+            if stop.wait(0.01):
+                return
+        with socket.create_connection(("127.0.0.1", port), timeout=2) as sock:
+            received.append(sock.getsockname()[1])
+            sock.sendall(heartbeat_bytes(1))
+            try:  # closed at once (a reset: our heartbeat was never read), not one byte
+                received.append(len(sock.recv(65536)))
+            except ConnectionResetError:
+                received.append(0)
+
+    intruder = threading.Thread(target=intrude, daemon=True)
+    with TcpVehicle(vehicle, port):
+        intruder.start()
+        done = CliRunner().invoke(
+            cli,
+            ["spin", f"tcpin:127.0.0.1:{port}", "--motor", "1", "--throttle", "10"]
+            + ["--seconds", "4", "--ramp", "0", "--yes"],
+        )
+        stop.set()
+        intruder.join(timeout=5)
+    assert len(received) == 2, done.output
+    assert done.exit_code == 1, done.output
+    assert f"127.0.0.1:{received[0]} sent to the vehicle link" in done.output
+    assert "stopped (verified)" in done.output
+    assert received[1] == 0
+    assert not vehicle.motor_test_running

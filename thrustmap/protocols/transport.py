@@ -74,8 +74,8 @@ def transport_chain(transport: Any) -> list[Any]:
 
 def locked_endpoint(transport: Any) -> Any:
     """The network endpoint under ``transport`` that locks onto one peer (``udpin``,
-    ``udpout``, ``tcpin``: it has ``foreign_datagrams`` and ``identifies_peer``), or None."""
+    ``udpout``, ``tcpin``: it has ``intrusions`` and ``identifies_peer``), or None."""
     for t in transport_chain(transport):
-        if hasattr(t, "foreign_datagrams") and hasattr(t, "identifies_peer"):
+        if hasattr(t, "intrusions") and hasattr(t, "identifies_peer"):
             return t
     return None

@@ -23,8 +23,9 @@ Differences from the stock ``mavutil`` classes, all so tests never sleep for rea
 
 ``open_mavlink(url, clock=..., **serial_kwargs)`` opens the transport by URL and wraps it. Besides
 thrustmap's URLs and device paths it takes pymavlink's spellings: ``udpin:HOST:PORT``,
-``udpout:HOST:PORT``, ``udp:`` (= ``udpin:``) and ``tcp:HOST:PORT`` (= ``socket://HOST:PORT``),
-also inside ``record://`` (``record://udpin:0.0.0.0:14550?file=run.jsonl``).
+``udpout:HOST:PORT``, ``udp:`` (= ``udpin:``), ``tcp:HOST:PORT`` (= ``socket://HOST:PORT``) and
+``tcpin:HOST:PORT`` (listen for one peer, ``protocol_tcpin``), also inside ``record://``
+(``record://udpin:0.0.0.0:14550?file=run.jsonl``).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from thrustmap.core.clock import Clock, MonotonicClock
 from thrustmap.protocols.mavlink.codec import decode_heartbeat
 from thrustmap.protocols.transcript import TransportError
 from thrustmap.protocols.transport import SerialLike, locked_endpoint, open_transport
+from thrustmap.protocols.urlhandlers.protocol_tcpin import normalize_tcpin_url
 from thrustmap.protocols.urlhandlers.protocol_udpin import is_udp_url, normalize_udp_url
 
 log = logging.getLogger(__name__)
@@ -226,7 +228,7 @@ def mavutil_connection(
 def is_own_transport(url: str) -> bool:
     """``open_mavlink`` has a transport for it (so it can be recorded and replayed)."""
     scheme = url.split(":", 1)[0].lower()
-    return scheme not in ("tcpin", "udpbcast")
+    return scheme != "udpbcast"
 
 
 def normalize_mavlink_url(url: str) -> str:
@@ -238,6 +240,8 @@ def normalize_mavlink_url(url: str) -> str:
     scheme, sep, rest = url.partition(":")
     if sep and scheme.lower() == "tcp" and not rest.startswith("//"):
         return f"socket://{rest}"
+    if sep and scheme.lower() == "tcpin":
+        return normalize_tcpin_url(url)
     return url
 
 

@@ -114,6 +114,11 @@ class UdpSerial(SerialBase):
         return self._remote
 
     @property
+    def intrusions(self) -> int:
+        """Datagrams from other addresses since the lock (the interface ``tcpin`` shares)."""
+        return self.foreign_datagrams
+
+    @property
     def peer(self) -> str | None:
         """The locked peer as ``host:port``."""
         return None if self._remote is None else f"{self._remote[0]}:{self._remote[1]}"

@@ -351,7 +351,7 @@ class MavlinkSession:
         """Raise ``LinkIntruder`` if another address sent to the link (datagrams dropped by
         the endpoint) while motors are ``commanded``; otherwise only log it."""
         endpoint = self.endpoint
-        count = 0 if endpoint is None else int(endpoint.foreign_datagrams)
+        count = 0 if endpoint is None else int(endpoint.intrusions)
         if count == 0:
             return
         if commanded:
@@ -361,12 +361,13 @@ class MavlinkSession:
             raise LinkIntruder(
                 f"{last[0]}:{last[1]} sent to the vehicle link while a motor was commanded "
                 f"(the link is locked to {self.peer}): motor stopped through the locked peer, "
-                f"run aborted; {count} datagram(s) dropped, none answered (from {names})"
+                f"run aborted; {count} datagram(s)/connection(s) dropped, none answered "
+                f"(from {names})"
             )
         if count > self._intruders_reported:
             self._intruders_reported = count
             log.warning(
-                "%d datagram(s) from other addresses dropped (the link is locked to %s)",
+                "%d datagram(s)/connection(s) from other addresses dropped (locked to %s)",
                 count,
                 self.peer,
             )
