@@ -405,3 +405,58 @@ def test_spin_on_tcpin_aborts_when_a_peer_connects_from_elsewhere() -> None:
     assert "stopped (verified)" in done.output
     assert received[1] == 0
     assert not vehicle.motor_test_running
+
+
+# ------------------------------------------------------------------------------------------
+# MSP over UDP: the same lock, the same abort
+# ------------------------------------------------------------------------------------------
+def test_msp_over_udpin_aborts_on_an_intruder_while_motors_run() -> None:
+    """A UDP MSP bridge that speaks first (one datagram) locks the endpoint; a motor command
+    goes out; then a datagram from another address: the next telemetry read raises
+    ``LinkIntruder`` naming it, the stop goes to the bridge, the intruder hears nothing."""
+    from thrustmap.rig.fc.msp import MspThrottleOutput
+    from thrustmap.rig.sim.msp_peer import MspPeer
+
+    port = free_udp_port()
+    peer = MspPeer(ConstantPlant(4))
+    clock = MonotonicClock()
+    fc_port = open_transport(f"udpin://127.0.0.1:{port}")
+    bridge, intruder = udp_socket(), udp_socket()
+    stop = threading.Event()
+
+    def serve() -> None:
+        bridge.sendto(b"\x00", ("127.0.0.1", port))  # hello: the bridge speaks first
+        deadline = time.monotonic() + 30
+        while not stop.is_set() and time.monotonic() < deadline:
+            try:
+                data, host = bridge.recvfrom(65535)
+                peer.write(data, clock.now_s())
+            except BlockingIOError:
+                host = ("127.0.0.1", port)
+            out = peer.read(clock.now_s())
+            if out:
+                bridge.sendto(out, host)
+            stop.wait(0.002)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    out = MspThrottleOutput(fc_port, clock, watchdog=False)
+    try:
+        out.identify()
+        out.set_throttle({0: out.throttle_scale.lo + 0.1 * out.throttle_scale.span})
+        out.read_telemetry()
+        intruder.sendto(b"$M<\x00\x00\x00", ("127.0.0.1", port))
+        time.sleep(0.05)
+        host, iport = intruder.getsockname()
+        with pytest.raises(LinkIntruder, match=f"{host}:{iport} sent to the vehicle link"):
+            for _ in range(50):
+                out.read_telemetry()
+                time.sleep(0.01)
+        assert out.stop_and_verify() is True
+        assert drain(intruder) == 0
+    finally:
+        out.close()
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        intruder.close()

@@ -45,20 +45,17 @@ from thrustmap.core.errors import ConfigError, DataFormatError, SafetyError, Thr
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.params import ParamEncoding, encoding_from_capabilities
 from thrustmap.protocols.mavlink.signing import is_signed
-from thrustmap.protocols.transport import locked_endpoint
+from thrustmap.rig.fc.link_lock import IntruderWatch, LinkIntruder
 from thrustmap.rig.fc.link_timing import ReplyTimer
 
 log = logging.getLogger(__name__)
 
+__all__ = ["LinkIntruder"]  # re-exported: the MAVLink drivers' errors live here
 MAX_FOREIGN = 32  # distinct foreign system ids remembered (the count goes on)
 
 
 class MavlinkLinkLost(ThrustmapError):
     """No HEARTBEAT or no COMMAND_ACK in time, or the transport failed: the link is gone."""
-
-
-class LinkIntruder(SafetyError):
-    """Another address sent to the locked vehicle link while motors were commanded."""
 
 
 class SigningRequired(ConfigError):
@@ -221,8 +218,8 @@ class MavlinkSession:
         #: vehicle messages received with / without a signature (for ``signing_problem``)
         self.signed_messages = 0
         self.unsigned_messages = 0
-        self.endpoint = locked_endpoint(getattr(link, "port", None))
-        self._intruders_reported = 0
+        self.intruders = IntruderWatch(getattr(link, "port", None))
+        self.endpoint = self.intruders.endpoint
 
     # -- receiving ----------------------------------------------------------------------------
     def _from_target(self, msg: Any) -> bool:
@@ -350,27 +347,7 @@ class MavlinkSession:
     def check_intruders(self, *, commanded: bool) -> None:
         """Raise ``LinkIntruder`` if another address sent to the link (datagrams dropped by
         the endpoint) while motors are ``commanded``; otherwise only log it."""
-        endpoint = self.endpoint
-        count = 0 if endpoint is None else int(endpoint.intrusions)
-        if count == 0:
-            return
-        if commanded:
-            senders = endpoint.foreign_senders
-            last = endpoint.last_foreign
-            names = ", ".join(f"{h}:{p} ({n})" for (h, p), n in senders.items())
-            raise LinkIntruder(
-                f"{last[0]}:{last[1]} sent to the vehicle link while a motor was commanded "
-                f"(the link is locked to {self.peer}): motor stopped through the locked peer, "
-                f"run aborted; {count} datagram(s)/connection(s) dropped, none answered "
-                f"(from {names})"
-            )
-        if count > self._intruders_reported:
-            self._intruders_reported = count
-            log.warning(
-                "%d datagram(s)/connection(s) from other addresses dropped (locked to %s)",
-                count,
-                self.peer,
-            )
+        self.intruders.check(commanded=commanded, peer_label=self.peer)
 
     def signing_problem(self) -> str | None:
         return signing_problem(self.link, self.signed_messages, self.unsigned_messages)
