@@ -27,8 +27,8 @@ from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.mavlink.link import open_mavlink
 from thrustmap.protocols.transport import open_transport
+from thrustmap.rig.fc.link_lock import LinkIntruder
 from thrustmap.rig.fc.mavlink import open_mavlink_output
-from thrustmap.rig.fc.mavlink_session import LinkIntruder
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle

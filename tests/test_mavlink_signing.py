@@ -176,6 +176,9 @@ def test_a_spoofed_unsigned_heartbeat_does_not_lock_a_signed_udp_link() -> None:
     try:
         hb = enc.heartbeat_message(mav.Autopilot.PX4, armed=False)
         spoofer.sendto(mav.MavlinkCodec(1, 1).encode(hb), ("127.0.0.1", port))
+        other = mav.MavlinkCodec(1, 1)
+        sign_mavlink(other.mav, SigningKey(OTHER_KEY), timestamp=link.mav.signing.timestamp)
+        spoofer.sendto(other.encode(hb), ("127.0.0.1", port))
         time.sleep(0.05)
         signer = mav.MavlinkCodec(1, 1)
         sign_mavlink(signer.mav, SigningKey(KEY), timestamp=link.mav.signing.timestamp)
@@ -184,6 +187,7 @@ def test_a_spoofed_unsigned_heartbeat_does_not_lock_a_signed_udp_link() -> None:
         assert msg is not None and is_signed(msg)
         assert link.port.remote == vehicle.getsockname()
         assert link.heartbeats_refused_unsigned == 1
+        assert link.heartbeats_refused_bad_signature == 1
     finally:
         link.close()
         spoofer.close()

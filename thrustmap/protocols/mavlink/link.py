@@ -39,6 +39,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.core.clock import Clock, MonotonicClock
 from thrustmap.protocols.mavlink.codec import decode_heartbeat
+from thrustmap.protocols.mavlink.signing import is_signed
 from thrustmap.protocols.transcript import TransportError
 from thrustmap.protocols.transport import SerialLike, locked_endpoint, open_transport
 from thrustmap.protocols.urlhandlers.protocol_tcpin import normalize_tcpin_url
@@ -105,7 +106,7 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
             plain.robust_parsing = True
             for msg in plain.parse_buffer(datagram) or []:
                 if msg.get_type() == "HEARTBEAT" and decode_heartbeat(msg).is_vehicle:
-                    if msg.get_signed():
+                    if is_signed(msg):
                         self.heartbeats_refused_bad_signature += 1
                     else:
                         self.heartbeats_refused_unsigned += 1

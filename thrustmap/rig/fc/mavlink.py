@@ -22,10 +22,10 @@ from thrustmap.protocols.mavlink.codec import decode_flight_sw_version, request_
 from thrustmap.protocols.mavlink.link import open_mavlink
 from thrustmap.protocols.mavlink.signing import SigningKey, enable_signing
 from thrustmap.rig.fc.ardupilot import ARDUPILOT_PARAMS, MOT_PWM_TYPES, ArduPilotThrottleOutput
+from thrustmap.rig.fc.link_lock import LinkIntruder
 from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
 from thrustmap.rig.fc.mavlink_session import (
     CommandsLate,
-    LinkIntruder,
     MavlinkLinkLost,
     MavlinkSession,
     MotorTestRefused,

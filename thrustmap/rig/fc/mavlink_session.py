@@ -45,12 +45,11 @@ from thrustmap.core.errors import ConfigError, DataFormatError, SafetyError, Thr
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.params import ParamEncoding, encoding_from_capabilities
 from thrustmap.protocols.mavlink.signing import is_signed
-from thrustmap.rig.fc.link_lock import IntruderWatch, LinkIntruder
+from thrustmap.rig.fc.link_lock import IntruderWatch
 from thrustmap.rig.fc.link_timing import ReplyTimer
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LinkIntruder"]  # re-exported: the MAVLink drivers' errors live here
 MAX_FOREIGN = 32  # distinct foreign system ids remembered (the count goes on)
 
 
@@ -218,6 +217,7 @@ class MavlinkSession:
         #: vehicle messages received with / without a signature (for ``signing_problem``)
         self.signed_messages = 0
         self.unsigned_messages = 0
+        self.acks_received = 0  # COMMAND_ACKs for us, ever (none: signing may be the reason)
         self.intruders = IntruderWatch(getattr(link, "port", None))
         self.endpoint = self.intruders.endpoint
 
@@ -266,6 +266,7 @@ class MavlinkSession:
             if target not in (0, int(self.link.mav.srcSystem)):
                 return  # an ACK for another ground station
             self.acks.append(decoded)
+            self.acks_received += 1
         elif isinstance(decoded, mav.StatusText):
             log.info("vehicle: %s", decoded.text)
             self.statustext.append(Stamped(decoded.text, now_s, seq))
@@ -449,8 +450,8 @@ class MavlinkSession:
             if attempt == 1 and self.fixed_ack_timeout_s is None:
                 self.ack_timer.timed_out()
             waited_s += wait_s
-        problem = self.signing_problem()
-        if problem is not None:
+        problem = None if self.acks_received else self.signing_problem()
+        if problem is not None:  # never answered: signing, not a lost link, may be why
             raise SigningRequired(problem)
         raise MavlinkLinkLost(
             f"no COMMAND_ACK for {command_name(cmd.command)} after {tries} tries "
