@@ -204,7 +204,7 @@ def test_an_intruder_while_idle_is_counted_and_a_motor_start_refused() -> None:
             out.read_telemetry()  # idle: no abort, the datagram is only counted
             assert out.session.endpoint.foreign_datagrams == 1
             host, iport = intruder.getsockname()
-            with pytest.raises(LinkIntruder, match=f"{host}:{iport}"):
+            with pytest.raises(LinkIntruder, match=f"{host}:{iport}.*no motor command sent"):
                 out.set_throttle({0: 0.1})
             assert out.stop_and_verify() is True
             time.sleep(0.05)
@@ -460,3 +460,64 @@ def test_msp_over_udpin_aborts_on_an_intruder_while_motors_run() -> None:
         thread.join(timeout=5)
         bridge.close()
         intruder.close()
+
+
+def test_an_intruder_during_identification_gets_spin_refused(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Another address sends a vehicle HEARTBEAT while the driver identifies the vehicle: the
+    spin is refused before any motor command (exit 2, one line naming it), whichever check
+    sees it first (a command while identifying, or the motor start)."""
+    from thrustmap.cli import main
+
+    port = free_udp_port()
+    vehicle = PX4Vehicle(ConstantPlant())
+
+    def identifying() -> bool:
+        return bool(vehicle.commands_received)
+
+    with (
+        vehicle_on_udp(vehicle, port),
+        Intruder(port, identifying) as intruder,
+        pytest.raises(SystemExit) as exc,
+    ):
+        main(
+            ["spin", f"udpin:127.0.0.1:{port}", "--motor", "1", "--throttle", "10"]
+            + ["--seconds", "1", "--ramp", "0", "--yes"]
+        )
+    host, iport = intruder.address
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert (
+        f"error: {host}:{iport} also claims to be the vehicle" in err
+        or f"error: {host}:{iport} sent to the vehicle link before a motor command" in err
+    ), err
+    assert intruder.received == 0
+    assert not [
+        c
+        for c in vehicle.commands_received
+        if c.command == mav.MAV_CMD_ACTUATOR_TEST and c.params[0] == c.params[0]
+    ]
+
+
+def test_a_second_vehicle_on_the_port_stops_every_command() -> None:
+    """Which address is the vehicle is unknown once two claim to be: no command goes out."""
+    port = free_udp_port()
+    vehicle = PX4Vehicle(ConstantPlant())
+    with vehicle_on_udp(vehicle, port):
+        out = open_mavlink_output(f"udpin:127.0.0.1:{port}", MonotonicClock())
+        spoofer = udp_socket()
+        try:
+            out.identify()
+            sent = len(vehicle.commands_received)
+            spoofer.sendto(heartbeat_bytes(1), ("127.0.0.1", port))
+            time.sleep(0.05)
+            out.poll()
+            host, iport = spoofer.getsockname()
+            with pytest.raises(LinkIntruder, match=f"{host}:{iport} also claims to be the"):
+                out.command(mav.request_message(mav.MSG_AUTOPILOT_VERSION))
+            time.sleep(0.05)
+            assert len(vehicle.commands_received) == sent and drain(spoofer) == 0
+        finally:
+            out.close()
+            spoofer.close()

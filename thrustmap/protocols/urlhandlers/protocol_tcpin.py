@@ -50,6 +50,7 @@ class Serial(SerialBase):
         self.dropped_writes = 0
         self.identifies_peer: Callable[[bytes], bool] | None = None  # the interface; unused
         self.intrusions = 0
+        self.foreign_claims = 0  # the interface; a refused connection is never read
         self.foreign_senders: dict[tuple[str, int], int] = {}
         self.last_foreign: tuple[str, int] | None = None
         kwargs.pop("clock", None)  # real sockets run on real time

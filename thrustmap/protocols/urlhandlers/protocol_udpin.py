@@ -18,8 +18,12 @@ The peer is LOCKED (pymavlink's ``udpin`` "answers whoever sent last"; this one 
   set by the protocol above: MAVLink says "holds a vehicle HEARTBEAT"); without one, the first
   datagram does. Datagrams before the lock that do not identify the peer are dropped
   (``unidentified_datagrams``); after it, datagrams from any other address are dropped and
-  counted (``foreign_datagrams``, ``foreign_senders``, ``last_foreign``): they never reach the
+  counted (``foreign_datagrams``, ``foreign_senders``, ``last_foreign``; those that would have
+  identified a peer, a second "vehicle", also in ``foreign_claims``): they never reach the
   reader and nothing is ever sent to them. Every write goes to the locked peer, or nowhere.
+  Without authentication (MAVLink signing) a host that speaks first with an identifying
+  datagram is taken for the peer; the real one is then a foreign claim, and the driver above
+  refuses to command anything (``rig.fc.link_lock``).
 - ``udpout``: the socket is connected to the target, so the operating system itself drops
   datagrams from any other address (they cannot be counted).
 """
@@ -78,6 +82,9 @@ class UdpSerial(SerialBase):
         self.identifies_peer: Callable[[bytes], bool] | None = None
         self.unidentified_datagrams = 0  # dropped before the lock: they identified nobody
         self.foreign_datagrams = 0  # dropped after the lock: from another address
+        #: of those, datagrams that would have identified a peer (a second "vehicle")
+        self.foreign_claims = 0
+        self.last_claim: tuple[str, int] | None = None
         self.foreign_senders: dict[tuple[str, int], int] = {}
         self.last_foreign: tuple[str, int] | None = None
         kwargs.pop("clock", None)  # real sockets run on real time
@@ -137,6 +144,10 @@ class UdpSerial(SerialBase):
             return True
         self.foreign_datagrams += 1
         self.last_foreign = sender
+        check = self.identifies_peer
+        if check is not None and check(data):
+            self.foreign_claims += 1
+            self.last_claim = sender
         if sender in self.foreign_senders:
             self.foreign_senders[sender] += 1
         else:

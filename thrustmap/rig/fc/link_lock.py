@@ -33,9 +33,26 @@ class IntruderWatch:
     def peer(self) -> str | None:
         return getattr(self.endpoint, "peer", None)
 
-    def check(self, *, commanded: bool, peer_label: str | None = None) -> None:
+    def check_claims(self, *, peer_label: str | None = None) -> None:
+        """Raise ``LinkIntruder`` if another address sent what would have identified the peer
+        (a second vehicle HEARTBEAT): which one is the vehicle is then unknown, and no command
+        may go out (a spoofer that spoke first holds the lock)."""
+        endpoint = self.endpoint
+        if endpoint is None or not int(getattr(endpoint, "foreign_claims", 0)):
+            return
+        claim = endpoint.last_claim
+        raise LinkIntruder(
+            f"{claim[0]}:{claim[1]} also claims to be the vehicle (the link is locked to "
+            f"{peer_label or self.peer}): two vehicles, or a spoofer, on one port; no command "
+            "sent (name the vehicle's address: udpout:HOST:PORT or tcp:HOST:PORT, or sign)"
+        )
+
+    def check(
+        self, *, commanded: bool, starting: bool = False, peer_label: str | None = None
+    ) -> None:
         """Raise ``LinkIntruder`` if anything from another address arrived and a motor is
-        ``commanded``; otherwise log it once per new arrival."""
+        ``commanded`` (``starting``: about to be, nothing sent yet); otherwise log it once per
+        new arrival."""
         endpoint = self.endpoint
         count = 0 if endpoint is None else int(endpoint.intrusions)
         if count == 0:
@@ -44,11 +61,15 @@ class IntruderWatch:
         if commanded:
             last = endpoint.last_foreign
             names = ", ".join(f"{h}:{p} ({n})" for (h, p), n in endpoint.foreign_senders.items())
+            what = (
+                "before a motor command (the link is locked to {label}): no motor command sent"
+                if starting
+                else "while a motor was commanded (the link is locked to {label}): motor "
+                "stopped through the locked peer, run aborted"
+            ).format(label=label)
             raise LinkIntruder(
-                f"{last[0]}:{last[1]} sent to the vehicle link while a motor was commanded "
-                f"(the link is locked to {label}): motor stopped through the locked peer, "
-                f"run aborted; {count} datagram(s)/connection(s) dropped, none answered "
-                f"(from {names})"
+                f"{last[0]}:{last[1]} sent to the vehicle link {what}; {count} "
+                f"datagram(s)/connection(s) dropped, none answered (from {names})"
             )
         if count > self._reported:
             self._reported = count

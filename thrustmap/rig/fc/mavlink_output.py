@@ -320,7 +320,8 @@ class MavlinkThrottleOutput(ThrottleOutput):
             self._check_motor(motor)
             self._check_value(motor, value)
         self.poll()
-        self.session.check_intruders(commanded=True)  # never start or go on with an intruder
+        # never start, or go on, with an intruder on the link
+        self.session.check_intruders(commanded=True, starting=not self._current)
         self._check_schedule()
         self._before_start(values)
         self._send_or_assume_running(dict(values))

@@ -345,10 +345,11 @@ class MavlinkSession:
         ids = f"system {self.target_system} component {self.target_component}"
         return f"{address} ({ids})" if address else ids
 
-    def check_intruders(self, *, commanded: bool) -> None:
+    def check_intruders(self, *, commanded: bool, starting: bool = False) -> None:
         """Raise ``LinkIntruder`` if another address sent to the link (datagrams dropped by
-        the endpoint) while motors are ``commanded``; otherwise only log it."""
-        self.intruders.check(commanded=commanded, peer_label=self.peer)
+        the endpoint) while motors are ``commanded`` (``starting``: about to be); otherwise
+        only log it."""
+        self.intruders.check(commanded=commanded, starting=starting, peer_label=self.peer)
 
     def signing_problem(self) -> str | None:
         return signing_problem(self.link, self.signed_messages, self.unsigned_messages)
@@ -415,6 +416,7 @@ class MavlinkSession:
         A late ACK to an earlier try is the answer too; ACKs for this command left from before
         are dropped (``stale_acks``). The round trip of a command answered at its first try
         teaches the ACK wait (``ack_timer``)."""
+        self.intruders.check_claims(peer_label=self.peer)  # which one is the vehicle?
         cmd = self.target(cmd)
         tries = self.command_attempts if attempts is None else attempts
         kept = [a for a in self.acks if a.command != cmd.command]

@@ -375,7 +375,8 @@ class MspThrottleOutput(ThrottleOutput):
             ext[motor] = self._ext(native)
         if any(v > MSP_MOTOR_STOP for v in ext):
             self._pump(wait=False)
-            self.intruders.check(commanded=True)  # never start or go on with an intruder
+            # never start, or go on, with an intruder on the link
+            self.intruders.check(commanded=True, starting=not self._motors_may_run)
             self._ensure_watchdog()
             self._motors_may_run = True
         self._command_motors(SetMotor(tuple(ext)).encode())
