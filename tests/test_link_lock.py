@@ -146,6 +146,21 @@ def test_udpin_locks_to_its_first_peer_and_never_answers_another() -> None:
         b.close()
 
 
+def test_no_other_program_can_bind_the_port_thrustmap_listens_on() -> None:
+    """With SO_REUSEADDR on both sockets Linux lets a second program bind the same UDP port
+    and hands it the vehicle's datagrams: thrustmap's listening socket does not allow it."""
+    port = free_udp_port()
+    port_ = open_transport(f"udpin://127.0.0.1:{port}", timeout=0.2)
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        with pytest.raises(OSError):
+            other.bind(("127.0.0.1", port))
+    finally:
+        other.close()
+        port_.close()
+
+
 def test_udpout_hears_only_its_target() -> None:
     target, other = udp_socket(), udp_socket()
     port_ = open_transport(f"udpout://localhost:{target.getsockname()[1]}", timeout=0.3)

@@ -99,7 +99,8 @@ class UdpSerial(SerialBase):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if listen:
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                # no SO_REUSEADDR: with it, another program (also setting it) could bind the
+                # same port and take the vehicle's datagrams (Linux gives them to the last)
                 sock.bind(address)
             else:
                 sock.connect(address)  # the OS drops datagrams from any other address
