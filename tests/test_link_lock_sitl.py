@@ -285,3 +285,90 @@ def test_ardupilot_signing_on_its_second_port(arducopter: ArduCopter, tmp_path: 
         monitor.conn.setup_signing(KEY, sign_outgoing=True)
         monitor.conn.mav.setup_signing_send(1, 1, [0] * 32, 0)
         monitor.close()
+
+
+# ------------------------------------------------------------------------------------------
+# PX4 SITL (SIH quadx): the GCS link sends from 18570 + i to 127.0.0.1:14550
+# ------------------------------------------------------------------------------------------
+PX4_INSTANCE = 5
+PX4_GCS_PORT = 14550  # where the GCS link sends (every instance)
+
+
+@pytest.fixture(scope="module")
+def px4(tmp_path_factory: pytest.TempPathFactory) -> Iterator[subprocess.Popen[bytes]]:
+    if not PX4 or not Path(PX4).is_file():
+        pytest.skip("set THRUSTMAP_PX4_SITL to a px4 SITL binary (build/px4_sitl_default/bin/px4)")
+    binary = Path(PX4).resolve()
+    folder = tmp_path_factory.mktemp("px4")
+    env = dict(
+        os.environ,
+        PX4_SYS_AUTOSTART="10040",
+        PX4_SIMULATOR="sihsim",
+        PX4_SIM_MODEL="sihsim_quadx",
+    )
+    log = (folder / "px4.log").open("wb")
+    process = subprocess.Popen(
+        [str(binary), "-i", str(PX4_INSTANCE), "-d", str(binary.parents[1] / "etc")],
+        cwd=folder,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        yield process
+    finally:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=10)
+        log.close()
+
+
+def px4_monitor() -> Monitor:
+    """PX4's offboard link (14580 + i) as the second port: it answers whoever sends to it."""
+    monitor = Monitor(f"udpout:127.0.0.1:{14580 + PX4_INSTANCE}")
+    conn = monitor.conn
+    for _ in range(3):
+        conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # a partner for PX4's link
+        conn.mav.command_long_send(1, 1, 511, 0, 36, 100_000, 0, 0, 0, 0, 0)
+        time.sleep(0.3)
+    monitor.wait("SERVO_OUTPUT_RAW", lambda m: bool(m.servo), 60)
+    return monitor
+
+
+@pytest.mark.parametrize("run", range(RUNS))
+def test_px4_spin_udpin_aborts_on_an_intruder(
+    px4: subprocess.Popen[bytes], tmp_path: Path, run: int
+) -> None:
+    monitor = px4_monitor()
+    try:
+        time.sleep(5 if run == 0 else 0)  # past boot: preflight checks settle
+        idle = max(monitor.servo[:4])
+        intruder = Intruder(PX4_GCS_PORT, lambda: max(monitor.servo[:4]) > idle + 20)
+        try:
+            done = thrustmap(
+                "spin",
+                f"udpin:127.0.0.1:{PX4_GCS_PORT}",
+                "--motor",
+                "1",
+                "--throttle",
+                "10",
+                "--seconds",
+                "6",
+                "--ramp",
+                "0",
+                "--yes",
+                cwd=tmp_path,
+            )
+        finally:
+            intruder.close()
+        text = done.stdout + done.stderr
+        assert intruder.sent > 0, text
+        assert done.returncode == 1, text
+        assert f"{intruder.address} sent to the vehicle link" in text
+        assert intruder.received == 0, text
+        monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 5)
+    finally:
+        monitor.close()
