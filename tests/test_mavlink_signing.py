@@ -278,3 +278,11 @@ def test_the_key_is_in_no_file_thrustmap_writes(
             assert needle not in data, f"the key is in {path}"
     text = "\n".join(outputs) + caplog.text
     assert KEY.hex() not in text and KEY.hex().upper() not in text
+
+
+def test_a_key_from_the_environment_is_ignored_by_an_msp_fc() -> None:
+    """The variable may be set for a whole shell: a Betaflight probe is not refused for it."""
+    done = run(["probe", "sim://betaflight"], env={ENV_VAR: KEY.hex()})
+    assert done.exit_code == 0, done.output
+    assert signing_key_from(None, {ENV_VAR: KEY.hex()}).from_environment  # type: ignore[union-attr]
+    assert not parse_signing_key(KEY.hex()).from_environment

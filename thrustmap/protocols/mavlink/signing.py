@@ -35,9 +35,9 @@ MAVLINK_IFLAG_SIGNED = 0x01
 class SigningKey:
     """A MAVLink 2 signing key that never prints itself."""
 
-    __slots__ = ("_secret",)
+    __slots__ = ("_secret", "source")
 
-    def __init__(self, secret: bytes) -> None:
+    def __init__(self, secret: bytes, source: str = "") -> None:
         if len(secret) != KEY_BYTES:
             raise ConfigError(f"a MAVLink signing key is {KEY_BYTES} bytes, got {len(secret)}")
         if not any(secret):
@@ -46,6 +46,14 @@ class SigningKey:
                 "use a real key"
             )
         self._secret = bytes(secret)
+        #: where it came from ("--signing-key", the environment variable's name, ...)
+        self.source = source
+
+    @property
+    def from_environment(self) -> bool:
+        """Given by ``THRUSTMAP_MAVLINK_SIGNING_KEY``, not asked for on this command line: a
+        device that does not speak MAVLink ignores it instead of refusing it."""
+        return self.source == ENV_VAR
 
     @property
     def secret(self) -> bytes:
@@ -85,7 +93,7 @@ def parse_signing_key(value: str, *, source: str = "--signing-key") -> SigningKe
     is never repeated."""
     key = _hex_key(value)
     if key is not None:
-        return SigningKey(key)
+        return SigningKey(key, source)
     if _looks_like_hex(value):
         raise ConfigError(
             f"{source}: expected 64 hex digits (a 32-byte key) or a key file; got "
@@ -101,7 +109,7 @@ def parse_signing_key(value: str, *, source: str = "--signing-key") -> SigningKe
             "digits or a file holding the 32-byte key"
         ) from None
     if len(data) == KEY_BYTES and _hex_key(data.decode("latin-1")) is None:
-        return SigningKey(data)
+        return SigningKey(data, source)
     try:
         key = _hex_key(data.decode("ascii")) if len(data) <= MAX_KEY_FILE_BYTES else None
     except UnicodeDecodeError:
@@ -111,9 +119,8 @@ def parse_signing_key(value: str, *, source: str = "--signing-key") -> SigningKe
             f"{value}: expected a MAVLink signing key: 32 raw bytes or 64 hex digits "
             f"(the file has {min(len(data), MAX_KEY_FILE_BYTES)}"
             f"{'+' if len(data) > MAX_KEY_FILE_BYTES else ''} bytes)",
-            file=None,
         )
-    return SigningKey(key)
+    return SigningKey(key, source)
 
 
 def signing_key_from(value: str | None, environ: Any = None) -> SigningKey | None:

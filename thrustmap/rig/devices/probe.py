@@ -100,9 +100,11 @@ def probe_device(
 
     found = resolve(url, clock, kind, baudrate)
     if signing_key is not None and found.kind != "mavlink":
-        raise ConfigError(
-            f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
-        )
+        if not getattr(signing_key, "from_environment", False):
+            raise ConfigError(
+                f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
+            )
+        signing_key = None  # the environment's key is for MAVLink devices only
     report = ProbeReport(url, found)
     if driver(found.kind).role == "fc":
         output = open_throttle_output(
