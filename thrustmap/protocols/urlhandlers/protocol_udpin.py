@@ -151,7 +151,8 @@ class UdpSerial(SerialBase):
             self.last_claim = sender
         if sender in self.foreign_senders:
             self.foreign_senders[sender] += 1
-        else:
+        elif len(self.foreign_senders) < MAX_FOREIGN_SENDERS:  # bounded: so is the log
+            self.foreign_senders[sender] = 1
             log.warning(
                 "%s: dropped a datagram from %s:%d (the link is locked to %s)",
                 self.port,
@@ -159,8 +160,6 @@ class UdpSerial(SerialBase):
                 sender[1],
                 self.peer,
             )
-            if len(self.foreign_senders) < MAX_FOREIGN_SENDERS:
-                self.foreign_senders[sender] = 1
         return False
 
     def _drain(self, wait_s: float) -> None:
