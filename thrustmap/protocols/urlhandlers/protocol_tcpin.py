@@ -104,7 +104,10 @@ class Serial(SerialBase):
         conn.close()  # never read from, never written to
         self.intrusions += 1
         self.last_foreign = sender
-        if sender not in self.foreign_senders:
+        if sender in self.foreign_senders:
+            self.foreign_senders[sender] += 1
+        elif len(self.foreign_senders) < MAX_FOREIGN_SENDERS:  # bounded: so is the log
+            self.foreign_senders[sender] = 1
             log.warning(
                 "%s: refused a connection from %s:%d (the link is locked to %s)",
                 self.port,
@@ -112,10 +115,6 @@ class Serial(SerialBase):
                 sender[1],
                 self.peer,
             )
-            if len(self.foreign_senders) >= MAX_FOREIGN_SENDERS:
-                return
-            self.foreign_senders[sender] = 0
-        self.foreign_senders[sender] += 1
 
     def _drain(self, wait_s: float) -> None:
         deadline_s = time.monotonic() + max(0.0, wait_s)
