@@ -244,8 +244,8 @@ def test_a_key_for_an_msp_fc_is_refused(tmp_path: Path) -> None:
 def test_the_key_is_in_no_file_thrustmap_writes(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, firmware: str
 ) -> None:
-    """A signed spin and a signed sweep, recorded (record://), logged at DEBUG: the key is in
-    no byte of any file written, nor in the output or the log."""
+    """A signed spin and a signed sweep, recorded (record://), logged at DEBUG, and a map fitted
+    to the sweep: the key is in no byte of any file written, nor in the output or the log."""
     keyfile = write_key(tmp_path / "secret")
     work = tmp_path / "work"
     work.mkdir()
@@ -261,14 +261,16 @@ def test_the_key_is_in_no_file_thrustmap_writes(
         fc2 = fc.replace("fc.jsonl", "fc2.jsonl")
         sweep = run(
             ["sweep", "stairs-up", "--stand", "sim://tyto-1585?bench=k&drive_esc=0"]
-            + ["--throttle", fc2, "--to", "20", "--step", "10", "--dwell", "1"]
+            + ["--throttle", fc2, "--to", "40", "--step", "10", "--dwell", "1"]
             + ["-o", str(work / "run.csv"), "--yes", "--quiet"],
             env={ENV_VAR: str(keyfile)},
         )
         assert sweep.exit_code == 0, sweep.output
         outputs.append(sweep.output)
+        fit = run(["fit", str(work / "run.csv"), "-o", str(work / "map.json"), "--model", "linear"])
+        assert fit.exit_code == 0, fit.output
     written = [p for p in work.rglob("*") if p.is_file()]
-    assert {"fc.jsonl", "fc2.jsonl", "run.csv"} <= {p.name for p in written}
+    assert {"fc.jsonl", "fc2.jsonl", "run.csv", "map.json"} <= {p.name for p in written}
     frames = mav.MavlinkCodec().feed(read_transcript(work / "fc.jsonl").written())
     assert frames and all(is_signed(f) for f in frames)  # what went out was signed
     needles = [KEY, KEY.hex().encode(), KEY.hex().upper().encode()]
