@@ -232,11 +232,14 @@ def test_ardupilot_spin_udpin_aborts_on_an_intruder(
         finally:
             intruder.close()
         text = done.stdout + done.stderr
+        print(f"run {run}: exit {done.returncode}, intruder sent {intruder.sent}, received "
+              f"{intruder.received}\n{text}")  # fmt: skip
         assert intruder.sent > 0, text
         assert done.returncode == 1, text
         assert f"{intruder.address} sent to the vehicle link" in text
         assert intruder.received == 0, text
         monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 5)
+        print(f"run {run}: outputs after the spin {monitor.servo[:4]} (idle {idle})")
     finally:
         monitor.close()
 
@@ -326,49 +329,45 @@ def px4(tmp_path_factory: pytest.TempPathFactory) -> Iterator[subprocess.Popen[b
         log.close()
 
 
-def px4_monitor() -> Monitor:
-    """PX4's offboard link (14580 + i) as the second port: it answers whoever sends to it."""
+@pytest.fixture(scope="module")
+def px4_monitor(px4: subprocess.Popen[bytes]) -> Iterator[Monitor]:
+    """PX4's offboard link (14580 + i) as the second port. PX4 keeps talking to the first
+    address that spoke to it: one monitor for every run."""
     monitor = Monitor(f"udpout:127.0.0.1:{14580 + PX4_INSTANCE}")
     conn = monitor.conn
-    for _ in range(3):
+    deadline = time.monotonic() + 120  # PX4 takes a while to boot on a busy machine
+    while not monitor.servo and time.monotonic() < deadline:
         conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # a partner for PX4's link
-        conn.mav.command_long_send(1, 1, 511, 0, 36, 100_000, 0, 0, 0, 0, 0)
-        time.sleep(0.3)
-    monitor.wait("SERVO_OUTPUT_RAW", lambda m: bool(m.servo), 60)
-    return monitor
+        conn.mav.command_long_send(1, 1, 511, 0, 36, 100_000, 0, 0, 0, 0, 0)  # SERVO_OUTPUT_RAW
+        time.sleep(0.5)
+    try:
+        monitor.wait("SERVO_OUTPUT_RAW", lambda m: bool(m.servo), 1)
+        yield monitor
+    finally:
+        monitor.close()
 
 
 @pytest.mark.parametrize("run", range(RUNS))
 def test_px4_spin_udpin_aborts_on_an_intruder(
-    px4: subprocess.Popen[bytes], tmp_path: Path, run: int
+    px4_monitor: Monitor, tmp_path: Path, run: int
 ) -> None:
-    monitor = px4_monitor()
+    monitor = px4_monitor
+    time.sleep(5 if run == 0 else 1)  # past boot: preflight checks settle
+    idle = max(monitor.servo[:4])
+    intruder = Intruder(PX4_GCS_PORT, lambda: max(monitor.servo[:4]) > idle + 20)
     try:
-        time.sleep(5 if run == 0 else 0)  # past boot: preflight checks settle
-        idle = max(monitor.servo[:4])
-        intruder = Intruder(PX4_GCS_PORT, lambda: max(monitor.servo[:4]) > idle + 20)
-        try:
-            done = thrustmap(
-                "spin",
-                f"udpin:127.0.0.1:{PX4_GCS_PORT}",
-                "--motor",
-                "1",
-                "--throttle",
-                "10",
-                "--seconds",
-                "6",
-                "--ramp",
-                "0",
-                "--yes",
-                cwd=tmp_path,
-            )
-        finally:
-            intruder.close()
-        text = done.stdout + done.stderr
-        assert intruder.sent > 0, text
-        assert done.returncode == 1, text
-        assert f"{intruder.address} sent to the vehicle link" in text
-        assert intruder.received == 0, text
-        monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 5)
+        done = thrustmap(
+            "spin", f"udpin:127.0.0.1:{PX4_GCS_PORT}", "--motor", "1", "--throttle", "10",
+            "--seconds", "6", "--ramp", "0", "--yes", cwd=tmp_path,
+        )  # fmt: skip
     finally:
-        monitor.close()
+        intruder.close()
+    text = done.stdout + done.stderr
+    print(f"run {run}: exit {done.returncode}, intruder sent {intruder.sent}, received "
+          f"{intruder.received}\n{text}")  # fmt: skip
+    assert intruder.sent > 0, text
+    assert done.returncode == 1, text
+    assert f"{intruder.address} sent to the vehicle link" in text
+    assert intruder.received == 0, text
+    monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 5)
+    print(f"run {run}: outputs after the spin {monitor.servo[:4]} (idle {idle})")

@@ -64,8 +64,8 @@ class IntruderWatch:
             what = (
                 "before a motor command (the link is locked to {label}): no motor command sent"
                 if starting
-                else "while a motor was commanded (the link is locked to {label}): motor "
-                "stopped through the locked peer, run aborted"
+                else "while a motor was commanded (the link is locked to {label}): run "
+                "aborted, the stop goes to the locked peer only"
             ).format(label=label)
             raise LinkIntruder(
                 f"{last[0]}:{last[1]} sent to the vehicle link {what}; {count} "
