@@ -371,3 +371,18 @@ def test_px4_spin_udpin_aborts_on_an_intruder(
     assert intruder.received == 0, text
     monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 5)
     print(f"run {run}: outputs after the spin {monitor.servo[:4]} (idle {idle})")
+
+
+def test_px4_probe_with_and_without_a_key(px4_monitor: Monitor, tmp_path: Path) -> None:
+    """PX4 here has no signing key: a probe without one works; with one, every unsigned
+    message is refused and it says so in one line (exit 2), never the key."""
+    url = f"udpin:127.0.0.1:{PX4_GCS_PORT}"
+    plain = thrustmap("probe", url, cwd=tmp_path)
+    assert plain.returncode == 0, plain.stdout + plain.stderr
+    assert "px4" in plain.stdout
+    signed = thrustmap("probe", url, "--signing-key", KEY.hex(), cwd=tmp_path)
+    print(signed.stderr)
+    assert signed.returncode == 2, signed.stdout + signed.stderr
+    lines = signed.stderr.strip().splitlines()
+    assert len(lines) == 1 and "unsigned MAVLink message(s)" in lines[0]
+    assert KEY.hex() not in signed.stdout + signed.stderr
