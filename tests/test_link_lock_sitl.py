@@ -9,7 +9,9 @@ Skipped unless the binaries are given (CI has none):
 ``THRUSTMAP_SITL_RUNS`` (default 1) repeats the intruder spin.
 
 The real CLI runs in a subprocess (``python -m thrustmap``); the vehicle's outputs are read
-from the vehicle itself on another of its ports, not from thrustmap.
+from the vehicle itself on another of its ports, not from thrustmap. The SITLs bind their ports
+on every interface: run this in a private network namespace, e.g.
+``unshare -n sh -c 'ip link set lo up; python -m pytest tests/test_link_lock_sitl.py'``.
 """
 
 from __future__ import annotations
@@ -168,6 +170,7 @@ def arducopter(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ArduCopter]
     log = (folder / "sitl.log").open("wb")
     process = subprocess.Popen(
         [str(binary), "--model", "quad", "--speedup", "1", "-I", str(instance)]
+        + ["--home", "-35.363261,149.165230,584,353"]
         + ["--defaults", defaults, "--serial0", "tcp:0", "--serial1"]
         + [f"udpclient:127.0.0.1:{udp_port}", "--serial2", "tcp:2"],
         cwd=folder,
@@ -327,6 +330,7 @@ def px4(tmp_path_factory: pytest.TempPathFactory) -> Iterator[subprocess.Popen[b
             process.kill()
             process.wait(timeout=10)
         log.close()
+        Path(f"/tmp/px4-sock-{PX4_INSTANCE}").unlink(missing_ok=True)  # PX4 leaves it
 
 
 @pytest.fixture(scope="module")
