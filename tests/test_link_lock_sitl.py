@@ -190,11 +190,14 @@ def arducopter(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ArduCopter]
 
 
 def wait_ready(monitor: Monitor) -> None:
-    """ArduCopter refuses motor tests while 'Board initialising': wait for its Ready text and
-    for it to report outputs."""
-    monitor.wait("ArduPilot Ready", lambda m: any("Ready" in t for t in m.texts), 180)
-    monitor.wait("SERVO_OUTPUT_RAW", lambda m: bool(m.servo), 30)
-    time.sleep(5)
+    """Ask for SERVO_OUTPUT_RAW (ArduPilot streams nothing unasked) until it comes; then give
+    the board time to finish initialising (it refuses motor tests until then)."""
+    deadline = time.monotonic() + 180
+    while not monitor.servo and time.monotonic() < deadline:
+        monitor.conn.mav.command_long_send(1, 1, 511, 0, 36, 100_000, 0, 0, 0, 0, 0)
+        time.sleep(1.0)
+    monitor.wait("SERVO_OUTPUT_RAW", lambda m: bool(m.servo), 1)
+    time.sleep(10)
 
 
 def connect_monitor(url: str, timeout_s: float = 60) -> Monitor:
