@@ -266,6 +266,7 @@ def test_ardupilot_signing_on_its_second_port(arducopter: ArduCopter, tmp_path: 
         work.mkdir()
         second = f"tcp:127.0.0.1:{arducopter.base_port + 2}"
         refused = thrustmap("probe", second, cwd=work)
+        print(f"without the key: exit {refused.returncode}: {refused.stderr.strip()}")
         assert refused.returncode == 2, refused.stdout + refused.stderr
         lines = refused.stderr.strip().splitlines()
         assert (
@@ -282,6 +283,8 @@ def test_ardupilot_signing_on_its_second_port(arducopter: ArduCopter, tmp_path: 
             "spin", f"record://{second}?file={work / 'spin.jsonl'}", "--motor", "1",
             "--throttle", "10", "--seconds", "2", "--yes", "--signing-key", KEY.hex(), cwd=work,
         )  # fmt: skip
+        print(f"with the key: probe exit {probed.returncode}, spin exit {spun.returncode}")
+        print(spun.stdout)
         assert spun.returncode == 0, spun.stdout + spun.stderr
         assert "stopped (verified)" in spun.stdout
         for path in [p for p in work.rglob("*") if p.is_file()]:
