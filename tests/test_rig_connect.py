@@ -471,7 +471,8 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
 ) -> None:
     """``udpin:``/``tcp:`` open through thrustmap's own transports (so ``record://`` works on
     them); here the transport is a simulated vehicle on the SimClock (real UDP is tested in
-    test_rig_fc_firmware). ``tcpin:`` still goes to stock ``mavutil``, switched to MAVLink 2."""
+    test_rig_fc_firmware), and ``tcpin:`` too (locked to its first connection: test_link_lock).
+    ``udpbcast:`` still goes to stock ``mavutil``, switched to MAVLink 2."""
     from thrustmap.protocols.mavlink import link as mavlink_link
     from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
 
@@ -495,6 +496,9 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
         assert vehicle.running_motors() == {0: pytest.approx(0.3)}
     assert vehicle.running_motors() == {}
     assert asked == ["udpin://127.0.0.1:14550"]
+    with connect.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out1:
+        assert out1.identify().kind == "px4"
+    assert asked[1:] == ["tcpin://127.0.0.1:5760"]
 
     stock: list[tuple[str, dict[str, Any]]] = []
 
@@ -503,8 +507,8 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
         return MavlinkSerialLink(SimSerial(PX4Vehicle(ConstantPlant(4)), clock), clock)
 
     monkeypatch.setattr(mavutil, "mavlink_connection", connection)
-    with connect.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out2:
+    with connect.open_throttle_output("udpbcast:127.0.0.1:5760", clock) as out2:
         assert out2.identify().kind == "px4"
     assert stock == [
-        ("tcpin:127.0.0.1:5760", {"source_system": 255, "source_component": 190, "retries": 0})
+        ("udpbcast:127.0.0.1:5760", {"source_system": 255, "source_component": 190, "retries": 0})
     ]

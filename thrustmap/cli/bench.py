@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.cli.textwidth import echo, width
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import INTERLOCKS, Limits, check_plan
@@ -328,6 +329,7 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     "stand then measures a rotor nothing drives, like a thrown propeller). By default they "
     "form one bench.",
 )
+@signing_key_option
 def sweep_cmd(
     kind: str,
     stand_url: str,
@@ -376,6 +378,7 @@ def sweep_cmd(
         line_spec=kw["line_spec"],
         motor=(motor_number or 1) - 1,
         watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the recording
+        signing_key=kw["signing_key"],
     )
     for warning in pairing_warnings(rig):
         echo(f"warning: {warning}", err=True)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from thrustmap.cli.bench import limit_options_except
+from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.cli.textwidth import echo
 from thrustmap.core.clock import Clock, MonotonicClock
 from thrustmap.core.errors import ConfigError, ThrustmapError
@@ -28,6 +29,7 @@ from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT as DEFAULT_MAX_THROTT
 from thrustmap.rig.interlocks import Limits
 
 if TYPE_CHECKING:  # drivers (pyserial, numpy, pymavlink) load when a command runs
+    from thrustmap.protocols.mavlink.signing import SigningKey
     from thrustmap.rig.devices.ports import PortDescription
     from thrustmap.rig.spin import SpinReport
 
@@ -144,6 +146,7 @@ def _probe_port(port: PortDescription, listen_s: float) -> str:
 @_device_options
 @click.option("--seconds", type=float, default=1.0, show_default=True, help="Stand reading window.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@signing_key_option
 def probe_cmd(
     url: str,
     kind: str | None,
@@ -154,6 +157,7 @@ def probe_cmd(
     clock_choice: str,
     seconds: float,
     as_json: bool,
+    signing_key: SigningKey | None,
 ) -> None:
     """Identify the FC or stand at URL and take a short live reading (no motor is spun)."""
     if not 0 < seconds <= 60:
@@ -170,6 +174,7 @@ def probe_cmd(
         line_preset=line_preset,
         line_spec_file=line_spec,
         seconds=seconds,
+        signing_key=signing_key,
     )
     if as_json:
         click.echo(json.dumps(report.to_dict(), indent=2))
@@ -260,6 +265,7 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 @click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
 @click.option("--stand", "stand_url", default=None, help="Also show thrust from this stand.")
 @_device_options
+@signing_key_option
 @limit_options_except(*SPIN_OWN_LIMITS)
 def spin_cmd(
     url: str,
@@ -276,6 +282,7 @@ def spin_cmd(
     line_preset: str | None,
     line_spec: str | None,
     clock_choice: str,
+    signing_key: SigningKey | None,
     **limit_values: Any,
 ) -> None:
     """Spin ONE motor briefly at a low throttle: a capped, confirmed motor test.
@@ -310,6 +317,7 @@ def spin_cmd(
         line_preset=line_preset,
         line_spec=line_spec,
         motor=request.motor,
+        signing_key=signing_key,
     )
     clock = make_clock(clock_choice, rig.urls())
     for warning in pairing_warnings(rig):

@@ -57,3 +57,25 @@ def open_transport(url: str, **kwargs: Any) -> SerialLike:
     """``serial.serial_for_url`` with thrustmap's handlers registered (and opened)."""
     register_url_handlers()
     return cast(SerialLike, serial.serial_for_url(url, **kwargs))
+
+
+def transport_chain(transport: Any) -> list[Any]:
+    """``transport`` and every transport it wraps (``record://`` exposes ``.inner``)."""
+    chain: list[Any] = []
+    current = transport
+    while current is not None and len(chain) < 8 and all(c is not current for c in chain):
+        chain.append(current)
+        try:
+            current = getattr(current, "inner", None)
+        except OSError:  # a closed record:// port (serial.PortNotOpenError)
+            break
+    return chain
+
+
+def locked_endpoint(transport: Any) -> Any:
+    """The network endpoint under ``transport`` that locks onto one peer (``udpin``,
+    ``udpout``, ``tcpin``: it has ``intrusions`` and ``identifies_peer``), or None."""
+    for t in transport_chain(transport):
+        if hasattr(t, "intrusions") and hasattr(t, "identifies_peer"):
+            return t
+    return None

@@ -146,12 +146,17 @@ def open_throttle_output(
     line_preset: str | None = None,
     line_spec_file: str | None = None,
     watchdog_log: str | None = None,
+    signing_key: Any = None,
     **opts: Any,
 ) -> ThrottleOutput:
     """Open whatever commands motor throttle at ``url``.
 
     ``watchdog_log``: where an MSP output's motor-stop watchdog process logs (default: the
     user's state folder); other outputs time out by themselves and start no watchdog.
+
+    ``signing_key``: a MAVLink 2 signing key (``protocols.mavlink.signing.SigningKey``) for a
+    MAVLink vehicle; refused for any other kind, unless it came from the environment variable
+    (then ignored).
 
     ``kind`` (see module) is detected when None. ``opts`` go to the driver's constructor
     (``MspThrottleOutput(timeout_s=, retries=)``) or to ``open_mavlink_output``. For a stand's
@@ -162,6 +167,14 @@ def open_throttle_output(
     drv = driver(found.kind)
     if watchdog_log is not None and found.kind == "msp":
         opts["watchdog_log"] = watchdog_log
+    if signing_key is not None and found.kind != "mavlink":
+        if not getattr(signing_key, "from_environment", False):
+            raise ConfigError(
+                f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
+            )
+        signing_key = None  # the environment's key is for MAVLink devices only
+    if signing_key is not None:
+        opts["signing_key"] = signing_key
     if drv.open_output is not None:
         return drv.open_output(
             OpenRequest(url, clock, baudrate, firmware=found.firmware, opts=dict(opts))

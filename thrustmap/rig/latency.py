@@ -14,6 +14,9 @@ take longer. Two ways to put such a link in front of a device:
 
       python -m thrustmap.rig.latency --listen 5762 --to 127.0.0.1:5761 --delay-ms 500
       thrustmap probe tcp://127.0.0.1:5762
+
+The proxy listens on 127.0.0.1 only unless another address is named (``host=``,
+``--host ADDR``): it forwards motor commands, so nobody else on the network may reach it.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from dataclasses import dataclass, field
 from thrustmap.protocols.peer import BytePeer
 
 log = logging.getLogger(__name__)
+
+LOOPBACK = "127.0.0.1"
 
 
 class LaggedPeer:
@@ -72,7 +77,7 @@ class LatencyProxy:
 
     upstream: tuple[str, int]
     delay_s: float
-    host: str = "127.0.0.1"
+    host: str = LOOPBACK  # loopback unless the caller names another address
     port: int = 0
     #: connections served so far
     connections: int = 0
@@ -164,12 +169,22 @@ def main(argv: list[str] | None = None) -> int:
         description="TCP proxy adding a fixed delay to every reply (test a slow MSP link).",
     )
     parser.add_argument("--listen", type=int, required=True, help="local TCP port to serve")
+    parser.add_argument(
+        "--host",
+        default=LOOPBACK,
+        help="address to listen on (default 127.0.0.1: this computer only; name another, "
+        "e.g. 0.0.0.0, only to let other hosts reach the device through the proxy)",
+    )
     parser.add_argument("--to", required=True, help="HOST:PORT of the device (e.g. a SITL)")
     parser.add_argument("--delay-ms", type=float, required=True, help="delay per reply, ms")
     args = parser.parse_args(argv)
     host, _, port = args.to.rpartition(":")
-    proxy = LatencyProxy((host or "127.0.0.1", int(port)), args.delay_ms / 1000, port=args.listen)
+    proxy = LatencyProxy(
+        (host or "127.0.0.1", int(port)), args.delay_ms / 1000, host=args.host, port=args.listen
+    )
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.host != LOOPBACK:
+        log.warning("the proxy listens on %s: other hosts can reach the device", args.host)
     with proxy:
         log.info("proxy %s -> %s, +%g ms per reply", proxy.url, args.to, args.delay_ms)
         with contextlib.suppress(KeyboardInterrupt):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -113,6 +113,8 @@ class Rig:
     line_spec: str | None = None  # line stand spec JSON
     motor: int = 0  # 0-based; the motor a stand's own ESC output drives
     watchdog_log: str | None = None  # where an MSP output's motor-stop watchdog logs
+    #: MAVLink 2 signing key (a ``protocols.mavlink.signing.SigningKey``; never in the repr)
+    signing_key: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.throttle == "stand":
@@ -213,6 +215,7 @@ class BenchSession:
             line_preset=rig.line_preset,
             line_spec_file=rig.line_spec,
             watchdog_log=rig.watchdog_log,
+            signing_key=rig.signing_key,
         )
 
     def resolve_motor(self, text: str | int) -> tuple[int, str]:

@@ -14,11 +14,18 @@ Differences from the stock ``mavutil`` classes, all so tests never sleep for rea
   connection is built; nothing reads or sets the process-wide ``MAVLINK20`` switch);
 - bytes are read in chunks (everything the port holds, up to ``MAX_READ_CHUNK``), so a
   ``record://`` transcript holds one event per read, not one per byte.
+- on a network endpoint that locks onto one peer (``udpin:``, ``tcpin:``; see
+  ``protocols.urlhandlers.protocol_udpin``) the peer is the sender of the first vehicle
+  HEARTBEAT (validly signed, once signing is on): a ground station's heartbeat, or anything
+  else sent to the port first, locks nothing and is dropped; after the lock nothing from
+  another address reaches the parser and nothing is sent anywhere else.
+- MAVLink 2 signing (``thrustmap.protocols.mavlink.signing.enable_signing``) is pymavlink's own.
 
 ``open_mavlink(url, clock=..., **serial_kwargs)`` opens the transport by URL and wraps it. Besides
 thrustmap's URLs and device paths it takes pymavlink's spellings: ``udpin:HOST:PORT``,
-``udpout:HOST:PORT``, ``udp:`` (= ``udpin:``) and ``tcp:HOST:PORT`` (= ``socket://HOST:PORT``),
-also inside ``record://`` (``record://udpin:0.0.0.0:14550?file=run.jsonl``).
+``udpout:HOST:PORT``, ``udp:`` (= ``udpin:``), ``tcp:HOST:PORT`` (= ``socket://HOST:PORT``) and
+``tcpin:HOST:PORT`` (listen for one peer, ``protocol_tcpin``), also inside ``record://``
+(``record://udpin:0.0.0.0:14550?file=run.jsonl``).
 """
 
 from __future__ import annotations
@@ -31,8 +38,11 @@ from pymavlink import mavutil as mavutil  # re-exported for callers that need py
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.core.clock import Clock, MonotonicClock
+from thrustmap.protocols.mavlink.codec import decode_heartbeat
+from thrustmap.protocols.mavlink.signing import is_signed
 from thrustmap.protocols.transcript import TransportError
-from thrustmap.protocols.transport import SerialLike, open_transport
+from thrustmap.protocols.transport import SerialLike, locked_endpoint, open_transport
+from thrustmap.protocols.urlhandlers.protocol_tcpin import normalize_tcpin_url
 from thrustmap.protocols.urlhandlers.protocol_udpin import is_udp_url, normalize_udp_url
 
 log = logging.getLogger(__name__)
@@ -59,6 +69,10 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
         self.port = transport
         self.clock: Clock = clock if clock is not None else MonotonicClock()
         self._pushback = bytearray()
+        #: vehicle HEARTBEATs a locking endpoint refused because signing is on (see
+        #: ``holds_vehicle_heartbeat``)
+        self.heartbeats_refused_bad_signature = 0
+        self.heartbeats_refused_unsigned = 0
         mavutil.mavfile.__init__(
             self,
             None,
@@ -72,6 +86,38 @@ class MavlinkSerialLink(mavutil.mavfile):  # type: ignore[misc]
         self.mav.robust_parsing = True
         self.WIRE_PROTOCOL_VERSION = "2.0"
         self.first_byte = False  # no auto-switching (it edits os.environ and the global dialect)
+        endpoint = locked_endpoint(transport)
+        if endpoint is not None:
+            endpoint.identifies_peer = self.holds_vehicle_heartbeat
+
+    def holds_vehicle_heartbeat(self, datagram: bytes) -> bool:
+        """``datagram`` holds a HEARTBEAT from a vehicle (not a GCS), validly signed when this
+        link signs: the datagram that identifies the peer a network endpoint locks onto."""
+        parser = mavlink2.MAVLink(None)
+        parser.robust_parsing = True
+        key = self.mav.signing.secret_key
+        if key is not None:  # a fresh stream state: any timestamp, but the signature must match
+            parser.signing.secret_key = key
+            parser.signing.allow_unsigned_callback = lambda _mav, _msg_id: False
+        if self._vehicle_heartbeat_in(parser, datagram):
+            return True
+        if key is not None:  # why not: for the diagnosis of a silent, signing-refused vehicle
+            plain = mavlink2.MAVLink(None)
+            plain.robust_parsing = True
+            for msg in plain.parse_buffer(datagram) or []:
+                if msg.get_type() == "HEARTBEAT" and decode_heartbeat(msg).is_vehicle:
+                    if is_signed(msg):
+                        self.heartbeats_refused_bad_signature += 1
+                    else:
+                        self.heartbeats_refused_unsigned += 1
+        return False
+
+    @staticmethod
+    def _vehicle_heartbeat_in(parser: Any, datagram: bytes) -> bool:
+        return any(
+            msg.get_type() == "HEARTBEAT" and decode_heartbeat(msg).is_vehicle
+            for msg in parser.parse_buffer(datagram) or []
+        )
 
     # -- bytes ---------------------------------------------------------------------------
     def recv(self, n: int | None = None) -> bytes:
@@ -183,7 +229,7 @@ def mavutil_connection(
 def is_own_transport(url: str) -> bool:
     """``open_mavlink`` has a transport for it (so it can be recorded and replayed)."""
     scheme = url.split(":", 1)[0].lower()
-    return scheme not in ("tcpin", "udpbcast")
+    return scheme != "udpbcast"
 
 
 def normalize_mavlink_url(url: str) -> str:
@@ -195,6 +241,8 @@ def normalize_mavlink_url(url: str) -> str:
     scheme, sep, rest = url.partition(":")
     if sep and scheme.lower() == "tcp" and not rest.startswith("//"):
         return f"socket://{rest}"
+    if sep and scheme.lower() == "tcpin":
+        return normalize_tcpin_url(url)
     return url
 
 

@@ -8,8 +8,24 @@ to that address; listen on an ephemeral port); ``normalize_udp_url`` turns those
 Datagrams become a byte stream: ``read(n)`` returns buffered bytes first and waits (up to the
 port's ``timeout``) only when none are buffered; ``in_waiting`` drains what the socket holds
 (at most ``MAX_DATAGRAMS_PER_POLL`` datagrams per call, so a flood cannot pin the caller).
-A ``write`` before any peer has spoken to a ``udpin`` endpoint is dropped (logged), as
-pymavlink does: there is nobody to send it to yet.
+A ``write`` before any peer has spoken to a ``udpin`` endpoint is dropped (logged): there is
+nobody to send it to yet.
+
+The peer is LOCKED (pymavlink's ``udpin`` "answers whoever sent last"; this one never does):
+
+- ``udpin``: the first datagram that identifies the peer locks the endpoint to its sender's
+  address and port. What identifies it is ``identifies_peer`` (a predicate on the datagram,
+  set by the protocol above: MAVLink says "holds a vehicle HEARTBEAT"); without one, the first
+  datagram does. Datagrams before the lock that do not identify the peer are dropped
+  (``unidentified_datagrams``); after it, datagrams from any other address are dropped and
+  counted (``foreign_datagrams``, ``foreign_senders``, ``last_foreign``; those that would have
+  identified a peer, a second "vehicle", also in ``foreign_claims``): they never reach the
+  reader and nothing is ever sent to them. Every write goes to the locked peer, or nowhere.
+  Without authentication (MAVLink signing) a host that speaks first with an identifying
+  datagram is taken for the peer; the real one is then a foreign claim, and the driver above
+  refuses to command anything (``rig.fc.link_lock``).
+- ``udpout``: the socket is connected to the target, so the operating system itself drops
+  datagrams from any other address (they cannot be counted).
 """
 
 from __future__ import annotations
@@ -17,6 +33,7 @@ from __future__ import annotations
 import logging
 import select
 import socket
+from collections.abc import Callable
 from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
@@ -25,6 +42,7 @@ log = logging.getLogger(__name__)
 
 MAX_DATAGRAM = 65535
 MAX_DATAGRAMS_PER_POLL = 64
+MAX_FOREIGN_SENDERS = 32  # distinct intruding addresses remembered (the count goes on)
 UDP_SCHEMES = ("udpin", "udpout", "udp")
 
 
@@ -57,9 +75,18 @@ class UdpSerial(SerialBase):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._sock: socket.socket | None = None
-        self._remote: tuple[str, int] | None = None
+        self._remote: tuple[str, int] | None = None  # the locked peer (udpout: the target)
         self._buffer = bytearray()
         self.dropped_writes = 0
+        #: udpin: which datagram identifies the peer (None: the first one does)
+        self.identifies_peer: Callable[[bytes], bool] | None = None
+        self.unidentified_datagrams = 0  # dropped before the lock: they identified nobody
+        self.foreign_datagrams = 0  # dropped after the lock: from another address
+        #: of those, datagrams that would have identified a peer (a second "vehicle")
+        self.foreign_claims = 0
+        self.last_claim: tuple[str, int] | None = None
+        self.foreign_senders: dict[tuple[str, int], int] = {}
+        self.last_foreign: tuple[str, int] | None = None
         kwargs.pop("clock", None)  # real sockets run on real time
         super().__init__(*args, **kwargs)
 
@@ -72,11 +99,13 @@ class UdpSerial(SerialBase):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if listen:
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                # no SO_REUSEADDR: with it, another program (also setting it) could bind the
+                # same port and take the vehicle's datagrams (Linux gives them to the last)
                 sock.bind(address)
             else:
-                self._remote = address
-                sock.connect(address)  # replies come from the address we send to
+                sock.connect(address)  # the OS drops datagrams from any other address
+                host, port = sock.getpeername()[:2]
+                self._remote = (str(host), int(port))  # as recvfrom names it ("localhost" resolved)
         except OSError as exc:
             sock.close()
             raise SerialException(f"{self.port}: cannot open UDP endpoint: {exc}") from exc
@@ -89,7 +118,49 @@ class UdpSerial(SerialBase):
 
     @property
     def remote(self) -> tuple[str, int] | None:
+        """The locked peer (None on a ``udpin`` endpoint nobody has identified yet)."""
         return self._remote
+
+    @property
+    def intrusions(self) -> int:
+        """Datagrams from other addresses since the lock (the interface ``tcpin`` shares)."""
+        return self.foreign_datagrams
+
+    @property
+    def peer(self) -> str | None:
+        """The locked peer as ``host:port``."""
+        return None if self._remote is None else f"{self._remote[0]}:{self._remote[1]}"
+
+    def _accept(self, data: bytes, sender: tuple[str, int]) -> bool:
+        """Lock on the first identifying datagram; drop (and count) everything else."""
+        if self._remote is None:
+            check = self.identifies_peer
+            if check is not None and not check(data):
+                self.unidentified_datagrams += 1
+                return False
+            self._remote = sender
+            log.info("%s: locked to %s:%d", self.port, sender[0], sender[1])
+            return True
+        if sender == self._remote:
+            return True
+        self.foreign_datagrams += 1
+        self.last_foreign = sender
+        check = self.identifies_peer
+        if check is not None and check(data):
+            self.foreign_claims += 1
+            self.last_claim = sender
+        if sender in self.foreign_senders:
+            self.foreign_senders[sender] += 1
+        elif len(self.foreign_senders) < MAX_FOREIGN_SENDERS:  # bounded: so is the log
+            self.foreign_senders[sender] = 1
+            log.warning(
+                "%s: dropped a datagram from %s:%d (the link is locked to %s)",
+                self.port,
+                sender[0],
+                sender[1],
+                self.peer,
+            )
+        return False
 
     def _drain(self, wait_s: float) -> None:
         sock = self._sock
@@ -108,9 +179,8 @@ class UdpSerial(SerialBase):
                 continue  # ICMP from a udpout target not listening yet: no data
             except OSError as exc:
                 raise SerialException(f"{self.port}: UDP receive failed: {exc}") from exc
-            if self._remote is None or sender != self._remote:
-                self._remote = (str(sender[0]), int(sender[1]))
-            self._buffer += data
+            if self._accept(data, (str(sender[0]), int(sender[1]))):
+                self._buffer += data
 
     @property
     def in_waiting(self) -> int:

@@ -39,7 +39,7 @@ def detect_from_url(url: str) -> Detection | None:
     """The kind a URL names without any I/O on a device (sim peers, replay transcripts,
     pymavlink connection strings such as ``udpin:0.0.0.0:14550``)."""
     inner = innermost_url(url)  # also recorded: record://udpin:0.0.0.0:14550?file=x.jsonl
-    if MAVLINK_CONNECTION.match(inner) or url_scheme(inner) in ("udpin", "udpout"):
+    if MAVLINK_CONNECTION.match(inner) or url_scheme(inner) in ("udpin", "udpout", "tcpin"):
         return Detection("mavlink", evidence="pymavlink connection string")
     for drv in drivers():
         if url_scheme(inner) in drv.url_schemes:

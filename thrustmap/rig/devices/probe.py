@@ -9,9 +9,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from thrustmap.core.clock import Clock
-from thrustmap.core.errors import SafetyError, ThrustmapError
+from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
 from thrustmap.rig.devices.detect import resolve
 from thrustmap.rig.devices.registry import Detection, driver
 from thrustmap.rig.interfaces import DeviceIdentity, StandSample, Telemetry
@@ -90,6 +91,7 @@ def probe_device(
     line_preset: str | None = None,
     line_spec_file: str | None = None,
     seconds: float = 1.0,
+    signing_key: Any = None,
 ) -> ProbeReport:
     """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
     output (its exit commands stop and verifies it, as always) but no motor is commanded."""
@@ -97,7 +99,7 @@ def probe_device(
     report = ProbeReport(url, found)
     try:
         return _probe(report, url, clock, kind, baudrate, calibration, line_preset,
-                      line_spec_file, seconds)  # fmt: skip
+                      line_spec_file, seconds, signing_key)  # fmt: skip
     finally:  # say how this kind's protocol was checked (a real device, an official client...)
         checked = driver(found.kind).verified
         if report.identity is not None and checked:
@@ -115,13 +117,22 @@ def _probe(
     line_preset: str | None,
     line_spec_file: str | None,
     seconds: float,
+    signing_key: Any,
 ) -> ProbeReport:
     from thrustmap.rig.connect import open_stand, open_throttle_output
     from thrustmap.rig.stand.line import LineStand
 
     found = report.detection
+    if signing_key is not None and found.kind != "mavlink":
+        if not getattr(signing_key, "from_environment", False):
+            raise ConfigError(
+                f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
+            )
+        signing_key = None  # the environment's key is for MAVLink devices only
     if driver(found.kind).role == "fc":
-        output = open_throttle_output(url, clock, kind=kind or found.kind, baudrate=baudrate)
+        output = open_throttle_output(
+            url, clock, kind=kind or found.kind, baudrate=baudrate, signing_key=signing_key
+        )
         with output:
             try:
                 report.identity = output.identify()

@@ -20,13 +20,16 @@ from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.codec import decode_flight_sw_version, request_message
 from thrustmap.protocols.mavlink.link import open_mavlink
+from thrustmap.protocols.mavlink.signing import SigningKey, enable_signing
 from thrustmap.rig.fc.ardupilot import ARDUPILOT_PARAMS, MOT_PWM_TYPES, ArduPilotThrottleOutput
+from thrustmap.rig.fc.link_lock import LinkIntruder
 from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
 from thrustmap.rig.fc.mavlink_session import (
     CommandsLate,
     MavlinkLinkLost,
     MavlinkSession,
     MotorTestRefused,
+    SigningRequired,
     UnsupportedAutopilot,
     wait_for_vehicle_heartbeat,
 )
@@ -41,11 +44,14 @@ __all__ = [
     "PX4_PARAMS",
     "ArduPilotThrottleOutput",
     "CommandsLate",
+    "LinkIntruder",
     "MavlinkLinkLost",
     "MavlinkSession",
     "MavlinkThrottleOutput",
     "MotorTestRefused",
     "Px4ThrottleOutput",
+    "SigningKey",
+    "SigningRequired",
     "UnsupportedAutopilot",
     "decode_flight_sw_version",
     "detect",
@@ -105,6 +111,7 @@ def open_mavlink_output(
     *,
     autopilot: str | int | None = None,
     heartbeat_timeout_s: float = 3.0,
+    signing_key: SigningKey | None = None,
     **driver_kwargs: Any,
 ) -> MavlinkThrottleOutput:
     """Wait for a vehicle HEARTBEAT and return the PX4 or ArduPilot driver for it.
@@ -112,10 +119,14 @@ def open_mavlink_output(
     ``url_or_link``: a URL for ``open_mavlink`` (device path, ``sim://px4``, ``record://...``,
     ``replay://...``, ``udpin:``/``udpout:``/``tcp:``) or an open pymavlink connection.
     ``autopilot`` ("px4", "ardupilot", 12, 3) insists on one firmware: a vehicle of another kind
-    is refused. A link this function opened is closed again if it fails.
+    is refused. ``signing_key``: sign every message and accept only validly signed ones
+    (``thrustmap.protocols.mavlink.signing``). A link this function opened is closed again if
+    it fails.
     """
     link, opened = _link(url_or_link, clock)
     try:
+        if signing_key is not None:
+            enable_signing(link, signing_key)
         hb = wait_for_vehicle_heartbeat(link, clock, heartbeat_timeout_s)
         found = int(hb.autopilot)
         if autopilot is not None and _autopilot_id(autopilot) != found:

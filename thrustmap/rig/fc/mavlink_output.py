@@ -135,7 +135,10 @@ class MavlinkThrottleOutput(ThrottleOutput):
         return self.session.poll()
 
     def check_link(self) -> None:
+        """The vehicle's HEARTBEAT is fresh, and no other address sent to the link while a
+        motor is commanded (``LinkIntruder``: the run stops the motor through the locked peer)."""
         self.session.check_link()
+        self.session.check_intruders(commanded=bool(self._current))
 
     def command(self, cmd: mav.CommandLong, *, attempts: int | None = None) -> mav.CommandAck:
         return self.session.command(cmd, attempts=attempts)
@@ -317,6 +320,8 @@ class MavlinkThrottleOutput(ThrottleOutput):
             self._check_motor(motor)
             self._check_value(motor, value)
         self.poll()
+        # never start, or go on, with an intruder on the link
+        self.session.check_intruders(commanded=True, starting=not self._current)
         self._check_schedule()
         self._before_start(values)
         self._send_or_assume_running(dict(values))
@@ -500,7 +505,7 @@ class MavlinkThrottleOutput(ThrottleOutput):
     def read_telemetry(self) -> Telemetry:
         s = self.session
         s.poll()
-        s.check_link()
+        self.check_link()
         now_s = self.clock.now_s()
         voltage_v = current_a = None
         battery = self._fresh(s.battery, now_s)

@@ -18,6 +18,16 @@ outputs (``rig.fc.mavlink_output``, ``rig.fc.px4``, ``rig.fc.ardupilot``) are bu
   practice; see ``thrustmap.protocols.mavlink.params``), also for values that arrived before
   AUTOPILOT_VERSION did.
 - ``check_link()`` raises ``MavlinkLinkLost`` when the vehicle's HEARTBEAT is too old.
+- The locked link: the session talks to one vehicle (``target_system``/``target_component``,
+  from its HEARTBEAT); messages from other system ids are dropped and counted
+  (``foreign_system_messages``): a vehicle forwards other systems' traffic (ArduPilot routes a
+  ground station's HEARTBEAT from one port to the others), so they are no intrusion. Datagrams
+  from another ADDRESS never get here: the network endpoint drops and counts them
+  (``protocols.urlhandlers.protocol_udpin``); ``check_intruders(commanded=True)`` turns them
+  into ``LinkIntruder`` (naming the address) while motors are commanded.
+- Signing: with a key (``protocols.mavlink.signing``) unsigned or wrongly signed messages are
+  refused by pymavlink. When the vehicle stays silent, ``signing_problem()`` says why in one
+  line (``SigningRequired``, a ``ConfigError``: exit 2).
 """
 
 from __future__ import annotations
@@ -34,13 +44,55 @@ from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, DataFormatError, SafetyError, ThrustmapError
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.params import ParamEncoding, encoding_from_capabilities
+from thrustmap.protocols.mavlink.signing import is_signed
+from thrustmap.rig.fc.link_lock import IntruderWatch
 from thrustmap.rig.fc.link_timing import ReplyTimer
 
 log = logging.getLogger(__name__)
 
+MAX_FOREIGN = 32  # distinct foreign system ids remembered (the count goes on)
+
 
 class MavlinkLinkLost(ThrustmapError):
     """No HEARTBEAT or no COMMAND_ACK in time, or the transport failed: the link is gone."""
+
+
+class SigningRequired(ConfigError):
+    """The vehicle and thrustmap disagree about MAVLink 2 signing (see ``signing_problem``)."""
+
+
+def signing_problem(link: Any, signed_seen: int = 0, unsigned_seen: int = 0) -> str | None:
+    """One line saying why a vehicle is silent because of signing, or None.
+
+    ``signed_seen``/``unsigned_seen``: vehicle messages the session received with and without
+    a signature (a link without a key accepts both)."""
+    from thrustmap.protocols.mavlink.signing import ENV_VAR, signing_enabled, signing_stats
+
+    mav_obj = getattr(link, "mav", None)
+    if mav_obj is None or not hasattr(mav_obj, "signing"):
+        return None
+    if not signing_enabled(link):
+        if signed_seen and not unsigned_seen:
+            return (
+                "the vehicle requires signed MAVLink: pass --signing-key FILE|HEX "
+                f"(or set {ENV_VAR}); it signs its messages and ignored our unsigned commands"
+            )
+        return None
+    stats = signing_stats(link)
+    bad = stats.bad + int(getattr(link, "heartbeats_refused_bad_signature", 0))
+    unsigned = stats.unsigned_refused + int(getattr(link, "heartbeats_refused_unsigned", 0))
+    if stats.good == 0 and bad:
+        return (
+            f"refused {bad} signed MAVLink message(s) from the vehicle: signed with another "
+            "key (wrong --signing-key?) or with a timestamp over a minute older than this "
+            "computer's clock"
+        )
+    if stats.good == 0 and unsigned:
+        return (
+            f"refused {unsigned} unsigned MAVLink message(s): the vehicle does not sign "
+            "(no key set on it?), and with --signing-key only signed messages are accepted"
+        )
+    return None
 
 
 class MotorTestRefused(SafetyError):
@@ -91,6 +143,9 @@ def wait_for_vehicle_heartbeat(link: Any, clock: Clock, timeout_s: float) -> mav
     while True:
         remaining_s = deadline_s - clock.now_s()
         if remaining_s <= 0:
+            problem = signing_problem(link)
+            if problem is not None:
+                raise SigningRequired(f"{getattr(link, 'address', link)}: {problem}")
             raise MavlinkLinkLost(
                 f"no HEARTBEAT from a vehicle within {timeout_s:g} s on "
                 f"{getattr(link, 'address', link)}"
@@ -156,6 +211,15 @@ class MavlinkSession:
         self.seen: set[str] = set()
         self.rx_seq = 0
         self.polls_cut_short = 0  # polls that stopped at max_messages_per_poll
+        #: messages from other system ids, dropped (at most ``MAX_FOREIGN`` ids remembered)
+        self.foreign_system_messages = 0
+        self.foreign_systems: set[int] = set()
+        #: vehicle messages received with / without a signature (for ``signing_problem``)
+        self.signed_messages = 0
+        self.unsigned_messages = 0
+        self.acks_received = 0  # COMMAND_ACKs for us, ever (none: signing may be the reason)
+        self.intruders = IntruderWatch(getattr(link, "port", None))
+        self.endpoint = self.intruders.endpoint
 
     # -- receiving ----------------------------------------------------------------------------
     def _from_target(self, msg: Any) -> bool:
@@ -166,8 +230,24 @@ class MavlinkSession:
     def handle(self, msg: Any) -> None:
         """Fold one received message into the state."""
         kind = msg.get_type()
-        if kind == "BAD_DATA" or not self._from_target(msg):
+        if kind == "BAD_DATA":
             return
+        if not self._from_target(msg):
+            self.foreign_system_messages += 1
+            system = int(msg.get_srcSystem())
+            if system not in self.foreign_systems and len(self.foreign_systems) < MAX_FOREIGN:
+                self.foreign_systems.add(system)
+                log.info(
+                    "dropped a %s from system %d (the link talks to system %d only)",
+                    kind,
+                    system,
+                    self.target_system,
+                )
+            return
+        if is_signed(msg):
+            self.signed_messages += 1
+        else:
+            self.unsigned_messages += 1
         now_s = self.clock.now_s()
         self.rx_seq += 1
         decoded = mav.decode(msg)
@@ -186,6 +266,7 @@ class MavlinkSession:
             if target not in (0, int(self.link.mav.srcSystem)):
                 return  # an ACK for another ground station
             self.acks.append(decoded)
+            self.acks_received += 1
         elif isinstance(decoded, mav.StatusText):
             log.info("vehicle: %s", decoded.text)
             self.statustext.append(Stamped(decoded.text, now_s, seq))
@@ -257,6 +338,22 @@ class MavlinkSession:
                 f"(limit {self.heartbeat_timeout_s:g} s): link lost"
             )
 
+    @property
+    def peer(self) -> str:
+        """The locked peer: address (when the link has one) and system/component id."""
+        address = getattr(self.endpoint, "peer", None)
+        ids = f"system {self.target_system} component {self.target_component}"
+        return f"{address} ({ids})" if address else ids
+
+    def check_intruders(self, *, commanded: bool, starting: bool = False) -> None:
+        """Raise ``LinkIntruder`` if another address sent to the link (datagrams dropped by
+        the endpoint) while motors are ``commanded`` (``starting``: about to be); otherwise
+        only log it."""
+        self.intruders.check(commanded=commanded, starting=starting, peer_label=self.peer)
+
+    def signing_problem(self) -> str | None:
+        return signing_problem(self.link, self.signed_messages, self.unsigned_messages)
+
     def ensure_heartbeat(self) -> mav.Heartbeat:
         if self.heartbeat is None:
             hb = wait_for_vehicle_heartbeat(self.link, self.clock, self.heartbeat_timeout_s)
@@ -319,6 +416,7 @@ class MavlinkSession:
         A late ACK to an earlier try is the answer too; ACKs for this command left from before
         are dropped (``stale_acks``). The round trip of a command answered at its first try
         teaches the ACK wait (``ack_timer``)."""
+        self.intruders.check_claims(peer_label=self.peer)  # which one is the vehicle?
         cmd = self.target(cmd)
         tries = self.command_attempts if attempts is None else attempts
         kept = [a for a in self.acks if a.command != cmd.command]
@@ -354,6 +452,9 @@ class MavlinkSession:
             if attempt == 1 and self.fixed_ack_timeout_s is None:
                 self.ack_timer.timed_out()
             waited_s += wait_s
+        problem = None if self.acks_received else self.signing_problem()
+        if problem is not None:  # never answered: signing, not a lost link, may be why
+            raise SigningRequired(problem)
         raise MavlinkLinkLost(
             f"no COMMAND_ACK for {command_name(cmd.command)} after {tries} tries "
             f"({waited_s:.2f} s in all): link lost"

@@ -67,6 +67,7 @@ from thrustmap.protocols.msp.messages import (
     throttle_scale_for,
 )
 from thrustmap.protocols.transport import SerialLike
+from thrustmap.rig.fc.link_lock import IntruderWatch
 from thrustmap.rig.fc.link_timing import ReplyTimer
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 
@@ -166,6 +167,8 @@ class MspThrottleOutput(ThrottleOutput):
         self.watchdog_log = watchdog_log
         self._watchdog: Watchdog | None = None
         self.port.timeout = 0.0  # we poll with our own clock-driven deadline
+        #: MSP over UDP/TCP: the endpoint is locked to its peer (``rig.fc.link_lock``)
+        self.intruders = IntruderWatch(port)
 
     # -- MSP request/response -------------------------------------------------------------
     def request(
@@ -371,6 +374,9 @@ class MspThrottleOutput(ThrottleOutput):
                 raise SafetyError(f"motor {motor} out of range 0..{MSP_MOTOR_SLOTS - 1}")
             ext[motor] = self._ext(native)
         if any(v > MSP_MOTOR_STOP for v in ext):
+            self._pump(wait=False)
+            # never start, or go on, with an intruder on the link
+            self.intruders.check(commanded=True, starting=not self._motors_may_run)
             self._ensure_watchdog()
             self._motors_may_run = True
         self._command_motors(SetMotor(tuple(ext)).encode())
@@ -539,6 +545,7 @@ class MspThrottleOutput(ThrottleOutput):
                 raise MspTimeout(
                     f"no MSP reply to BATTERY_STATE for {age_s:.2f} s ({self.timer.describe()})"
                 )
+        self.intruders.check(commanded=self._motors_may_run)
         time_s, batt = self._battery
         rpm = temp = None
         if self._esc is not None:

@@ -62,6 +62,7 @@ from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.mavlink.frames import motor_order
 from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
+from thrustmap.protocols.mavlink.signing import parse_signing_key
 from thrustmap.protocols.peer import BytePeer, register_peer
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.options import MAX_SIM_MOTORS, opt_flag, opt_float, opt_int
@@ -282,6 +283,7 @@ class ArduPilotVehicle(SimMavlinkVehicle):
     autopilot = mav.Autopilot.ARDUPILOT
     capabilities = 64495  # ArduCopter 4.7 SITL: no PARAM_ENCODE_BYTEWISE (C cast)
     flight_sw_version = 67567616  # 4.7.0-dev
+    accepts_setup_signing = True  # GCS_Signing.cpp: on any port (unsigned on the first)
 
     def __init__(
         self,
@@ -491,11 +493,19 @@ def _flag(options: Mapping[str, str], key: str, default: bool) -> bool:
 
 
 def _common(options: Mapping[str, str]) -> dict[str, Any]:
+    """Options every simulated vehicle takes. ``signing_key_file=PATH``: sign with the key in
+    that file (a path, so the key never appears in a URL or a transcript header);
+    ``accept_unsigned=1``: take unsigned messages too (ArduPilot's first port)."""
+    key = None
+    if options.get("signing_key_file"):
+        key = parse_signing_key(options["signing_key_file"], source="signing_key_file")
     return {
         "system_id": opt_int(options, "sysid", 1, lo=1, hi=255),
         "telemetry_rate_hz": opt_float(
             options, "rate_hz", 10.0, positive=True, maximum=1000.0, what="a telemetry rate in Hz"
         ),  # fmt: skip
+        "signing_key": key,
+        "accept_unsigned": _flag(options, "accept_unsigned", False),
     }
 
 

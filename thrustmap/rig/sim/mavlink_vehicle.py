@@ -16,12 +16,21 @@ REAL32 unless a subclass says otherwise) and integers are encoded the firmware's
 (``param_encoding``: PX4 bytewise, ArduPilot C cast), announced by the AUTOPILOT_VERSION
 capability bits. An unknown name is answered with PARAM_ERROR where the firmware does that
 (``param_error_for_unknown``, PX4) and with silence otherwise (ArduPilot).
+
+MAVLink 2 signing as the real firmware does it (ArduPilot's GCS_Signing.cpp): with a
+``signing_key`` the vehicle signs everything it sends and silently ignores unsigned or wrongly
+signed messages (``refused_messages``), except RADIO_STATUS/RADIO; ``accept_unsigned=True`` is
+ArduPilot's first port (channel 0), which takes unsigned messages too while still signing its
+own. SETUP_SIGNING sets the key where ``accepts_setup_signing`` (ArduPilot; all zeros turn
+signing off). Signing timestamps are this computer's time (as the host's), not the simulated
+clock: pymavlink refuses a stream more than a minute older than its own timestamp.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -37,12 +46,14 @@ from thrustmap.protocols.mavlink.params import (
     encode_param_float,
     float_field_bytes,
 )
+from thrustmap.protocols.mavlink.signing import SigningKey, sign_mavlink
 from thrustmap.rig.sim.plant import Plant, PlantState
 
 log = logging.getLogger(__name__)
 
 HEARTBEAT_ID = 0
 MAX_CATCH_UP = 100  # instances of one catch-up stream per read, at most
+SIGNING_EPOCH_S = 1420070400  # MAVLink signing timestamps count from 2015-01-01 (10 µs units)
 
 
 class SimMavlinkVehicle(ABC):
@@ -63,11 +74,17 @@ class SimMavlinkVehicle(ABC):
         component_id: int = 1,
         telemetry_rate_hz: float = 10.0,
         params: Mapping[str, float] | None = None,
+        signing_key: SigningKey | None = None,
+        accept_unsigned: bool = False,
     ) -> None:
         self.plant = plant
         self.system_id = system_id
         self.component_id = component_id
         self._codec = mav.MavlinkCodec(system_id, component_id)
+        self.accept_unsigned = accept_unsigned
+        self.signing_key: SigningKey | None = None
+        if signing_key is not None:
+            self.set_signing_key(signing_key)
         self._frames: list[bytes] = []
         self._boot_s: float | None = None
         self._now_s = 0.0
@@ -85,6 +102,40 @@ class SimMavlinkVehicle(ABC):
         #: streams sent at their rate even when nobody reads (see ``_advance``)
         self.catch_up_streams: set[int] = set()
         self.commands_received: list[mav.CommandLong] = []
+
+    # -- signing ---------------------------------------------------------------------------
+    accepts_setup_signing = False
+
+    def set_signing_key(self, key: SigningKey | None, timestamp: int | None = None) -> None:
+        """Sign with ``key`` from now on (None: signing off)."""
+        mav_obj = self._codec.mav
+        self.signing_key = key
+        if key is None:
+            mav_obj.signing.secret_key = None
+            mav_obj.signing.sign_outgoing = False
+            mav_obj.signing.allow_unsigned_callback = None
+            return
+        if timestamp is None:
+            timestamp = int(max(0.0, time.time() - SIGNING_EPOCH_S) * 100_000)
+        sign_mavlink(mav_obj, key, timestamp=timestamp)
+        if self.accept_unsigned:
+            mav_obj.signing.allow_unsigned_callback = lambda _mav, _msg_id: True
+
+    @property
+    def refused_messages(self) -> int:
+        """Messages ignored because they were unsigned or wrongly signed."""
+        return int(self._codec.mav.signing.reject_count)
+
+    def _setup_signing(self, msg: Any) -> None:
+        if not self.accepts_setup_signing or self.armed:
+            return
+        if int(msg.target_system) not in (0, self.system_id):
+            return
+        secret = bytes(msg.secret_key)
+        if not any(secret) and int(msg.initial_timestamp) == 0:
+            self.set_signing_key(None)
+        else:
+            self.set_signing_key(SigningKey(secret), int(msg.initial_timestamp) + 6_000_000)
 
     # -- what subclasses provide ----------------------------------------------------------
     def default_params(self) -> Mapping[str, float]:
@@ -197,6 +248,8 @@ class SimMavlinkVehicle(ABC):
                     target_component=msg.get_srcComponent(),
                 )
             )
+        elif kind == "SETUP_SIGNING":
+            self._setup_signing(msg)
         elif kind == "PARAM_REQUEST_READ":
             self._send_param(mav.decode_text(msg.param_id), int(msg.param_index))
         elif kind == "PARAM_REQUEST_LIST":

@@ -1,0 +1,123 @@
+"""Loopback by default (issue 36, item 1) for the latency proxy: a test lists the sockets the
+process really listens on (from the kernel's tables, /proc/net, matched to the process's own
+file descriptors) while the proxy runs; none is outside loopback unless an address is named.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from thrustmap.rig.latency import LatencyProxy
+
+PROC_NET = Path("/proc/net")
+pytestmark = pytest.mark.skipif(
+    not (PROC_NET / "tcp").exists(), reason="needs Linux /proc/net to list listening sockets"
+)
+LISTEN = "0A"  # TCP_LISTEN in /proc/net/tcp
+UNCONNECTED_UDP = "07"  # a bound UDP socket (TCP_CLOSE): it receives from anyone
+
+
+def _address(hex_address: str, v6: bool) -> str:
+    host_hex, _ = hex_address.split(":")
+    raw = bytes.fromhex(host_hex)
+    if v6:  # four host-order 32-bit words
+        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, 16, 4))
+        return str(ipaddress.IPv6Address(raw))
+    return str(ipaddress.IPv4Address(raw[::-1]))
+
+
+def listening_sockets(pid: int) -> list[tuple[str, str, int]]:
+    """(protocol, address, port) of every TCP socket listening and every UDP socket bound,
+    unconnected, that process ``pid`` holds."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[len("socket:[") : -1])
+    found = []
+    for name, state in (("tcp", LISTEN), ("tcp6", LISTEN), ("udp", UNCONNECTED_UDP)):
+        path = Path(f"/proc/{pid}/net/{name}")
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[3] != state or fields[9] not in inodes:
+                continue
+            port = int(fields[1].split(":")[1], 16)
+            found.append((name, _address(fields[1], name.endswith("6")), port))
+    return found
+
+
+def outside_loopback(sockets: list[tuple[str, str, int]]) -> list[tuple[str, str, int]]:
+    return [s for s in sockets if not ipaddress.ip_address(s[1]).is_loopback]
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_the_lister_sees_a_socket_on_every_address() -> None:
+    """The lister itself: a socket bound to 0.0.0.0 is reported as outside loopback."""
+    with socket.socket() as s:
+        s.bind(("0.0.0.0", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        assert ("tcp", "0.0.0.0", port) in outside_loopback(listening_sockets(os.getpid()))
+
+
+def test_the_latency_proxy_listens_on_loopback_only() -> None:
+    before = set(listening_sockets(os.getpid()))
+    with LatencyProxy(("127.0.0.1", 9), 0.01) as proxy:
+        opened = set(listening_sockets(os.getpid())) - before
+        assert opened == {("tcp", "127.0.0.1", proxy.port)}
+    assert set(listening_sockets(os.getpid())) - before == set()
+
+
+def _proxy_process(*extra: str) -> tuple[subprocess.Popen[bytes], int]:
+    port = free_tcp_port()
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    child = subprocess.Popen(
+        [sys.executable, "-m", "thrustmap.rig.latency", "--listen", str(port)]
+        + ["--to", "127.0.0.1:9", "--delay-ms", "10", *extra],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and child.poll() is None:
+        if any(p == port for _, _, p in listening_sockets(child.pid)):
+            return child, port
+        time.sleep(0.05)
+    child.kill()
+    child.wait(timeout=5)
+    raise AssertionError("the latency proxy never listened")
+
+
+@pytest.mark.parametrize(
+    ("extra", "outside"), [((), False), (("--host", "0.0.0.0"), True)], ids=["default", "named"]
+)
+def test_python_m_latency_listens_on_loopback_unless_told(
+    extra: tuple[str, ...], outside: bool
+) -> None:
+    child, port = _proxy_process(*extra)
+    try:
+        sockets = listening_sockets(child.pid)
+    finally:
+        child.terminate()
+        _, err = child.communicate(timeout=10)
+    assert ("tcp", "0.0.0.0" if outside else "127.0.0.1", port) in sockets
+    assert bool(outside_loopback(sockets)) is outside
+    assert (b"other hosts can reach the device" in err) is outside
