@@ -296,6 +296,9 @@ def fit_cmd(
         f"supported region (where the data are; outside it the map extrapolates): "
         f"{out.map.supported_region().describe()}"
     )
+    volts = out.map.selection.get("measured_voltages_v") or []
+    if volts:  # points within 5 % of each other are one voltage
+        click.echo(f"measured at {', '.join(f'{v:.2f}' for v in volts)} V")
     ident = out.map.identification
     if ident:
         click.echo(f"identification: {ident['reason']}")

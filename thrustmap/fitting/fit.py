@@ -17,6 +17,7 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError, FitError, ThrustmapError
 from thrustmap.core.units import ThrottleScale
+from thrustmap.fitting.adaptive import measured_voltages
 from thrustmap.fitting.dataset import Dataset, FloatArray
 from thrustmap.fitting.interval import Interval, Region, advice, interval_range, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
@@ -295,7 +296,12 @@ def fit_map(
         strategy=strategy,
         rotors_on_esc=rotors_on_esc,
         metrics={"in_sample": stats.to_dict()},
-        selection={**selection.to_dict(), "report": [p.report for p in data.points]},
+        selection={
+            **selection.to_dict(),
+            # which voltages the map was measured at (issue 30 item 4)
+            "measured_voltages_v": measured_voltages(data.voltage_v),
+            "report": [p.report for p in data.points],
+        },
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
         interval={}
