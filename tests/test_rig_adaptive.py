@@ -778,3 +778,27 @@ def test_fit_says_which_voltages_the_map_was_measured_at(
     out = capsys.readouterr().out
     volts = json.loads((tmp_path / "m.json").read_text())["selection"]["measured_voltages_v"]
     assert len(volts) == 1 and f"measured at {volts[0]:.2f} V" in out
+
+
+def test_sweep_adaptive_across_voltage_command_on_the_simulator(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--no-discharge``: a lower voltage is asked for as another pack; the simulated bench
+    connects the pack asked for, the run goes on there and the log says so."""
+    peers.reset_benches()
+    main(
+        across_args(
+            tmp_path, "--voltage-range", "22.5:24.9", "--no-discharge", "--target-pi", "0.9",
+            "--max-minutes", "3", "--cells", "6",
+        )
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert "completed" in out and "stop verified" in out
+    summary = sidecar(tmp_path / "run.csv")["adaptive"]
+    assert summary["voltage_range_v"] == [22.5, 24.9]  # type: ignore[index]
+    events = summary["voltage_events"]  # type: ignore[index]
+    assert events and events[0]["event"] == "pack change", events
+    assert events[0]["before_v"] > 24.0 and events[0]["after_v"] < 23.0
+    main(["fit", str(tmp_path / "run.csv"), "-o", str(tmp_path / "m.json")])
+    volts = json.loads((tmp_path / "m.json").read_text())["selection"]["measured_voltages_v"]
+    assert len(volts) >= 2 and volts[0] < 23.0 < 24.0 < volts[-1]

@@ -166,6 +166,7 @@ def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
         max_wh=kw["max_wh"],
         voltage_range_v=voltage_range,
         connect_pack=kw.get("connect_pack") if voltage_range else None,
+        discharge=kw.get("discharge", True),
     )
 
 
@@ -360,6 +361,13 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
 @click.option(
     "--voltage-range",
     help="adaptive --across-voltage: battery voltages LO:HI in V the map must cover.",
+)
+@click.option(
+    "--discharge/--no-discharge",
+    default=True,
+    show_default=True,
+    help="adaptive --across-voltage: reach a lower voltage by discharging the pack, or ask "
+    "for another pack (quicker when one is at hand).",
 )
 @click.option(
     "--coarse",

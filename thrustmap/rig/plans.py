@@ -427,10 +427,13 @@ class AdaptiveDriver:
         connect_pack: Callable[[PackChange], bool] | None = None,
         max_pack_changes: int = 2,
         max_discharges: int = 4,
+        discharge: bool = True,
     ) -> None:
         """``voltage_range_v``: across voltage (the chooser judges the target over it);
         ``connect_pack(change)``: asks for another pack (``change.message``, ``change.wanted_v``) with the motor stopped and returns
-        whether one was connected (None: the run ends where a pack would be needed)."""
+        whether one was connected (None: the run ends where a pack would be needed);
+        ``discharge`` False: a lower voltage is asked for as another pack too (quicker when
+        one is at hand: a discharge holds a load for minutes)."""
         if not coarse_pct:
             raise ConfigError("an adaptive plan needs at least one coarse level")
         if not 0 <= lo_pct < hi_pct <= 100:
@@ -456,6 +459,7 @@ class AdaptiveDriver:
         self.voltage_range_v = voltage_range_v
         self.connect_pack = connect_pack
         self.max_pack_changes, self.max_discharges = max_pack_changes, max_discharges
+        self.discharge = discharge
         #: across voltage: each discharge and pack change (what was asked, what happened)
         self.events: list[dict[str, Any]] = []
         self._min_voltage_v: float | None = None  # the interlock's, from the runner's caps
@@ -562,7 +566,7 @@ class AdaptiveDriver:
         changes = sum(1 for e in self.events if e["event"] == "pack change")
         where = a.next_reason
         log.info("adaptive plan, across voltage: %s", where)
-        if wanted < now and floor is not None and until >= floor:
+        if self.discharge and wanted < now and floor is not None and until >= floor:
             if discharges >= self.max_discharges:
                 self.stop_reason = (
                     f"across voltage: {discharges} discharges did not reach {wanted:.2f} V"
@@ -587,6 +591,8 @@ class AdaptiveDriver:
         why_not = (
             "above the pack's voltage"
             if wanted >= now
+            else "discharging is off (--no-discharge)"
+            if not self.discharge
             else "no minimum-voltage limit is known (--cells)"
             if floor is None
             else f"below what a discharge may reach ({floor:.2f} V under load: the minimum cell "
@@ -800,6 +806,7 @@ def adaptive(
     max_points: int = 200,
     voltage_range_v: tuple[float, float] | None = None,
     connect_pack: Callable[[PackChange], bool] | None = None,
+    discharge: bool = True,
 ) -> Plan:
     """An adaptive plan: ``coarse_levels`` evenly spaced holds from ``start_pct`` to
     ``stop_pct``, then holds chosen one at a time by ``chooser`` (for the fitted map's least
@@ -825,6 +832,7 @@ def adaptive(
         max_points=max_points,
         voltage_range_v=voltage_range_v,
         connect_pack=connect_pack,
+        discharge=discharge,
     )
     return Plan(
         "adaptive",
