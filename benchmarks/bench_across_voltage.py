@@ -57,7 +57,7 @@ TARGET_PI_PCT = 1.0
 BELOW = 0.15  # the voltage judged: this share below the pack's start
 ASKED_BELOW = 0.10  # the range asked: --voltage-range (1 - ASKED_BELOW) V0 : V0
 ESC_DROP_V = 1.0
-BUDGET_MIN = 6.0  # the adaptive runs' time budget, minutes
+BUDGET_MIN = 10.0  # the adaptive runs' time budget, minutes (sweep's default)
 LIMITS = Limits(max_current_a=120.0, max_throttle_pct=75.0, cells=6)
 CFG = RunConfig(settle_window_s=0.6)
 RIGS = {"6S, ESC drop 1 V": ESC_DROP_V, "6S, stock (no drop)": 0.0}

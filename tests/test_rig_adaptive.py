@@ -467,6 +467,7 @@ class Move:
     note: str = ""
     move_to_v: float | None = None
     move_until_v: float | None = None
+    move_rest_v: float | None = None
 
     @property
     def pi_at(self) -> Callable[[float, float], float | None]:

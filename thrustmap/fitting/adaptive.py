@@ -141,6 +141,9 @@ class Verdict:
     #: ... and the voltage the battery shows under the heaviest load measured (the top of
     #: the envelope) once it is there: what a discharge segment holds until
     move_until_v: float | None = None
+    #: ... and the voltage a pack must read at rest to give ``move_to_v`` there (what a
+    #: pack change asks for)
+    move_rest_v: float | None = None
 
 
 def measured_voltages(voltage_v: npt.ArrayLike) -> list[float]:
@@ -310,7 +313,7 @@ class MapChooser:
         if self.voltage_range_v is not None and worst is not None:
             move = self._move(hw, tt, bb, grid_t, cand_b, pi_now, (t, b), unit_b)
             if move is not None:
-                return Verdict(worst, False, None, move[0], None, pi_at, note, move[1], move[2])
+                return Verdict(worst, False, None, move[0], None, pi_at, note, *move[1:])
         gap = np.min(
             np.hypot(
                 (grid_t[:, None] - t[None, :]) / span_t, (cand_b[:, None] - b[None, :]) / unit_b
@@ -361,12 +364,13 @@ class MapChooser:
         pi_now: FloatArray,
         measured: tuple[FloatArray, FloatArray],
         unit_b: float,
-    ) -> tuple[str, float, float] | None:
+    ) -> tuple[str, float, float, float] | None:
         """Across voltage: once the interval at the voltage now is within the target, the
         (thrust, voltage) of the asked range the map is least certain at, when no point near
         that thrust was measured within half the identifying span of that voltage or on both
         sides of it, and the battery does not give it now: (why, the voltage to move to, the
-        voltage under the heaviest load measured once there)."""
+        voltage under the heaviest load measured once there, the voltage at rest that gives
+        it)."""
         t, b = measured
         finite_now = pi_now[np.isfinite(pi_now)]
         if finite_now.size and float(finite_now.max()) > MOVE_AT_SHARE * self.target_pi_pct:
@@ -391,11 +395,12 @@ class MapChooser:
         # model as the candidates (flat when it cannot be fitted)
         sag = float(np.interp(t_star, grid_t, cand_b) - np.interp(float(t.max()), grid_t, cand_b))
         until = b_star - max(sag, 0.0)
+        rest = b_star + max(float(cand_b[0]) - b_here, 0.0)  # the sag from no load to T*
         why = (
             f"widest interval ±{pi_star:.2f} % at {t_star:.3g} N, {b_star:.2f} V (the battery "
             f"gives {b_here:.2f} V there now): the voltage must move"
         )
-        return why, b_star, until
+        return why, b_star, until, rest
 
 
 def _voltage_model(

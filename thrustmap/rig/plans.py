@@ -78,7 +78,7 @@ class PackChange:
     """Stop the motor and verify the stop, ask for another pack (``message``), then check the
     voltage at rest moved toward ``wanted_v`` before anything spins again."""
 
-    wanted_v: float
+    wanted_v: float  # what the pack should read at rest
     message: str
     label: str = "pack-change"
 
@@ -384,6 +384,8 @@ class Assessment(Protocol):
     def move_to_v(self) -> float | None: ...  # across voltage: where the battery must go
     @property
     def move_until_v(self) -> float | None: ...  # ... as read under the heaviest load
+    @property
+    def move_rest_v(self) -> float | None: ...  # ... as a pack reads it at rest
 
 
 class Chooser(Protocol):
@@ -558,6 +560,7 @@ class AdaptiveDriver:
         ``stop_reason`` set when neither is possible."""
         wanted = float(a.move_to_v or 0.0)
         until = float(a.move_until_v if a.move_until_v is not None else wanted)
+        rest = float(a.move_rest_v if a.move_rest_v is not None else wanted)
         now = self._voltage_now() or 0.0
         floor = (
             None if self._min_voltage_v is None else self._min_voltage_v * (1 + DISCHARGE_MARGIN)
@@ -600,7 +603,7 @@ class AdaptiveDriver:
         )
         message = (
             f"The map needs data at about {wanted:.2f} V, {why_not}. The motor is stopped. "
-            f"Connect a pack that reads about {wanted:.2f} V at rest (another charge, fewer "
+            f"Connect a pack that reads about {rest:.2f} V at rest (another charge, fewer "
             "cells or a bench supply; no more cells than the limits were set for)."
         )
         if self.connect_pack is None or changes >= self.max_pack_changes:
@@ -614,7 +617,7 @@ class AdaptiveDriver:
             )
             return None
         self._pending = {"reason": f"{where}: pack change", "pi_before_pct": None}
-        return PackChange(wanted, message)
+        return PackChange(rest, message)
 
     def pack_changed(self, wanted_v: float, before_v: float | None, after_v: float | None) -> None:
         """The runner's report of a pack change (the voltage at rest before and after)."""
