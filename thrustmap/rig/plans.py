@@ -85,8 +85,11 @@ class PackChange:
 
 #: what an adaptive plan's run yields: holds, and across voltage its voltage moves
 RunSegment = Hold | Ramp | Discharge | PackChange
-#: a discharge stops this far (a share) above the minimum-voltage limit
-DISCHARGE_MARGIN = 0.05
+#: a discharge stops this far (a share) above the minimum-voltage limit, and a run ends
+#: once a point reads within it (the next, heavier load would trip the limit)
+DISCHARGE_MARGIN = 0.10
+#: a point within DISCHARGE_MARGIN of the minimum voltage lowers the plan's top this far below it
+PACK_LOW_STEP_PCT = 10.0
 #: longest discharge without a time budget, s
 DISCHARGE_MAX_S = 900.0
 #: a pack change must move the voltage at rest by at least this share
@@ -466,6 +469,7 @@ class AdaptiveDriver:
         self.events: list[dict[str, Any]] = []
         self._min_voltage_v: float | None = None  # the interlock's, from the runner's caps
         self._after_change = False  # a pack was just changed: no verdict on the new one yet
+        self._pack_low = ""  # why the run ends before the minimum-voltage limit trips
         self.points: list[SettledPoint] = []
         self.records: list[dict[str, Any]] = []
         self.stop_reason = ""
@@ -510,7 +514,7 @@ class AdaptiveDriver:
             yield seg
         while True:
             a = self._assessment
-            stop = self._budget_exhausted()
+            stop = self._budget_exhausted() or self._pack_low
             if stop:
                 self.stop_reason = stop
             elif a is not None and a.target_met:
@@ -685,6 +689,21 @@ class AdaptiveDriver:
         )
 
     def _check_headroom(self, point: SettledPoint, caps: Mapping[str, float]) -> None:
+        min_v = caps.get("min_voltage_v")
+        volts = point.voltage_v
+        if min_v and volts is not None and volts <= min_v * (1 + DISCHARGE_MARGIN):
+            # the pack sags toward its limit: the plan's top comes down a step below this
+            # level (a heavier load would trip it); with no room left the run ends
+            top = round(point.throttle_pct - PACK_LOW_STEP_PCT, 3)
+            near = (
+                f"the pack read {volts:.2f} V at {point.throttle_pct:.1f} %, within "
+                f"{100 * DISCHARGE_MARGIN:.0f} % of the {min_v:g} V minimum-voltage limit"
+            )
+            if top <= self.lo_pct + RANGE_SLACK_PCT:
+                self._pack_low = f"{near}: the run ends before the limit trips"
+            elif top < self.hi_pct:
+                self.hi_pct = top
+                log.info("adaptive plan: %s: the plan's top is now %g %%", near, top)
         for value, key, what, unit in (
             (point.thrust_n, "max_thrust_n", "thrust", "N"),
             (point.current_a, "max_current_a", "current", "A"),
