@@ -194,9 +194,14 @@ class Plan:
                 lo_v, hi_v = a.voltage_range_v
                 lines.append(
                     f"  across voltage {lo_v:g}..{hi_v:g} V: once the voltage now is measured, "
-                    f"discharge at {a.hi_pct:g} % down to where the map is least certain, or, "
-                    "where discharging cannot reach (the minimum cell voltage, or a voltage "
-                    "above the pack's), stop the motor and ask for another pack"
+                    + (
+                        f"discharge at {a.hi_pct:g} % down to where the map is least certain, "
+                        "or, where discharging cannot reach (the minimum cell voltage, or a "
+                        "voltage above the pack's), stop the motor and ask for another pack"
+                        if a.discharge
+                        else "stop the motor and ask for another pack at the voltage where "
+                        "the map is least certain"
+                    )
                 )
         return "\n".join(lines)
 
