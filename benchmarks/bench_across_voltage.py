@@ -181,7 +181,7 @@ def main() -> None:
         out = Path(tmp)
         for rig, drop in RIGS.items():
             rows: dict[str, list[tuple[float, float, float, float, float]]] = {}
-            volts: dict[str, list[float]] = {}
+            volts: dict[str, list[tuple[float, float]]] = {}
             for which in ("single", "across", "across-pack", "fixed"):
                 for seed in seeds:
                     r = run(seed, drop, out, which)
@@ -193,7 +193,7 @@ def main() -> None:
                     volts[which] = measured_voltages_of(r.tmap)
                 m = np.mean(np.array(rows[which]), axis=0)
                 label = {"fixed": "fixed two-pack", "across": "across, discharge"}.get(which, which)
-                shown = ", ".join(f"{v:.1f}" for v in volts[which])
+                shown = ", ".join(f"{lo:.1f}..{hi:.1f}" for lo, hi in volts[which])
                 print(
                     f"{rig:<20} {label:<15} {m[0]:>8.1f} s {m[1]:>6.2f} Wh {m[2]:>6.1f} "
                     f"{m[3]:>8.3f} % {m[4]:>6.3f} %  {shown}"
@@ -216,10 +216,11 @@ def main() -> None:
     print(f"({time.perf_counter() - started:.0f} s wall)")
 
 
-def measured_voltages_of(tmap: ThrustMap) -> list[float]:
-    """The voltages the map says it was measured at (its ``selection``)."""
+def measured_voltages_of(tmap: ThrustMap) -> list[tuple[float, float]]:
+    """The voltage ranges the map says it was measured at (its ``selection``)."""
     got = tmap.selection.get("measured_voltages_v")
-    return [float(v) for v in got] if isinstance(got, list) else measured_voltages([])
+    groups = got if isinstance(got, list) else measured_voltages([])
+    return [(float(g["lo_v"]), float(g["hi_v"])) for g in groups]
 
 
 if __name__ == "__main__":

@@ -567,7 +567,8 @@ def test_across_voltage_discharges_the_pack_to_the_range(tmp_path: Path) -> None
     # the map says which voltages it was measured at: the start and the discharged pack
     out = fit_map([load_dataset(tmp_path / "d.csv")])
     volts = out.map.selection["measured_voltages_v"]
-    assert len(volts) >= 2 and volts[0] < 0.92 * start and volts[-1] > 0.98 * start
+    assert len(volts) >= 2
+    assert volts[0]["median_v"] < 0.92 * start and volts[-1]["hi_v"] > 0.98 * start
     doc = json.loads(out.map.dumps())
     assert doc["selection"]["measured_voltages_v"] == volts
 
@@ -710,7 +711,11 @@ def test_the_chooser_moves_the_voltage_once_the_voltage_now_is_measured() -> Non
 
 
 def test_measured_voltages_group_what_lies_within_5_percent() -> None:
-    assert measured_voltages([24.8, 24.7, 24.75, 22.3, 22.2, float("nan")]) == [22.25, 24.75]
+    groups = measured_voltages([24.8, 24.7, 24.75, 22.3, 22.2, float("nan")])
+    assert [(g["lo_v"], g["median_v"], g["hi_v"], g["points"]) for g in groups] == [
+        (22.2, 22.25, 22.3, 2.0),
+        (24.7, 24.75, 24.8, 3.0),
+    ]
     assert measured_voltages([]) == []
 
 
@@ -778,7 +783,9 @@ def test_fit_says_which_voltages_the_map_was_measured_at(
     main(["fit", str(tmp_path / "run.csv"), "-o", str(tmp_path / "m.json")])
     out = capsys.readouterr().out
     volts = json.loads((tmp_path / "m.json").read_text())["selection"]["measured_voltages_v"]
-    assert len(volts) == 1 and f"measured at {volts[0]:.2f} V" in out
+    assert len(volts) == 1
+    g = volts[0]
+    assert f"measured at {g['lo_v']:.2f}..{g['hi_v']:.2f} V ({g['points']:.0f} points)" in out
 
 
 def test_sweep_adaptive_across_voltage_command_on_the_simulator(
@@ -802,7 +809,7 @@ def test_sweep_adaptive_across_voltage_command_on_the_simulator(
     assert events[0]["before_v"] > 24.0 and events[0]["after_v"] < 23.0
     main(["fit", str(tmp_path / "run.csv"), "-o", str(tmp_path / "m.json")])
     volts = json.loads((tmp_path / "m.json").read_text())["selection"]["measured_voltages_v"]
-    assert len(volts) >= 2 and volts[0] < 23.0 < 24.0 < volts[-1]
+    assert len(volts) >= 2 and volts[0]["hi_v"] < 23.0 < 24.0 < volts[-1]["lo_v"]
 
 
 def test_a_pack_near_its_minimum_voltage_lowers_the_top_then_ends_the_run() -> None:

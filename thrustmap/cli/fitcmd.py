@@ -298,7 +298,9 @@ def fit_cmd(
     )
     volts = out.map.selection.get("measured_voltages_v") or []
     if volts:  # points within 5 % of each other are one voltage
-        click.echo(f"measured at {', '.join(f'{v:.2f}' for v in volts)} V")
+        from thrustmap.fitting.adaptive import describe_voltages
+
+        click.echo(f"measured at {describe_voltages(volts)}")
     ident = out.map.identification
     if ident:
         click.echo(f"identification: {ident['reason']}")

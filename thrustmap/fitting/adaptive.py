@@ -146,10 +146,10 @@ class Verdict:
     move_rest_v: float | None = None
 
 
-def measured_voltages(voltage_v: npt.ArrayLike) -> list[float]:
+def measured_voltages(voltage_v: npt.ArrayLike) -> list[dict[str, float]]:
     """The voltages a map was measured at: its points' voltages grouped where they lie within
     ``VOLTAGE_GROUP_REL`` of the next (a discharge's continuous fall is one group from its
-    start to its end), each group given by its median, ascending."""
+    start to its end), each group as ``{"lo_v", "median_v", "hi_v", "points"}``, ascending."""
     b = np.sort(np.asarray(voltage_v, float))
     b = b[np.isfinite(b) & (b > 0)]
     if not len(b):
@@ -160,7 +160,22 @@ def measured_voltages(voltage_v: npt.ArrayLike) -> list[float]:
             groups.append([x])
         else:
             groups[-1].append(x)
-    return [round(float(np.median(g)), 3) for g in groups]
+    return [
+        {
+            "lo_v": round(g[0], 3),
+            "median_v": round(float(np.median(g)), 3),
+            "hi_v": round(g[-1], 3),
+            "points": float(len(g)),
+        }
+        for g in groups
+    ]
+
+
+def describe_voltages(groups: Sequence[dict[str, float]]) -> str:
+    """``measured_voltages`` in words: "24.12..24.86 V (31 points) and 21.90..22.41 V (40)"."""
+    return " and ".join(
+        f"{g['lo_v']:.2f}..{g['hi_v']:.2f} V ({g['points']:.0f} points)" for g in groups
+    )
 
 
 class MapChooser:
