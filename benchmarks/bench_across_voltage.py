@@ -11,12 +11,16 @@ a SimClock, 10..60 % throttle, limits 120 A / 75 %, 6 cells (min 3.3 V per cell)
 
 - single: ``plans.adaptive`` with a target of ``TARGET_PI_PCT`` over the voltages seen (the
   plan as it was: one voltage);
-- across: the same with ``voltage_range_v = (0.85 V0, V0)`` (V0: the pack at rest before the
-  run); 15 % below a 6S pack cannot be reached by discharge above the minimum cell voltage, so
-  the plan stops the motor and asks for a pack; the simulated user connects a 5S pack;
-- fixed two-pack: the paper's stairs-up + steps on the 6S pack, then again on the 5S pack
-  (the same pack the across run was given), both logs fitted together.
+- across, discharge: the same with ``voltage_range_v = (0.90 V0, V0)`` (V0: the pack at rest
+  before the run; 15 % below a 6S pack at rest is a nearly empty pack, under the 3.3 V/cell
+  limit once loaded): the plan discharges the pack at its top level;
+- across-pack: the same with ``discharge=False`` (``--no-discharge``): the plan stops the motor
+  and asks for a pack at the voltage it needs; the simulated user connects a 6S pack reading
+  what was asked at rest;
+- fixed two-pack: the paper's stairs-up + steps on the 6S pack, then again on a 6S pack at
+  0.90 V0 at rest, both logs fitted together.
 
+The adaptive runs have sweep's default budget (10 min, 200 points).
 Each map is fitted from its Ds logs with the defaults (``fit_map``) and scored against the
 simulator's true map at B = 0.85 V0: mean |map - truth| in % throttle over thrusts from the
 lowest measured to the highest that 60 % throttle gives at that voltage (and at V0, for the
@@ -26,7 +30,7 @@ packs gave at their terminals.
 Acceptance (issue 30): across <= 0.5 % at 0.85 V0, where single misses by more; time and energy
 beside the fixed two-pack plan.
 
-Run: python benchmarks/bench_across_voltage.py [seeds, default 2]   (~30 s per seed)
+Run: python benchmarks/bench_across_voltage.py [seeds, default 2]   (~35 s per seed)
 """
 
 from __future__ import annotations
