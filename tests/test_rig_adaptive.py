@@ -828,3 +828,23 @@ def test_a_pack_near_its_minimum_voltage_lowers_the_top_then_ends_the_run() -> N
     assert driver.hi_pct == 50.0
     driver.observe(point(15.0, 21.5), caps)  # no room left below 15 %: the run ends
     assert "run ends before the limit trips" in driver._pack_low  # noqa: SLF001
+
+
+def test_across_voltage_ends_when_the_interval_stops_narrowing_after_a_move() -> None:
+    """After a voltage move, 25 more points that do not narrow the worst interval end the run
+    (no progress), instead of weighing the fit toward one level until the budget."""
+    driver = plans.AdaptiveDriver(
+        ScriptedChooser(10.0),  # type: ignore[arg-type]
+        [10.0, 60.0], lo_pct=10.0, hi_pct=60.0, dwell_s=3.0, record_s=1.0,
+        voltage_range_v=(20.0, 25.0),
+    )  # fmt: skip
+    flat = {"worst_pi_after_pct": 1.2}
+    driver.records = [dict(flat) for _ in range(40)]
+    assert driver._stalled() == ""  # noqa: SLF001  # no move yet: the chooser decides
+    driver.pack_changed(21.0, 24.8, 21.0)
+    driver.records += [dict(flat) for _ in range(20)]
+    assert driver._stalled() == ""  # noqa: SLF001  # too few points since the move
+    driver.records += [dict(flat) for _ in range(10)]
+    assert "no progress: the worst interval stayed at ±1.20 %" in driver._stalled()  # noqa: SLF001
+    driver.records[-1]["worst_pi_after_pct"] = 1.0  # narrowing again
+    assert driver._stalled() == ""  # noqa: SLF001

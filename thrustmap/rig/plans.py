@@ -90,6 +90,10 @@ RunSegment = Hold | Ramp | Discharge | PackChange
 DISCHARGE_MARGIN = 0.10
 #: a point within DISCHARGE_MARGIN of the minimum voltage lowers the plan's top this far below it
 PACK_LOW_STEP_PCT = 10.0
+#: across voltage: the run ends when the worst interval narrowed by less than STALL_REL over
+#: the last STALL_POINTS points at one voltage
+STALL_POINTS = 25
+STALL_REL = 0.02
 #: longest discharge without a time budget, s
 DISCHARGE_MAX_S = 900.0
 #: a pack change must move the voltage at rest by at least this share
@@ -519,7 +523,7 @@ class AdaptiveDriver:
             yield seg
         while True:
             a = self._assessment
-            stop = self._budget_exhausted() or self._pack_low
+            stop = self._budget_exhausted() or self._pack_low or self._stalled()
             if stop:
                 self.stop_reason = stop
             elif a is not None and a.target_met:
@@ -597,6 +601,7 @@ class AdaptiveDriver:
                     "from_v": _r(now),
                     "until_v": _r(until),
                     "at_pct": self.hi_pct,
+                    "after_point": len(self.records),
                 }
             )
             return Discharge(round(self.hi_pct, 3), until, max_s, self.record_s)
@@ -643,6 +648,26 @@ class AdaptiveDriver:
         # throttle gap, and the chooser judges from its point on
         self._assessment = None
         self._after_change = True
+
+    def _stalled(self) -> str:
+        """Across voltage, after a voltage move: the worst interval has not narrowed by
+        ``STALL_REL`` over the last ``STALL_POINTS`` points since the last move: the target
+        is out of reach here, and more points on the same levels only weigh the fit toward
+        them."""
+        if self.voltage_range_v is None or not self.events:
+            return ""  # before a voltage move the chooser decides when to go
+        since = max((int(e.get("after_point", 0)) for e in self.events), default=0)
+        worst = [r["worst_pi_after_pct"] for r in self.records[since:]]
+        worst = [w for w in worst if w is not None]
+        if len(worst) <= STALL_POINTS:
+            return ""
+        before, recent = min(worst[:-STALL_POINTS]), min(worst[-STALL_POINTS:])
+        if recent < (1 - STALL_REL) * before:
+            return ""
+        return (
+            f"no progress: the worst interval stayed at ±{recent:.2f} % over the last "
+            f"{STALL_POINTS} points (target {self.chooser.target_pi_pct:g} %)"
+        )
 
     def _largest_gap_pct(self) -> float:
         levels = sorted({self.lo_pct, self.hi_pct, *(p.throttle_pct for p in self.points)})
