@@ -848,3 +848,18 @@ def test_across_voltage_ends_when_the_interval_stops_narrowing_after_a_move() ->
     assert "no progress: the worst interval stayed at ±1.20 %" in driver._stalled()  # noqa: SLF001
     driver.records[-1]["worst_pi_after_pct"] = 1.0  # narrowing again
     assert driver._stalled() == ""  # noqa: SLF001
+
+
+def test_on_a_real_rig_no_answer_at_the_pack_question_is_no_pack(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The question a pack change asks on real hardware: the message, then the safety
+    question (asked even with --yes); stdin closed or empty: no pack (the run then ends with
+    the motor stopped), never a spin."""
+    from thrustmap.cli.bench import _pack_prompt
+
+    connect = _pack_prompt({"stand": "/dev/ttyUSB0", "throttle": "/dev/ttyACM0"}, quiet=True)
+    change = plans.PackChange(21.0, "Connect a pack that reads about 21.00 V at rest.")
+    assert connect(change) is False
+    err = capsys.readouterr().err
+    assert "about 21.00 V at rest" in err and "Other pack connected, propellers on" in err

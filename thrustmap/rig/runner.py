@@ -348,6 +348,8 @@ class Runner:
                 f"across voltage: no other pack was connected (wanted about {seg.wanted_v:.2f} V)"
             )
             return
+        if self.stand is not None:  # what the stand read while the pack was out: kept, not
+            self._write_rest(self.stand.read_samples(), "pack-change")  # the new pack's voltage
         after = self._rest_voltage()
         driver.pack_changed(seg.wanted_v, before, after)
         if before is None or after is None:
