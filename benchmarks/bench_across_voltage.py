@@ -46,10 +46,11 @@ import numpy as np
 
 from thrustmap.core.clock import SimClock
 from thrustmap.demo import experiments
-from thrustmap.fitting.adaptive import MapChooser, measured_voltages
+from thrustmap.fitting.adaptive import MapChooser
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.voltages import measured_voltages
 from thrustmap.rig import plans
 from thrustmap.rig.connect import open_stand, open_throttle_output
 from thrustmap.rig.interlocks import Limits

@@ -25,9 +25,10 @@ from test_rig_runner import STOP_FRAME, Rig, make_rig, motors_at_rest
 from thrustmap.cli import main
 from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.demo import truth_error_pct
-from thrustmap.fitting.adaptive import Fitted, MapChooser, measured_voltages
+from thrustmap.fitting.adaptive import Fitted, MapChooser
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.voltages import measured_voltages
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep

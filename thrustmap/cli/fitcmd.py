@@ -298,7 +298,7 @@ def fit_cmd(
     )
     volts = out.map.selection.get("measured_voltages_v") or []
     if volts:  # points within 5 % of each other are one voltage
-        from thrustmap.fitting.adaptive import describe_voltages
+        from thrustmap.fitting.voltages import describe_voltages
 
         click.echo(f"measured at {describe_voltages(volts)}")
     ident = out.map.identification

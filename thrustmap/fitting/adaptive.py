@@ -60,8 +60,6 @@ VOLTAGE_CANDIDATES = 5
 MOVE_AT_SHARE = 0.8
 #: across voltage: points within this share of the thrust span are "near" a thrust
 NEAR_THRUST_REL = 0.25
-#: points whose voltages lie within this share of each other are one measured voltage
-VOLTAGE_GROUP_REL = 0.05
 
 
 class PointLike(Protocol):
@@ -144,38 +142,6 @@ class Verdict:
     #: ... and the voltage a pack must read at rest to give ``move_to_v`` there (what a
     #: pack change asks for)
     move_rest_v: float | None = None
-
-
-def measured_voltages(voltage_v: npt.ArrayLike) -> list[dict[str, float]]:
-    """The voltages a map was measured at: its points' voltages grouped where they lie within
-    ``VOLTAGE_GROUP_REL`` of the next (a discharge's continuous fall is one group from its
-    start to its end), each group as ``{"lo_v", "median_v", "hi_v", "points"}``, ascending."""
-    b = np.sort(np.asarray(voltage_v, float))
-    b = b[np.isfinite(b) & (b > 0)]
-    if not len(b):
-        return []
-    groups: list[list[float]] = [[float(b[0])]]
-    for x in b[1:].tolist():
-        if x - groups[-1][-1] > VOLTAGE_GROUP_REL * groups[-1][-1]:
-            groups.append([x])
-        else:
-            groups[-1].append(x)
-    return [
-        {
-            "lo_v": round(g[0], 3),
-            "median_v": round(float(np.median(g)), 3),
-            "hi_v": round(g[-1], 3),
-            "points": float(len(g)),
-        }
-        for g in groups
-    ]
-
-
-def describe_voltages(groups: Sequence[dict[str, float]]) -> str:
-    """``measured_voltages`` in words: "24.12..24.86 V (31 points) and 21.90..22.41 V (40)"."""
-    return " and ".join(
-        f"{g['lo_v']:.2f}..{g['hi_v']:.2f} V ({g['points']:.0f} points)" for g in groups
-    )
 
 
 class MapChooser:

@@ -17,7 +17,6 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError, FitError, ThrustmapError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.adaptive import measured_voltages
 from thrustmap.fitting.dataset import Dataset, FloatArray
 from thrustmap.fitting.interval import Interval, Region, advice, interval_range, learn_interval
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
@@ -34,6 +33,7 @@ from thrustmap.fitting.models import (
 from thrustmap.fitting.names import DEFAULT_MODEL, VALIDATIONS, Loss, Validation
 from thrustmap.fitting.selection import Points, Selection, select
 from thrustmap.fitting.solve import condition_number, solve_gram
+from thrustmap.fitting.voltages import measured_voltages
 
 log = logging.getLogger(__name__)
 
