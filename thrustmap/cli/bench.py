@@ -61,6 +61,8 @@ def demo_cmd(out_dir: str, seed: int, quiet: bool) -> None:
 def _plan(kind: str, kw: dict[str, Any]) -> plans.Plan:
     from thrustmap.core.errors import ConfigError
 
+    if kind != "adaptive" and (kw.get("across_voltage") or kw.get("voltage_range")):
+        raise ConfigError("--across-voltage and --voltage-range are for sweep adaptive")
     if kw["repeats"] < 1:
         raise ConfigError(f"--repeats {kw['repeats']}: expected 1 or more")
     if not kw["record"] > 0:  # also NaN
@@ -153,7 +155,10 @@ def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
             raise ConfigError(
                 f"--thrust-range top {hi:g} N is above the thrust limit {cap:g} N (--max-thrust)"
             )
-    chooser = MapChooser(kw["target_pi"], thrust_range_n=thrust_range)
+    voltage_range = _voltage_range(kw)
+    chooser = MapChooser(
+        kw["target_pi"], thrust_range_n=thrust_range, voltage_range_v=voltage_range
+    )
     return plans.adaptive(
         chooser,
         kw["start"],
@@ -164,7 +169,71 @@ def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
         record_s=kw["record"],
         max_minutes=kw["max_minutes"],
         max_wh=kw["max_wh"],
+        voltage_range_v=voltage_range,
+        connect_pack=kw.get("connect_pack") if voltage_range else None,
+        discharge=kw.get("discharge", True),
     )
+
+
+def _voltage_range(kw: dict[str, Any]) -> tuple[float, float] | None:
+    """``--across-voltage --voltage-range LO:HI`` (volts at the battery, as the stand reads
+    them); either alone is refused."""
+    from thrustmap.core.errors import ConfigError
+
+    text, across = kw.get("voltage_range"), kw.get("across_voltage")
+    if not across:
+        if text:
+            raise ConfigError("--voltage-range is for --across-voltage: give both")
+        return None
+    if not text:
+        raise ConfigError("--across-voltage needs --voltage-range LO:HI in volts, e.g. 21:25")
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ConfigError(
+            f"--voltage-range {text!r}: expected LO:HI in volts, e.g. 21:25"
+        ) from None
+    if not (0 < lo < hi < 100):  # also NaN
+        raise ConfigError(f"--voltage-range {text!r}: expected 0 < LO < HI < 100 V")
+    return lo, hi
+
+
+def _pack_prompt(where: dict[str, str], *, quiet: bool) -> Callable[[plans.PackChange], bool]:
+    """The question a pack change asks, with the motor stopped and the stop verified. A
+    simulated bench (sim:// stand and FC) connects the asked pack itself; a real one asks on
+    stderr/stdin, then the safety question of every spin (``confirm_spin``, asked even with
+    --yes: a human has just had a hand at the stand). No answer or a no: no pack, the run ends
+    (the motor stays stopped)."""
+    from thrustmap.cli.waysout import Refused, confirm_spin
+
+    def connect(change: plans.PackChange) -> bool:
+        from thrustmap.rig.devices.urls import is_simulated
+
+        stand, throttle = where.get("stand", ""), where.get("throttle", "")
+        if stand and throttle and is_simulated(stand) and is_simulated(throttle):
+            from urllib.parse import parse_qs, urlsplit
+
+            from thrustmap.rig.sim import peers
+
+            bench = parse_qs(urlsplit(stand).query).get("bench", ["default"])[0]
+            plant = peers.bench_plant({"bench": bench})
+            plant.connect_pack(plant.time_s, ocv_v=change.wanted_v)
+            if not quiet:
+                click.echo(
+                    f"simulated bench: a pack at {change.wanted_v:.2f} V connected", err=True
+                )
+            return True
+        click.echo(change.message, err=True)
+        try:
+            confirm_spin(
+                "Other pack connected, propellers on, stand secured and the area clear?",
+                yes=False,
+            )
+        except Refused:
+            return False
+        return True
+
+    return connect
 
 
 def limit_options(fn: FC) -> FC:
@@ -289,6 +358,23 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
 )
 @click.option("--max-wh", type=float, help="adaptive: battery-energy budget, Wh.")
 @click.option(
+    "--across-voltage",
+    is_flag=True,
+    help="adaptive: measure across --voltage-range (discharging the pack, or asking for "
+    "another with the motor stopped) until the interval holds over it.",
+)
+@click.option(
+    "--voltage-range",
+    help="adaptive --across-voltage: battery voltages LO:HI in V the map must cover.",
+)
+@click.option(
+    "--discharge/--no-discharge",
+    default=True,
+    show_default=True,
+    help="adaptive --across-voltage: reach a lower voltage by discharging the pack, or ask "
+    "for another pack (quicker when one is at hand).",
+)
+@click.option(
     "--coarse",
     type=int,
     default=5,
@@ -361,6 +447,8 @@ def sweep_cmd(
     from thrustmap.rig.runner import RunConfig
     from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
 
+    where: dict[str, str] = {}  # the rig's URLs, for a pack change's question
+    kw["connect_pack"] = _pack_prompt(where, quiet=kw["quiet"])
     plan = _plan(kind, kw)
     limits = Limits.from_options(kw)
     check_plan(plan, limits)
@@ -380,6 +468,7 @@ def sweep_cmd(
         watchdog_log=str(Path(output).with_suffix(".watchdog.log")),  # beside the recording
         signing_key=kw["signing_key"],
     )
+    where.update(stand=rig.stand or "", throttle=rig.throttle or "")
     for warning in pairing_warnings(rig):
         echo(f"warning: {warning}", err=True)
     if _stand_cannot_see_the_motor(rig.stand, rig.throttle) and limits.min_thrust_by_pct > 0:

@@ -312,6 +312,11 @@ def fit_cmd(
         f"supported region (where the data are; outside it the map extrapolates): "
         f"{out.map.supported_region().describe()}"
     )
+    volts = out.map.selection.get("measured_voltages_v") or []
+    if volts:  # points within 5 % of each other are one voltage
+        from thrustmap.fitting.voltages import describe_voltages
+
+        click.echo(f"measured at {describe_voltages(volts)}")
     ident = out.map.identification
     if ident:
         echo(f"identification: {ident['reason']}")

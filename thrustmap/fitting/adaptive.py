@@ -18,6 +18,13 @@ changes the choice without touching the rest. The interval is the map's own
 the envelope and over the map's supported region, the range ``fit`` states: a bench that says
 "target met" is a bench whose log ``fit`` calls trustworthy to within the target.
 
+Across voltage (``voltage_range_v``, ``sweep adaptive --across-voltage --voltage-range LO:HI``)
+the target must hold over the asked voltage range, not the voltages seen; the map's interval
+there carries its voltage term (κ·|ln(B / voltage measured near T)|), so a map measured at one
+voltage is not done. Once the interval at the voltage now is within the target, the verdict
+names the voltage the range is least certain at (``move_to_v``) and the plan moves the
+battery there: a discharge segment or a second pack (``thrustmap.rig.plans``).
+
 This module belongs to ``fitting``: it knows nothing of the rig. The plan
 (``thrustmap.rig.plans.adaptive``) receives a :class:`MapChooser` from its caller.
 """
@@ -46,6 +53,13 @@ PERCENT = ThrottleScale("percent", 0.0, 100.0, "%")
 #: candidates whose interval is within this share of the widest are weighed by their distance
 #: from the points measured (× (1 + gap)): measuring again on a point narrows little
 NEAR_WIDEST = 0.9
+#: across voltage: candidate voltages over the asked range
+VOLTAGE_CANDIDATES = 5
+#: across voltage: the battery's voltage moves once the interval at the voltage now is within
+#: this share of the target
+MOVE_AT_SHARE = 0.8
+#: across voltage: points within this share of the thrust span are "near" a thrust
+NEAR_THRUST_REL = 0.25
 
 
 class PointLike(Protocol):
@@ -119,6 +133,15 @@ class Verdict:
     next_pi_pct: float | None
     pi_at: Callable[[float, float], float | None]
     note: str = ""
+    #: across voltage: the voltage the range is least certain at, where the battery must go
+    #: next (None: measure at the voltage now, or done)
+    move_to_v: float | None = None
+    #: ... and the voltage the battery shows under the heaviest load measured (the top of
+    #: the envelope) once it is there: what a discharge segment holds until
+    move_until_v: float | None = None
+    #: ... and the voltage a pack must read at rest to give ``move_to_v`` there (what a
+    #: pack change asks for)
+    move_rest_v: float | None = None
 
 
 class MapChooser:
@@ -126,7 +149,9 @@ class MapChooser:
 
     ``thrust_range_n``: the envelope the target must hold over; None: from the thrust of the
     lowest coarse level to the highest thrust measured (the top of the plan's throttle range,
-    which the limits allow). ``min_points``: no verdict of "done" before this many points."""
+    which the limits allow). ``min_points``: no verdict of "done" before this many points.
+    ``voltage_range_v``: across voltage, the battery voltages LO..HI the target must hold over
+    (None: the voltages seen)."""
 
     def __init__(
         self,
@@ -137,6 +162,7 @@ class MapChooser:
         min_points: int = 7,
         candidates: int = 41,
         fit: Callable[..., Fitted] = fit_interval,
+        voltage_range_v: tuple[float, float] | None = None,
     ) -> None:
         if not (math.isfinite(target_pi_pct) and target_pi_pct > 0):
             raise ConfigError(f"--target-pi must be a positive % throttle, got {target_pi_pct:g}")
@@ -146,6 +172,13 @@ class MapChooser:
                 raise ConfigError(
                     f"--thrust-range must be LO:HI with 0 <= LO < HI N, got {lo:g}:{hi:g}"
                 )
+        if voltage_range_v is not None:
+            v_lo, v_hi = voltage_range_v
+            if not (math.isfinite(v_lo) and math.isfinite(v_hi) and 0 < v_lo < v_hi):
+                raise ConfigError(
+                    f"--voltage-range must be LO:HI with 0 < LO < HI V, got {v_lo:g}:{v_hi:g}"
+                )
+        self.voltage_range_v = voltage_range_v
         self.target_pi_pct = float(target_pi_pct)
         self.thrust_range_n = thrust_range_n
         self.model = model
@@ -163,6 +196,7 @@ class MapChooser:
         return {
             "target_pi_pct": self.target_pi_pct,
             "thrust_range_n": None if self.thrust_range_n is None else list(self.thrust_range_n),
+            "voltage_range_v": None if self.voltage_range_v is None else list(self.voltage_range_v),
             "model": self.model,
             "min_points": self.min_points,
             "rule": "least certain thrust at the voltage now; ties to the largest gap",
@@ -198,8 +232,19 @@ class MapChooser:
         t_lo, t_hi = self.envelope(t)
         grid_t = np.linspace(t_lo, t_hi, self.candidates)
         b_lo, b_hi = float(b.min()), float(b.max())
-        grid_b = np.unique(np.array([b_lo, 0.5 * (b_lo + b_hi), b_hi, voltage_v]))
-        tt, bb = np.meshgrid(grid_t, grid_b)
+        el = np.array([p.elapsed_s for p in usable], float)
+        cand_b = _voltage_model(t, el, b, grid_t, float(el.max()), voltage_v)
+        if self.voltage_range_v is not None:
+            # the asked range, not the voltages seen; its top at each thrust less the sag
+            # that thrust's load brings (no pack at HI at rest reads HI under full load)
+            v_lo, v_hi = self.voltage_range_v
+            top = np.maximum(v_hi - (cand_b[0] - cand_b), v_lo)
+            share = np.linspace(0.0, 1.0, VOLTAGE_CANDIDATES)[:, None]
+            tt = np.broadcast_to(grid_t, (VOLTAGE_CANDIDATES, len(grid_t)))
+            bb = v_lo + share * (top - v_lo)[None, :]
+        else:
+            grid_b = np.unique(np.array([b_lo, 0.5 * (b_lo + b_hi), b_hi, voltage_v]))
+            tt, bb = np.meshgrid(grid_t, grid_b)
         hw = fitted.half_width_pct(tt, bb)
         if throttle_range_pct is not None:
             # one hold's worth of slack: the range's ends themselves are reachable
@@ -216,7 +261,7 @@ class MapChooser:
         note = ""
         span = b_hi - b_lo
         mean_b = float(b.mean())
-        if span < IDENTIFY_SPAN_REL * mean_b:
+        if span < IDENTIFY_SPAN_REL * mean_b and self.voltage_range_v is None:
             note = (
                 f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V): "
                 "how the map scales with voltage rests on motor physics; for a measured "
@@ -234,8 +279,6 @@ class MapChooser:
         # the choice: at the voltage now, widest interval; among equal ones, the largest gap
         # the voltage each candidate would be measured at: now, less the sag its load brings
         # (a linear fit of the points' voltage on thrust and time)
-        el = np.array([p.elapsed_s for p in usable], float)
-        cand_b = _voltage_model(t, el, b, grid_t, float(el.max()), voltage_v)
         pi_now = fitted.half_width_pct(grid_t, cand_b)
         if throttle_range_pct is not None:
             th_now = fitted.throttle_pct(grid_t, cand_b)
@@ -248,6 +291,10 @@ class MapChooser:
         # the span that identifies the voltage scaling, 5 % of the mean)
         span_t = max(t_hi - t_lo, 1e-9)
         unit_b = IDENTIFY_SPAN_REL * mean_b
+        if self.voltage_range_v is not None and worst is not None:
+            move = self._move(hw, tt, bb, grid_t, cand_b, pi_now, (t, b), unit_b)
+            if move is not None:
+                return Verdict(worst, False, None, move[0], None, pi_at, note, *move[1:])
         gap = np.min(
             np.hypot(
                 (grid_t[:, None] - t[None, :]) / span_t, (cand_b[:, None] - b[None, :]) / unit_b
@@ -287,6 +334,54 @@ class MapChooser:
         )
         before = float(pi_now[k]) if math.isfinite(float(pi_now[k])) else None
         return Verdict(worst, False, level, why, before, pi_at, note)
+
+    def _move(
+        self,
+        hw: FloatArray,
+        tt: FloatArray,
+        bb: FloatArray,
+        grid_t: FloatArray,
+        cand_b: FloatArray,
+        pi_now: FloatArray,
+        measured: tuple[FloatArray, FloatArray],
+        unit_b: float,
+    ) -> tuple[str, float, float, float] | None:
+        """Across voltage: once the interval at the voltage now is within the target, the
+        (thrust, voltage) of the asked range the map is least certain at, when no point near
+        that thrust was measured within half the identifying span of that voltage or on both
+        sides of it, and the battery does not give it now: (why, the voltage to move to, the
+        voltage under the heaviest load measured once there, the voltage at rest that gives
+        it)."""
+        t, b = measured
+        finite_now = pi_now[np.isfinite(pi_now)]
+        if finite_now.size and float(finite_now.max()) > MOVE_AT_SHARE * self.target_pi_pct:
+            return None  # there is still something to measure here
+        if int(np.sum(np.abs(b - b[-1]) <= 0.5 * unit_b)) < self.min_points:
+            # a discharge does not come back: the voltage now is measured well first (the
+            # map's voltage term, freed by the move, leans on both ends)
+            return None
+        k = np.unravel_index(int(np.argmax(hw)), hw.shape)
+        t_star, b_star, pi_star = float(tt[k]), float(bb[k]), float(hw[k])
+        b_here = float(np.interp(t_star, grid_t, cand_b))
+        if abs(b_star - b_here) <= 0.5 * unit_b:
+            return None
+        span_t = max(float(np.ptp(t)), 1e-9)
+        near = b[np.abs(t - t_star) <= NEAR_THRUST_REL * span_t]
+        if near.size and (
+            float(np.min(np.abs(near - b_star))) <= 0.5 * unit_b
+            or (float(near.min()) < b_star < float(near.max()))
+        ):
+            return None  # measured there, or between voltages measured: measure here
+        # the sag between that thrust and the heaviest load measured, from the same voltage
+        # model as the candidates (flat when it cannot be fitted)
+        sag = float(np.interp(t_star, grid_t, cand_b) - np.interp(float(t.max()), grid_t, cand_b))
+        until = b_star - max(sag, 0.0)
+        rest = b_star + max(float(cand_b[0]) - b_here, 0.0)  # the sag from no load to T*
+        why = (
+            f"widest interval ±{pi_star:.2f} % at {t_star:.3g} N, {b_star:.2f} V (the battery "
+            f"gives {b_here:.2f} V there now): the voltage must move"
+        )
+        return why, b_star, until, rest
 
 
 def _voltage_model(

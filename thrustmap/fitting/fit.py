@@ -34,6 +34,7 @@ from thrustmap.fitting.models import (
 from thrustmap.fitting.names import DEFAULT_MODEL, VALIDATIONS, Loss, Validation
 from thrustmap.fitting.selection import Points, Selection, select
 from thrustmap.fitting.solve import condition_number, solve_gram
+from thrustmap.fitting.voltages import measured_voltages
 
 log = logging.getLogger(__name__)
 
@@ -296,7 +297,12 @@ def fit_map(
         strategy=strategy,
         rotors_on_esc=rotors_on_esc,
         metrics={"in_sample": stats.to_dict()},
-        selection={**selection.to_dict(), "report": [p.report for p in data.points]},
+        selection={
+            **selection.to_dict(),
+            # which voltages the map was measured at (issue 30 item 4)
+            "measured_voltages_v": measured_voltages(data.voltage_v),
+            "report": [p.report for p in data.points],
+        },
         sources=tuple(d.source_record() for d in datasets),
         identification={} if ident is None else ident.to_dict(),
         interval={}

@@ -6,7 +6,11 @@ runner executes it. The seed paper's four experiments (its Fig. 5) are provided:
 ``steps`` (up-steps returning to a low level), ``stairs-up``, ``stairs-down`` and ``ramp`` (up
 then down), plus ``explicit`` for a user's own list of levels, and ``adaptive``: a short coarse pass, then
 each level chosen from the map being fitted (``AdaptiveDriver``; the choosing is injected, see
-``thrustmap.fitting.adaptive``), until the map is good enough or a budget is spent.
+``thrustmap.fitting.adaptive``), until the map is good enough or a budget is spent. Across
+voltage (``across_voltage``) an adaptive plan also moves the battery's voltage where the map
+needs it: a ``Discharge`` (hold a load until the voltage has fallen, within the interlocks) or,
+when discharging cannot get there, a ``PackChange`` (the runner stops the motor, verifies the
+stop, asks for the other pack and checks that the voltage moved).
 """
 
 from __future__ import annotations
@@ -57,6 +61,46 @@ Segment = Hold | Ramp
 
 
 @dataclass(frozen=True)
+class Discharge:
+    """Hold ``throttle_pct`` until the battery voltage under that load has fallen to
+    ``until_v`` (the mean over ``record_s``) or ``max_s`` has passed; every interlock stays on
+    (current, temperature, minimum cell voltage). Its last ``record_s`` is a settled point."""
+
+    throttle_pct: float
+    until_v: float
+    max_s: float
+    record_s: float = 1.0
+    label: str = "discharge"
+
+
+@dataclass(frozen=True)
+class PackChange:
+    """Stop the motor and verify the stop, ask for another pack (``message``), then check the
+    voltage at rest moved toward ``wanted_v`` before anything spins again."""
+
+    wanted_v: float  # what the pack should read at rest
+    message: str
+    label: str = "pack-change"
+
+
+#: what an adaptive plan's run yields: holds, and across voltage its voltage moves
+RunSegment = Hold | Ramp | Discharge | PackChange
+#: a discharge stops this far (a share) above the minimum-voltage limit, and a run ends
+#: once a point reads within it (the next, heavier load would trip the limit)
+DISCHARGE_MARGIN = 0.10
+#: a point within DISCHARGE_MARGIN of the minimum voltage lowers the plan's top this far below it
+PACK_LOW_STEP_PCT = 10.0
+#: across voltage: the run ends when the worst interval narrowed by less than STALL_REL over
+#: the last STALL_POINTS points at one voltage
+STALL_POINTS = 25
+STALL_REL = 0.02
+#: longest discharge without a time budget, s
+DISCHARGE_MAX_S = 900.0
+#: a pack change must move the voltage at rest by at least this share
+PACK_MOVE_MIN_REL = 0.02
+
+
+@dataclass(frozen=True)
 class Plan:
     name: str
     segments: tuple[Segment, ...]
@@ -75,7 +119,7 @@ class Plan:
             + ([] if self.adaptive is None else [self.adaptive.max_throttle_pct])
         )
 
-    def run_segments(self) -> Iterator[Segment]:
+    def run_segments(self) -> Iterator[RunSegment]:
         """What the runner executes: the segments, or an adaptive plan's levels as it decides."""
         if self.adaptive is None:
             yield from self.segments
@@ -150,6 +194,19 @@ class Plan:
                 f"  then: target 95 % interval <= {a.chooser.target_pi_pct:g} % throttle over "
                 f"the envelope; stops at the target or the budget ({a.budget_text()})"
             )
+            if a.voltage_range_v is not None:
+                lo_v, hi_v = a.voltage_range_v
+                lines.append(
+                    f"  across voltage {lo_v:g}..{hi_v:g} V: once the voltage now is measured, "
+                    + (
+                        f"discharge at {a.hi_pct:g} % down to where the map is least certain, "
+                        "or, where discharging cannot reach (the minimum cell voltage, or a "
+                        "voltage above the pack's), stop the motor and ask for another pack"
+                        if a.discharge
+                        else "stop the motor and ask for another pack at the voltage where "
+                        "the map is least certain"
+                    )
+                )
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -335,6 +392,12 @@ class Assessment(Protocol):
     def pi_at(self) -> Callable[[float, float], float | None]: ...
     @property
     def note(self) -> str: ...  # e.g. the voltage span needs another battery or a supply
+    @property
+    def move_to_v(self) -> float | None: ...  # across voltage: where the battery must go
+    @property
+    def move_until_v(self) -> float | None: ...  # ... as read under the heaviest load
+    @property
+    def move_rest_v(self) -> float | None: ...  # ... as a pack reads it at rest
 
 
 class Chooser(Protocol):
@@ -374,7 +437,17 @@ class AdaptiveDriver:
         max_minutes: float | None = None,
         max_wh: float | None = None,
         max_points: int = 200,
+        voltage_range_v: tuple[float, float] | None = None,
+        connect_pack: Callable[[PackChange], bool] | None = None,
+        max_pack_changes: int = 2,
+        max_discharges: int = 4,
+        discharge: bool = True,
     ) -> None:
+        """``voltage_range_v``: across voltage (the chooser judges the target over it);
+        ``connect_pack(change)``: asks for another pack (``change.message``, ``change.wanted_v``) with the motor stopped and returns
+        whether one was connected (None: the run ends where a pack would be needed);
+        ``discharge`` False: a lower voltage is asked for as another pack too (quicker when
+        one is at hand: a discharge holds a load for minutes)."""
         if not coarse_pct:
             raise ConfigError("an adaptive plan needs at least one coarse level")
         if not 0 <= lo_pct < hi_pct <= 100:
@@ -397,6 +470,15 @@ class AdaptiveDriver:
         self.lo_pct, self.hi_pct = float(lo_pct), float(hi_pct)
         self.dwell_s, self.record_s, self.settle = dwell_s, record_s, settle
         self.max_minutes, self.max_wh, self.max_points = max_minutes, max_wh, max_points
+        self.voltage_range_v = voltage_range_v
+        self.connect_pack = connect_pack
+        self.max_pack_changes, self.max_discharges = max_pack_changes, max_discharges
+        self.discharge = discharge
+        #: across voltage: each discharge and pack change (what was asked, what happened)
+        self.events: list[dict[str, Any]] = []
+        self._min_voltage_v: float | None = None  # the interlock's, from the runner's caps
+        self._after_change = False  # a pack was just changed: no verdict on the new one yet
+        self._pack_low = ""  # why the run ends before the minimum-voltage limit trips
         self.points: list[SettledPoint] = []
         self.records: list[dict[str, Any]] = []
         self.stop_reason = ""
@@ -424,7 +506,7 @@ class AdaptiveDriver:
         return ", ".join(parts)
 
     # -- the run --------------------------------------------------------------------------------
-    def segments(self) -> Iterator[Segment]:
+    def segments(self) -> Iterator[RunSegment]:
         """The coarse pass, then the chooser's levels, each decided after the previous hold."""
         if self.records:
             raise ConfigError(
@@ -441,7 +523,7 @@ class AdaptiveDriver:
             yield seg
         while True:
             a = self._assessment
-            stop = self._budget_exhausted()
+            stop = self._budget_exhausted() or self._pack_low or self._stalled()
             if stop:
                 self.stop_reason = stop
             elif a is not None and a.target_met:
@@ -454,6 +536,13 @@ class AdaptiveDriver:
                     f"the envelope needs throttle outside {self.lo_pct:g}..{self.hi_pct:g} % "
                     "(the plan's range): narrow --thrust-range or widen --from/--to"
                 )
+            move = None if stop or a is None or a.target_met else a.move_to_v
+            if move is not None and not self.stop_reason:
+                assert a is not None
+                moving = self._voltage_move(a)
+                if moving is not None:
+                    yield moving
+                    continue
             if self.stop_reason:
                 for extra in (self._near_limit, self.note):
                     if extra:
@@ -464,7 +553,9 @@ class AdaptiveDriver:
                 level, reason, before = a.next_pct, a.next_reason, a.next_pi_pct
             else:  # no usable fit: fill the widest gap in throttle
                 level = self._largest_gap_pct()
-                reason = f"{'no fit' if a is None else a.next_reason}: largest throttle gap"
+                why = "first hold on the new pack" if self._after_change else "no fit"
+                reason = f"{why if a is None else a.next_reason}: largest throttle gap"
+                self._after_change = False
                 before = None
             clipped = min(max(level, self.lo_pct), self.hi_pct)
             # the chooser allows half a percent of slack at the range's ends (they are
@@ -476,6 +567,108 @@ class AdaptiveDriver:
             self._pending = {"reason": reason, "pi_before_pct": before}
             yield _hold(round(clipped, 3), self.dwell_s, self.settle, self.record_s, "probe")
 
+    def _voltage_move(self, a: Assessment) -> Discharge | PackChange | None:
+        """Across voltage: discharge toward ``a.move_to_v`` when holding a load can get there
+        within the minimum-voltage limit, else ask for another pack; None with
+        ``stop_reason`` set when neither is possible."""
+        wanted = float(a.move_to_v or 0.0)
+        until = float(a.move_until_v if a.move_until_v is not None else wanted)
+        rest = float(a.move_rest_v if a.move_rest_v is not None else wanted)
+        now = self._voltage_now() or 0.0
+        floor = (
+            None if self._min_voltage_v is None else self._min_voltage_v * (1 + DISCHARGE_MARGIN)
+        )
+        discharges = sum(1 for e in self.events if e["event"] == "discharge")
+        changes = sum(1 for e in self.events if e["event"] == "pack change")
+        where = a.next_reason
+        log.info("adaptive plan, across voltage: %s", where)
+        if self.discharge and wanted < now and floor is not None and until >= floor:
+            if discharges >= self.max_discharges:
+                self.stop_reason = (
+                    f"across voltage: {discharges} discharges did not reach {wanted:.2f} V"
+                )
+                return None
+            max_s = DISCHARGE_MAX_S
+            if self.max_minutes is not None and self.points:
+                max_s = min(max_s, max(60 * self.max_minutes - self.points[-1].elapsed_s, 1.0))
+            self._pending = {
+                "reason": f"{where}: discharge at {self.hi_pct:g} % until {until:.2f} V under load",
+                "pi_before_pct": None,
+            }
+            self.events.append(
+                {
+                    "event": "discharge",
+                    "from_v": _r(now),
+                    "until_v": _r(until),
+                    "at_pct": self.hi_pct,
+                    "after_point": len(self.records),
+                }
+            )
+            return Discharge(round(self.hi_pct, 3), until, max_s, self.record_s)
+        why_not = (
+            "above the pack's voltage"
+            if wanted >= now
+            else "discharging is off (--no-discharge)"
+            if not self.discharge
+            else "no minimum-voltage limit is known (--cells)"
+            if floor is None
+            else f"below what a discharge may reach ({floor:.2f} V under load: the minimum cell "
+            f"voltage limit + {100 * DISCHARGE_MARGIN:.0f} %)"
+        )
+        message = (
+            f"The map needs data at about {wanted:.2f} V, {why_not}. The motor is stopped. "
+            f"Connect a pack that reads about {rest:.2f} V at rest (another charge, fewer "
+            "cells or a bench supply; no more cells than the limits were set for)."
+        )
+        if self.connect_pack is None or changes >= self.max_pack_changes:
+            self.stop_reason = (
+                f"across voltage: the range needs data at about {wanted:.2f} V ({why_not})"
+                + (
+                    f" and {changes} pack changes did not get there"
+                    if changes
+                    else ": rerun on a pack at that voltage"
+                )
+            )
+            return None
+        self._pending = {"reason": f"{where}: pack change", "pi_before_pct": None}
+        return PackChange(rest, message)
+
+    def pack_changed(self, wanted_v: float, before_v: float | None, after_v: float | None) -> None:
+        """The runner's report of a pack change (the voltage at rest before and after)."""
+        self.events.append(
+            {
+                "event": "pack change",
+                "wanted_v": _r(wanted_v),
+                "before_v": _r(before_v),
+                "after_v": _r(after_v),
+                "after_point": len(self.records),
+            }
+        )
+        # the verdict was the old pack's: the first hold on the new one fills the widest
+        # throttle gap, and the chooser judges from its point on
+        self._assessment = None
+        self._after_change = True
+
+    def _stalled(self) -> str:
+        """Across voltage, after a voltage move: the worst interval has not narrowed by
+        ``STALL_REL`` over the last ``STALL_POINTS`` points since the last move: the target
+        is out of reach here, and more points on the same levels only weigh the fit toward
+        them."""
+        if self.voltage_range_v is None or not self.events:
+            return ""  # before a voltage move the chooser decides when to go
+        since = max((int(e.get("after_point", 0)) for e in self.events), default=0)
+        worst = [r["worst_pi_after_pct"] for r in self.records[since:]]
+        worst = [w for w in worst if w is not None]
+        if len(worst) <= STALL_POINTS:
+            return ""
+        before, recent = min(worst[:-STALL_POINTS]), min(worst[-STALL_POINTS:])
+        if recent < (1 - STALL_REL) * before:
+            return ""
+        return (
+            f"no progress: the worst interval stayed at ±{recent:.2f} % over the last "
+            f"{STALL_POINTS} points (target {self.chooser.target_pi_pct:g} %)"
+        )
+
     def _largest_gap_pct(self) -> float:
         levels = sorted({self.lo_pct, self.hi_pct, *(p.throttle_pct for p in self.points)})
         gaps = [(b - a, 0.5 * (a + b)) for a, b in zip(levels, levels[1:], strict=False)]
@@ -486,6 +679,9 @@ class AdaptiveDriver:
         interlocks' thrust and current limits (``max_thrust_n``, ``max_current_a``); a point
         past ``LIMIT_HEADROOM`` of one ends the coarse pass there and lowers the plan's top to
         its level, so the run stays where the limits allow instead of tripping them."""
+        min_v = (caps or {}).get("min_voltage_v")
+        if min_v is not None and min_v > 0:
+            self._min_voltage_v = float(min_v)
         if point.samples > 0 and math.isfinite(point.thrust_n):
             self.points.append(point)
             self._check_headroom(point, caps or {})
@@ -523,6 +719,21 @@ class AdaptiveDriver:
         )
 
     def _check_headroom(self, point: SettledPoint, caps: Mapping[str, float]) -> None:
+        min_v = caps.get("min_voltage_v")
+        volts = point.voltage_v
+        if min_v and volts is not None and volts <= min_v * (1 + DISCHARGE_MARGIN):
+            # the pack sags toward its limit: the plan's top comes down a step below this
+            # level (a heavier load would trip it); with no room left the run ends
+            top = round(point.throttle_pct - PACK_LOW_STEP_PCT, 3)
+            near = (
+                f"the pack read {volts:.2f} V at {point.throttle_pct:.1f} %, within "
+                f"{100 * DISCHARGE_MARGIN:.0f} % of the {min_v:g} V minimum-voltage limit"
+            )
+            if top <= self.lo_pct + RANGE_SLACK_PCT:
+                self._pack_low = f"{near}: the run ends before the limit trips"
+            elif top < self.hi_pct:
+                self.hi_pct = top
+                log.info("adaptive plan: %s: the plan's top is now %g %%", near, top)
         for value, key, what, unit in (
             (point.thrust_n, "max_thrust_n", "thrust", "N"),
             (point.current_a, "max_current_a", "current", "A"),
@@ -598,6 +809,14 @@ class AdaptiveDriver:
             "stop_reason": self.stop_reason,
             "note": self.note,
             "near_limit": self._near_limit,
+            **(
+                {
+                    "voltage_range_v": list(self.voltage_range_v),
+                    "voltage_events": self.events,
+                }
+                if self.voltage_range_v is not None
+                else {}
+            ),
             "budget": {
                 "max_minutes": self.max_minutes,
                 "max_wh": self.max_wh,
@@ -616,6 +835,7 @@ class AdaptiveDriver:
             "max_minutes": self.max_minutes,
             "max_wh": self.max_wh,
             "max_points": self.max_points,
+            "voltage_range_v": None if self.voltage_range_v is None else list(self.voltage_range_v),
             "chooser": self.chooser.to_dict(),
         }
 
@@ -636,6 +856,9 @@ def adaptive(
     max_minutes: float | None = None,
     max_wh: float | None = None,
     max_points: int = 200,
+    voltage_range_v: tuple[float, float] | None = None,
+    connect_pack: Callable[[PackChange], bool] | None = None,
+    discharge: bool = True,
 ) -> Plan:
     """An adaptive plan: ``coarse_levels`` evenly spaced holds from ``start_pct`` to
     ``stop_pct``, then holds chosen one at a time by ``chooser`` (for the fitted map's least
@@ -659,6 +882,9 @@ def adaptive(
         max_minutes=max_minutes,
         max_wh=max_wh,
         max_points=max_points,
+        voltage_range_v=voltage_range_v,
+        connect_pack=connect_pack,
+        discharge=discharge,
     )
     return Plan(
         "adaptive",
@@ -672,6 +898,7 @@ def adaptive(
             "target_pi_pct": chooser.target_pi_pct,
             "max_minutes": max_minutes,
             "max_wh": max_wh,
+            **({"voltage_range_v": list(voltage_range_v)} if voltage_range_v else {}),
         },
         adaptive=driver,
     )

@@ -2,7 +2,9 @@
 
 Every run ends with a verified stop, whatever happens: the plan finishing, a tripped limit,
 an exception inside the plan or a driver, Ctrl-C, SIGTERM, the stand going quiet (watchdog), or
-the throttle output's link failing. The Ds log is flushed sample by sample and its sidecar
+the throttle output's link failing, and across voltage before a pack change (the stop is
+verified before the user is asked, and nothing is commanded until the new pack's voltage has
+been checked). The Ds log is flushed sample by sample and its sidecar
 records the outcome, so an aborted run still loads in ``thrustmap fit``.
 
 One monotonic clock (injected) timestamps everything; with a ``SimClock`` a test runs a
@@ -31,7 +33,17 @@ from thrustmap.rig.interlocks import (
     check_plan,
     margins,
 )
-from thrustmap.rig.plans import Hold, Plan, Ramp, Segment, SettledPoint
+from thrustmap.rig.plans import (
+    PACK_MOVE_MIN_REL,
+    Discharge,
+    Hold,
+    PackChange,
+    Plan,
+    Ramp,
+    RunSegment,
+    Segment,
+    SettledPoint,
+)
 from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 from thrustmap.rig.settle import RestDetector, SettleDetector
 
@@ -176,7 +188,13 @@ class Runner:
                     for i, seg in enumerate(self.plan.run_segments()):
                         self._segment_index = i
                         self._held = []
-                        self._run_segment(seg)
+                        if isinstance(seg, PackChange):
+                            self._change_pack(seg)
+                            continue
+                        if isinstance(seg, Discharge):
+                            self._run_discharge(seg)
+                        else:
+                            self._run_segment(seg)
                         self._observe(seg)
                     status, reason = "completed", ""
                     if self.plan.adaptive is not None:
@@ -237,11 +255,11 @@ class Runner:
             return {}
         return {"adaptive": self.plan.adaptive.summary()}
 
-    def _observe(self, seg: Segment) -> None:
+    def _observe(self, seg: RunSegment) -> None:
         """An adaptive plan hears what the hold measured; its record goes into the sidecar at
         once, so a run that is killed keeps why each point was chosen."""
         driver = self.plan.adaptive
-        if driver is None or not isinstance(seg, Hold):
+        if driver is None or not isinstance(seg, Hold | Discharge):
             return
         held = self._held
         volts = [v for _, v, _ in held if v is not None]
@@ -258,11 +276,116 @@ class Runner:
                 energy_wh=self._energy_j / 3600.0,
                 label=seg.label,
             ),
-            {"max_thrust_n": self.limits.max_thrust_n, "max_current_a": self.limits.max_current_a},
+            {
+                "max_thrust_n": self.limits.max_thrust_n,
+                "max_current_a": self.limits.max_current_a,
+                **(
+                    {"min_voltage_v": self.limits.min_voltage_v}
+                    if self.limits.min_voltage_v is not None
+                    else {}
+                ),
+            },
         )
         if self.writer is not None:
             self.writer.note(self._adaptive_meta())
         self._report(self.clock.now_s())
+
+    def _run_discharge(self, seg: Discharge) -> None:
+        """Hold ``seg.throttle_pct`` until the voltage under that load, averaged over
+        ``seg.record_s``, has fallen to ``seg.until_v`` (or ``seg.max_s``). Every sample goes
+        through ``_record``: the interlocks (current, temperature, minimum voltage) stay on."""
+        start = self.clock.now_s()
+        self._label = seg.label
+        window: list[tuple[float, float]] = []  # (time, voltage) over the last record_s
+        recent: list[tuple[float, float, float | None, float | None]] = []
+        while True:
+            now = self.clock.now_s()
+            if now - start >= seg.max_s:
+                log.info("discharge did not reach %.2f V within %.0f s", seg.until_v, seg.max_s)
+                break
+            self._command(seg.throttle_pct, now)
+            samples = self._poll(now)
+            reading = self._reading
+            if samples and reading.voltage_v is not None:
+                window.append((now, reading.voltage_v))
+                recent.extend(
+                    (now, s.thrust_n, reading.voltage_v, reading.current_a) for s in samples
+                )
+            window = [w for w in window if w[0] >= now - seg.record_s]
+            recent = [r for r in recent if r[0] >= now - seg.record_s]
+            slewing = abs(self._cmd_pct - seg.throttle_pct) > 1e-9
+            if (
+                not slewing
+                and window
+                and now - window[0][0] >= 0.9 * seg.record_s
+                and sum(v for _, v in window) / len(window) <= seg.until_v
+            ):
+                break
+            self._report(now)
+            self.clock.sleep_s(self.cfg.tick_s)
+        self._held = [(t, v, a) for _, t, v, a in recent]
+
+    def _change_pack(self, seg: PackChange) -> None:
+        """Across voltage: stop the motor and verify the stop (the run's stop contract), read
+        the voltage at rest, ask for the other pack through the plan, check that the voltage
+        at rest moved toward ``seg.wanted_v``, then wait for rest and tare again. Nothing is
+        commanded from the stop until the plan's next level."""
+        driver = self.plan.adaptive
+        assert driver is not None
+        self._label = seg.label
+        if not self._stop_until_verified():
+            self._abort("pack change: the motor stop was NOT verified; no pack is asked for")
+        self._cmd_pct, self._sent_pct = 0.0, None  # nothing is sent until the next level
+        if self.stand is not None:
+            self._wait_at_rest()  # the rotor still before anyone reaches for the pack
+        before = self._rest_voltage()
+        log.info("pack change: %s", seg.message)
+        connected = driver.connect_pack is not None and driver.connect_pack(seg)
+        now = self.clock.now_s()
+        self._last_link_ok = self._last_sample_at = now  # the question held the loop
+        self._energy_t = None  # nothing drawn while the pack was out
+        if not connected:
+            driver.pack_changed(seg.wanted_v, before, None)
+            driver.stop_reason = (
+                f"across voltage: no other pack was connected (wanted about {seg.wanted_v:.2f} V)"
+            )
+            return
+        if self.stand is not None:  # what the stand read while the pack was out: kept, not
+            self._write_rest(self.stand.read_samples(), "pack-change")  # the new pack's voltage
+        after = self._rest_voltage()
+        driver.pack_changed(seg.wanted_v, before, after)
+        if before is None or after is None:
+            self._abort("pack change: no voltage reading to check that the pack changed")
+        moved = after - before
+        if abs(moved) < PACK_MOVE_MIN_REL * before or (seg.wanted_v - before) * moved < 0:
+            self._abort(
+                f"pack change: the voltage at rest went {before:.2f} -> {after:.2f} V, not "
+                f"toward {seg.wanted_v:.2f} V by {100 * PACK_MOVE_MIN_REL:.0f} %: was the pack "
+                "changed? nothing spins on it"
+            )
+        if self.cfg.tare and self.stand is not None:
+            self._wait_at_rest()
+            self.stand.tare(service=lambda: self._service_link(self.clock.now_s()))
+        self._last_sample_at = self.clock.now_s()
+
+    def _rest_voltage(self, seconds: float = 1.0) -> float | None:
+        """Mean battery voltage over ``seconds`` with the motor stopped (stand, else the
+        output's telemetry); the samples are kept in the log (phase ``pack-change``)."""
+        start = self.clock.now_s()
+        volts: list[float] = []
+        while self.clock.now_s() - start < seconds:
+            now = self.clock.now_s()
+            self._service_link(now)
+            samples = [] if self.stand is None else self.stand.read_samples()
+            if samples:
+                self._last_sample_at = now
+            self._write_rest(samples, "pack-change")
+            volts.extend(s.voltage_v for s in samples if s.voltage_v is not None)
+            if not samples and self._telemetry is not None and self._telemetry.voltage_v:
+                volts.append(self._telemetry.voltage_v)
+            self._report(now)
+            self.clock.sleep_s(self.cfg.tick_s)
+        return sum(volts) / len(volts) if volts else None
 
     def _stop_until_verified(self) -> bool:
         """Stop and verify; on a lost link keep re-sending for ``stop_retry_s`` (Betaflight keeps
@@ -547,22 +670,29 @@ class Runner:
         if self.stand is None or self.writer is None:
             return
         try:
-            for s in self.stand.read_samples():
-                self.writer.write(
-                    s.time_s,
-                    float(self.scale.lo),
-                    {
-                        "thrust_n": s.thrust_n,
-                        "voltage_v": s.voltage_v,
-                        "current_a": s.current_a,
-                        "rpm": s.rpm,
-                        "torque_nm": s.torque_nm,
-                        "step": self._segment_index,
-                        "phase": "stop",
-                    },
-                )
+            self._write_rest(self.stand.read_samples(), "stop")
         except Exception as exc:
             log.debug("no samples after stop: %s", exc)
+
+    def _write_rest(self, samples: list[StandSample], phase: str) -> None:
+        """Samples read with the motor stopped, written as they came (command at the scale's
+        low end)."""
+        if self.writer is None:
+            return
+        for s in samples:
+            self.writer.write(
+                s.time_s,
+                float(self.scale.lo),
+                {
+                    "thrust_n": s.thrust_n,
+                    "voltage_v": s.voltage_v,
+                    "current_a": s.current_a,
+                    "rpm": s.rpm,
+                    "torque_nm": s.torque_nm,
+                    "step": self._segment_index,
+                    "phase": phase,
+                },
+            )
 
     def _report(self, now: float) -> None:
         if self.monitor is None:

@@ -9,13 +9,16 @@ Model (averaged, per motor i, all rotors on one ESC and one battery):
   the motors see V_bus = V_term - I_batt * R_bus (shared wires/ESC bus, unseen by the sensor).
   I_batt = sum(d_i * I_i) + I_quiescent. With N rotors on the ESC the current and both drops
   are N times larger: at the same *measured* voltage the MR map needs more throttle than SR.
-- Motor: d_i * V_bus = w_i / Kv + I_i * R; rotor J dw/dt = (I_i - I0) / Kv - kq w^2. With the
+- Motor: d_i * V_bus - drop = w_i / Kv + I_i * R (``esc_drop_v``: what the ESC's switches
+  take while driving, 0 unless a preset or override sets it); rotor J dw/dt = (I_i - I0) / Kv - kq w^2. With the
   bus voltage frozen over a substep this is a Riccati equation, integrated exactly, so the
   rotor lag costs one exp per step. Its time constant is J / (1/(Kv^2 R_eff) + 2 kq w) with
   R_eff = R + d^2 N (R_batt + R_bus): 40-55 ms for the xNova preset. On the ESC current limit
   the rotors are power-limited and settle more slowly (~0.4 s).
 - Propeller: T = kt w^2, Q = kq w^2. Battery: soc drains with I_batt, the polarization
-  voltage and motor temperatures follow exact first-order updates.
+  voltage and motor temperatures follow exact first-order updates; a held load discharges
+  the pack (its open-circuit voltage follows the LiPo table), and ``connect_pack`` swaps it
+  for another (refused while a motor is commanded or turning).
 - Load cell (motor 0): thrust + slow deterministic drift + Gaussian noise; pulling = positive.
   A creeping load cell (``LoadCellCreep``, ``creeping_reading``) shows part of a load change
   late: the system-id staircases (``rig.sim.sysid``) use it.
@@ -41,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from thrustmap.core.errors import ConfigError
+from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.rig.sim.plant import PlantState
 from thrustmap.rig.sim.presets import LIPO_OCV_CELL_V, LIPO_OCV_SOC, PRESETS, PlantParams
 from thrustmap.rig.sim.presets import preset as get_preset
@@ -110,13 +113,14 @@ def operating_point(
         params.no_load_current_a,
     )
     kq, iq, lim = params.torque_coeff_nm_s2, params.esc_quiescent_a, params.esc_current_limit_a
+    drop = params.esc_drop_v
     u, v = np.broadcast_arrays(
         np.asarray(throttle, dtype=float), np.asarray(voltage_v, dtype=float)
     )
     d = duty_from_throttle(params, u)
     # Unlimited: (R + Rw N d^2) I + w/Kv = d (V - Rw Iq), I = I0 + kq Kv w^2: a quadratic in w.
     r_eff = r + rw * rotors * d * d
-    c = r_eff * i0 - d * (v - rw * iq)
+    c = r_eff * i0 - d * (v - rw * iq) + np.where(d > 0, drop, 0.0)
     a = r_eff * kq * kv
     omega = np.where(c < 0, -2.0 * c / (1.0 / kv + np.sqrt(1.0 / kv**2 - 4.0 * a * c)), 0.0)
     i_m = np.where(d > 0, i0 + kq * kv * omega**2, 0.0)
@@ -130,13 +134,13 @@ def operating_point(
         for _ in range(_BISECT_STEPS):
             mid = 0.5 * (lo + hi)
             im = i0 + kq * kv * mid**2
-            over = rotors * im * (mid / kv + r * im) > (lim - iq) * v_bus
+            over = rotors * im * (mid / kv + r * im + drop) > (lim - iq) * v_bus
             hi, lo = np.where(over, mid, hi), np.where(over, lo, mid)
         w_lim = 0.5 * (lo + hi)
         im_lim = i0 + kq * kv * w_lim**2
         omega = np.where(limited, w_lim, omega)
         i_m = np.where(limited, im_lim, i_m)
-        d = np.where(limited, (w_lim / kv + r * im_lim) / np.maximum(v_bus, 1e-9), d)
+        d = np.where(limited, (w_lim / kv + r * im_lim + drop) / np.maximum(v_bus, 1e-9), d)
         i_b = np.where(limited, lim, i_b)
     return OperatingPoint(
         omega_rad_s=omega,
@@ -174,7 +178,7 @@ def true_throttle_fraction(
     )
     omega = np.sqrt(np.maximum(t, 0.0) / params.thrust_coeff_n_s2)
     i_m = i0 + params.torque_coeff_nm_s2 * kv * omega**2
-    c = omega / kv + r * i_m  # = d * V_bus
+    c = omega / kv + r * i_m + params.esc_drop_v  # = d * V_bus
     vq = v - rw * params.esc_quiescent_a
     # Rw N I d^2 - vq d + c = 0, smaller root (the larger one is a collapsed bus).
     disc = vq**2 - 4.0 * rw * rotors * i_m * c
@@ -218,6 +222,8 @@ class PhysicsPlant:
         self.soc = params.initial_soc
         self._v_pol = 0.0
         self._charge_c = 0.0  # drawn so far, coulombs
+        self._energy_j = 0.0  # drawn so far at the pack's terminals (every pack connected)
+        self.packs_connected = 1
         self._settled = True
         phases = rng.uniform(0.0, 2.0 * math.pi, size=2)
         self._drift_phase = (float(phases[0]), float(phases[1]))
@@ -242,7 +248,11 @@ class PhysicsPlant:
         self._advance(time_s)
         p, rng, kv, r = self.params, self._rng, self._kv, self.params.winding_resistance_ohm
         duty, v_bus, i_batt, v_term = self._electrics(self._emf_v(), self._r_batt())
-        batt_a = [d * (d * v_bus - w / kv) / r for d, w in zip(duty, self._omega, strict=True)]
+        drop = p.esc_drop_v
+        batt_a = [
+            d * (d * v_bus - drop - w / kv) / r if d > 0 else 0.0
+            for d, w in zip(duty, self._omega, strict=True)
+        ]
         thrust = [p.thrust_coeff_n_s2 * w * w for w in self._omega]
         rpm = [w * 60.0 / (2.0 * math.pi) for w in self._omega]
         vib = p.vibration_floor_g + p.vibration_g_per_krpm2 * (rpm[0] / 1000.0) ** 2
@@ -273,6 +283,40 @@ class PhysicsPlant:
     @property
     def consumed_mah(self) -> float:
         return self._charge_c / 3.6
+
+    @property
+    def drawn_wh(self) -> float:
+        """Energy drawn at the pack's terminals so far, every pack connected included."""
+        return self._energy_j / 3600.0
+
+    def connect_pack(
+        self,
+        time_s: float,
+        *,
+        soc: float | None = None,
+        ocv_v: float | None = None,
+        cells: int | None = None,
+    ) -> None:
+        """Swap the battery at ``time_s`` for a rested pack at ``soc`` or open-circuit voltage
+        ``ocv_v`` (``cells``: a pack of another cell count). Refused while any motor is
+        commanded or still turning: a pack is not swapped under load."""
+        self._advance(time_s)
+        if any(u > 0.0 for u in self._throttle) or any(w > 1e-3 * self._kv for w in self._omega):
+            raise SafetyError("a battery is not swapped while a motor is commanded or turning")
+        if (soc is None) == (ocv_v is None):
+            raise ConfigError("connect_pack needs exactly one of soc= or ocv_v=")
+        if cells is not None and cells != self.params.cells:
+            if cells < 1:
+                raise ConfigError(f"a pack needs at least one cell, got {cells}")
+            self.params = replace(self.params, cells=cells)
+        if soc is None:
+            assert ocv_v is not None
+            soc = float(soc_from_cell_ocv(ocv_v / self.params.cells))
+        if not 0.0 <= soc <= 1.0:
+            raise ConfigError(f"state of charge must be in 0..1, got {soc}")
+        self.soc = float(soc)
+        self._v_pol = 0.0
+        self.packs_connected += 1
 
     def drift_n(self, time_s: float) -> float:
         """The load cell's slow zero drift at ``time_s`` (deterministic for a seed)."""
@@ -362,7 +406,7 @@ class PhysicsPlant:
         )
         duty = self._duty_cmd
         a = sum(d * d for d in duty) / r
-        b = sum(d * w for d, w in zip(duty, self._omega, strict=True)) / (kv * r)
+        b = sum(d * (w / kv + p.esc_drop_v) for d, w in zip(duty, self._omega, strict=True)) / r
         v_bus = (e_v + r_s * (b - iq)) / (1.0 + r_s * a)
         i_b = a * v_bus - b + iq
         if i_b > p.esc_current_limit_a:
@@ -381,7 +425,8 @@ class PhysicsPlant:
     def _step(self, h: float) -> None:
         p = self.params
         kv, r, j = self._kv, p.winding_resistance_ohm, p.rotor_inertia_kg_m2
-        duty, v_bus, i_b, _ = self._electrics(self._emf_v(), self._r_batt())
+        duty, v_bus, i_b, v_term = self._electrics(self._emf_v(), self._r_batt())
+        self._energy_j += v_term * i_b * h
         # Rotor: dw/dt = P - Q w - Rr w^2, exact for the bus voltage frozen over the substep.
         # With the ESC off (no electrical path) P = -friction, Q = 0: the rotor coasts to a stop.
         rr = p.torque_coeff_nm_s2 / j
@@ -391,7 +436,11 @@ class PhysicsPlant:
         settled = True
         cool = math.exp(-h / p.thermal_time_s)
         for m, (d, w0) in enumerate(zip(duty, self._omega, strict=True)):
-            pp, qq = (d * v_bus / (kv * r * j) - friction, q_on) if d > 0 else (-friction, 0.0)
+            pp, qq = (
+                ((d * v_bus - p.esc_drop_v) / (kv * r * j) - friction, q_on)
+                if d > 0
+                else (-friction, 0.0)
+            )
             disc = qq * qq + 4.0 * pp * rr
             if qq > 0.0 and disc > 1e-9 * qq * qq:
                 lam = math.sqrt(disc)
@@ -406,7 +455,7 @@ class PhysicsPlant:
             self._omega[m] = w1
             # Heating: copper loss and iron/friction loss (I0 x back-EMF), exact first order.
             w_mid = 0.5 * (w0 + w1)
-            i_m = (d * v_bus - w_mid / kv) / r if d > 0 else 0.0
+            i_m = (d * v_bus - p.esc_drop_v - w_mid / kv) / r if d > 0 else 0.0
             loss = i_m * i_m * r + (p.no_load_current_a * w_mid / kv if d > 0 else 0.0)
             t_eq = p.ambient_c + loss * p.thermal_resistance_k_per_w
             self._temp[m] = t_eq + (self._temp[m] - t_eq) * cool

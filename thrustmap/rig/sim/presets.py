@@ -101,6 +101,10 @@ class PlantParams:
     vibration_g_per_krpm2: float  # vibration = floor + k * (rpm/1000)^2 (+ noise)
     vibration_noise_g: float
     esc_curve: tuple[tuple[float, float], ...] = ((0.0, 0.0), (1.0, 1.0))
+    # Voltage the ESC's switches take from the motor's supply while driving (FET and diode
+    # drops, dead time): d*V_bus - drop = w/Kv + I*R. It makes throttle scale with voltage in
+    # a way a map measured at one voltage cannot see (a voltage term k0 = 100 * drop).
+    esc_drop_v: float = 0.0
     # Integration: substep while a rotor is in transient / once every rotor has settled.
     max_substep_s: float = 0.001
     settled_substep_s: float = 0.02
