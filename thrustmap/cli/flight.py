@@ -427,3 +427,12 @@ def gamma_fit_cmd(
         else:
             click.echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
     click.echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+
+
+def _register_live() -> None:  # `gamma live` lives in its own module (click only at import)
+    from thrustmap.cli.gammalive import gamma_live_cmd
+
+    gamma_group.add_command(gamma_live_cmd)
+
+
+_register_live()

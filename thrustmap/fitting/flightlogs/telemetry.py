@@ -251,7 +251,9 @@ class Telemetry:
         warnings: list[str],
     ) -> None:
         outs: FloatArray = servo.values
-        flight.extras["outputs_all"] = Signal(servo.time_s, outs, "us", "SERVO_OUTPUT_RAW.servo1..8")
+        flight.extras["outputs_all"] = Signal(
+            servo.time_s, outs, "us", "SERVO_OUTPUT_RAW.servo1..8"
+        )
         layout = None
         if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
             from thrustmap.fitting.flightlogs.dataflash import motor_layout
