@@ -349,7 +349,7 @@ def gamma_live_cmd(
                     if flight.update(tel, t):
                         why = "landed and disarmed"
                         break
-                    if live.due(t) and tel.vehicle is not None:
+                    if panel.enabled and live.due(t) and tel.vehicle is not None:
                         live.refit(t)
                     wall = time.monotonic()
                     if panel.due(wall):
@@ -419,7 +419,7 @@ def _finish(
         wrote.append(f"recording {record}")
     if tel.vehicle is None or tel.acceleration_source() is None or code == EXIT_BAD:
         return ("wrote " + ", ".join(wrote)) if wrote else "nothing written (no Df possible)"
-    st = live.compute()
+    st = live.compute(quiet=True)
     if st.df is None:
         return f"no Df ({st.why_not})" + (f"; wrote {', '.join(wrote)}" if wrote else "")
     st.df.sources["telemetry"] = {"url": url, "record": None if record is None else str(record)}

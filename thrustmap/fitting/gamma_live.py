@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -102,15 +104,20 @@ class LiveGamma:
 
     def refit(self, stream_t_s: float | None = None) -> LiveState:
         started = self._clock()
-        self.state = self.compute()
+        with _quiet_fitting():  # a refit's warnings are shown by the panel, not logged each time
+            self.state = self.compute()
         spent = self._clock() - started
         self._next_interval_s = max(MIN_REFIT_INTERVAL_S, spent / MAX_BUSY_SHARE)
         if stream_t_s is not None:
             self._last_refit_t = stream_t_s
         return self.state
 
-    def compute(self) -> LiveState:
-        """Extract the Df and fit γ(B) on everything received so far."""
+    def compute(self, *, quiet: bool = False) -> LiveState:
+        """Extract the Df and fit γ(B) on everything received so far (``quiet``: their
+        warnings are kept in the state, not logged)."""
+        if quiet:
+            with _quiet_fitting():
+                return self.compute()
         st = LiveState()
         tel = self.telemetry
         if tel.acceleration_source() is None:
@@ -183,6 +190,18 @@ class LiveGamma:
                 st.hover_ours = hover_throttle(table)
             except ThrustmapError:
                 st.hover_ours = None
+
+
+@contextmanager
+def _quiet_fitting() -> Iterator[None]:
+    """Warnings of the extraction and the fit below ERROR are not logged inside the block."""
+    target = logging.getLogger("thrustmap.fitting")
+    previous = target.level
+    target.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        target.setLevel(previous)
 
 
 def fit_rotors(df: Df | None) -> int | None:
