@@ -44,25 +44,33 @@ def flight_messages(
         if k == 0:
             hover = float(np.median(fl.hover_thrust))
             yield t, common.MAVLink_param_value_message(b"MPC_THR_HOVER", hover, 9, 1, 0)
-        yield t, common.MAVLink_highres_imu_message(
-            t_us, 0, 0, -float(fl.accel_up_mps2[k]), 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0
+        yield (
+            t,
+            common.MAVLink_highres_imu_message(
+                t_us, 0, 0, -float(fl.accel_up_mps2[k]), 0, 0, 0, 0, 0, 0, 1013, 0, 0, 20, 0
+            ),
         )
         if k % slow:
             continue
         volt_mv = int(round(fl.voltage_v[k] * 1000))
-        yield t, common.MAVLink_sys_status_message(
-            0, 0, 0, 500, volt_mv, 2000, 80, 0, 0, 0, 0, 0, 0
+        yield (
+            t,
+            common.MAVLink_sys_status_message(0, 0, 0, 500, volt_mv, 2000, 80, 0, 0, 0, 0, 0, 0),
         )
         yield t, common.MAVLink_extended_sys_state_message(0, 1 if fl.landed[k] > 0.5 else 2)
         servos = [int(round(x)) for x in pwm[k]] + [0] * (8 - pwm.shape[1])
         yield t, common.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *servos)
         norm = float(fl.thrust_norm[k])
-        yield t, common.MAVLink_attitude_target_message(t_us // 1000, 0, [1, 0, 0, 0], 0, 0, 0, norm)
+        yield (
+            t,
+            common.MAVLink_attitude_target_message(t_us // 1000, 0, [1, 0, 0, 0], 0, 0, 0, norm),
+        )
         r = float(np.radians(fl.tilt_deg[k]))
         yield t, common.MAVLink_attitude_message(t_us // 1000, r, 0.0, 0.0, 0.0, 0.0, 0.0)
         h_mm = int(round(float(fl.height_m[k]) * 1000))
-        yield t, common.MAVLink_global_position_int_message(
-            t_us // 1000, 0, 0, h_mm, h_mm, 0, 0, 0, 0
+        yield (
+            t,
+            common.MAVLink_global_position_int_message(t_us // 1000, 0, 0, h_mm, h_mm, 0, 0, 0, 0),
         )
     # landed: disarmed, heartbeats for 12 s more
     t_end = t0_unix_s + float(fl.time_s[-1])
