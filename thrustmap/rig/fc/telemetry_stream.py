@@ -65,6 +65,8 @@ PARAMS_ARDUPILOT = (
 )
 PARAMS_PX4 = ("MPC_THR_HOVER", "CA_ROTOR_COUNT", "PWM_MAIN_MIN1", "PWM_MAIN_MAX1")
 MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4 = 3, 12
+#: the requests not yet answered by a message are sent once more after this (s)
+RETRY_AFTER_S = 3.0
 
 
 def rates_for(autopilot: int) -> dict[str, tuple[int, float]]:
@@ -166,6 +168,11 @@ class LiveStream:
             raise ConfigError(f"cannot open {url}: {exc}") from None
         self._stopped = False
         self._vehicle: tuple[int, int, int] | None = None  # system, component, autopilot
+        self._seen: set[str] = set()  # message types heard from the vehicle
+        self._param_names: set[str] = set()  # parameters heard from the vehicle
+        self._pending: dict[int, str] = {}  # SET_MESSAGE_INTERVAL not acknowledged yet
+        self._asked_at_us: int | None = None
+        self._retried = False
         self.bad_bytes = 0
 
     def stop(self) -> None:
@@ -203,18 +210,34 @@ class LiveStream:
             if self._vehicle is None and is_vehicle_heartbeat(msg):
                 self._vehicle = (msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot))
                 self._request(int(msg.autopilot))
+                self._asked_at_us = now_us
             if self._vehicle is not None and msg.get_srcSystem() == self._vehicle[0]:
                 last_heard_us = now_us
+                self._seen.add(msg.get_type())
+                if msg.get_type() == "PARAM_VALUE":
+                    pid = msg.param_id
+                    name = pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)
+                    self._param_names.add(name.rstrip("\x00"))
                 if msg.get_type() == "COMMAND_ACK":
                     self._ack(msg)
+            if (
+                not self._retried
+                and self._asked_at_us is not None
+                and now_us - self._asked_at_us > RETRY_AFTER_S * 1e6
+            ):
+                self._retried = True  # once: a vehicle still booting may have missed the first
+                self._request(self._vehicle[2] if self._vehicle else 0, only_missing=True)
             yield now_us * 1e-6, msg
 
     # -- requests (rates and parameter reads only) ---------------------------------------------
-    def _request(self, autopilot: int) -> None:
+    def _request(self, autopilot: int, *, only_missing: bool = False) -> None:
         assert self._vehicle is not None
         system, component, _ = self._vehicle
-        self._pending: dict[int, str] = {}
+        self._pending = {}
         for name, (msg_id, hz) in rates_for(autopilot).items():
+            if only_missing and name in self._seen:
+                continue
+            self.requests.answers.pop(name, None)
             self.requests.asked[name] = hz
             self._pending[msg_id] = name
             self.link.mav.command_long_send(
@@ -232,6 +255,8 @@ class LiveStream:
             )
         self.requests.params = params_for(autopilot)
         for name in self.requests.params:
+            if only_missing and name in self._param_names:
+                continue
             self.link.mav.param_request_read_send(system, component, name.encode(), -1)
         log.info(
             "asked %s for %s (SET_MESSAGE_INTERVAL) and parameters %s",
@@ -243,7 +268,7 @@ class LiveStream:
     def _ack(self, msg: Any) -> None:
         if msg.command != MAV_CMD_SET_MESSAGE_INTERVAL:
             return
-        pending = getattr(self, "_pending", {})
+        pending = self._pending
         # acks come in the order of the requests (one outstanding COMMAND_LONG id for all)
         for msg_id, name in list(pending.items()):
             if name not in self.requests.answers:
