@@ -27,6 +27,9 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
 HOME = "-35.363261,149.165230,584,353"  # ArduPilot's test field (CMAC)
+#: PX4 instance: its lock and socket live in /tmp, shared by every network namespace; PX4 then
+#: streams its ground-station link to 14550 and its offboard link to 14540 + instance
+PX4_INSTANCE = 7
 
 
 def _env() -> dict[str, str]:
@@ -55,7 +58,7 @@ def start_px4(binary: Path, work: Path) -> subprocess.Popen[bytes]:
     build = binary.resolve().parents[1]  # <build>/bin/px4
     env = dict(os.environ, PX4_SIM_MODEL="sihsim_quadx", PX4_SIMULATOR="sihsim")
     return subprocess.Popen(
-        [str(binary), "-d", str(build / "etc")],
+        [str(binary), "-i", str(PX4_INSTANCE), "-d", str(build / "etc")],
         cwd=work,
         env=env,
         stdout=open(work / "sitl.out", "wb"),
@@ -117,7 +120,9 @@ def fly_ardupilot(hover_s: float) -> None:
 def fly_px4(hover_s: float) -> None:
     from pymavlink import mavutil
 
-    m = mavutil.mavlink_connection("udpin:127.0.0.1:14540", source_system=250, source_component=190)
+    m = mavutil.mavlink_connection(
+        f"udpin:127.0.0.1:{14540 + PX4_INSTANCE}", source_system=250, source_component=190
+    )
     m.wait_heartbeat(timeout=60)
     stop = threading.Event()
 
