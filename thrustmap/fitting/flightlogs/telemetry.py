@@ -8,7 +8,9 @@ FlightLog ``fitting.df.extract_flight`` reads, at any moment: the same code serv
 and a stream in progress.
 
 Fields (docs/flight-logs.md): SYS_STATUS.voltage_battery (mV), HEARTBEAT.base_mode & 128 (armed),
-EXTENDED_SYS_STATE.landed_state (2 = in air; takeoff/landing count as not airborne),
+EXTENDED_SYS_STATE.landed_state (1 = on the ground; 2 in air, 3 taking off and 4 landing are
+airborne, as a log's land detector has them: the Df filters drop the climbs and the margins;
+0 = undefined is not used),
 SERVO_OUTPUT_RAW.servoN_raw (µs), HIGHRES_IMU.zacc (m/s², FRD) or SCALED_IMU.zacc (mG),
 ATTITUDE_TARGET.thrust (0..1), ATTITUDE roll/pitch (tilt). Telemetry rates are low (a few Hz).
 Only messages from the vehicle are used (the first system whose HEARTBEAT is not a GCS).
@@ -49,7 +51,7 @@ MAV_AUTOPILOT_PX4 = 12
 #: HEARTBEAT.type (MAV_TYPE) -> rotor count, multirotors only
 MAV_TYPE_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
 MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID = 6, 8
-MAV_LANDED_STATE_IN_AIR = 2
+MAV_LANDED_STATE_UNDEFINED, MAV_LANDED_STATE_ON_GROUND = 0, 1
 ARMED_FLAG = 128
 #: rows kept per message type at most (a day of 50 Hz IMU); past it the oldest half is dropped
 #: and a warning says so, so a stream left running never grows without bound
@@ -136,7 +138,9 @@ class Telemetry:
                 return None
             return m.voltage_battery / 1000.0
         if mtype == "EXTENDED_SYS_STATE":
-            return 0.0 if m.landed_state == MAV_LANDED_STATE_IN_AIR else 1.0
+            if m.landed_state == MAV_LANDED_STATE_UNDEFINED:
+                return None
+            return 1.0 if m.landed_state == MAV_LANDED_STATE_ON_GROUND else 0.0
         if mtype == "SERVO_OUTPUT_RAW":
             if getattr(m, "port", 0) != 0:
                 return None
@@ -208,7 +212,7 @@ class Telemetry:
         flight.voltage_v = _signal(rows["SYS_STATUS"], "V", "SYS_STATUS.voltage_battery/1000")
         flight.armed = _signal(rows["HEARTBEAT"], "bool", "HEARTBEAT.base_mode & 128")
         flight.landed = _signal(
-            rows["EXTENDED_SYS_STATE"], "bool", "EXTENDED_SYS_STATE.landed_state != IN_AIR"
+            rows["EXTENDED_SYS_STATE"], "bool", "EXTENDED_SYS_STATE.landed_state == ON_GROUND"
         )
         for name in self._imus():
             unit = "" if name == "HIGHRES_IMU" else " (mG -> m/s^2)"

@@ -4,7 +4,7 @@ The messages go through ``telemetry.Telemetry``, the same code ``thrustmap gamma
 live stream to, so a recording and the live run give the same FlightLog.
 
 Fields (flight-logs.md): SYS_STATUS.voltage_battery (mV), HEARTBEAT.base_mode & 128 (armed),
-EXTENDED_SYS_STATE.landed_state (2 = in air; takeoff/landing count as not airborne),
+EXTENDED_SYS_STATE.landed_state (1 = on the ground; in air, taking off and landing are airborne),
 SERVO_OUTPUT_RAW.servoN_raw (µs), HIGHRES_IMU.zacc (m/s², FRD) or SCALED_IMU.zacc (mG),
 ATTITUDE_TARGET.thrust (0..1), ATTITUDE roll/pitch (tilt). Telemetry rates are low (a few Hz).
 Only messages from the vehicle are used (the first system whose HEARTBEAT is not a GCS).
