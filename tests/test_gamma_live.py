@@ -289,3 +289,18 @@ def test_record_never_replaces_a_file(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert (tmp_path / "live.tlog").read_bytes() == b"precious"
     assert "never overwritten" in res.stderr
+
+
+def test_taking_off_and_landing_count_as_airborne_as_in_a_log() -> None:
+    """ArduCopter reports TAKEOFF for its whole climb and LANDING for its whole descent; a log's
+    land detector has both airborne (the Df filters drop climbs and margins). UNDEFINED is not
+    a landed state."""
+    from pymavlink.dialects.v20 import common
+
+    tel = Telemetry("x", "tlog")
+    tel.add(common.MAVLink_heartbeat_message(2, 3, 128, 0, 4, 3), 0.0)
+    for t, state in enumerate((1, 3, 2, 4, 0, 1), start=1):
+        tel.add(common.MAVLink_extended_sys_state_message(0, state), float(t))
+    landed = tel.flight_log().landed
+    assert landed is not None
+    assert landed.values.tolist() == [1.0, 0.0, 0.0, 0.0, 1.0]  # the UNDEFINED row is skipped
