@@ -19,6 +19,7 @@ from support import (
     simulate_flight,
     stand_recordings,
     sweep_recordings,
+    telemetry_flight,
 )
 
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "fixtures"
@@ -30,6 +31,7 @@ def regenerate(fixtures: Path) -> list[Path]:
     written: list[Path] = list(simulate_flight.write_fixtures(flightlogs))
     written += [Path(p) for p in blackbox_encode.write_fixtures(str(flightlogs))]
     written += list(rosbag_sim.write_fixtures(flightlogs))
+    written += telemetry_flight.write_fixture(flightlogs)
     transcripts = fixtures / "transcripts"
     mavlink_transcripts.main([str(transcripts)])
     written += sorted(transcripts.glob("*.jsonl"))

@@ -480,3 +480,12 @@ def gamma_fit_cmd(
         else:
             echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
     echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+
+
+def _register_live() -> None:  # `gamma live` lives in its own module (click only at import)
+    from thrustmap.cli.gammalive import gamma_live_cmd
+
+    gamma_group.add_command(gamma_live_cmd)
+
+
+_register_live()
