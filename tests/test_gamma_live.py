@@ -304,3 +304,43 @@ def test_taking_off_and_landing_count_as_airborne_as_in_a_log() -> None:
     landed = tel.flight_log().landed
     assert landed is not None
     assert landed.values.tolist() == [1.0, 0.0, 0.0, 0.0, 1.0]  # the UNDEFINED row is skipped
+
+
+def test_a_signing_key_signs_the_link_and_unsigned_vehicles_are_not_heard() -> None:
+    """`gamma live --signing-key`: the link signs what it sends (the rate requests) and takes
+    no unsigned message as the vehicle's (issue 36: signing on every MAVLink command)."""
+    from pymavlink.dialects.v20 import common
+
+    from thrustmap.protocols.mavlink.signing import parse_signing_key, signing_enabled
+    from thrustmap.rig.fc.telemetry_stream import LinkLost, open_stream
+
+    port = _free_port()
+    key = parse_signing_key("ab" * 32)
+    stream = open_stream(f"udpin:127.0.0.1:{port}", signing_key=key, start_timeout_s=1.0)
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    unsigned = common.MAVLink(None, srcSystem=1, srcComponent=1)
+    beat = unsigned.heartbeat_encode(2, 12, 0, 0, 3).pack(unsigned)  # a PX4 quad, unsigned
+    stop = threading.Event()
+
+    def beats() -> None:
+        while not stop.is_set():
+            sender.sendto(beat, ("127.0.0.1", port))
+            time.sleep(0.1)
+
+    th = threading.Thread(target=beats, daemon=True)
+    th.start()
+    try:
+        assert signing_enabled(stream.link)
+        with pytest.raises(LinkLost, match="no vehicle heard"):
+            for _ in stream.messages():
+                pass
+    finally:
+        stop.set()
+        th.join()
+        sender.close()
+        stream.close()
+
+
+def test_gamma_live_takes_a_signing_key(tmp_path: Path) -> None:
+    out = _cli("gamma", "live", "--help", cwd=tmp_path)
+    assert out.returncode == 0 and "--signing-key" in out.stdout

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.core.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -254,6 +255,7 @@ def _deferred() -> Iterator[list[int]]:
 )
 @click.option("--no-panel", is_flag=True, help="No live panel (it is drawn only on a terminal).")
 @click.option("--json", "as_json", is_flag=True, help="Print the final state as JSON.")
+@signing_key_option
 def gamma_live_cmd(
     url: str,
     map_path: Path,
@@ -269,6 +271,7 @@ def gamma_live_cmd(
     start_timeout_s: float,
     no_panel: bool,
     as_json: bool,
+    signing_key: Any,
 ) -> None:
     """Fit γ(B) while the vehicle flies, from its MAVLink telemetry at URL.
 
@@ -312,7 +315,11 @@ def gamma_live_cmd(
     tmap = ThrustMap.load(map_path)
     opts = DfOptions(mass_kg=mass_kg, rotors=rotors, rate_hz=rate_hz, settle_s=settle_s)
     stream = open_stream(
-        url, record=record, link_timeout_s=link_timeout_s, start_timeout_s=start_timeout_s
+        url,
+        record=record,
+        link_timeout_s=link_timeout_s,
+        start_timeout_s=start_timeout_s,
+        signing_key=signing_key,
     )
     tel = Telemetry(url, "tlog")
     live = LiveGamma(tel, opts, tmap, loss=loss)

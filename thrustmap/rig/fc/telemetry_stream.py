@@ -148,6 +148,7 @@ class LiveStream:
         start_timeout_s: float = 30.0,
         clock_us: Callable[[], int] = wall_clock_us,
         poll_s: float = 0.1,
+        signing_key: Any = None,
     ) -> None:
         from thrustmap.protocols.mavlink.link import open_mavlink
 
@@ -166,6 +167,10 @@ class LiveStream:
                 if self.recorder.records == 0:
                     self.recorder.path.unlink(missing_ok=True)
             raise ConfigError(f"cannot open {url}: {exc}") from None
+        if signing_key is not None:  # sign the rate requests, refuse unsigned messages
+            from thrustmap.protocols.mavlink.signing import enable_signing
+
+            enable_signing(self.link, signing_key)
         self._stopped = False
         self._vehicle: tuple[int, int, int] | None = None  # system, component, autopilot
         self._seen: set[str] = set()  # message types heard from the vehicle
@@ -323,6 +328,7 @@ def open_stream(
     record: Path | None = None,
     link_timeout_s: float = 5.0,
     start_timeout_s: float = 30.0,
+    signing_key: Any = None,
 ) -> LiveStream | TlogReplay:
     """``replay://path.tlog`` replays a recording; anything else is a live link."""
     if url.lower().startswith("replay://"):
@@ -335,5 +341,9 @@ def open_stream(
             raise ConfigError("--record with replay://: the recording already exists")
         return TlogReplay(path)
     return LiveStream(
-        url, record=record, link_timeout_s=link_timeout_s, start_timeout_s=start_timeout_s
+        url,
+        record=record,
+        link_timeout_s=link_timeout_s,
+        start_timeout_s=start_timeout_s,
+        signing_key=signing_key,
     )
