@@ -36,7 +36,7 @@ def test_blackbox_skip_table_matches_the_reference_and_is_linear() -> None:
 
     for i_interval in (1, 2, 3, 7, 32, 33):
         for p_num, p_den in ((1, 1), (1, 2), (1, 16), (2, 3), (3, 7), (1, 40)):
-            assert bd._skip_table(i_interval, p_num, p_den) == _skip_table_reference(
+            assert list(bd._skip_table(i_interval, p_num, p_den)) == _skip_table_reference(
                 i_interval, p_num, p_den
             )
     # the largest header the decoder accepts: 2·65535 steps, not 65535² (the old loop)
