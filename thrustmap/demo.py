@@ -394,3 +394,11 @@ def _write_report(map_path: str, logs: list[str], out: str) -> str:
 
     write_report(build(map_path, logs), out)
     return out
+
+
+def write_reports(results: list[StrategyResult]) -> list[Path]:
+    """An HTML report next to each map (``thrustmap report``), returned in order (what
+    ``run_demo(reports=True)`` writes; benchmarks/bench_demo.py times it on its own)."""
+    for r in results:
+        _write_report(str(r.map_path), [str(p) for p in r.logs], str(report_path(r)))
+    return [report_path(r) for r in results]
