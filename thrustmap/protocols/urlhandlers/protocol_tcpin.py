@@ -20,7 +20,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import PortNotOpenError, SerialException
+
+from thrustmap.protocols.urlhandlers.buffered import BufferedEndpoint
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +40,7 @@ def normalize_tcpin_url(url: str) -> str:
     return f"tcpin://{rest}"
 
 
-class Serial(SerialBase):
+class Serial(BufferedEndpoint):
     """A listening TCP endpoint locked to its first connection; see the module docstring."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -152,21 +154,6 @@ class Serial(SerialBase):
             raise SerialException(f"{self.port}: {self.peer} closed the connection")
         return False
 
-    @property
-    def in_waiting(self) -> int:
-        self._drain(0.0)
-        return len(self._buffer)
-
-    def read(self, size: int = 1, /) -> bytes:
-        if not self.is_open:
-            raise PortNotOpenError()
-        if not self._buffer:
-            timeout = self.timeout
-            self._drain(1e9 if timeout is None else float(timeout))
-        out = bytes(self._buffer[:size])
-        del self._buffer[:size]
-        return out
-
     def write(self, b: Any, /) -> int | None:
         if not self.is_open:
             raise PortNotOpenError()
@@ -181,15 +168,6 @@ class Serial(SerialBase):
         except OSError as exc:
             raise SerialException(f"{self.port}: send to {self.peer} failed: {exc}") from exc
         return len(data)
-
-    def reset_input_buffer(self) -> None:
-        self._buffer.clear()
-
-    def reset_output_buffer(self) -> None:
-        pass
-
-    def flush(self) -> None:
-        pass
 
     def close(self) -> None:
         for sock in (self._conn, self._listener):

@@ -36,7 +36,9 @@ import socket
 from collections.abc import Callable
 from typing import Any
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import PortNotOpenError, SerialException
+
+from thrustmap.protocols.urlhandlers.buffered import BufferedEndpoint
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +72,7 @@ def _address(url: str) -> tuple[str, bool, tuple[str, int]]:
     return scheme, scheme == "udpin", (host or "0.0.0.0", int(port))
 
 
-class UdpSerial(SerialBase):
+class UdpSerial(BufferedEndpoint):
     """A UDP endpoint with the ``SerialLike`` surface; see the module docstring."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -182,21 +184,6 @@ class UdpSerial(SerialBase):
             if self._accept(data, (str(sender[0]), int(sender[1]))):
                 self._buffer += data
 
-    @property
-    def in_waiting(self) -> int:
-        self._drain(0.0)
-        return len(self._buffer)
-
-    def read(self, size: int = 1, /) -> bytes:
-        if not self.is_open:
-            raise PortNotOpenError()
-        if not self._buffer:
-            timeout = self.timeout
-            self._drain(1e9 if timeout is None else float(timeout))
-        out = bytes(self._buffer[:size])
-        del self._buffer[:size]
-        return out
-
     def write(self, b: Any, /) -> int | None:
         sock = self._sock
         if sock is None or not self.is_open:
@@ -213,15 +200,6 @@ class UdpSerial(SerialBase):
         except OSError as exc:
             raise SerialException(f"{self.port}: UDP send failed: {exc}") from exc
         return len(data)
-
-    def reset_input_buffer(self) -> None:
-        self._buffer.clear()
-
-    def reset_output_buffer(self) -> None:
-        pass
-
-    def flush(self) -> None:
-        pass
 
     def close(self) -> None:
         if self._sock is not None:
