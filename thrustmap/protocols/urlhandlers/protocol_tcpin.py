@@ -79,17 +79,6 @@ class Serial(BufferedEndpoint):
         self._listener = listener
         self.is_open = True
 
-    def _reconfigure_port(self) -> None:
-        pass
-
-    @property
-    def remote(self) -> tuple[str, int] | None:
-        return self._remote
-
-    @property
-    def peer(self) -> str | None:
-        return None if self._remote is None else f"{self._remote[0]}:{self._remote[1]}"
-
     def _accept(self) -> None:
         assert self._listener is not None
         try:

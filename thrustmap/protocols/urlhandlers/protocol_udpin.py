@@ -115,23 +115,10 @@ class UdpSerial(BufferedEndpoint):
         self._sock = sock
         self.is_open = True
 
-    def _reconfigure_port(self) -> None:
-        pass
-
-    @property
-    def remote(self) -> tuple[str, int] | None:
-        """The locked peer (None on a ``udpin`` endpoint nobody has identified yet)."""
-        return self._remote
-
     @property
     def intrusions(self) -> int:
         """Datagrams from other addresses since the lock (the interface ``tcpin`` shares)."""
         return self.foreign_datagrams
-
-    @property
-    def peer(self) -> str | None:
-        """The locked peer as ``host:port``."""
-        return None if self._remote is None else f"{self._remote[0]}:{self._remote[1]}"
 
     def _accept(self, data: bytes, sender: tuple[str, int]) -> bool:
         """Lock on the first identifying datagram; drop (and count) everything else."""
