@@ -1,0 +1,168 @@
+"""The Df file: the CSV and its JSON sidecar, written atomically and read back checked."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.core.files import atomic_write_text
+from thrustmap.core.jsonfile import load_json
+from thrustmap.fitting.df.table import Columns, Df
+
+if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
+    import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)
+
+
+def _csv_text(columns: Columns) -> str:
+    """The Df CSV as pandas writes it (``float_format='%.6g'``, NaN as an empty field)."""
+    buf = io.StringIO()
+    names = list(columns)
+    if not names:
+        return "\n"
+    csv.writer(buf, lineterminator="\n").writerow(names)
+    cells = []
+    for k in names:
+        v = columns[k]
+        if v.dtype == object or v.dtype.kind in "US":
+            cells.append([_csv_cell(str(x)) for x in v])
+        else:
+            cells.append(["" if x != x else f"{x:.6g}" for x in np.asarray(v, float).tolist()])
+    buf.writelines(",".join(row) + "\n" for row in zip(*cells, strict=True))
+    return buf.getvalue()
+
+
+def _csv_cell(text: str) -> str:
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    return Path(csv_path).with_suffix(".json")
+
+
+def write_df(df: Df, path: str | Path) -> Path:
+    """Write the Df CSV and its sidecar, each atomically; the sidecar is never the CSV itself."""
+    p = Path(path)
+    side = sidecar_path(p)
+    if side.resolve() == p.resolve():
+        raise ConfigError(
+            f"the Df output needs a name its sidecar ({side.name}) does not share; use .csv",
+            file=str(p),
+        )
+    if df._table is not None:  # a table given (or touched) as pandas: written by pandas
+        text = df._table.to_csv(index=False, float_format="%.6g")
+    else:
+        text = _csv_text(df._columns or {})
+    atomic_write_text(p, text)
+    atomic_write_text(side, json.dumps(df.sources, indent=2, default=str) + "\n")
+    return side
+
+
+def _positive_int(value: Any) -> bool:
+    """A count: an integer ≥ 1 (a JSON 4.0 is accepted, 4.5, "four", true are not)."""
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int):
+        return value >= 1
+    return isinstance(value, float) and value.is_integer() and value >= 1
+
+
+def _check_sidecar(side: dict[str, Any], path: str) -> None:
+    """Refuse sidecar fields the γ fit relies on when they cannot be what they name."""
+    flights = side.get("flights", {})
+    if not isinstance(flights, dict):
+        raise DataFormatError(
+            "Df sidecar: 'flights' must be an object", file=path, column="flights"
+        )
+    for fid, meta in flights.items():
+        if not isinstance(meta, dict):
+            raise DataFormatError(
+                "Df sidecar: expected an object per flight", file=path, column=f"flights.{fid}"
+            )
+        for key in ("rotors", "mass_kg"):
+            value = meta.get(key)
+            if value is None:
+                continue
+            if key == "rotors" and not _positive_int(value):
+                raise DataFormatError(
+                    f"Df sidecar: rotor count {value!r} is not a whole number ≥ 1",
+                    file=path,
+                    column=f"flights.{fid}.rotors",
+                )
+            if key == "mass_kg" and (
+                isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e5
+            ):
+                raise DataFormatError(
+                    f"Df sidecar: mass {value!r} is not a positive number of kg",
+                    file=path,
+                    column=f"flights.{fid}.mass_kg",
+                )
+    opts = side.get("options")
+    if (
+        isinstance(opts, dict)
+        and opts.get("rotors") is not None
+        and not _positive_int(opts["rotors"])
+    ):
+        raise DataFormatError(
+            f"Df sidecar: rotor count {opts['rotors']!r} is not a whole number ≥ 1",
+            file=path,
+            column="options.rotors",
+        )
+
+
+def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
+    import pandas as pd
+
+    p = Path(path)
+    try:
+        table = pd.read_csv(p, dtype=str, keep_default_na=False, engine="c")
+    except FileNotFoundError:
+        raise DataFormatError("Df file not found", file=str(p)) from None
+    except OSError as exc:
+        raise DataFormatError(f"cannot read Df file: {exc.strerror}", file=str(p)) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise DataFormatError(f"not a Df CSV: {reason}", file=str(p)) from None
+    for need in ("voltage_v", "force_n"):
+        if need not in table.columns:
+            raise DataFormatError(
+                "not a Df CSV (expected columns time_s, voltage_v, accel_up_mps2, force_n, "
+                "thrust_cmd_n and/or thrust_cmd_norm)",
+                file=str(p),
+                column=need,
+            )
+    for col in table.columns:
+        if col == "flight":
+            continue
+        text = table[col].str.strip()
+        num = pd.to_numeric(text.where(text != "", "nan"), errors="coerce")
+        bad = num.isna().to_numpy() & ~text.str.lower().isin(["", "nan"]).to_numpy()
+        with np.errstate(invalid="ignore"):
+            bad |= np.isinf(num.to_numpy(dtype=float))
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            cell = str(table[col].iloc[row])
+            shown = cell if len(cell) <= 40 else f"{cell[:40]}... ({len(cell)} characters)"
+            raise DataFormatError(
+                f"expected a finite number, got {shown!r}", file=str(p), line=row + 2, column=col
+            )
+        table[col] = num.astype(float)
+    side: dict[str, Any] = {}
+    sp = sidecar_path(p)
+    if sp.exists() and sp.resolve() != p.resolve():
+        loaded = load_json(sp, what="Df sidecar")
+        if not isinstance(loaded, dict):
+            raise DataFormatError("Df sidecar: expected a JSON object", file=str(sp))
+        side = loaded
+        _check_sidecar(side, str(sp))
+    if "flight" not in table.columns:
+        table.insert(0, "flight", p.name)
+    return table, side
