@@ -18,7 +18,7 @@ The package, one module per job (``thrustmap.fitting.df`` keeps every public nam
 ``resample`` (one timeline: bins, running statistics, time sanity), ``airborne`` (the rules that
 tell ground from free flight, the rest calibration), ``thrust`` (T_c from the motor outputs
 through the stand map), ``extraction`` (the filters in order; ``extract``), ``dffile`` (the CSV
-and its sidecar). Names with a leading underscore are the package's own.
+and its sidecar). No module imports another's private name.
 """
 
 from thrustmap.fitting.df.airborne import (

@@ -15,7 +15,7 @@ from thrustmap.fitting.df.options import (
     BoolArray,
     DfOptions,
 )
-from thrustmap.fitting.df.resample import _long_runs, _runs
+from thrustmap.fitting.df.resample import long_runs, mask_runs
 from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, nanmedian
 
 
@@ -30,7 +30,7 @@ def airborne_windows(flight: FlightLog) -> list[tuple[float, float]]:
         air &= flight.armed.hold(t) > 0.5
     if flight.landed is not None:
         air &= flight.landed.hold(t) < 0.5
-    return [(float(t[a]), float(t[b - 1])) for a, b in _runs(air)]
+    return [(float(t[a]), float(t[b - 1])) for a, b in mask_runs(air)]
 
 
 def _ground_level(height: FloatArray, stay: tuple[int, int]) -> float:
@@ -46,7 +46,7 @@ def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
     vehicle stands on the ground its altitude must stay put (a hot barometer drifts by metres)."""
     if not np.isfinite(height).any():
         return "no altitude samples"
-    for a, b in _runs(ground):
+    for a, b in mask_runs(ground):
         seg = height[a:b]
         seg = seg[np.isfinite(seg)]
         if len(seg) >= 10:
@@ -87,7 +87,7 @@ def _supported(
         with np.errstate(invalid="ignore"):
             low = np.nan_to_num(c, nan=np.inf) < opts.ground_cmd_frac * level
         sup[a:b] = low & at_g[a:b]
-    return _long_runs(sup, max(1, int(round(opts.ground_min_s * opts.rate_hz))))
+    return long_runs(sup, max(1, int(round(opts.ground_min_s * opts.rate_hz))))
 
 
 def _height_rule(
@@ -147,14 +147,14 @@ def _height_rule(
         # sees it), never turn a low hover into one
         with np.errstate(invalid="ignore"):
             down = np.nan_to_num(h, nan=np.inf) - ref < 0.5 * opts.min_height_m
-        mid[a:b] &= ~_long_runs(down, min_len)
+        mid[a:b] &= ~long_runs(down, min_len)
     apply("height", f"before reaching {opts.min_height_m:g} m above the takeoff level, or after "
           f"leaving {opts.min_height_m:g} m above the landing level ({origin})", ok)  # fmt: skip
     apply("ground-altitude", f"back at the ground level for ≥ {opts.ground_min_s:g} s between "
           f"takeoff and landing, no land flag needed ({origin})", mid)  # fmt: skip
 
 
-def _in_air_evidence(
+def in_air_evidence(
     flight: FlightLog,
     centres: FloatArray,
     rs: Any,
@@ -175,7 +175,7 @@ def _in_air_evidence(
     signal, when it holds still on the ground) and the command has reached
     before), and ends symmetrically before landing. A margin of ``settle_s`` is trimmed
     afterwards by the caller, then the climb rate must stay within ``climb_max_mps``
-    (``_climb_rule``)."""
+    (``climb_rule``)."""
     ex = flight.extras
     n = len(centres)
     gc = ex.get("ground_contact")
@@ -194,8 +194,8 @@ def _in_air_evidence(
         ground |= flight.landed.hold(centres) > 0.5
     if gc is not None and len(gc):
         ground |= gc.hold(centres) > 0.5
-    stays = _runs(ground)
-    stretches = _runs(~ground)
+    stays = mask_runs(ground)
+    stretches = mask_runs(~ground)
     hs = ex.get("height_m")
     rg = ex.get("range_m")
     if rg is not None and len(rg):  # height above the ground itself: no drift, where valid
@@ -256,7 +256,7 @@ def _in_air_evidence(
         )
 
 
-def _climb_rule(
+def climb_rule(
     flight: FlightLog, rs: Any, opts: DfOptions, apply: Any, warnings: list[str]
 ) -> None:
     """Drop climbs and descents (the rotor's inflow changes its thrust). Applied after the
@@ -280,7 +280,7 @@ REST_STEADY_MPS2 = 0.3
 REST_SPAN_S, REST_MARGIN_S = 10.0, 1.0
 
 
-def _rest_calibration(
+def rest_calibration(
     a_up: FloatArray,
     a_raw: FloatArray | None,
     cmd: FloatArray,

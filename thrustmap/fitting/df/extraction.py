@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from thrustmap.core.errors import ConfigError, DataFormatError
-from thrustmap.fitting.df.airborne import _climb_rule, _in_air_evidence, _rest_calibration
+from thrustmap.fitting.df.airborne import climb_rule, in_air_evidence, rest_calibration
 from thrustmap.fitting.df.options import (
     DF_FORMAT,
     G0,
@@ -23,14 +23,14 @@ from thrustmap.fitting.df.options import (
     FlightReport,
 )
 from thrustmap.fitting.df.resample import (
-    _bin_mean,
-    _dilate,
-    _runs,
-    _smooth,
-    _steady,
+    bin_mean,
+    dilate,
+    mask_runs,
     plausible_timeline,
+    running_mean,
+    steady_mask,
 )
-from thrustmap.fitting.df.table import Columns, Df, _concat
+from thrustmap.fitting.df.table import Columns, Df, concat_columns
 from thrustmap.fitting.df.thrust import (
     map_extrapolation,
     motor_pct_in_map_scale,
@@ -114,7 +114,7 @@ def extract_flight_columns(
         if sig is None:
             return None
         if id(sig) not in binned:
-            binned[id(sig)] = _bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
+            binned[id(sig)] = bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
         return binned[id(sig)]
 
     a_up = rs(acc)
@@ -122,7 +122,7 @@ def extract_flight_columns(
     assert a_up is not None and volt is not None
     has_data = np.isfinite(a_up)  # a sample in the bin, or one within max_gap_s
     if opts.accel_smooth_s > 0:
-        a_up = _smooth(a_up, int(round(opts.accel_smooth_s * opts.rate_hz)))
+        a_up = running_mean(a_up, int(round(opts.accel_smooth_s * opts.rate_hz)))
     tilt = rs(flight.extras.get("tilt_deg"))
     steps: list[FilterStep] = []
     duration = float(nbins * dt)
@@ -183,19 +183,19 @@ def extract_flight_columns(
     if cmd_pct is not None and flight.thrust_cmd_n is None and flight.thrust_cmd_norm is not None:
         cmd_pct = cmd_pct * 100.0
     if cmd_for_steady is not None:
-        a_up = _rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
-    _in_air_evidence(
+        a_up = rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
+    in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
         cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,
     )  # fmt: skip
     # takeoff / landing transients: trim settle_s from both ends of every airborne run
     settled = np.zeros(nbins, bool)
     trim = int(round(opts.settle_s * opts.rate_hz))
-    for a, b in _runs(keep):
+    for a, b in mask_runs(keep):
         if b - a > 2 * trim:
             settled[a + trim : b - trim] = True
     apply("settle", f"within {opts.settle_s:g} s of takeoff or landing", settled)
-    _climb_rule(flight, rs, opts, apply, warnings)
+    climb_rule(flight, rs, opts, apply, warnings)
     apply(
         "hover",
         f"|a_up − g| > {opts.accel_tol_mps2:g} m/s² (not near hover)",
@@ -225,7 +225,7 @@ def extract_flight_columns(
         )
     if cmd_for_steady is not None and opts.steady_tol > 0:
         window = int(round(opts.steady_window_s * opts.rate_hz))
-        steady = _steady(cmd_for_steady, window, opts.steady_tol)
+        steady = steady_mask(cmd_for_steady, window, opts.steady_tol)
         apply(
             "steady",
             f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
@@ -238,7 +238,7 @@ def extract_flight_columns(
             "transient",
             f"within {lag:.2g} s of a command change > {opts.steady_tol:.0%} (rotor lag "
             f"{opts.rotor_lag_s:g} s, a_up smoothing, one bin)",
-            ~_dilate(~steady & np.isfinite(cmd_for_steady), int(np.ceil(lag * opts.rate_hz))),
+            ~dilate(~steady & np.isfinite(cmd_for_steady), int(np.ceil(lag * opts.rate_hz))),
         )
     if tilt is not None:
         apply(
@@ -336,7 +336,7 @@ def extract_flight_columns(
         sources["throttle_pct"] = "mean motor output, % of the log's own scale"
     hover = flight.hover_thrust_estimate or flight.extras.get("hover_throttle")
     if hover is not None:
-        cols["hover_thrust_est"] = _bin_mean(hover, t0, opts.rate_hz, nbins, opts.max_gap_s)
+        cols["hover_thrust_est"] = bin_mean(hover, t0, opts.rate_hz, nbins, opts.max_gap_s)
         sources["hover_thrust_est"] = hover.origin
     valid = np.isfinite(a_up) & (a_up > 0)
     if voltage_unknown is None:
@@ -406,4 +406,4 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
         "reports": [r.to_dict() for r in reports],
     }
-    return Df(None, side, reports, columns=_concat(tables))
+    return Df(None, side, reports, columns=concat_columns(tables))

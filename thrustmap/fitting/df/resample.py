@@ -14,7 +14,7 @@ from thrustmap.fitting.flightlogs.series import FloatArray, Signal, nanmedian
 # -- resampling ----------------------------------------------------------------------------------
 
 
-def _bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: float) -> FloatArray:
+def bin_mean(sig: Signal, t0: float, rate_hz: float, nbins: int, max_gap_s: float) -> FloatArray:
     """Mean of the samples in each bin; bins without samples interpolate when data is near."""
     centres = t0 + (np.arange(nbins) + 0.5) / rate_hz
     vals = sig.values if sig.values.ndim == 2 else sig.values[:, None]
@@ -64,14 +64,14 @@ def _running_median(x: FloatArray, window: int) -> FloatArray:
     return out
 
 
-def _steady(cmd: FloatArray, window: int, tol: float) -> BoolArray:
+def steady_mask(cmd: FloatArray, window: int, tol: float) -> BoolArray:
     """True where the command is within ``tol`` (relative) of its centred running median."""
     med = _running_median(np.asarray(cmd, float), window)
     with np.errstate(invalid="ignore"):
         return np.asarray(np.abs(cmd - med) <= tol * np.abs(med))
 
 
-def _smooth(x: FloatArray, window: int) -> FloatArray:
+def running_mean(x: FloatArray, window: int) -> FloatArray:
     """Centred running mean (NaN-aware) over ``window`` bins."""
     if window <= 1:
         return x
@@ -87,22 +87,22 @@ def _smooth(x: FloatArray, window: int) -> FloatArray:
         return np.asarray(np.where(n > 0, (v[hi] - v[lo]) / np.maximum(n, 1), np.nan), float)
 
 
-def _runs(mask: BoolArray) -> list[tuple[int, int]]:
+def mask_runs(mask: BoolArray) -> list[tuple[int, int]]:
     """[start, stop) index ranges where mask is True."""
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
 
 
-def _long_runs(mask: BoolArray, min_len: int) -> BoolArray:
+def long_runs(mask: BoolArray, min_len: int) -> BoolArray:
     """``mask`` with its True runs shorter than ``min_len`` bins cleared."""
     out = np.zeros(len(mask), bool)
-    for a, b in _runs(mask):
+    for a, b in mask_runs(mask):
         if b - a >= min_len:
             out[a:b] = True
     return out
 
 
-def _dilate(mask: BoolArray, radius: int) -> BoolArray:
+def dilate(mask: BoolArray, radius: int) -> BoolArray:
     """True within ``radius`` bins of a True bin."""
     if radius <= 0 or not mask.any():
         return mask

@@ -68,7 +68,7 @@ class Df:
         return f"Df({len(self)} samples, {len(self.reports)} flight(s))"
 
 
-def _concat(tables: list[Columns]) -> Columns:
+def concat_columns(tables: list[Columns]) -> Columns:
     """Rows of every flight, columns in order of first appearance, NaN where a flight lacks one
     (as pandas.concat)."""
     names: list[str] = []
