@@ -314,13 +314,24 @@ class MotorModel(FeatureModel):
     voltage_from_physics = True
 
     def _fit_form(
-        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, full: bool
+        self,
+        t: FloatArray,
+        b: FloatArray,
+        th: FloatArray,
+        loss: Loss,
+        full: bool,
+        *,
+        free_offset: bool = False,
     ) -> FloatArray:
-        """The bounded fit in the raw basis (the solver scales columns itself)."""
+        """The bounded fit in the raw basis (the solver scales columns itself): k0 fitted
+        (``full``) or held at 0; ``free_offset`` frees the offset c of its band."""
         design = self.design(t, b)
         lower, upper = self.lower(), self.upper()
         assert lower is not None and upper is not None
         keep = [0, 1, 2, 3] if full else [0, 2, 3]
+        if free_offset:
+            lower, upper = lower.copy(), upper.copy()
+            lower[0], upper[0] = -np.inf, np.inf
         coef = np.zeros(4)
         coef[keep] = solve(
             design[:, keep],
@@ -382,22 +393,7 @@ class MotorModel(FeatureModel):
     ) -> FloatArray:
         """``coef``'s form refitted with the offset c free of its band (k0 stays 0 if it was):
         what the data would say without the bound, for the interval's bound term."""
-        design = self.design(t, b)
-        lower, upper = self.lower(), self.upper()
-        assert lower is not None and upper is not None
-        keep = [0, 2, 3] if coef[1] == 0.0 else [0, 1, 2, 3]
-        lo, hi = lower.copy(), upper.copy()
-        lo[0], hi[0] = -np.inf, np.inf
-        out = np.zeros(4)
-        out[keep] = solve(
-            design[:, keep],
-            th,
-            loss=loss,
-            lower=lo[keep],
-            upper=hi[keep],
-            weights=self.fit_weights(th),
-        )
-        return out
+        return self._fit_form(t, b, th, loss, coef[1] != 0.0, free_offset=True)
 
     def physics_fit(
         self,
