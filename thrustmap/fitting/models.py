@@ -25,9 +25,9 @@ points per coefficient is k0 fitted (a real ESC's duty is not exactly proportion
 throttle, and enough data at several voltages measures that). A free fit (c and k0 unbounded)
 that would break the physics (a negative no-load term, an offset outside its band) is named
 in the reason and the bounded fit kept. Where the stand logged rpm and current,
-``backemf_coefficients`` identifies the same form from B·d = Ke·ω + R·I instead (fit/backemf.py keeps
-it only when by-file held-out error at another voltage confirms it). The choice, its reason
-and the voltage scaling the map rests on are reported (:class:`Identification`).
+``backemf_coefficients`` identifies the same form from B·d = Ke·ω + R·I instead
+(fit/backemf.py keeps it only when by-file held-out error at another voltage confirms it). The
+choice, its reason and the voltage scaling the map rests on are reported (:class:`Identification`).
 
 Weights. ``motor`` weighs each point by the share of the command range it stands for
 (:func:`command_weights`): a slow ramp's hundred samples over a few percent of throttle count
