@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,34 +11,10 @@ import numpy as np
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import load_json
-from thrustmap.fitting.df.table import Columns, Df
+from thrustmap.fitting.df.table import Df
 
 if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
     import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)
-
-
-def _csv_text(columns: Columns) -> str:
-    """The Df CSV as pandas writes it (``float_format='%.6g'``, NaN as an empty field)."""
-    buf = io.StringIO()
-    names = list(columns)
-    if not names:
-        return "\n"
-    csv.writer(buf, lineterminator="\n").writerow(names)
-    cells = []
-    for k in names:
-        v = columns[k]
-        if v.dtype == object or v.dtype.kind in "US":
-            cells.append([_csv_cell(str(x)) for x in v])
-        else:
-            cells.append(["" if x != x else f"{x:.6g}" for x in np.asarray(v, float).tolist()])
-    buf.writelines(",".join(row) + "\n" for row in zip(*cells, strict=True))
-    return buf.getvalue()
-
-
-def _csv_cell(text: str) -> str:
-    if any(c in text for c in ',"\n\r'):
-        return '"' + text.replace('"', '""') + '"'
-    return text
 
 
 def sidecar_path(csv_path: str | Path) -> Path:
@@ -56,11 +30,7 @@ def write_df(df: Df, path: str | Path) -> Path:
             f"the Df output needs a name its sidecar ({side.name}) does not share; use .csv",
             file=str(p),
         )
-    if df._table is not None:  # a table given (or touched) as pandas: written by pandas
-        text = df._table.to_csv(index=False, float_format="%.6g")
-    else:
-        text = _csv_text(df._columns or {})
-    atomic_write_text(p, text)
+    atomic_write_text(p, df.csv_text())
     atomic_write_text(side, json.dumps(df.sources, indent=2, default=str) + "\n")
     return side
 

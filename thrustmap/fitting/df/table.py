@@ -1,7 +1,10 @@
-"""The Df table (columns of numpy arrays, pandas on first use) and what is read off it."""
+"""The Df table (columns of numpy arrays, pandas on first use), its CSV text, and what is read
+off it."""
 
 from __future__ import annotations
 
+import csv
+import io
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -67,6 +70,13 @@ class Df:
     def __repr__(self) -> str:
         return f"Df({len(self)} samples, {len(self.reports)} flight(s))"
 
+    def csv_text(self) -> str:
+        """The Df CSV: written by pandas when the table was given (or touched) as pandas, else
+        from the columns exactly as pandas would write them."""
+        if self._table is not None:
+            return str(self._table.to_csv(index=False, float_format="%.6g"))
+        return _csv_text(self._columns or {})
+
 
 def concat_columns(tables: list[Columns]) -> Columns:
     """Rows of every flight, columns in order of first appearance, NaN where a flight lacks one
@@ -97,3 +107,27 @@ def hover_throttle(table: pd.DataFrame) -> float:
         raise DataFormatError("Df has no normalised thrust command to estimate hover throttle")
     ratio = table["thrust_cmd_norm"].to_numpy(float) * G0 / table["accel_up_mps2"].to_numpy(float)
     return float(nanmedian(ratio))
+
+
+def _csv_text(columns: Columns) -> str:
+    """The Df CSV as pandas writes it (``float_format='%.6g'``, NaN as an empty field)."""
+    buf = io.StringIO()
+    names = list(columns)
+    if not names:
+        return "\n"
+    csv.writer(buf, lineterminator="\n").writerow(names)
+    cells = []
+    for k in names:
+        v = columns[k]
+        if v.dtype == object or v.dtype.kind in "US":
+            cells.append([_csv_cell(str(x)) for x in v])
+        else:
+            cells.append(["" if x != x else f"{x:.6g}" for x in np.asarray(v, float).tolist()])
+    buf.writelines(",".join(row) + "\n" for row in zip(*cells, strict=True))
+    return buf.getvalue()
+
+
+def _csv_cell(text: str) -> str:
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
