@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
 from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
 from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
 from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
@@ -78,6 +79,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sources", nargs="+", type=Path, help="folders or DataFlash files")
     ap.add_argument("--split", type=Path, help='JSON {"dev": [...], "holdout": [...]}')
+    ap.add_argument("--why", action="store_true",
+                    help="for a flight under the target, the filter steps that dropped most")  # fmt: skip
     a = ap.parse_args()
     files = sorted(
         p for s in a.sources for p in ([s] if s.is_file() else s.rglob("*")) if p.is_file()
@@ -96,13 +99,20 @@ def main() -> None:
         if up is None or up < 20.0:
             continue
         seen.add(digest)
-        df = extract(read_log(p), DfOptions(mass_kg=1.5))
+        group, base = part.get(str(p.resolve()), "all"), BASELINE_716ADDE.get(digest)
+        try:
+            df = extract(read_log(p), DfOptions(mass_kg=1.5))
+        except (DataFormatError, ConfigError) as exc:  # refused: a row saying why, not a crash
+            rows.append((group, p.name, 0, base, [f"REFUSED: {exc}"]))
+            continue
         fired = [r for r in RULES if any(w.startswith(r) for w in df.reports[0].warnings)]
         steps = {s.name: s.dropped_s for s in df.reports[0].steps}
         if steps.get("log-pause", 0.0) > 0:
             fired.append(f"log-pause {steps['log-pause']:.0f} s")
-        rows.append((part.get(str(p.resolve()), "all"), p.name, len(df),
-                     BASELINE_716ADDE.get(digest), fired))  # fmt: skip
+        if a.why and len(df) < MIN_SAMPLES:
+            worst = sorted(steps.items(), key=lambda kv: -kv[1])[:4]
+            fired.append("dropped: " + ", ".join(f"{k} {v:.0f} s" for k, v in worst if v > 0))
+        rows.append((group, p.name, len(df), base, fired))
     print(f"{'part':8s} {'flight':44s} {'716adde':>8s} {'now':>6s}  rules that fired")
     for group, name, n, base, fired in sorted(rows):
         shown = "—" if base is None else str(base)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from support.copter33 import ACCEL_SCALE, PAUSE_S, Copter33, write_copter33
 
+from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df import G0, Df, DfOptions, extract
 from thrustmap.fitting.flightlogs.detect import read_log
 
@@ -99,6 +100,26 @@ def test_an_accelerometer_off_at_rest_is_calibrated_before_takeoff(
         np.median(clean[1].table["accel_up_mps2"])
     )
     assert ratio == pytest.approx(1.0, abs=0.005)
+
+
+def test_the_rest_calibrates_before_the_specific_force_is_questioned(tmp_path: Path) -> None:
+    """A PXF log reading 8.7 m/s² at rest and 5-6 in the air (vibration) has a mean below
+    7 m/s²: it used to be refused before the ground-rest calibration (issue 34's crash on
+    31-3-2015_83). Calibrated first, it is read; the hover filter then drops what reads off g."""
+    log = write_copter33(tmp_path / "vib.bin", ("vibration",))
+    (fl,) = read_log(log.path)
+    assert fl.accel_up_mps2 is not None and float(np.mean(fl.accel_up_mps2.values)) < 7.0
+    df = df_of(log)
+    (line,) = rule_lines(df, "accelerometer calibrated at rest")
+    assert f"{G0 * ACCEL_SCALE:.2f}" in line
+    assert steps(df)["hover"] > 0.5 * log.airborne_s  # in the air it still reads 2 m/s² low
+
+
+def test_what_the_rest_calibration_cannot_explain_is_refused(tmp_path: Path) -> None:
+    log = write_copter33(tmp_path / "vib.bin", ("vibration",), vibration_drop_mps2=3.5)
+    with pytest.raises(DataFormatError, match="after its calibration at rest") as exc:
+        df_of(log)
+    assert "-IMU.AccZ" in str(exc.value) and "vib.bin" in str(exc.value)
 
 
 def test_without_rest_before_takeoff_the_accelerometer_is_left_alone() -> None:

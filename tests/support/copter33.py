@@ -14,6 +14,10 @@ Defects:
 - ``inav-diverged``: the inertial altitude (Alt) and its climb rate (CRt) run away at
   ``DRIFT_MPS`` while the barometer (BarAlt) follows the vehicle.
 - ``accel-scale``: the IMU reads ``ACCEL_SCALE`` × the true specific force (8.34 m/s² at rest).
+- ``vibration``: as ``accel-scale`` at rest, and in the air the IMU reads ``VIBRATION_DROP_MPS2``
+  less again (vibration clipped by the sensor: a real PXF flight reads 8.7 m/s² at rest and
+  5-6 in a hover), so the log's mean specific force is below 7 m/s² until the rest calibrates
+  it.
 - ``log-pause``: the vehicle lands, disarms (logging stops, as the firmware suspends writes on
   disarm) for ``PAUSE_S`` and arms again for a second flight; the EVs of the pause are written
   when logging resumes.
@@ -37,7 +41,8 @@ DRIFT_MPS = 1.5
 CRT_OFFSET_MPS = 1.5
 ACCEL_SCALE = 0.85
 PAUSE_S = 40.0
-DEFECTS = ("ev-burst", "crt-offset", "inav-diverged", "accel-scale", "log-pause")
+VIBRATION_DROP_MPS2 = 2.0
+DEFECTS = ("ev-burst", "crt-offset", "inav-diverged", "accel-scale", "log-pause", "vibration")
 
 
 @dataclass
@@ -53,7 +58,13 @@ def _ev(w: DataFlashWriter, *ids: int) -> None:
         w.write("EV", i)
 
 
-def write_copter33(path: Path, defects: tuple[str, ...] = (), *, seed: int = 4) -> Copter33:
+def write_copter33(
+    path: Path,
+    defects: tuple[str, ...] = (),
+    *,
+    seed: int = 4,
+    vibration_drop_mps2: float = VIBRATION_DROP_MPS2,
+) -> Copter33:
     for d in defects:
         if d not in DEFECTS:
             raise ValueError(f"unknown defect {d!r}")
@@ -119,6 +130,8 @@ def write_copter33(path: Path, defects: tuple[str, ...] = (), *, seed: int = 4) 
             was_air = air
             ms = int(round(t * 1e3))
             a_meas = a_up * (ACCEL_SCALE if "accel-scale" in defects else 1.0)
+            if "vibration" in defects:
+                a_meas = ACCEL_SCALE * (a_up - (vibration_drop_mps2 if air else 0.0))
             w.write("IMU", ms, 0.0, 0.0, 0.0, 0.0, 0.0, -a_meas)
             if i % 5 == 0:
                 w.write("CURR", ms, 0, 0, int(round(volt * 100)), 0, 5000, 0)
