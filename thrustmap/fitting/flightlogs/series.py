@@ -77,6 +77,23 @@ class FlightLog:
     index: int = 0  # which flight within a multi-flight file (blackbox)
 
 
+def sorted_signal(
+    t: FloatArray, v: npt.ArrayLike, unit: str, origin: str, *, state: bool = False
+) -> Signal:
+    """A signal sorted by time with duplicate timestamps dropped: the first sample of each
+    time is kept, or for a ``state`` (events) the last, the state the events leave behind."""
+    values = np.asarray(v, dtype=float)
+    order = np.argsort(t, kind="stable")
+    t, values = t[order], values[order]
+    if not len(t):
+        return Signal(t, values, unit, origin)
+    if state:
+        keep = np.concatenate([np.diff(t) > 0, [True]])
+    else:
+        keep = np.concatenate([[True], np.diff(t) > 0])
+    return Signal(t[keep], values[keep], unit, origin)
+
+
 #: standard gravity, m/s²
 G0_MPS2 = 9.80665
 
