@@ -152,6 +152,25 @@ def test_a_log_pause_is_named_and_both_flights_are_kept(
     assert len(df) >= 1.8 * len(clean[1])
 
 
+def test_a_ground_run_after_a_pause_is_landed_by_the_throttle(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    """Untimed EVs cannot say when the vehicle sits on the ground; armed there at the throttle
+    an altitude-holding mode holds before takeoff, it reads g, holds its command steady and
+    passed every filter (a real PXF log gave 275 "clean" samples, all on the ground). Rule
+    "throttle-zero": the 3.2-3.3 land detector (control_land.pde) sets land_complete after 1 s
+    with the output at zero and clears it above THR_MID/2; disarming sets it."""
+    log = write_copter33(tmp_path / "ground.bin", ("log-pause", "ground-run"))
+    assert log.ground_run_s is not None
+    df = df_of(log)
+    t = np.asarray(df.column("time_s"))
+    a, b = log.ground_run_s
+    assert not ((t >= a) & (t <= b)).any()  # nothing of the ground run kept
+    (line,) = rule_lines(df, "throttle-zero")
+    assert "THR_MID/2 = 250" in line
+    assert len(df) >= 1.8 * len(clean[1])  # both flights still kept
+
+
 def test_every_defect_together(clean: tuple[Copter33, Df], tmp_path: Path) -> None:
     df = df_of(write_copter33(tmp_path / "all.bin", ("ev-burst", "crt-offset", "accel-scale")))
     assert len(df) >= 0.85 * len(clean[1])

@@ -608,7 +608,9 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             flight.warnings.append("no RCOU channel looks like a motor output")
     ev = df.by_name.get("EV")
     ev_untimed = ev is not None and df.has("EV") and not {"TimeUS", "TimeMS"} & set(ev.columns)
-    untimed_events(flight, params, ev_untimed=ev_untimed, throttle=None)
+    cmd = flight.thrust_cmd_norm
+    untimed_events(flight, params, ev_untimed=ev_untimed,
+                   throttle=cmd if cmd is not None and cmd.origin.startswith("CTUN.ThrOut") else None)  # fmt: skip
     flight.metadata["params"] = {
         k: v for k, v in params.items() if k.startswith(("MOT_", "RC3_", "FRAME", "BATT_"))
     }
