@@ -174,3 +174,28 @@ def test_a_ground_run_after_a_pause_is_landed_by_the_throttle(
 def test_every_defect_together(clean: tuple[Copter33, Df], tmp_path: Path) -> None:
     df = df_of(write_copter33(tmp_path / "all.bin", ("ev-burst", "crt-offset", "accel-scale")))
     assert len(df) >= 0.85 * len(clean[1])
+
+
+def test_the_land_detector_of_each_build_clears_the_flag_its_own_way() -> None:
+    """3.2's update_land_detector (8c488ebd87) clears land_complete as soon as the pilot's
+    throttle leaves zero; 3.3-dev's (from 11678ba936, 2014-07-17) once the throttle output
+    exceeds THR_MID/2. Both set it after 1 s with the output at zero (50 loops at 50 Hz)."""
+    from thrustmap.fitting.flightlogs.copter_era import land_detector_era, landed_from_throttle
+    from thrustmap.fitting.flightlogs.series import Signal
+
+    assert land_detector_era("ArduCopter V3.2.1 (36b405fb)") == "3.2"
+    assert land_detector_era("APM:Copter V3.1.5 (3c57e771)") == "3.2"
+    assert land_detector_era("ArduCopter V3.3-dev (82481f30)") == "3.3"
+    assert land_detector_era(None) == "3.3"
+    t = np.arange(0.0, 20.0, 0.1)
+    out = np.where(t < 5, 0.0, np.where(t < 10, 0.2, 0.5))  # idle, ramp below mid/2, flying
+    out[(t >= 15) & (t < 17)] = 0.0  # cut for 2 s in the air: landed by the detector
+    pilot = np.where(t < 5, 0.0, 0.3)
+    cmd, stick = Signal(t, out, "1", "CTUN.ThrOut/1000"), Signal(t, pilot, "1", "CTUN.ThrIn")
+    probe = np.array([2.0, 7.0, 12.0, 15.5, 16.5, 18.0])
+    landed33, why = landed_from_throttle(cmd, {"THR_MID": 500.0}, np.zeros(0))
+    assert landed33.hold(probe).tolist() == [1, 1, 0, 0, 1, 0]
+    assert why.startswith("throttle-zero") and "THR_MID/2 = 250" in why
+    landed32, why = landed_from_throttle(cmd, {}, np.zeros(0), pilot_in=stick)
+    assert landed32.hold(probe).tolist() == [1, 0, 0, 0, 1, 0]  # flying once the stick is up
+    assert "CTUN.ThrIn" in why

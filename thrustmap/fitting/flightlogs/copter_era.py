@@ -10,6 +10,8 @@ calls them with the columns it decoded; nothing here reads a file.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import numpy.typing as npt
 
@@ -162,8 +164,23 @@ LAND_DETECTOR_S = 1.0
 THR_MID_DEFAULT = 500.0
 
 
+def land_detector_era(firmware: str | None) -> str:
+    """Which land detector a build ran: "3.2" (and older: the flag clears when the pilot's
+    throttle leaves zero, control_land.pde to 2014-07-17) or "3.3" (3.3-dev from 11678ba936,
+    2014-07-17: it clears when the throttle output exceeds THR_MID/2). Unnamed builds: "3.3",
+    the builds of the 2014-2016 PXF/Erle fleet."""
+    hit = re.search(r"V(\d+)\.(\d+)", firmware or "")
+    if hit and (int(hit.group(1)), int(hit.group(2))) <= (3, 2):
+        return "3.2"
+    return "3.3"
+
+
 def landed_from_throttle(
-    cmd: Signal, params: dict[str, float], resumes_s: FloatArray
+    cmd: Signal,
+    params: dict[str, float],
+    resumes_s: FloatArray,
+    *,
+    pilot_in: Signal | None = None,
 ) -> tuple[Signal, str]:
     """Rule "throttle-zero": the land state the 3.2-3.3 land detector kept, from CTUN.ThrOut.
 
@@ -171,13 +188,17 @@ def landed_from_throttle(
     (AP_MotorsMatrix::output_armed: ``servo_out == 0`` puts every motor at ``radio_min +
     spin_when_armed``, and sets ``limit.throttle_lower``), which cannot carry the vehicle;
     update_land_detector (control_land.pde, 50 Hz) then sets ap.land_complete after
-    LAND_DETECTOR_TRIGGER (50) iterations at the lower limit, and clears it once the output
-    exceeds get_non_takeoff_throttle() = THR_MID / 2 (Attitude.pde). Disarming sets it
-    (init_disarm_motors, motors.pde), so each logging stretch (logging starts at arming)
-    starts landed. The detector's other condition, |climb rate| < 40 cm/s, is left out: CRt
-    carries an offset on these boards (rule climb-crt), and a vehicle whose motors sit at the
-    armed spin for a second is not in steady flight either way. ``cmd`` is CTUN.ThrOut / 1000;
-    ``resumes_s`` the times logging starts again after each pause."""
+    LAND_DETECTOR_TRIGGER (50) iterations at the lower limit. 3.3-dev clears it once the output
+    exceeds get_non_takeoff_throttle() = THR_MID / 2 (Attitude.pde; since 11678ba936,
+    2014-07-17); 3.2 as soon as the pilot's throttle (CTUN.ThrIn = rc_3.control_in) is off zero
+    with the output off its lower limit (the ``else if`` of its detector): pass it as
+    ``pilot_in`` for a 3.2 build. Disarming sets the flag (init_disarm_motors,
+    motors.pde), so each logging stretch (logging starts at arming) starts landed. The
+    detector's other conditions (|climb rate| < 40 cm/s; from 2014-08-25 the barometer's climb
+    and the gyros too) are left out: CRt carries an offset on these boards (rule climb-crt),
+    and a vehicle whose motors sit at the armed spin for a second is not in steady flight
+    either way. ``cmd`` is CTUN.ThrOut / 1000; ``resumes_s`` the times logging starts again
+    after each pause."""
     mid = params.get("THR_MID", THR_MID_DEFAULT)
     if not 0 < mid <= 1000:
         mid = THR_MID_DEFAULT
@@ -189,29 +210,40 @@ def landed_from_throttle(
         if t[b - 1] - t[a] >= LAND_DETECTOR_S:
             sets.append(float(t[a]) + LAND_DETECTOR_S)
     sets += [float(x) for x in resumes_s]
-    clears = t[v > 0.5 * mid / 1000.0]
+    if pilot_in is not None:
+        stick = np.nan_to_num(pilot_in.hold(t), nan=0.0)
+        clears = t[(stick != 0) & (v > 0.0)]  # the else branch: not at the lower limit
+        until = "the pilot's throttle (CTUN.ThrIn) leaves 0 (3.2)"
+    else:
+        clears = t[v > 0.5 * mid / 1000.0]
+        until = f"CTUN.ThrOut exceeds THR_MID/2 = {mid / 2:g} (3.3)"
     times = np.concatenate([np.asarray(sets, float), clears])
     values = np.concatenate([np.ones(len(sets)), np.zeros(len(clears))])
     order = np.argsort(times, kind="stable")
-    origin = f"CTUN.ThrOut 0 for ≥ {LAND_DETECTOR_S:g} s, until above THR_MID/2 = {mid / 2:g}"
+    origin = f"CTUN.ThrOut 0 for ≥ {LAND_DETECTOR_S:g} s, until " + until
     why = (
-        f"throttle-zero: the land state rebuilt as the 3.2-3.3 land detector kept it: landed "
-        f"once CTUN.ThrOut has been 0 (motors cut to the armed spin) for {LAND_DETECTOR_S:g} s "
-        f"and at each arming, flying once it exceeds THR_MID/2 = {mid / 2:g}"
+        f"throttle-zero: the land state rebuilt as the land detector of the build kept it: "
+        f"landed once CTUN.ThrOut has been 0 (motors cut to the armed spin) for "
+        f"{LAND_DETECTOR_S:g} s and at each arming, flying once {until}"
     )
     return sorted_signal(times[order], values[order], "bool", origin, state=True), why
 
 
 def untimed_events(
-    flight: FlightLog, params: dict[str, float], *, ev_untimed: bool, throttle: Signal | None
+    flight: FlightLog,
+    params: dict[str, float],
+    *,
+    ev_untimed: bool,
+    throttle: Signal | None,
+    pilot_throttle: Signal | None = None,
 ) -> None:
     """Copter ≤ 3.3 writes EV without a time stamp, and a log that pauses while disarmed writes
     the events of the pause when it resumes: timed by their neighbours they land at the wrong
     flight. Then the armed state comes from the motor outputs (every motor at or above half
     the armed spin), each pause is a flight boundary (disarmed), and the land detector's events
     are not used: the land state is rebuilt from the throttle output (``landed_from_throttle``,
-    rule "throttle-zero") when the log has CTUN.ThrOut, else ground contact is judged from
-    physics."""
+    rule "throttle-zero") when the log has CTUN.ThrOut (and, for a 3.2 build, the pilot's
+    throttle CTUN.ThrIn: ``pilot_throttle``), else ground contact is judged from physics."""
     if not ev_untimed:
         return
     ref = flight.accel_up_mps2 or flight.motor_outputs
@@ -243,7 +275,11 @@ def untimed_events(
     flight.landed = None
     ground = "ground contact judged from physics"
     if throttle is not None and len(throttle) > 1:
-        flight.landed, why = landed_from_throttle(throttle, params, ref.time_s[pauses + 1])
+        era = land_detector_era(flight.metadata.get("firmware"))
+        flight.landed, why = landed_from_throttle(
+            throttle, params, ref.time_s[pauses + 1],
+            pilot_in=pilot_throttle if era == "3.2" else None,
+        )  # fmt: skip
         flight.warnings.append(why)
         ground = "the land state rebuilt from the throttle output (throttle-zero)"
     flight.warnings.append(

@@ -520,6 +520,7 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         flight.accel_up_mps2 = sorted_signal(
             df.time_s("IMU")[keep], -np.asarray(c["AccZ"], float)[keep], "m/s^2", "-IMU.AccZ"
         )
+    pilot_in: Signal | None = None
     # collective throttle 0..1: CTUN.ThO (older ThrOut 0..1000)
     if df.has("CTUN"):
         c = df.columns("CTUN")
@@ -530,6 +531,8 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             flight.thrust_cmd_norm = sorted_signal(
                 t, np.asarray(c["ThrOut"], float) / 1000.0, "1", "CTUN.ThrOut/1000"
             )
+        if "ThrIn" in c:  # the pilot's throttle (rc_3.control_in, 0..1000), Copter <= 3.3
+            pilot_in = sorted_signal(t, c["ThrIn"], "1", "CTUN.ThrIn")
         if "ThH" in c:
             flight.extras["hover_throttle"] = sorted_signal(t, c["ThH"], "1", "CTUN.ThH")
         # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
@@ -609,8 +612,11 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
     ev = df.by_name.get("EV")
     ev_untimed = ev is not None and df.has("EV") and not {"TimeUS", "TimeMS"} & set(ev.columns)
     cmd = flight.thrust_cmd_norm
-    untimed_events(flight, params, ev_untimed=ev_untimed,
-                   throttle=cmd if cmd is not None and cmd.origin.startswith("CTUN.ThrOut") else None)  # fmt: skip
+    untimed_events(
+        flight, params, ev_untimed=ev_untimed,
+        throttle=cmd if cmd is not None and cmd.origin.startswith("CTUN.ThrOut") else None,
+        pilot_throttle=pilot_in,
+    )  # fmt: skip
     flight.metadata["params"] = {
         k: v for k, v in params.items() if k.startswith(("MOT_", "RC3_", "FRAME", "BATT_"))
     }
