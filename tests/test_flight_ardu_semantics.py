@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.copter33 import ACCEL_SCALE, PAUSE_S, Copter33, write_copter33
+from support.copter33 import ACCEL_SCALE, GROUND_RUN_S, PAUSE_S, Copter33, write_copter33
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df import G0, Df, DfOptions, extract
@@ -168,6 +168,8 @@ def test_a_ground_run_after_a_pause_is_landed_by_the_throttle(
     assert not ((t >= a) & (t <= b)).any()  # nothing of the ground run kept
     (line,) = rule_lines(df, "throttle-zero")
     assert "THR_MID/2 = 250" in line
+    up_s = float(line.split("; ")[-1].split(" s ")[0])  # the ground run's throttle, said
+    assert up_s >= GROUND_RUN_S  # (with the armed rests before each takeoff)
     assert len(df) >= 1.8 * len(clean[1])  # both flights still kept
 
 

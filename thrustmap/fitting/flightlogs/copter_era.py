@@ -221,12 +221,19 @@ def landed_from_throttle(
     values = np.concatenate([np.ones(len(sets)), np.zeros(len(clears))])
     order = np.argsort(times, kind="stable")
     origin = f"CTUN.ThrOut 0 for ≥ {LAND_DETECTOR_S:g} s, until " + until
+    landed = sorted_signal(times[order], values[order], "bool", origin, state=True)
+    # how long the throttle was up while landed (ground runs, or a THR_MID above the hover
+    # throttle, which keeps the flag set in the firmware too): said, so a reader can judge
+    up = (landed.hold(t) > 0.5) & (v > 0.0)
+    dt = np.diff(t, append=t[-1]) if len(t) else np.zeros(0)
+    up_s = float(np.sum(np.where(up, np.minimum(dt, LAND_DETECTOR_S), 0.0)))
     why = (
         f"throttle-zero: the land state rebuilt as the land detector of the build kept it: "
         f"landed once CTUN.ThrOut has been 0 (motors cut to the armed spin) for "
-        f"{LAND_DETECTOR_S:g} s and at each arming, flying once {until}"
+        f"{LAND_DETECTOR_S:g} s and at each arming, flying once {until}; "
+        f"{up_s:.0f} s with the throttle up read as landed"
     )
-    return sorted_signal(times[order], values[order], "bool", origin, state=True), why
+    return landed, why
 
 
 def untimed_events(
