@@ -8,8 +8,10 @@ folder(s) or files:
     python benchmarks/bench_ardu_fleet.py /data/ardu [--split split.json]
 
 A flight: an ArduCopter log whose barometer (CTUN.BarAlt / BAlt) shows at least 20 s above
-1.5 m over its level at the start while the command is above 0.2 (a bench test or a log that
-never left the ground is not one); copies of the same content count once. ``--split`` is a
+1.5 m over its level at the start while the command is above 0.2 (a log that never left the
+ground is not one); copies of the same content count once. One whose accelerometer does not
+shake as turning rotors shake it is named below the table (a bench test with the propellers
+off whose barometer drifted as the board warmed?) but still counted. ``--split`` is a
 JSON ``{"dev": [paths], "holdout": [paths]}``: the logs the rules were developed on and those
 set aside, reported apart. Every flight gets ``DfOptions(mass_kg=1.5)`` (the mass changes no
 filter). Baseline: the sample count the same file gave at 716adde (recorded by content hash
@@ -30,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
 from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
 from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
 from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
@@ -51,9 +54,16 @@ RULES = ("inav-baro", "climb-crt", "accelerometer calibrated", "events untimed")
 MIN_SAMPLES = 100
 
 
-def flight_seconds(path: Path) -> float | None:
-    """Seconds the barometer shows the vehicle 1.5 m up with the command above 0.2 (None: not
-    an ArduCopter log with CTUN)."""
+#: rotors turning shake the accelerometer by more than this (m/s², standard deviation of -IMU.AccZ
+#: within a second, median over the seconds the command is above 0.2): the steadiest real flight
+#: here reads 0.10, a board on a bench with its propellers off 0.03 (flagged, still counted)
+ROTOR_VIBRATION_MPS2 = 0.05
+
+
+def flight_seconds(path: Path) -> tuple[float, float] | None:
+    """Seconds the barometer shows the vehicle 1.5 m up with the command above 0.2, and how
+    much the accelerometer shakes while the command is above 0.2 (None: not an ArduCopter log
+    with CTUN)."""
     try:
         log = dataflash.parse(path)
     except Exception:
@@ -71,13 +81,23 @@ def flight_seconds(path: Path) -> float | None:
     thr = np.asarray(c[thr_col], float)
     thr = thr / (1000.0 if thr.max() > 2 else 1.0)
     ground = float(np.median(b[: max(5, len(b) // 20)]))
-    return float(((b - ground >= 1.5) & (thr > 0.2)).sum() * np.median(np.diff(t)))
+    up_s = float(((b - ground >= 1.5) & (thr > 0.2)).sum() * np.median(np.diff(t)))
+    shake = float("nan")
+    if log.has("IMU"):
+        ti, acc = log.time_s("IMU"), -np.asarray(log.columns("IMU")["AccZ"], float)
+        on = np.interp(ti, t, thr) > 0.2
+        sec = np.floor(ti[on]).astype(np.int64)  # the shaking within each second, median
+        stds = [float(np.std(acc[on][sec == k])) for k in np.unique(sec)]
+        shake = float(np.median(stds)) if stds else shake
+    return up_s, shake
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sources", nargs="+", type=Path, help="folders or DataFlash files")
     ap.add_argument("--split", type=Path, help='JSON {"dev": [...], "holdout": [...]}')
+    ap.add_argument("--why", action="store_true",
+                    help="for a flight under the target, the filter steps that dropped most")  # fmt: skip
     a = ap.parse_args()
     files = sorted(
         p for s in a.sources for p in ([s] if s.is_file() else s.rglob("*")) if p.is_file()
@@ -88,21 +108,31 @@ def main() -> None:
         part = {str(Path(p).resolve()): k for k, ps in split.items() for p in ps}
     seen: set[str] = set()
     rows: list[tuple[str, str, int, int | None, list[str]]] = []
+    benches: list[str] = []
     for p in files:
         digest = hashlib.sha256(p.read_bytes()).hexdigest()[:12]
         if digest in seen:
             continue
-        up = flight_seconds(p)
-        if up is None or up < 20.0:
+        found = flight_seconds(p)
+        if found is None or found[0] < 20.0:
             continue
         seen.add(digest)
-        df = extract(read_log(p), DfOptions(mass_kg=1.5))
+        group, base = part.get(str(p.resolve()), "all"), BASELINE_716ADDE.get(digest)
+        if not found[1] > ROTOR_VIBRATION_MPS2:  # the barometer drifted; nothing flew?
+            benches.append(p.name)
+        try:
+            df = extract(read_log(p), DfOptions(mass_kg=1.5))
+        except (DataFormatError, ConfigError) as exc:  # refused: a row saying why, not a crash
+            rows.append((group, p.name, 0, base, [f"REFUSED: {exc}"]))
+            continue
         fired = [r for r in RULES if any(w.startswith(r) for w in df.reports[0].warnings)]
         steps = {s.name: s.dropped_s for s in df.reports[0].steps}
         if steps.get("log-pause", 0.0) > 0:
             fired.append(f"log-pause {steps['log-pause']:.0f} s")
-        rows.append((part.get(str(p.resolve()), "all"), p.name, len(df),
-                     BASELINE_716ADDE.get(digest), fired))  # fmt: skip
+        if a.why and len(df) < MIN_SAMPLES:
+            worst = sorted(steps.items(), key=lambda kv: -kv[1])[:4]
+            fired.append("dropped: " + ", ".join(f"{k} {v:.0f} s" for k, v in worst if v > 0))
+        rows.append((group, p.name, len(df), base, fired))
     print(f"{'part':8s} {'flight':44s} {'716adde':>8s} {'now':>6s}  rules that fired")
     for group, name, n, base, fired in sorted(rows):
         shown = "—" if base is None else str(base)
@@ -113,6 +143,9 @@ def main() -> None:
         base = sum((r[3] or 0) >= MIN_SAMPLES for r in sel)
         print(f"{group}: {len(sel)} flights; ≥ {MIN_SAMPLES} clean samples: 716adde {base}, "
               f"now {now}")  # fmt: skip
+    for name in benches:
+        print(f"{name}: -IMU.AccZ shakes ≤ {ROTOR_VIBRATION_MPS2:g} m/s² with the command above "
+              "0.2: a bench test with the propellers off? (counted as a flight)")  # fmt: skip
     now = sum(r[2] >= MIN_SAMPLES for r in rows)
     base = sum((r[3] or 0) >= MIN_SAMPLES for r in rows)
     print(f"all: {len(rows)} flights; ≥ {MIN_SAMPLES} clean samples: 716adde {base}, now {now} "

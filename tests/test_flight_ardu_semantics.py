@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.copter33 import ACCEL_SCALE, PAUSE_S, Copter33, write_copter33
+from support.copter33 import ACCEL_SCALE, GROUND_RUN_S, PAUSE_S, Copter33, write_copter33
 
+from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df import G0, Df, DfOptions, extract
 from thrustmap.fitting.flightlogs.detect import read_log
 
@@ -101,6 +102,26 @@ def test_an_accelerometer_off_at_rest_is_calibrated_before_takeoff(
     assert ratio == pytest.approx(1.0, abs=0.005)
 
 
+def test_the_rest_calibrates_before_the_specific_force_is_questioned(tmp_path: Path) -> None:
+    """A PXF log reading 8.7 m/s² at rest and 5-6 in the air (vibration) has a mean below
+    7 m/s²: it used to be refused before the ground-rest calibration (issue 34's crash on
+    31-3-2015_83). Calibrated first, it is read; the hover filter then drops what reads off g."""
+    log = write_copter33(tmp_path / "vib.bin", ("vibration",))
+    (fl,) = read_log(log.path)
+    assert fl.accel_up_mps2 is not None and float(np.mean(fl.accel_up_mps2.values)) < 7.0
+    df = df_of(log)
+    (line,) = rule_lines(df, "accelerometer calibrated at rest")
+    assert f"{G0 * ACCEL_SCALE:.2f}" in line
+    assert steps(df)["hover"] > 0.5 * log.airborne_s  # in the air it still reads 2 m/s² low
+
+
+def test_what_the_rest_calibration_cannot_explain_is_refused(tmp_path: Path) -> None:
+    log = write_copter33(tmp_path / "vib.bin", ("vibration",), vibration_drop_mps2=3.5)
+    with pytest.raises(DataFormatError, match="after its calibration at rest") as exc:
+        df_of(log)
+    assert "-IMU.AccZ" in str(exc.value) and "vib.bin" in str(exc.value)
+
+
 def test_without_rest_before_takeoff_the_accelerometer_is_left_alone() -> None:
     from test_flight_semantics import _spoolup_flight
 
@@ -131,6 +152,52 @@ def test_a_log_pause_is_named_and_both_flights_are_kept(
     assert len(df) >= 1.8 * len(clean[1])
 
 
+def test_a_ground_run_after_a_pause_is_landed_by_the_throttle(
+    clean: tuple[Copter33, Df], tmp_path: Path
+) -> None:
+    """Untimed EVs cannot say when the vehicle sits on the ground; armed there at the throttle
+    an altitude-holding mode holds before takeoff, it reads g, holds its command steady and
+    passed every filter (a real PXF log gave 275 "clean" samples, all on the ground). Rule
+    "throttle-zero": the 3.2-3.3 land detector (control_land.pde) sets land_complete after 1 s
+    with the output at zero and clears it above THR_MID/2; disarming sets it."""
+    log = write_copter33(tmp_path / "ground.bin", ("log-pause", "ground-run"))
+    assert log.ground_run_s is not None
+    df = df_of(log)
+    t = np.asarray(df.column("time_s"))
+    a, b = log.ground_run_s
+    assert not ((t >= a) & (t <= b)).any()  # nothing of the ground run kept
+    (line,) = rule_lines(df, "throttle-zero")
+    assert "THR_MID/2 = 250" in line
+    up_s = float(line.split("; ")[-1].split(" s ")[0])  # the ground run's throttle, said
+    assert up_s >= GROUND_RUN_S  # (with the armed rests before each takeoff)
+    assert len(df) >= 1.8 * len(clean[1])  # both flights still kept
+
+
 def test_every_defect_together(clean: tuple[Copter33, Df], tmp_path: Path) -> None:
     df = df_of(write_copter33(tmp_path / "all.bin", ("ev-burst", "crt-offset", "accel-scale")))
     assert len(df) >= 0.85 * len(clean[1])
+
+
+def test_the_land_detector_of_each_build_clears_the_flag_its_own_way() -> None:
+    """3.2's update_land_detector (8c488ebd87) clears land_complete as soon as the pilot's
+    throttle leaves zero; 3.3-dev's (from 11678ba936, 2014-07-17) once the throttle output
+    exceeds THR_MID/2. Both set it after 1 s with the output at zero (50 loops at 50 Hz)."""
+    from thrustmap.fitting.flightlogs.copter_era import land_detector_era, landed_from_throttle
+    from thrustmap.fitting.flightlogs.series import Signal
+
+    assert land_detector_era("ArduCopter V3.2.1 (36b405fb)") == "3.2"
+    assert land_detector_era("APM:Copter V3.1.5 (3c57e771)") == "3.2"
+    assert land_detector_era("ArduCopter V3.3-dev (82481f30)") == "3.3"
+    assert land_detector_era(None) == "3.3"
+    t = np.arange(0.0, 20.0, 0.1)
+    out = np.where(t < 5, 0.0, np.where(t < 10, 0.2, 0.5))  # idle, ramp below mid/2, flying
+    out[(t >= 15) & (t < 17)] = 0.0  # cut for 2 s in the air: landed by the detector
+    pilot = np.where(t < 5, 0.0, 0.3)
+    cmd, stick = Signal(t, out, "1", "CTUN.ThrOut/1000"), Signal(t, pilot, "1", "CTUN.ThrIn")
+    probe = np.array([2.0, 7.0, 12.0, 15.5, 16.5, 18.0])
+    landed33, why = landed_from_throttle(cmd, {"THR_MID": 500.0}, np.zeros(0))
+    assert landed33.hold(probe).tolist() == [1, 1, 0, 0, 1, 0]
+    assert why.startswith("throttle-zero") and "THR_MID/2 = 250" in why
+    landed32, why = landed_from_throttle(cmd, {}, np.zeros(0), pilot_in=stick)
+    assert landed32.hold(probe).tolist() == [1, 0, 0, 0, 1, 0]  # flying once the stick is up
+    assert "CTUN.ThrIn" in why

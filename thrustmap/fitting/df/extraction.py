@@ -42,7 +42,8 @@ from thrustmap.fitting.flightlogs.series import (
     FloatArray,
     Signal,
     nanmedian,
-    question_specific_force,
+    refuse_unphysical_specific_force,
+    specific_force_unit,
 )
 
 if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
@@ -100,8 +101,9 @@ def extract_flight_columns(
         raise ConfigError("give the vehicle mass (--mass-kg): the log does not record it")
     acc, time_warnings = plausible_timeline(flight.accel_up_mps2, opts.rate_hz, flight.path)
     # every reader's acceleration is questioned here, not only the CSV readers': in g it is
-    # converted and said, one that cannot be a specific force is refused (issue 31 item 8)
-    acc, unit_notes = question_specific_force(acc, flight.path)
+    # converted and said, one that cannot be a specific force is refused (issue 31 item 8),
+    # after the ground-rest calibration below: only what that cannot explain (issue 34)
+    acc, unit_notes = specific_force_unit(acc)
     time_warnings = [*time_warnings, *unit_notes]
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
@@ -184,6 +186,9 @@ def extract_flight_columns(
         cmd_pct = cmd_pct * 100.0
     if cmd_for_steady is not None:
         a_up = rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
+    calibrated = any(w.startswith("accelerometer calibrated at rest") for w in warnings)
+    refuse_unphysical_specific_force(a_up, acc.origin, flight.path,
+                                     calibrated="its calibration at rest" if calibrated else "")  # fmt: skip
     in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
         cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,

@@ -29,7 +29,21 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
+from thrustmap.fitting.flightlogs.copter_era import (
+    EV_ARMED,
+    EV_DISARMED,
+    climb_from_altitude,
+    inertial_or_baro,
+    land_state_from_events,
+    untimed_events,
+)
+from thrustmap.fitting.flightlogs.series import (
+    FlightLog,
+    FloatArray,
+    Signal,
+    nanmedian,
+    sorted_signal,
+)
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +76,6 @@ _FORMAT: dict[str, tuple[str, float | None]] = {
 
 #: messages on the boot clock used to time messages that carry no time (EV before Copter 3.4)
 TIME_REFERENCE_MESSAGES = ("IMU", "ATT", "CTUN", "BARO", "RCOU", "CURR", "BAT", "RCIN", "MAG")
-#: EV ids (ArduCopter LogEvent)
-EV_ARMED, EV_DISARMED, EV_LAND_COMPLETE, EV_NOT_LANDED = 10, 11, 18, 28
 
 
 @dataclass(frozen=True)
@@ -355,23 +367,6 @@ def _instance0(cols: dict[str, npt.NDArray[Any]]) -> npt.NDArray[np.bool_]:
     return np.ones(len(next(iter(cols.values()))), dtype=bool) if cols else np.zeros(0, bool)
 
 
-def _signal(
-    t: FloatArray, v: npt.ArrayLike, unit: str, origin: str, *, state: bool = False
-) -> Signal:
-    """A signal sorted by time with duplicate timestamps dropped: the first sample of each
-    time is kept, or for a ``state`` (events) the last, the state the events leave behind."""
-    values = np.asarray(v, dtype=float)
-    order = np.argsort(t, kind="stable")
-    t, values = t[order], values[order]
-    if not len(t):
-        return Signal(t, values, unit, origin)
-    if state:
-        keep = np.concatenate([np.diff(t) > 0, [True]])
-    else:
-        keep = np.concatenate([[True], np.diff(t) > 0])
-    return Signal(t[keep], values[keep], unit, origin)
-
-
 def _events(
     df: DataFlashLog, notes: list[str] | None = None
 ) -> tuple[Signal | None, Signal | None]:
@@ -382,42 +377,22 @@ def _events(
     landed: Signal | None = None
     if df.has("ARM"):
         c = df.columns("ARM")
-        armed = _signal(df.time_s("ARM"), c["ArmState"] != 0, "bool", "ARM.ArmState", state=True)
+        armed = sorted_signal(
+            df.time_s("ARM"), c["ArmState"] != 0, "bool", "ARM.ArmState", state=True
+        )
     if df.has("EV"):
         t, ids = df.time_s("EV"), np.asarray(df.columns("EV")["Id"], int)
         if armed is None:
             m = np.isin(ids, (EV_ARMED, EV_DISARMED))
             if m.any():
-                armed = _signal(
+                armed = sorted_signal(
                     np.concatenate([[t[m][0] - 1e-3], t[m]]),
                     np.concatenate([[0.0], ids[m] == EV_ARMED]),
                     "bool",
                     "EV.Id 10 ARMED / 11 DISARMED",
                     state=True,
                 )
-        # Landed: ground at each arming, airborne at NOT_LANDED, ground at LAND_COMPLETE.
-        # Rule "ev-burst" (ArduCopter 3.2-3.3 AP_State.pde set_land_complete writes an EV on
-        # every change of ap.land_complete; the 50 Hz land detector of control_land.pde sets it
-        # while an altitude-holding mode clears it again, so a burst of 18/28 pairs is written
-        # within one time stamp of the neighbours that time them): the state after a burst
-        # is its LAST event (keeping the first read a whole flight as landed)
-        m = np.isin(ids, (EV_ARMED, EV_LAND_COMPLETE, EV_NOT_LANDED))
-        tm = t[m]
-        same = np.flatnonzero(np.diff(tm) == 0) if len(tm) > 1 else np.zeros(0, np.int64)
-        if len(same):
-            notes.append(
-                f"ev-burst: {len(same) + len(np.unique(tm[same]))} land events written within "
-                f"{len(np.unique(tm[same]))} time stamp(s) (the land detector and the altitude "
-                "controller toggling the land flag): the state after each burst is its last event"
-            )
-        if m.any():
-            landed = _signal(
-                t[m],
-                ids[m] != EV_NOT_LANDED,
-                "bool",
-                "EV.Id 18 LAND_COMPLETE / 28 NOT_LANDED",
-                state=True,
-            )
+        landed = land_state_from_events(t, ids, notes)  # rule ev-burst (copter_era)
     return armed, landed
 
 
@@ -506,151 +481,6 @@ def pwm_scale(params: dict[str, float]) -> tuple[ThrottleScale, str]:
     return ThrottleScale("pwm", float(lo), float(hi), "us"), src
 
 
-#: the inertial-navigation altitude (CTUN.Alt) may depart from the barometer's alone (BarAlt)
-#: by this much (95th percentile, after their offset) before it is taken as diverged
-INAV_BARO_DISAGREE_M = 10.0
-#: the barometer's climb rate: altitude difference over this span (s)
-BARO_CLIMB_SPAN_S = 1.0
-#: an altitude climbing faster than this is jumping (a glitch or a broken sensor), not flying
-BARO_CLIMB_MAX_MPS = 30.0
-
-
-#: CTUN.CRt may differ from the logged altitude's own climb by this much (median, m/s)
-CRT_ALT_DISAGREE_MPS = 0.3
-
-
-def _climb(t: FloatArray, height_m: FloatArray, span_s: float) -> FloatArray:
-    """Climb rate (m/s): the height difference over ``span_s`` centred on each sample."""
-    half = 0.5 * span_s
-    return np.asarray(
-        (np.interp(t + half, t, height_m) - np.interp(t - half, t, height_m)) / span_s, float
-    )
-
-
-def _climb_from_altitude(
-    flight: FlightLog, t: FloatArray, crt_mps: FloatArray, alt_m: FloatArray
-) -> None:
-    """Rule "climb-crt": CTUN.CRt is the inertial-navigation vertical velocity (cm/s in every
-    3.2-3.4 build: ``climb_rate = inertial_nav.get_velocity_z()``, inertia.pde / Log.pde), not
-    the derivative of the altitude logged beside it. In the PXF 3.3-dev builds it carries an
-    offset (an accelerometer off by 0.3 m/s² at rest integrates into it; the barometer pulls
-    the altitude back but hardly the velocity): 75 % of a hover read |CRt| > 1 m/s while
-    CTUN.Alt moved 0.1 m/s. When CRt departs from the climb of CTUN.Alt by more than
-    CRT_ALT_DISAGREE_MPS (median), the climb rate is that of CTUN.Alt over BARO_CLIMB_SPAN_S."""
-    ok = np.isfinite(crt_mps) & np.isfinite(alt_m)
-    if ok.sum() < 20:
-        return
-    tt = t[ok]
-    from_alt = _climb(tt, alt_m[ok], BARO_CLIMB_SPAN_S)
-    off = float(nanmedian(np.abs(crt_mps[ok] - from_alt)))
-    if off <= CRT_ALT_DISAGREE_MPS or np.abs(from_alt).max() > BARO_CLIMB_MAX_MPS:
-        return  # CRt agrees, or the altitude itself jumps (judged downstream)
-    flight.extras["climb_mps"] = _signal(
-        tt, from_alt, "m/s", f"CTUN.Alt climb over {BARO_CLIMB_SPAN_S:g} s"
-    )
-    flight.warnings.append(
-        f"climb-crt: CTUN.CRt (inertial vertical velocity, cm/s) departs from the climb of "
-        f"CTUN.Alt by {off:.2f} m/s (median, more than {CRT_ALT_DISAGREE_MPS:g}): the climb "
-        "rate is taken from CTUN.Alt"
-    )
-
-
-def _inertial_or_baro(
-    flight: FlightLog, t: FloatArray, inav_m: FloatArray, baro_m: FloatArray, baro_origin: str
-) -> None:
-    """Rule "inav-baro": ArduCopter 3.2-3.4 log CTUN.Alt = current_loc.alt / 100 and CTUN.CRt =
-    inertial_nav.get_velocity_z() (cm/s; Log.pde and inertia.pde of those builds), the
-    accelerometers integrated and pulled toward the barometer, and CTUN.BarAlt the barometer
-    alone (cm in the firmware, metres through its FMT 'e'). On boards whose barometer the
-    filter did not follow (PXF/Erle 3.3-dev builds: CTUN.Alt ran 100+ m while the barometer
-    moved 1 m) the inertial altitude and climb rate describe no motion of the vehicle. When the
-    two altitudes depart by more than INAV_BARO_DISAGREE_M (a few metres of barometer drift are common; the
-    inertial altitude is then the better one), height and climb rate come from the barometer
-    (its climb over BARO_CLIMB_SPAN_S), unless the barometer itself jumps; the report says
-    which."""
-    ok = np.isfinite(inav_m) & np.isfinite(baro_m)
-    if ok.sum() < 20:
-        return
-    diff = inav_m[ok] - baro_m[ok]
-    dev = np.abs(diff - float(nanmedian(diff)))
-    ranked = np.sort(dev)
-    dev95 = float(ranked[min(len(ranked) - 1, int(0.95 * len(ranked)))])
-    if dev95 <= INAV_BARO_DISAGREE_M:
-        return
-    tb, hb = t[ok], baro_m[ok]
-    climb = _climb(tb, hb, BARO_CLIMB_SPAN_S)
-    if np.abs(climb).max() > BARO_CLIMB_MAX_MPS:
-        return  # the barometer jumps too: neither is the vehicle's height (judged downstream)
-    flight.extras["height_m"] = _signal(tb, hb, "m", f"{baro_origin} (barometer)")
-    flight.extras["climb_mps"] = _signal(
-        tb, climb, "m/s", f"{baro_origin} climb over {BARO_CLIMB_SPAN_S:g} s (barometer)"
-    )
-    flight.warnings.append(
-        f"inav-baro: CTUN.Alt (inertial navigation) departs from {baro_origin} (barometer) by "
-        f"{dev95:.1f} m (95th percentile, more than {INAV_BARO_DISAGREE_M:g} m): height and "
-        "climb rate taken from the barometer (CTUN.CRt is the inertial climb rate, cm/s)"
-    )
-
-
-#: a stretch without samples longer than this is the log pausing (Copter logs only while armed)
-LOG_PAUSE_S = 2.0
-
-
-def armed_spin_us(params: dict[str, float], scale: ThrottleScale) -> tuple[float, str]:
-    """The output the motors hold when armed at zero throttle (µs above the scale's low end):
-    MOT_SPIN_ARMED (Copter ≤ 3.3, µs above the minimum) or MOT_SPIN_ARM (3.4+, fraction of the
-    range); 3 % of the range when the log gives neither."""
-    span = scale.hi - scale.lo
-    if (v := params.get("MOT_SPIN_ARMED")) is not None and v > 0:
-        return float(v), f"MOT_SPIN_ARMED {v:g} us"
-    if (v := params.get("MOT_SPIN_ARM")) is not None and v > 0:
-        return float(v) * span, f"MOT_SPIN_ARM {v:g}"
-    return 0.03 * span, "assumed 3 % of the output range (no MOT_SPIN_ARMED/MOT_SPIN_ARM)"
-
-
-def _untimed_events(df: DataFlashLog, flight: FlightLog, params: dict[str, float]) -> None:
-    """Copter ≤ 3.3 writes EV without a time stamp, and a log that pauses while disarmed writes
-    the events of the pause when it resumes: timed by their neighbours they land at the wrong
-    flight. Then the armed state comes from the motor outputs (every motor at or above half
-    the armed spin), each pause is a flight boundary (disarmed), and the land detector's events
-    are not used (ground contact is judged from physics)."""
-    ev = df.by_name.get("EV")
-    if ev is None or not df.has("EV") or {"TimeUS", "TimeMS"} & set(ev.columns):
-        return
-    ref = flight.accel_up_mps2 or flight.motor_outputs
-    if ref is None or len(ref) < 2:
-        return
-    pauses = np.flatnonzero(np.diff(ref.time_s) > LOG_PAUSE_S)
-    if not len(pauses):
-        return  # written as they happened: their neighbours time them
-    mo, sc = flight.motor_outputs, flight.motor_output_scale
-    if mo is None or sc is None or mo.values.ndim != 2:
-        flight.warnings.append(
-            "EV has no time stamps and the log pauses: the arming events cannot be timed and "
-            "there are no motor outputs to tell armed state from"
-        )
-        return
-    spin, spin_src = armed_spin_us(params, sc)
-    spinning = np.nanmin(mo.values, axis=1) >= sc.lo + 0.5 * spin
-    t = mo.time_s
-    gap_t = ref.time_s[pauses] + 1e-3  # disarmed from just after the last sample of a stretch
-    times = np.concatenate([t, gap_t])
-    vals = np.concatenate([spinning.astype(float), np.zeros(len(gap_t))])
-    order = np.argsort(times, kind="stable")
-    flight.armed = Signal(
-        times[order],
-        vals[order],
-        "bool",
-        f"motor outputs ≥ half the armed spin ({spin_src}); log pauses disarmed",
-    )
-    flight.landed = None
-    flight.warnings.append(
-        f"events untimed: EV has no time stamps and the log pauses {len(pauses)} time(s), so "
-        "the arming events written on resuming cannot be placed; armed state taken from the "
-        "motor outputs, each pause a flight boundary, ground contact judged from physics"
-    )
-
-
 def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> list[FlightLog]:
     df = parse(path)
     flight = FlightLog(path=str(path), format="dataflash", warnings=list(df.warnings))
@@ -667,7 +497,7 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
     if df.has("BAT"):
         c = df.columns("BAT")
         keep = _instance0(c)
-        flight.voltage_v = _signal(df.time_s("BAT")[keep], c["Volt"][keep], "V", "BAT.Volt")
+        flight.voltage_v = sorted_signal(df.time_s("BAT")[keep], c["Volt"][keep], "V", "BAT.Volt")
     elif df.has("CURR"):
         c = df.columns("CURR")
         volt = np.asarray(c["Volt"], float)
@@ -676,7 +506,9 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             volt = volt / 100.0
         sensed = volt > 0.5  # 0 V: no voltage sensor connected (or not yet read)
         if sensed.any():
-            flight.voltage_v = _signal(df.time_s("CURR")[sensed], volt[sensed], "V", "CURR.Volt")
+            flight.voltage_v = sorted_signal(
+                df.time_s("CURR")[sensed], volt[sensed], "V", "CURR.Volt"
+            )
         else:
             flight.warnings.append("CURR.Volt reads 0 V throughout: no battery voltage sensed")
     else:
@@ -685,32 +517,35 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
     if df.has("IMU"):
         c = df.columns("IMU")
         keep = _instance0(c)
-        flight.accel_up_mps2 = _signal(
+        flight.accel_up_mps2 = sorted_signal(
             df.time_s("IMU")[keep], -np.asarray(c["AccZ"], float)[keep], "m/s^2", "-IMU.AccZ"
         )
+    pilot_in: Signal | None = None
     # collective throttle 0..1: CTUN.ThO (older ThrOut 0..1000)
     if df.has("CTUN"):
         c = df.columns("CTUN")
         t = df.time_s("CTUN")
         if "ThO" in c:
-            flight.thrust_cmd_norm = _signal(t, c["ThO"], "1", "CTUN.ThO")
+            flight.thrust_cmd_norm = sorted_signal(t, c["ThO"], "1", "CTUN.ThO")
         elif "ThrOut" in c:
-            flight.thrust_cmd_norm = _signal(
+            flight.thrust_cmd_norm = sorted_signal(
                 t, np.asarray(c["ThrOut"], float) / 1000.0, "1", "CTUN.ThrOut/1000"
             )
+        if "ThrIn" in c:  # the pilot's throttle (rc_3.control_in, 0..1000), Copter <= 3.3
+            pilot_in = sorted_signal(t, c["ThrIn"], "1", "CTUN.ThrIn")
         if "ThH" in c:
-            flight.extras["hover_throttle"] = _signal(t, c["ThH"], "1", "CTUN.ThH")
+            flight.extras["hover_throttle"] = sorted_signal(t, c["ThH"], "1", "CTUN.ThH")
         # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
         if "Alt" in c:
-            flight.extras["height_m"] = _signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
+            flight.extras["height_m"] = sorted_signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
         if "CRt" in c:
             crt = np.asarray(c["CRt"], float)
-            flight.extras["climb_mps"] = _signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
+            flight.extras["climb_mps"] = sorted_signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
             if "Alt" in c:
-                _climb_from_altitude(flight, t, crt / 100.0, np.asarray(c["Alt"], float))
+                climb_from_altitude(flight, t, crt / 100.0, np.asarray(c["Alt"], float))
         baro_col = next((k for k in ("BarAlt", "BAlt") if k in c), None)
         if "Alt" in c and baro_col is not None:
-            _inertial_or_baro(flight, t, np.asarray(c["Alt"], float),
+            inertial_or_baro(flight, t, np.asarray(c["Alt"], float),
                               np.asarray(c[baro_col], float), f"CTUN.{baro_col}")  # fmt: skip
     if df.has("RFND"):  # range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)
         c = df.columns("RFND")
@@ -727,15 +562,15 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             dist = np.zeros(0)
             good, origin = np.zeros(0, bool), ""
         if good.any():
-            flight.extras["range_m"] = _signal(t, np.where(good, dist, np.nan), "m", origin)
+            flight.extras["range_m"] = sorted_signal(t, np.where(good, dist, np.nan), "m", origin)
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))
         tilt = np.degrees(np.arccos(np.clip(np.cos(r) * np.cos(p), -1.0, 1.0)))
-        flight.extras["tilt_deg"] = _signal(df.time_s("ATT"), tilt, "deg", "ATT.Roll/Pitch")
+        flight.extras["tilt_deg"] = sorted_signal(df.time_s("ATT"), tilt, "deg", "ATT.Roll/Pitch")
     if df.has("MOTB"):
         c = df.columns("MOTB")
-        flight.extras["motb_batvolt"] = _signal(
+        flight.extras["motb_batvolt"] = sorted_signal(
             df.time_s("MOTB"), c["BatVolt"], "1", "MOTB.BatVolt"
         )
     flight.armed, flight.landed = _events(df, flight.warnings)
@@ -761,20 +596,27 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             )
         if chans:
             outs = np.stack([np.asarray(c[ch], float) for ch in chans], axis=1)
-            flight.motor_outputs = _signal(t, outs, "us", "RCOU." + ",".join(chans))
+            flight.motor_outputs = sorted_signal(t, outs, "us", "RCOU." + ",".join(chans))
             flight.motor_output_scale, scale_src = pwm_scale(params)
             flight.metadata["motor_channels"] = how
             flight.metadata["motor_output_scale_source"] = scale_src
             allc = sorted(
                 (k for k in c if re.fullmatch(r"Ch?\d+", k)), key=lambda k: int(k.lstrip("Ch"))
             )
-            flight.extras["outputs_all"] = _signal(
+            flight.extras["outputs_all"] = sorted_signal(
                 t, np.stack([np.asarray(c[k], float) for k in allc], axis=1), "us",
                 "RCOU." + ",".join(allc),
             )  # fmt: skip
         else:
             flight.warnings.append("no RCOU channel looks like a motor output")
-    _untimed_events(df, flight, params)
+    ev = df.by_name.get("EV")
+    ev_untimed = ev is not None and df.has("EV") and not {"TimeUS", "TimeMS"} & set(ev.columns)
+    cmd = flight.thrust_cmd_norm
+    untimed_events(
+        flight, params, ev_untimed=ev_untimed,
+        throttle=cmd if cmd is not None and cmd.origin.startswith("CTUN.ThrOut") else None,
+        pilot_throttle=pilot_in,
+    )  # fmt: skip
     flight.metadata["params"] = {
         k: v for k, v in params.items() if k.startswith(("MOT_", "RC3_", "FRAME", "BATT_"))
     }

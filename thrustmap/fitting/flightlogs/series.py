@@ -77,6 +77,23 @@ class FlightLog:
     index: int = 0  # which flight within a multi-flight file (blackbox)
 
 
+def sorted_signal(
+    t: FloatArray, v: npt.ArrayLike, unit: str, origin: str, *, state: bool = False
+) -> Signal:
+    """A signal sorted by time with duplicate timestamps dropped: the first sample of each
+    time is kept, or for a ``state`` (events) the last, the state the events leave behind."""
+    values = np.asarray(v, dtype=float)
+    order = np.argsort(t, kind="stable")
+    t, values = t[order], values[order]
+    if not len(t):
+        return Signal(t, values, unit, origin)
+    if state:
+        keep = np.concatenate([np.diff(t) > 0, [True]])
+    else:
+        keep = np.concatenate([[True], np.diff(t) > 0])
+    return Signal(t[keep], values[keep], unit, origin)
+
+
 #: standard gravity, m/s²
 G0_MPS2 = 9.80665
 
@@ -88,14 +105,20 @@ def question_specific_force(
     its mean must be near g. A column in g (mean ≈ 1) is converted with a warning; one with
     gravity removed (mean ≈ 0) gets g back when ``gravity_removed`` is allowed; anything else
     (a downward axis, another unit) is refused: a force that cannot be physical is not used."""
-    from thrustmap.core.errors import DataFormatError
+    sig, notes = specific_force_unit(sig, gravity_removed=gravity_removed)
+    refuse_unphysical_specific_force(sig.values, sig.origin, path)
+    return sig, notes
 
+
+def specific_force_unit(sig: Signal, *, gravity_removed: bool = False) -> tuple[Signal, list[str]]:
+    """The unit half of ``question_specific_force``: a column whose mean is ≈ 1 is in g
+    (converted, said); with ``gravity_removed`` allowed one whose mean is ≈ 0 gets g0 back.
+    Refuses nothing: a reader with a ground rest to calibrate on questions what is left after
+    the calibration (``refuse_unphysical_specific_force``)."""
     v = sig.values[np.isfinite(sig.values)]
     if not len(v):
         return sig, []
     mean = float(np.mean(v))
-    if 7.0 <= mean <= 13.0:
-        return sig, []
     if 0.7 <= mean <= 1.3:
         return Signal(sig.time_s, sig.values * G0_MPS2, "m/s^2", f"{sig.origin} (g → m/s²)"), [
             f"{sig.origin}: mean upward specific force {mean:.3g}, expected ≈ 9.81 m/s²: "
@@ -105,12 +128,35 @@ def question_specific_force(
         return Signal(sig.time_s, sig.values + G0_MPS2, "m/s^2", f"{sig.origin} + g0"), [
             f"{sig.origin} looks gravity-compensated (mean {mean:.2g} m/s²); added g0"
         ]
-    hint = " (a downward axis? map it with accel_scale=-1)" if -13.0 <= mean <= -7.0 else ""
+    return sig, []
+
+
+#: the mean upward specific force over a flight (m/s²) must lie in this band
+SPECIFIC_FORCE_BAND_MPS2 = (7.0, 13.0)
+
+
+def refuse_unphysical_specific_force(
+    values: FloatArray, origin: str, path: str, *, calibrated: str = ""
+) -> None:
+    """Refuse an upward specific force (m/s²) whose mean over the log is not near g: a
+    downward axis, another unit. ``calibrated`` says what was already done to it (a ground-rest
+    calibration), so the refusal names what that calibration could not explain."""
+    from thrustmap.core.errors import DataFormatError
+
+    v = values[np.isfinite(values)]
+    if not len(v):
+        return
+    mean = float(np.mean(v))
+    lo, hi = SPECIFIC_FORCE_BAND_MPS2
+    if lo <= mean <= hi:
+        return
+    hint = " (a downward axis? map it with accel_scale=-1)" if -hi <= mean <= -lo else ""
+    after = f" after {calibrated}" if calibrated else ""
     raise DataFormatError(
-        f"mean upward specific force {mean:.4g}; expected ≈ 9.81 m/s² over a flight (at rest "
-        f"and in hover), or ≈ 1 for a column in g{hint}",
+        f"mean upward specific force {mean:.4g}{after}; expected ≈ 9.81 m/s² over a flight (at "
+        f"rest and in hover), or ≈ 1 for a column in g{hint}",
         file=path,
-        column=sig.origin,
+        column=origin,
     )
 
 
