@@ -12,6 +12,7 @@ from support.copter33 import ACCEL_SCALE, GROUND_RUN_S, PAUSE_S, Copter33, write
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df import G0, Df, DfOptions, extract
 from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.flightlogs.series import FlightLog, Signal
 
 OPTS = DfOptions(mass_kg=1.0)
 
@@ -201,3 +202,48 @@ def test_the_land_detector_of_each_build_clears_the_flag_its_own_way() -> None:
     landed32, why = landed_from_throttle(cmd, {}, np.zeros(0), pilot_in=stick)
     assert landed32.hold(probe).tolist() == [1, 0, 0, 0, 1, 0]  # flying once the stick is up
     assert "CTUN.ThrIn" in why
+
+
+def _hover_then_armed_idle() -> FlightLog:
+    """An armed stretch no state signal splits (EVs untimed, the land flag never set): 10 s at
+    idle, 30 s of hover at 0.5, 130 s armed at idle between two hops (ThrOut 0, motors at the
+    armed spin, the IMU reading g on the ground), 20 s of hover, 10 s idle: the stretch's
+    median command is 0."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 200.0, 0.02)
+    hover = ((t >= 10.0) & (t < 40.0)) | ((t >= 170.0) & (t < 190.0))
+    cmd = np.where(hover, 0.5 + 0.01 * np.sin(t), 0.0)
+    acc = G0 + rng.normal(0.0, 0.05, len(t))
+    return FlightLog(
+        path="idle.bin",
+        format="dataflash",
+        voltage_v=Signal(t, np.full(len(t), 12.0), "V", "CURR.Volt"),
+        accel_up_mps2=Signal(t, acc, "m/s^2", "-IMU.AccZ"),
+        thrust_cmd_norm=Signal(t, cmd, "1", "CTUN.ThrOut/1000"),
+        armed=Signal(np.array([0.0]), np.array([1.0]), "bool", "motor outputs"),
+    )
+
+
+def test_an_armed_wait_at_idle_does_not_set_the_hover_level() -> None:
+    """A command of 0 holds the motors at the armed spin (AP_MotorsMatrix::output_armed):
+    it cannot fly, so idle bins do not set the level of the liftoff, ground-physics and level
+    filters. With a stretch whose median command was 0, every idle bin passed liftoff
+    (c ≥ 0.9 × 0) and ground-physics, and the level filter's median was 0: every hover bin
+    was dropped (pxf_copter_29-09-2014_4 kept idle bins this way)."""
+    df = extract([_hover_then_armed_idle()], OPTS)
+    t = np.asarray(df.column("time_s"))
+    assert len(df) >= 0.7 * 50.0 * OPTS.rate_hz  # the hovers, less settle and transients
+    assert not ((t > 40.0) & (t < 170.0)).any() and t.min() >= 10.0 and t.max() <= 190.0
+    names = steps(df)
+    assert names["ground-physics"] >= 120.0  # the idle wait placed on the ground by physics
+    assert names["liftoff"] >= 19.0  # and the idle before and after, as spool-up/down
+
+
+def test_the_airborne_step_names_where_the_land_state_came_from(tmp_path: Path) -> None:
+    """The "airborne" step said "log's land detector" even when throttle-zero rebuilt it."""
+    log = write_copter33(tmp_path / "ground.bin", ("log-pause", "ground-run"))
+    reason = next(s.reason for s in df_of(log).reports[0].steps if s.name == "airborne")
+    assert "rebuilt by throttle-zero" in reason and "log's land detector" not in reason
+    timed = write_copter33(tmp_path / "timed.bin")
+    reason = next(s.reason for s in df_of(timed).reports[0].steps if s.name == "airborne")
+    assert "EV.Id 18 LAND_COMPLETE" in reason

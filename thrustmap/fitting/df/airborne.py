@@ -57,6 +57,17 @@ def _height_trusted(height: FloatArray, ground: BoolArray) -> str | None:
     return None
 
 
+def _flying_level(cmd: FloatArray) -> float:
+    """The median command of the bins that can fly: a command of zero holds every motor at
+    its idle or armed spin (ArduCopter cuts the output to ``spin_when_armed`` at
+    ``servo_out == 0``), which cannot carry a vehicle, so idle bins do not set the hover
+    level (NaN when no bin commands thrust). An armed wait at idle between logging pauses
+    otherwise made a stretch's level 0, and every bin passed ``c >= 0.9 × 0``."""
+    with np.errstate(invalid="ignore"):
+        up = cmd[np.isfinite(cmd) & (cmd > 0)]
+    return float(nanmedian(up)) if len(up) else float("nan")
+
+
 def _supported(
     cmd: FloatArray,
     a_up: FloatArray,
@@ -81,7 +92,7 @@ def _supported(
         if est is not None and np.isfinite(est[a:b]).any():
             level = float(nanmedian(est[a:b]))
         if not level > 0:
-            level = float(nanmedian(c))
+            level = _flying_level(c)
         if not level > 0:
             continue
         with np.errstate(invalid="ignore"):
@@ -228,8 +239,10 @@ def in_air_evidence(
             level = (
                 float(nanmedian(est[a:b]))
                 if est is not None and np.isfinite(est[a:b]).any()
-                else float(nanmedian(c[len(c) // 4 : max(len(c) * 3 // 4, 1)]))
+                else _flying_level(c[len(c) // 4 : max(len(c) * 3 // 4, 1)])
             )
+            if not level > 0:  # the middle of the stretch idles: the level of what flies
+                level = _flying_level(c)
             with np.errstate(invalid="ignore"):
                 up = np.flatnonzero(c >= opts.liftoff_frac * level)
             if not len(up):

@@ -169,7 +169,8 @@ def extract_flight_columns(
         warnings.append("no armed state in the log: every sample taken as armed")
     if flight.landed is not None:
         airborne = flight.landed.hold(centres) < 0.5
-        apply("airborne", "landed (log's land detector)", airborne)
+        # the state's own origin: the log's land detector, or what rebuilt it (throttle-zero)
+        apply("airborne", f"landed ({flight.landed.origin})", airborne)
     else:
         airborne = np.ones(nbins, bool)
         warnings.append("no landed state in the log: airborne time judged by the filters alone")
@@ -221,12 +222,19 @@ def extract_flight_columns(
             sat_what.append(f"a motor output ≥ {SATURATED_NORM:.0%} of its range")
     if sat_what:
         apply("saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat)
+    # the level of the bins that can enter the Df (a command of 0 never does: "values"):
+    # idle bins still kept (an armed wait no state signal placed on the ground) must not
+    # pull the median to 0, which then dropped every bin commanding thrust
+    flying = keep if cmd_for_steady is None else keep & (np.nan_to_num(cmd_for_steady) > 0)
     if cmd_for_steady is not None and keep.any():
-        level = float(nanmedian(cmd_for_steady[keep]))
+        level = float(nanmedian(cmd_for_steady[flying])) if flying.any() else float("nan")
         with np.errstate(invalid="ignore"):
             near = np.abs(cmd_for_steady - level) <= 0.5 * abs(level)
         apply(
-            "level", "command below half or above 1.5× the flight's median (idle on ground?)", near
+            "level",
+            "command below half or above 1.5× the median of the kept bins commanding thrust "
+            "(idle on the ground?)",
+            near,
         )
     if cmd_for_steady is not None and opts.steady_tol > 0:
         window = int(round(opts.steady_window_s * opts.rate_hz))

@@ -220,7 +220,9 @@ def landed_from_throttle(
     times = np.concatenate([np.asarray(sets, float), clears])
     values = np.concatenate([np.ones(len(sets)), np.zeros(len(clears))])
     order = np.argsort(times, kind="stable")
-    origin = f"CTUN.ThrOut 0 for ≥ {LAND_DETECTOR_S:g} s, until " + until
+    origin = (
+        f"rebuilt by throttle-zero: CTUN.ThrOut 0 for ≥ {LAND_DETECTOR_S:g} s, flying once " + until
+    )
     landed = sorted_signal(times[order], values[order], "bool", origin, state=True)
     # how long the throttle was up while landed (ground runs, or a THR_MID above the hover
     # throttle, which keeps the flag set in the firmware too): said, so a reader can judge
