@@ -123,3 +123,29 @@ def test_real_logs_extract_near_hover(shared_data: Path) -> None:
     )
     assert len(v19.table) > 0
     assert 0.3 < float(np.median(v19.table["thrust_cmd_norm"])) < 0.4
+
+
+def test_a_log_that_never_leaves_the_ground_judges_no_range_sensor() -> None:
+    """A range sensor's coverage is a share of the airborne time; with none (landed all
+    along) there is nothing to judge it on: no "nan%" warning, no numpy RuntimeWarning."""
+    import warnings
+
+    from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+
+    t = np.arange(0.0, 30.0, 0.02)
+    one = np.array([0.0])
+    fl = FlightLog(
+        path="ground.bin",
+        format="dataflash",
+        voltage_v=Signal(t, np.full(len(t), 12.0), "V", "BAT.Volt"),
+        accel_up_mps2=Signal(t, np.full(len(t), G0), "m/s^2", "-IMU.AccZ"),
+        thrust_cmd_norm=Signal(t, np.full(len(t), 0.1), "1", "CTUN.ThO"),
+        armed=Signal(one, np.ones(1), "bool", "ARM"),
+        landed=Signal(one, np.ones(1), "bool", "EV"),
+        extras={"range_m": Signal(t, np.full(len(t), 0.1), "m", "RFND.Dist")},
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        df = extract([fl], DfOptions(mass_kg=1.0))
+    assert len(df) == 0
+    assert not [w for w in df.reports[0].warnings if "nan" in w]

@@ -214,7 +214,7 @@ def in_air_evidence(
         air = ~ground
         if r is not None and air.any() and np.isfinite(r[air]).mean() >= RANGE_COVERAGE:
             hs = rg
-        elif r is not None:
+        elif r is not None and air.any():  # (no airborne time: nothing to judge it on)
             warnings.append(
                 f"{rg.origin} not used: valid for only {np.isfinite(r[air]).mean():.0%} of the "
                 f"airborne time (needs {RANGE_COVERAGE:.0%}); altitude used instead"
