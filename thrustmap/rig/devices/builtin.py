@@ -1,6 +1,6 @@
 """The built-in drivers: MSP and MAVLink flight controllers, the Tyto 1585 and line stands.
 
-Each is ONE declaration (``registry.Driver``): its names, how to recognise it, how to open it.
+Each is ONE declaration (``declaration.Driver``): its names, how to recognise it, how to open it.
 Driver modules are imported only when a device of their kind is opened.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.protocols.stands.line import PRESETS, LineStandSpec, preset
 from thrustmap.protocols.stands.tyto import TYTO_READY_LINE, TytoCalibration
-from thrustmap.rig.devices.registry import Detection, Driver, OpenRequest
+from thrustmap.rig.devices.declaration import Detection, Driver, OpenRequest
 from thrustmap.rig.devices.urls import (
     CLOCK_AWARE_SCHEMES,
     MAVLINK_CONNECTION,
