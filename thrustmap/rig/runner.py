@@ -23,6 +23,7 @@ import numpy as np
 from thrustmap.core.clock import Clock
 from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import SafetyError
+from thrustmap.rig.adaptive_plan import SettledPoint
 from thrustmap.rig.interfaces import DeviceAbort, Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import (
     Limits,
@@ -33,18 +34,17 @@ from thrustmap.rig.interlocks import (
     check_plan,
     margins,
 )
-from thrustmap.rig.plans import (
+from thrustmap.rig.plans import Plan
+from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
+from thrustmap.rig.segments import (
     PACK_MOVE_MIN_REL,
     Discharge,
     Hold,
     PackChange,
-    Plan,
     Ramp,
     RunSegment,
     Segment,
-    SettledPoint,
 )
-from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 from thrustmap.rig.settle import RestDetector, SettleDetector
 
 log = logging.getLogger(__name__)
