@@ -276,7 +276,7 @@ def line_spec_for(
 ) -> LineStandSpec:
     """The spec to read a line stand with: a spec file, a preset, the sim URL's preset, or the
     preset its header matched."""
-    from thrustmap.rig.stand.line import load_line_spec
+    from thrustmap.rig.stand.line_spec import load_line_spec
 
     if line_spec_file is not None and line_preset is not None:
         raise ConfigError("give either a line stand preset or a spec file, not both")
