@@ -745,23 +745,3 @@ def test_sim_px4_reports_a_consistent_vehicle() -> None:
     assert out.stop_and_verify()
     constant = PX4Vehicle(ConstantPlant(motor_count=1))  # 16.8 V: a 4S pack
     assert (constant.cells, constant.motor_count) == (4, 4)
-
-
-def test_factory_opens_a_sim_url_in_a_fresh_process() -> None:
-    """The rig's own factory loads the simulator's peers for a sim:// URL: nothing imported
-    before it (another test, the CLI) has to have registered them."""
-    import subprocess
-    import sys
-
-    code = (
-        "from thrustmap.core.clock import SimClock\n"
-        "from thrustmap.rig.fc.mavlink import open_mavlink_output\n"
-        "with open_mavlink_output('sim://px4?motors=4', SimClock()) as out:\n"
-        "    print(out.identify().kind)\n"
-        "print(out.last_stop_verified)\n"
-    )
-    result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
-    )
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["px4", "True"]
