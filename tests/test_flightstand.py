@@ -1,9 +1,10 @@
 """The Tyto Flight Stand through its official Python API (issue 32), against the simulated core.
 
-The core (``thrustmap.rig.sim.flightstand_core``) serves the official package's gRPC service on
-loopback; thrustmap's sweeps run as the user runs them (``python -m thrustmap``, real time), and
-what the ESC output does is read back through the official package's own client stub. The
-official examples ``example.py`` and ``data_recording.py`` run unmodified against it.
+The core (``thrustmap.rig.sim.flightstand_core``, served by ``flightstand_service``) serves the
+official package's gRPC service on loopback; thrustmap's sweeps run as the user runs them
+(``python -m thrustmap``, real time), and what the ESC output does is read back through the
+official package's own client stub. The official examples ``example.py`` and
+``data_recording.py`` run unmodified against it.
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ fs = pytest.importorskip("FlightStand.flight_stand_api_v1_pb2")
 fs_grpc = pytest.importorskip("FlightStand.flight_stand_api_v1_pb2_grpc")
 grpc = pytest.importorskip("grpc")
 
-from thrustmap.rig.sim.flightstand_core import FlightStandCore, FlightStandServer  # noqa: E402
+from thrustmap.rig.sim.flightstand_core import FlightStandCore  # noqa: E402
+from thrustmap.rig.sim.flightstand_service import FlightStandServer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PLANT = "xnova-2207-6s"

@@ -87,3 +87,24 @@ def test_builtin_drivers_in_detection_order() -> None:
     assert connect.kinds("fc") == ("msp", "mavlink")
     req = OpenRequest("x", SimClock())
     assert req.wait_s == 3.0 and dict(req.opts) == {}
+
+
+def test_mavlink_factory_opens_a_sim_url_in_a_fresh_process() -> None:
+    """The rig's MAVLink factory (``rig.fc.mavlink.open_mavlink_output``) loads the simulator's
+    peers for a sim:// URL: nothing imported before it (another test, the CLI) has to have
+    registered them."""
+    import subprocess
+    import sys
+
+    code = (
+        "from thrustmap.core.clock import SimClock\n"
+        "from thrustmap.rig.fc.mavlink import open_mavlink_output\n"
+        "with open_mavlink_output('sim://px4?motors=4', SimClock()) as out:\n"
+        "    print(out.identify().kind)\n"
+        "print(out.last_stop_verified)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["px4", "True"]

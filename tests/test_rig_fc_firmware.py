@@ -372,8 +372,9 @@ def test_poll_is_bounded_whatever_arrives() -> None:
 
 
 def test_keepalives_go_out_on_schedule_under_the_flood_through_record(tmp_path: Path) -> None:
-    import thrustmap.rig.sim.mavlink_peers  # noqa: F401 - registers sim://px4
+    from thrustmap.rig.devices.urls import load_sim_peers
 
+    load_sim_peers()  # the rig binds sim://px4 (this test opens it below the rig)
     path = tmp_path / "px4.jsonl"
     clock = SimClock()
     out = open_mavlink_output(

@@ -168,6 +168,9 @@ def test_no_watchdog_for_simulated_or_replayed_ports() -> None:
     assert watchdog_target("/dev/ttyACM0") == "/dev/ttyACM0"
     assert msp_port_url("tcp://127.0.0.1:5761") == "socket://127.0.0.1:5761"
     assert msp_port_url("tcp:localhost:5761") == "socket://localhost:5761"
+    from thrustmap.rig.devices.urls import load_sim_peers
+
+    load_sim_peers()  # the rig binds sim://betaflight (this test opens it below the rig)
     clock = SimClock()
     out = MspThrottleOutput(
         open_transport("sim://betaflight", clock=clock, timeout=0), clock, url="sim://betaflight"

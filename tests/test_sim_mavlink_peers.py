@@ -156,6 +156,9 @@ def test_px4_telemetry_reports_the_plant() -> None:
 
 
 def test_sim_url_with_options_and_message_interval() -> None:
+    from thrustmap.rig.devices.urls import load_sim_peers
+
+    load_sim_peers()  # the rig binds sim://px4 (this test opens it below the rig)
     clock = SimClock()
     link = open_mavlink("sim://px4?armed=1&motors=2&rate_hz=5", clock=clock)
     hb = mav.decode(link.wait_heartbeat(timeout=1.0))

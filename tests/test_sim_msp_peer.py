@@ -244,10 +244,11 @@ def test_random_input_never_crashes_and_output_is_valid(chunks: list[bytes]) -> 
 
 
 def test_sim_url_builds_the_registered_peer() -> None:
+    from thrustmap.rig.devices.urls import load_sim_peers
 
-    import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
-    import thrustmap.rig.sim.msp_peer  # noqa: F401 - registers betaflight/inav
-
+    # the rig binds sim:// names (rig.sim.peers); importing a peer module registers nothing, and
+    # protocols/ never finds the simulator by itself (test_rig_session checks that)
+    load_sim_peers()
     clock = SimClock()
     port = open_transport("sim://inav?motors=2&rate_hz=unlimited", timeout=0.1, clock=clock)
     port.write(encode_request(2))

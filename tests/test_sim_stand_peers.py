@@ -217,10 +217,9 @@ def test_line_peer_survives_random_input(chunks: list[tuple[bytes, float]]) -> N
 
 
 def test_sim_urls_build_the_registered_stands() -> None:
+    from thrustmap.rig.devices.urls import load_sim_peers
 
-    import thrustmap.protocols  # noqa: F401 - registers the sim:// handler
-    import thrustmap.rig.sim.stand_peers  # noqa: F401 - registers tyto-1585 and line-stand
-
+    load_sim_peers()  # the rig binds tyto-1585 and line-stand (rig.sim.peers)
     clock = SimClock()
     port = open_transport("sim://tyto-1585?boot_s=0.2", timeout=1.0, clock=clock)
     assert port.read(7) == b"Ready\r\n"

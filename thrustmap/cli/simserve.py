@@ -53,7 +53,7 @@ def simserve_cmd(
     with thrustmap's motor, propeller and battery simulator behind each board's ESC output. The
     official example scripts and `thrustmap probe/sweep --stand flightstand://HOST:PORT` talk
     to it as to the real core. Needs `pip install 'thrustmap[flightstand]'`."""
-    from thrustmap.rig.sim.flightstand_core import FlightStandServer, serve
+    from thrustmap.rig.sim.flightstand_service import FlightStandServer, serve
 
     def ready(server: FlightStandServer) -> None:
         click.echo(

@@ -9,17 +9,13 @@ session build on. Each goes through the driver registry (``rig.devices``):
 
 Kinds are the registered drivers' (``msp``, ``mavlink``, ``tyto-1585``, ``line-stand``) or their
 aliases (``betaflight``, ``inav``, ``px4``, ``ardupilot``: also the firmware hint; ``tyto``,
-``line``). Detection, port descriptions and probe reports live in ``rig.devices`` and are
-re-exported here for callers that know only this module.
+``line``). Everything here lives in ``rig.devices`` (the opening itself in
+``rig.devices.opening``) and is re-exported for callers that know only this module; nothing in
+``rig.devices`` imports this module.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
-from thrustmap.core.clock import Clock
-from thrustmap.core.errors import ConfigError
 from thrustmap.rig.devices.builtin import line_spec_for
 from thrustmap.rig.devices.detect import (
     PROBE_BAUDS,
@@ -28,6 +24,12 @@ from thrustmap.rig.devices.detect import (
     detect_kind,
     resolve,
     sniff,
+)
+from thrustmap.rig.devices.opening import (
+    StandEscOutput,
+    open_stand,
+    open_throttle_output,
+    stand_esc_output,
 )
 from thrustmap.rig.devices.ports import PortDescription, PortInfo, describe_port, list_ports
 from thrustmap.rig.devices.probe import ProbeReport, StandSummary, probe_device, summarize_samples
@@ -48,16 +50,11 @@ from thrustmap.rig.devices.urls import (
     sim_peer,
     url_scheme,
 )
-from thrustmap.rig.interfaces import (
-    DeviceIdentity,
-    Stand,
-    Telemetry,
-    ThrottleOutput,
-)
 
 __all__ = [
     "PROBE_BAUDS",
     "Detection",
+    "OpenRequest",
     "PortDescription",
     "PortInfo",
     "ProbeReport",
@@ -67,6 +64,7 @@ __all__ = [
     "describe_port",
     "detect_from_url",
     "detect_kind",
+    "driver",
     "drivers",
     "innermost_url",
     "is_simulated",
@@ -80,155 +78,10 @@ __all__ = [
     "open_stand",
     "open_throttle_output",
     "probe_device",
+    "resolve",
     "sim_peer",
     "sniff",
     "stand_esc_output",
     "summarize_samples",
     "url_scheme",
 ]
-
-
-class StandEscOutput(ThrottleOutput):
-    """A stand's ESC output that owns its stand: closing it closes the stand (and its port)."""
-
-    def __init__(self, inner: ThrottleOutput, stand: Stand) -> None:
-        self.inner = inner
-        self.stand = stand
-        self.throttle_scale = inner.throttle_scale
-
-    def identify(self) -> DeviceIdentity:
-        return self.inner.identify()
-
-    def set_throttle(self, values: Mapping[int, float]) -> None:
-        self.inner.set_throttle(values)
-
-    def keepalive(self) -> None:
-        self.inner.keepalive()
-
-    def stop(self) -> None:
-        self.inner.stop()
-
-    def verify_stopped(self) -> bool:
-        return self.inner.verify_stopped()
-
-    def stop_and_verify(self, attempts: int = 3, *, alarm: bool = True) -> bool:
-        return self.inner.stop_and_verify(attempts, alarm=alarm)
-
-    def read_telemetry(self) -> Telemetry:
-        return self.inner.read_telemetry()
-
-    def close(self) -> None:
-        try:
-            self.inner.close()
-        finally:
-            self.stand.close()
-
-
-def stand_esc_output(stand: Stand, motor: int = 0) -> ThrottleOutput:
-    """The ESC output of a stand that drives its ESC (Tyto 1585, a line stand with a throttle
-    command). The stand keeps its port: close the stand, not this output."""
-    for drv in drivers():
-        if drv.esc_output is not None:
-            output = drv.esc_output(stand, motor)
-            if output is not None:
-                return output
-    raise ConfigError(f"a {type(stand).__name__} cannot drive an ESC")
-
-
-def open_throttle_output(
-    url: str,
-    clock: Clock,
-    *,
-    kind: str | None = None,
-    baudrate: int | None = None,
-    motor: int = 0,
-    calibration: str | None = None,
-    line_preset: str | None = None,
-    line_spec_file: str | None = None,
-    watchdog_log: str | None = None,
-    signing_key: Any = None,
-    **opts: Any,
-) -> ThrottleOutput:
-    """Open whatever commands motor throttle at ``url``.
-
-    ``watchdog_log``: where an MSP output's motor-stop watchdog process logs (default: the
-    user's state folder); other outputs time out by themselves and start no watchdog.
-
-    ``signing_key``: a MAVLink 2 signing key (``protocols.mavlink.signing.SigningKey``) for a
-    MAVLink vehicle; refused for any other kind, unless it came from the environment variable
-    (then ignored).
-
-    ``kind`` (see module) is detected when None. ``opts`` go to the driver's constructor
-    (``MspThrottleOutput(timeout_s=, retries=)``) or to ``open_mavlink_output``. For a stand's
-    own ESC output (``tyto-1585``, ``line-stand``) ``motor`` is the motor it drives and the
-    returned output owns the stand (``.stand``; closing the output closes it).
-    """
-    found = resolve(url, clock, kind, baudrate)
-    drv = driver(found.kind)
-    if watchdog_log is not None and found.kind == "msp":
-        opts["watchdog_log"] = watchdog_log
-    if signing_key is not None and found.kind != "mavlink":
-        if not getattr(signing_key, "from_environment", False):
-            raise ConfigError(
-                f"--signing-key is for MAVLink vehicles (PX4, ArduPilot); {url} is {found.kind}"
-            )
-        signing_key = None  # the environment's key is for MAVLink devices only
-    if signing_key is not None:
-        opts["signing_key"] = signing_key
-    if drv.open_output is not None:
-        return drv.open_output(
-            OpenRequest(url, clock, baudrate, firmware=found.firmware, opts=dict(opts))
-        )
-    stand = open_stand(
-        url,
-        clock,
-        kind=found.kind,
-        calibration=calibration,
-        line_preset=line_preset or found.line_preset,
-        line_spec_file=line_spec_file,
-        baudrate=baudrate,
-    )
-    try:
-        return StandEscOutput(stand_esc_output(stand, motor), stand)
-    except BaseException:
-        stand.close()
-        raise
-
-
-def open_stand(
-    url: str,
-    clock: Clock,
-    *,
-    kind: str | None = None,
-    calibration: str | None = None,
-    line_preset: str | None = None,
-    line_spec_file: str | None = None,
-    baudrate: int | None = None,
-    wait_s: float = 3.0,
-) -> Stand:
-    """Open the thrust stand at ``url`` (see module). A Tyto 1585 needs ``calibration`` (its
-    load cells are raw; ``sim://tyto-1585`` uses the simulator's). A line stand is read with
-    ``line_spec_file`` or ``line_preset`` (or the preset a ``sim://`` URL or its header names);
-    it must send data within ``wait_s``."""
-    if kind is None and (line_preset is not None or line_spec_file is not None):
-        kind = "line-stand"
-    elif kind is None and calibration is not None:
-        kind = "tyto-1585"
-    found = resolve(url, clock, kind, baudrate)
-    drv = driver(found.kind)
-    if drv.open_stand is None:
-        what = found.firmware or found.kind
-        raise ConfigError(f"{url} is a flight controller ({what}), not a thrust stand")
-    return drv.open_stand(
-        OpenRequest(
-            url,
-            clock,
-            baudrate,
-            firmware=found.firmware,
-            calibration=calibration,
-            line_preset=line_preset,
-            line_spec_file=line_spec_file,
-            detected_preset=found.line_preset,
-            wait_s=wait_s,
-        )
-    )

@@ -9,13 +9,16 @@ records the outcome, so an aborted run still loads in ``thrustmap fit``.
 
 One monotonic clock (injected) timestamps everything; with a ``SimClock`` a test runs a
 minute-long sweep in milliseconds and never sleeps for real.
+
+What a run is set up with, reports and returns (``RunConfig``, ``Status``, ``RunResult``) is in
+``rig.run_types`` and re-exported here. The ``Runner`` itself stays one class on purpose: every
+way out of a run (and every stop it must verify) is in one place.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, NoReturn
 
 import numpy as np
@@ -23,6 +26,7 @@ import numpy as np
 from thrustmap.core.clock import Clock
 from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import SafetyError
+from thrustmap.rig.adaptive_plan import SettledPoint
 from thrustmap.rig.interfaces import DeviceAbort, Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import (
     Limits,
@@ -33,89 +37,23 @@ from thrustmap.rig.interlocks import (
     check_plan,
     margins,
 )
-from thrustmap.rig.plans import (
+from thrustmap.rig.plans import Plan
+from thrustmap.rig.run_types import RunConfig as RunConfig  # re-exported
+from thrustmap.rig.run_types import RunResult as RunResult
+from thrustmap.rig.run_types import Status as Status
+from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
+from thrustmap.rig.segments import (
     PACK_MOVE_MIN_REL,
     Discharge,
     Hold,
     PackChange,
-    Plan,
     Ramp,
     RunSegment,
     Segment,
-    SettledPoint,
 )
-from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
 from thrustmap.rig.settle import RestDetector, SettleDetector
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    motor: int = 0  # 0-based motor on the load cell
-    rotors_on_esc: int = 1  # 4: all four motors get the same command (MR strategy)
-    tick_s: float = 0.02  # control loop period
-    telemetry_period_s: float = 0.2
-    keepalive_s: float = 0.5  # re-send the command at least this often
-    settle_window_s: float = 0.6  # settle detection: thrust range over this window ...
-    settle_band_n: float = 0.01  # ... trend below max(this, settle_rel × thrust) or its noise
-    settle_rel: float = 0.003
-    tare: bool = True
-    stop_retry_s: float = 10.0  # keep re-sending the stop this long until it is verified
-    spin_down_s: float = 1.0  # before taring: the load cell must be still this long ...
-    spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
-    #: confirm the motors at rest before the run (stopping them if not)
-    check_at_rest: bool = True
-
-
-#: the phases a run goes through, in order (``Status.phase``)
-PHASES = ("at-rest", "tare", "plan")
-
-
-@dataclass
-class Status:
-    """What the live readout shows (passed to the monitor callback every tick).
-
-    ``phase`` is ``at-rest`` (waiting for the rotor to be still), ``tare`` or ``plan``;
-    ``elapsed_s`` counts the plan only (0 before it starts), so progress and ETA are the
-    plan's, and ``wait_s`` is the time spent before it."""
-
-    time_s: float
-    elapsed_s: float
-    plan_duration_s: float
-    segment: int
-    segments: int
-    label: str
-    throttle_pct: float
-    throttle_native: float
-    reading: Reading
-    margins: dict[str, float]
-    phase: str = "plan"
-    wait_s: float = 0.0
-    telemetry: Telemetry | None = None  # the output's latest (FC battery, ESC rpm)
-    sample: StandSample | None = None  # the stand's latest sample (None without a stand)
-    plan_note: str = ""  # an adaptive plan's state (worst interval, time left)
-
-
-@dataclass
-class RunResult:
-    status: str  # "completed" | "aborted"
-    reason: str
-    samples: int
-    duration_s: float
-    stop_verified: bool
-    stop_latency_s: float | None  # from the abort decision to the stop command (sim-timed)
-    trip: Trip | None = None
-    log_path: str = ""
-    interrupted: bool = False  # aborted by Ctrl-C or SIGTERM
-    wait_s: float = 0.0  # before the plan: waiting for the rotor to rest, taring
-
-    @property
-    def outcome(self) -> str:
-        """``completed``, ``interrupted`` (Ctrl-C/SIGTERM) or ``aborted`` (anything else)."""
-        if self.status == "completed":
-            return "completed"
-        return "interrupted" if self.interrupted else "aborted"
 
 
 class Aborted(Exception):

@@ -1,6 +1,6 @@
 """The built-in drivers: MSP and MAVLink flight controllers, the Tyto 1585 and line stands.
 
-Each is ONE declaration (``registry.Driver``): its names, how to recognise it, how to open it.
+Each is ONE declaration (``declaration.Driver``): its names, how to recognise it, how to open it.
 Driver modules are imported only when a device of their kind is opened.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.protocols.stands.line import PRESETS, LineStandSpec, preset
 from thrustmap.protocols.stands.tyto import TYTO_READY_LINE, TytoCalibration
-from thrustmap.rig.devices.registry import Detection, Driver, OpenRequest
+from thrustmap.rig.devices.declaration import Detection, Driver, OpenRequest
 from thrustmap.rig.devices.urls import (
     CLOCK_AWARE_SCHEMES,
     MAVLINK_CONNECTION,
@@ -276,7 +276,7 @@ def line_spec_for(
 ) -> LineStandSpec:
     """The spec to read a line stand with: a spec file, a preset, the sim URL's preset, or the
     preset its header matched."""
-    from thrustmap.rig.stand.line import load_line_spec
+    from thrustmap.rig.stand.line_spec import load_line_spec
 
     if line_spec_file is not None and line_preset is not None:
         raise ConfigError("give either a line stand preset or a spec file, not both")

@@ -119,7 +119,7 @@ def _probe(
     seconds: float,
     signing_key: Any,
 ) -> ProbeReport:
-    from thrustmap.rig.connect import open_stand, open_throttle_output
+    from thrustmap.rig.devices.opening import open_stand, open_throttle_output
     from thrustmap.rig.stand.line import LineStand
 
     found = report.detection

@@ -21,6 +21,7 @@ from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.codec import decode_flight_sw_version, request_message
 from thrustmap.protocols.mavlink.link import open_mavlink
 from thrustmap.protocols.mavlink.signing import SigningKey, enable_signing
+from thrustmap.rig.devices.urls import load_sim_peers, sim_peer
 from thrustmap.rig.fc.ardupilot import ARDUPILOT_PARAMS, MOT_PWM_TYPES, ArduPilotThrottleOutput
 from thrustmap.rig.fc.link_lock import LinkIntruder
 from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
@@ -82,6 +83,8 @@ def _autopilot_id(autopilot: str | int) -> int:
 
 def _link(url_or_link: str | Any, clock: Clock) -> tuple[Any, bool]:
     if isinstance(url_or_link, str):
+        if sim_peer(url_or_link) is not None:
+            load_sim_peers()  # sim://px4 needs the simulator's peers, whatever was imported
         return open_mavlink(url_or_link, clock=clock), True
     return url_or_link, False
 

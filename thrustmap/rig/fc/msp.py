@@ -72,7 +72,7 @@ from thrustmap.rig.fc.link_timing import ReplyTimer
 from thrustmap.rig.interfaces import DeviceIdentity, Telemetry, ThrottleOutput
 
 if TYPE_CHECKING:
-    from thrustmap.rig.watchdog import Watchdog
+    from thrustmap.rig.watchdog_handle import Watchdog
 
 log = logging.getLogger(__name__)
 
@@ -630,7 +630,7 @@ class MspThrottleOutput(ThrottleOutput):
     def _ensure_watchdog(self) -> None:
         if self._watchdog is not None or self.watchdog_url is None:
             return
-        from thrustmap.rig.watchdog import start_watchdog
+        from thrustmap.rig.watchdog_handle import start_watchdog
 
         self._watchdog = start_watchdog(
             self.watchdog_url, baudrate=self.baudrate, log_path=self.watchdog_log
