@@ -16,7 +16,6 @@ DESIGN = ROOT / "docs" / "design.md"
 MAX_LINES = 700
 
 
-
 def _lines(path: Path) -> int:
     return len(path.read_text(encoding="utf-8").splitlines())
 
