@@ -107,7 +107,7 @@ class _Bar:
     def note(self, text: str) -> None:
         """A line of its own while the bar may be shown."""
         self.clear()
-        echo(text, err=True)
+        self._write(textwidth.wrap(text, self.columns if self.tty else None, err=True) + "\n")
 
     def end(self) -> None:
         self.clear()

@@ -65,7 +65,7 @@ class LocalSpec:
     memory_limit_bytes: int
 
 
-@dataclass
+@dataclass(eq=False)  # compared and hashed as itself
 class _Worker:
     proc: Any  # multiprocessing.Process
     conn: Any  # multiprocessing.connection.Connection (the command's end)
