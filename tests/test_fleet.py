@@ -312,3 +312,36 @@ def test_a_stop_signal_inside_a_dask_call_waits_for_the_call_to_return() -> None
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_fleet_gamma_refuses_what_gamma_fit_refuses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A group whose γ leaves the physical band 0.5..2 gets no γ(B) and no corrected map, with
+    the reason `gamma fit` gives for the same Df files (which refuses them, exit 2)."""
+    import json
+
+    from support.fleet_gen import AIRFRAMES, Airframe
+
+    odd = Airframe("odd", "dataflash", 1.1, (2.6,))  # thrust 2.6 x what the map predicts
+    fleet = make_fleet(tmp_path, 3, airframes=(AIRFRAMES[2], odd), corrupt=False, no_mass=0)
+    out = tmp_path / "out"
+    assert run_cli(extract_args(fleet, out), capsys)[0] == 0
+    code, stdout, err = run_cli(
+        ["fleet", "gamma", str(out), "--map", str(fleet.stand_map), "--json"], capsys
+    )
+    assert code == 0, err
+    groups = {g["airframe"]["mass_kg"]: g for g in json.loads(stdout)}
+    assert groups[1.2]["status"] == "fitted"
+    bad = groups[1.1]
+    assert bad["status"] == "refused" and "gamma" not in bad
+    assert bad["reason"].startswith("γ(B) reaches 2.5") and "0.5..2" in bad["reason"]
+    assert bad["reason"].endswith("(as `gamma fit` refuses it: no corrected map)")
+    assert not (out / "gamma" / f"{bad['key']}.map.json").exists()
+    assert (out / "gamma" / f"{groups[1.2]['key']}.map.json").is_file()
+    code, _, err = run_cli(
+        ["gamma", "fit", *bad["df"], "--map", str(fleet.stand_map), "-o", str(tmp_path / "g.json")],
+        capsys,
+    )
+    assert code == 2
+    assert bad["reason"].split(" (as `gamma fit`")[0] in err
