@@ -1,11 +1,11 @@
-"""Running a fleet: plan (what is already done), then the logs serially or on a Dask cluster.
+"""Running a fleet: plan (what is already done), then the logs serially, on local workers
+(:mod:`thrustmap.fleet.local`) or on a Dask cluster.
 
-Bounded by construction: every worker runs one thread, so it holds one log at a time; the
-client keeps at most ``window`` tasks submitted (2 per worker thread; small logs go several to
-a task, one after the other), so the scheduler and the driver never hold the whole fleet; a log
-larger than ``max_log_bytes`` is refused unread; and a local cluster's workers each get a
-``memory_limit`` (a worker that exceeds it is restarted by its nanny and the log it held is
-recorded as refused, not retried).
+Bounded by construction: a worker holds one log at a time (a Dask worker runs one thread); the
+driver keeps at most two logs per worker queued (on Dask ``window`` tasks submitted, small logs
+several to a task, one after the other), so neither it nor a scheduler holds the whole fleet; a
+log larger than ``max_log_bytes`` is refused unread; and each local worker gets a memory limit
+(a worker that exceeds it is stopped and the log it held is recorded as refused, not retried).
 
 Resumable: a log whose path, size, modification time and options key match the previous table
 is not touched; any other log is hashed by its worker, and when ``OUT_DIR/df`` already holds the
