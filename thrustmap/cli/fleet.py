@@ -250,7 +250,9 @@ def extract_cmd(
         else:
             echo(text, err=True)
 
-    before = run.child_pids()
+    # what a Dask cluster may leave behind is looked for at the end (forked workers are each
+    # stopped and confirmed gone by the pool itself)
+    before = run.child_pids() if scheduler is not None or dask_local else set()
     started = time.monotonic()
     holder: dict[str, Any] = {}
     limits = f"logs over {max_log_mb:g} MB refused unread"
@@ -288,7 +290,6 @@ def extract_cmd(
             f"log at a time each, memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per "
             f"worker; {limits}"
         )
-        holder["local"] = True
         pool = holder["pool"] = local.ForkPool(local.LocalSpec(n, spec.memory_limit_bytes))
         return pool.run(tasks)
 

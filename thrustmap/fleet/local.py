@@ -250,6 +250,9 @@ class ForkPool:
             w.queued.popleft()
             yield Outcome.from_dict(row)
         w.proc.join(5)
+        if w.proc.is_alive():  # its pipe broke but it runs on: it is not left behind
+            w.proc.kill()
+            w.proc.join(5)
         code = w.proc.exitcode
         w.conn.close()
         self._workers.remove(w)
