@@ -3,6 +3,7 @@ memory limit, a worker that dies, a command that is killed, and nothing listenin
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -211,3 +212,23 @@ def test_local_workers_listen_nowhere_and_ignore_the_terminals_ctrl_c(
     from thrustmap.fleet.table import read_table
 
     assert 0 < len(read_table(tmp_path / "out" / "fleet.parquet")) < len(fleet.good)
+
+
+def test_a_workers_log_records_reach_the_command_bounded(
+    fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """What a reader logs in a worker is logged by the command, as in the serial loop (the
+    command's handlers, copied by the fork, would write over its bar or hold the lines in the
+    worker); at most MAX_RECORDS_PER_LOG a log."""
+    victim = sorted(fleet.good)[3]
+    noisy = logging.getLogger("thrustmap.fitting.flightlogs.dataflash")
+    n = local.MAX_RECORDS_PER_LOG + 7
+    patch_one_log(
+        monkeypatch, victim, lambda: [noisy.warning("odd record %d", k) for k in range(n)]
+    )
+    with caplog.at_level(logging.WARNING):
+        run_pool(fleet, tmp_path / "out", local.LocalSpec(2, 1 << 30))
+    lines = [r.getMessage() for r in caplog.records if r.name == noisy.name]
+    assert lines == [f"odd record {k}" for k in range(local.MAX_RECORDS_PER_LOG)]
+    more = [r.getMessage() for r in caplog.records if r.name == "thrustmap.fleet.local"]
+    assert more == ["7 more log lines not shown"]

@@ -87,8 +87,37 @@ def _address_space_bytes() -> int:
         return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
 
 
+#: log records a worker sends back with one log's outcome, at most (the rest are counted)
+MAX_RECORDS_PER_LOG = 50
+
+
+class _Records(logging.Handler):
+    """A worker's log records for the log at hand, handed to the command with its outcome (which
+    logs them as the serial loop would have): the command's own handlers, inherited by the
+    fork, would write over its progress bar or hold the lines in the worker forever."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[tuple[str, int, str]] = []
+        self.dropped = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if len(self.records) < MAX_RECORDS_PER_LOG:
+            self.records.append((record.name, record.levelno, record.getMessage()))
+        else:
+            self.dropped += 1
+
+    def take(self) -> list[tuple[str, int, str]]:
+        out = self.records
+        if self.dropped:
+            out.append((log.name, logging.WARNING, f"{self.dropped} more log lines not shown"))
+        self.records, self.dropped = [], 0
+        return out
+
+
 def _worker_main(conn: Any, parent_pid: int, memory_limit_bytes: int) -> None:
-    """A forked worker: one log at a time from ``conn``, its outcome back; ends on EOF or None."""
+    """A forked worker: one log at a time from ``conn``, its outcome and log records back; ends
+    on EOF or None."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "SIGHUP"):
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
@@ -96,6 +125,8 @@ def _worker_main(conn: Any, parent_pid: int, memory_limit_bytes: int) -> None:
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     _die_with_parent(parent_pid)
     _limit_address_space(memory_limit_bytes)
+    records = _Records()
+    logging.getLogger().handlers = [records]
     while True:
         try:
             task = conn.recv()
@@ -103,7 +134,8 @@ def _worker_main(conn: Any, parent_pid: int, memory_limit_bytes: int) -> None:
             return
         if task is None:
             return
-        conn.send(process_log(task))
+        row = process_log(task)
+        conn.send((row, records.take()))
 
 
 def _die_with_parent(parent_pid: int) -> None:
@@ -132,6 +164,14 @@ def _limit_address_space(limit_bytes: int) -> None:
         resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
     except (OSError, ValueError) as exc:  # pragma: no cover - the watchdog still holds
         log.debug("fleet worker: address-space limit not set: %s", exc)
+
+
+def _received(message: tuple[dict[str, Any], list[tuple[str, int, str]]]) -> Outcome:
+    """A worker's outcome; its log records are logged here, as the serial loop logs them."""
+    row, records = message
+    for name, level, text in records:
+        logging.getLogger(name).log(level, "%s", text)
+    return Outcome.from_dict(row)
 
 
 class ForkPool:
@@ -202,13 +242,13 @@ class ForkPool:
                 if obj in by_conn:
                     w = by_conn[obj]
                     try:
-                        row = w.conn.recv()
+                        message = w.conn.recv()
                     except (EOFError, OSError):
                         dead.append(w)
                         continue
                     w.queued.popleft()
                     self._fill(w, todo)
-                    yield Outcome.from_dict(row)
+                    yield _received(message)
                 else:
                     dead.append(by_sentinel[obj])
             for w in dict.fromkeys(dead):
@@ -244,11 +284,11 @@ class ForkPool:
             try:
                 if not w.conn.poll():
                     break
-                row = w.conn.recv()
+                message = w.conn.recv()
             except (EOFError, OSError):
                 break
             w.queued.popleft()
-            yield Outcome.from_dict(row)
+            yield _received(message)
         w.proc.join(5)
         if w.proc.is_alive():  # its pipe broke but it runs on: it is not left behind
             w.proc.kill()
