@@ -134,7 +134,8 @@ class _Bar:
 
 @click.group("fleet")
 def fleet_group() -> None:
-    """Df and γ(B) over a fleet of flight logs, on Dask (pip install 'thrustmap[fleet]')."""
+    """Df and γ(B) over a fleet of flight logs, on local workers or Dask (pip install
+    'thrustmap[fleet]')."""
 
 
 @fleet_group.command("extract")
@@ -156,16 +157,16 @@ def fleet_group() -> None:
 @click.option("--climb-max", type=float, default=1.0, show_default=True)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--workers", type=int,
-              help="Local Dask workers (processes, one log each at a time); default: the "
-              "machine's cores; 0: a plain serial loop without Dask.")  # fmt: skip
+              help="Local worker processes, forked from this command, one log at a time each; "
+              "default: the machine's cores; 0: the plain serial loop in this command.")  # fmt: skip
 @click.option("--scheduler",
               help="Address of an existing Dask scheduler (tcp://host:8786, or tls://host:8786 "
               "with Dask's own security configuration: docs/fleet.md).")  # fmt: skip
 @click.option("--dashboard", "dashboard", is_flag=False, flag_value="127.0.0.1:8787",
               default=None, metavar="[ADDR]",
-              help="Serve the local cluster's Dask dashboard at ADDR (default 127.0.0.1:8787; "
-              "bokeh needed). Off unless given; every server of the cluster is on 127.0.0.1 "
-              "otherwise.")  # fmt: skip
+              help="Run the local workers as a Dask cluster and serve its dashboard at ADDR "
+              "(default 127.0.0.1:8787; bokeh needed). Off unless given; every other server of "
+              "the cluster is on 127.0.0.1.")  # fmt: skip
 @click.option("--memory-per-worker", default="auto", show_default=True,
               help="Memory limit of each local worker (e.g. 2GiB); auto: min(4 GiB, RAM/workers).")  # fmt: skip
 @click.option("--max-log-mb", type=float, default=512.0, show_default=True,
