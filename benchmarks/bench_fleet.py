@@ -77,6 +77,17 @@ def _cpu(procs: list[object]) -> float:
     return total
 
 
+def _busy_cpu_s() -> float:
+    """CPU seconds the whole machine has spent busy since boot (Linux; 0 elsewhere)."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+    except OSError:
+        return 0.0
+    idle = v[3] + (v[4] if len(v) > 4 else 0)
+    return (sum(v[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
     """``fleet extract`` as a command, 1 worker against 2, taking turns ``runs`` times."""
     import resource
@@ -98,9 +109,11 @@ def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
         one_log.mkdir()
         shutil.copy(sorted(fleet.good)[0], one_log)
 
-        def command(folder: Path, out: Path, w: int) -> tuple[float, float]:
-            """Wall and CPU seconds (the command and its workers) of one run."""
+        def command(folder: Path, out: Path, w: int) -> tuple[float, float, float]:
+            """Wall and CPU seconds (the command and its workers) of one run, and the CPU
+            seconds other processes of the machine used meanwhile (the load it ran under)."""
             ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            busy0 = _busy_cpu_s()
             t0 = time.perf_counter()
             subprocess.run(
                 [sys.executable, "-m", "thrustmap", "fleet", "extract", str(folder),
@@ -109,9 +122,11 @@ def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
                 env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             took = time.perf_counter() - t0
+            busy1 = _busy_cpu_s()
             ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             shutil.rmtree(out)
-            return took, (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+            cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+            return took, cpu, max(0.0, busy1 - busy0 - cpu)
 
         times: dict[int, list[float]] = {1: [], 2: []}
         cpus: dict[int, list[float]] = {1: [], 2: []}
@@ -119,11 +134,12 @@ def whole_process(runs: int, logs: int, seconds: float, rate_hz: float) -> None:
         for k in range(runs):
             for w in (1, 2):
                 load = os.getloadavg()[0]
-                took, cpu = command(fleet.folder, root / f"out-{w}-{k}", w)
+                took, cpu, others = command(fleet.folder, root / f"out-{w}-{k}", w)
                 times[w].append(took)
                 cpus[w].append(cpu)
                 print(f"run {k + 1}: {w} worker(s) {took:6.2f} s, CPU {cpu:6.2f} s in all its "
-                      f"processes  (load average before {load:.1f})")  # fmt: skip
+                      f"processes  (load average before {load:.1f}; other processes used "
+                      f"{others:.2f} s of CPU meanwhile)")  # fmt: skip
             fixed.append(command(one_log, root / f"out-one-{k}", 1)[0])
         one, two = statistics.median(times[1]), statistics.median(times[2])
         s_fixed = statistics.median(fixed)
