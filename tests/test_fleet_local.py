@@ -181,12 +181,15 @@ def test_a_killed_command_takes_its_workers_with_it(fleet: Fleet, tmp_path: Path
                 k.kill()
 
 
-def test_local_workers_listen_nowhere_and_ignore_the_terminals_ctrl_c(
-    fleet: Fleet, tmp_path: Path
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_local_workers_listen_nowhere_and_a_stop_keeps_the_table_and_resumes(
+    fleet: Fleet, tmp_path: Path, how: str
 ) -> None:
-    """Pipes, no sockets; a Ctrl-C reaches the whole process group and only the command acts:
-    it writes the table so far, stops its workers, exits 130."""
-    cmd = slow_command(args(fleet, tmp_path / "out", "--workers", "2"))
+    """Pipes, no sockets. A Ctrl-C reaches the whole process group and only the command acts
+    on it; SIGTERM reaches the command alone. Either way it writes the table so far, stops its
+    workers, exits 130, and the same command resumes to the serial loop's table."""
+    out = tmp_path / "out"
+    cmd = slow_command(args(fleet, out, "--workers", "2"))
     with sigint_for_children():
         proc = subprocess.Popen(cmd, env=env(), stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)  # fmt: skip
@@ -200,18 +203,27 @@ def test_local_workers_listen_nowhere_and_ignore_the_terminals_ctrl_c(
         assert len(kids) == 2
         sockets = [c for p in [psutil.Process(proc.pid), *kids] for c in p.net_connections()]
         assert sockets == []
-        os.killpg(proc.pid, signal.SIGINT)
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     assert proc.returncode == 130, err
-    assert "interrupted" in err and "Traceback" not in err
+    assert "interrupted" in err and "run the same command again to resume" in err
+    assert "Traceback" not in err
     assert not any(alive(k) for k in kids)
     from thrustmap.fleet.table import read_table
 
-    assert 0 < len(read_table(tmp_path / "out" / "fleet.parquet")) < len(fleet.good)
+    partial = read_table(out / "fleet.parquet")
+    assert 0 < len(partial) < len(fleet.good)
+    main(args(fleet, out, "--workers", "2", "--quiet"))
+    assert sum(o.reused for o in read_table(out / "fleet.parquet")) >= len(partial)
+    main(args(fleet, tmp_path / "serial", "--workers", "0", "--quiet"))
+    assert comparable(out / "fleet.parquet") == comparable(tmp_path / "serial" / "fleet.parquet")
 
 
 def test_a_workers_log_records_reach_the_command_bounded(
