@@ -48,7 +48,7 @@ def run_pool(
         result = run.fleet_extract([fleet.folder], config_for(fleet, out), local=pool.run)
     finally:
         stopped = pool.close()
-    assert stopped and not any(psutil.pid_exists(p) and alive(psutil.Process(p)) for p in stopped)
+    assert not any(psutil.pid_exists(p) and alive(psutil.Process(p)) for p in stopped)
     return result, pool
 
 
@@ -244,3 +244,15 @@ def test_a_workers_log_records_reach_the_command_bounded(
     assert lines == [f"odd record {k}" for k in range(local.MAX_RECORDS_PER_LOG)]
     more = [r.getMessage() for r in caplog.records if r.name == "thrustmap.fleet.local"]
     assert more == ["7 more log lines not shown"]
+
+
+def test_workers_that_all_die_still_end_the_run_each_log_refused_once(
+    fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A broken worker environment: every log kills its worker. Each death refuses one log and
+    forks one replacement while logs are left, so the run ends, nothing retried forever."""
+    monkeypatch.setattr(local, "process_log", lambda t: os.kill(os.getpid(), signal.SIGKILL))
+    result, pool = run_pool(fleet, tmp_path / "out", local.LocalSpec(2, 1 << 30))
+    assert len(result.outcomes) == result.total == len({o.path for o in result.outcomes})
+    assert all("the worker holding this log died" in o.reason for o in result.outcomes)
+    assert pool.started <= result.total + 1

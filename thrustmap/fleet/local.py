@@ -279,7 +279,8 @@ class ForkPool:
 
     def _replace(self, w: _Worker, todo: deque[LogTask]) -> Iterator[Outcome]:
         """A worker died: the outcomes it sent first, then its log refused, the logs queued
-        behind it back to the front of the queue, and a new worker in its place."""
+        behind it back to the front of the queue, and a new worker in its place (while logs are
+        left: each death refuses one log, so even workers that all die end the run)."""
         while True:
             try:
                 if not w.conn.poll():
@@ -308,13 +309,14 @@ class ForkPool:
                 reason=f"{t.path}: the worker holding this log died ({how}); the log was not "
                 "retried",
             )
-        nw = self._fork()
-        self._workers.append(nw)
-        self._fill(nw, todo)
+        if todo:  # a new worker only for logs still to do
+            nw = self._fork()
+            self._workers.append(nw)
+            self._fill(nw, todo)
 
     def close(self, timeout_s: float = 5.0) -> list[int]:
-        """Stop every worker and confirm it is gone: a polite None to idle ones, SIGTERM to
-        all, SIGKILL to any still alive after ``timeout_s``. Returns the pids stopped."""
+        """Stop every worker and confirm it is gone: its pipe closed, SIGTERM, and SIGKILL if
+        it is still alive after ``timeout_s``; each is waited for. Returns the pids stopped."""
         workers, self._workers = self._workers, []
         for w in workers:
             with contextlib.suppress(OSError, ValueError):
