@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 from support.fleet_gen import Fleet, make_fleet
-from test_fleet_dask import alive, args, comparable, env, sigint_for_children
+from test_fleet_dask import alive, args, comparable, env, sigint_for_children, timeless_bytes
 
 from thrustmap.cli import main
 from thrustmap.fleet import local, run
@@ -72,6 +72,9 @@ def test_two_local_workers_give_the_serial_loops_table(fleet: Fleet, tmp_path: P
     serial = comparable(tmp_path / "serial" / "fleet.parquet")
     assert comparable(tmp_path / "two" / "fleet.parquet") == serial
     assert len(serial) == len(fleet.good) + len(fleet.corrupt) + len(fleet.no_mass)
+    # byte for byte, but for each log's run time
+    two = timeless_bytes(tmp_path / "two" / "fleet.parquet")
+    assert two == timeless_bytes(tmp_path / "serial" / "fleet.parquet")
 
 
 def test_a_log_that_kills_its_worker_is_refused_and_the_fleet_goes_on(
