@@ -312,3 +312,81 @@ def test_a_stop_signal_inside_a_dask_call_waits_for_the_call_to_return() -> None
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_fleet_gamma_refuses_what_gamma_fit_refuses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A group whose γ leaves the physical band 0.5..2 gets no γ(B) and no corrected map, with
+    the reason `gamma fit` gives for the same Df files (which refuses them, exit 2)."""
+    import json
+
+    from support.fleet_gen import AIRFRAMES, Airframe
+
+    odd = Airframe("odd", "dataflash", 1.1, (2.6,))  # thrust 2.6 x what the map predicts
+    fleet = make_fleet(tmp_path, 3, airframes=(AIRFRAMES[2], odd), corrupt=False, no_mass=0)
+    out = tmp_path / "out"
+    assert run_cli(extract_args(fleet, out), capsys)[0] == 0
+    code, stdout, err = run_cli(
+        ["fleet", "gamma", str(out), "--map", str(fleet.stand_map), "--json"], capsys
+    )
+    assert code == 0, err
+    groups = {g["airframe"]["mass_kg"]: g for g in json.loads(stdout)}
+    assert groups[1.2]["status"] == "fitted"
+    bad = groups[1.1]
+    assert bad["status"] == "refused" and "gamma" not in bad
+    assert bad["reason"].startswith("γ(B) reaches 2.5") and "0.5..2" in bad["reason"]
+    assert bad["reason"].endswith("(as `gamma fit` refuses it: no corrected map)")
+    assert not (out / "gamma" / f"{bad['key']}.map.json").exists()
+    assert (out / "gamma" / f"{groups[1.2]['key']}.map.json").is_file()
+    code, _, err = run_cli(
+        ["gamma", "fit", *bad["df"], "--map", str(fleet.stand_map), "-o", str(tmp_path / "g.json")],
+        capsys,
+    )
+    assert code == 2
+    assert bad["reason"].split(" (as `gamma fit`")[0] in err
+
+
+def test_the_table_is_written_and_read_without_pandas_in_the_same_bytes(tmp_path: Path) -> None:
+    """pyarrow's from_pylist/pa.array/read_table import pandas (0.2-0.35 s of every fleet run);
+    the table is built from its buffers instead, byte for byte the Parquet from_pylist gives."""
+    import subprocess
+    import sys
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from thrustmap.fleet.table import _schema, write_table
+
+    outcomes = [
+        Outcome(path="/a/ü.bin", status="ok", samples=12, dropped_s={"tilt": 1.5, "armed": 0.25},
+                warnings=["w1", "ωw2"], mass_kg=1.2, voltage_min_v=22.1, voltage_max_v=24.0,
+                flights=2, rotors=4, seconds=0.01, reused=True, airframe='{"x": 1}'),
+        Outcome(path="/a/b.ulg", reason="refused: ünïcode", mtime_ns=2**62, size_bytes=7),
+        Outcome(path=""),
+    ]  # fmt: skip
+    ours = tmp_path / "ours.parquet"
+    write_table(outcomes, ours)
+    rows = [o.to_dict() for o in sorted(outcomes, key=lambda o: o.path)]
+    for r in rows:
+        r["dropped_s"] = sorted(r["dropped_s"].items())
+    sink = pa.BufferOutputStream()
+    pq.write_table(pa.Table.from_pylist(rows, schema=_schema()), sink, compression="zstd")
+    assert ours.read_bytes() == sink.getvalue().to_pybytes()
+    import json
+
+    def plain(o: Outcome) -> object:  # NaN == NaN
+        return json.loads(json.dumps(o.to_dict()).replace("NaN", "null"))
+
+    assert [plain(o) for o in read_table(ours)] == [
+        plain(o) for o in sorted(outcomes, key=lambda o: o.path)
+    ]
+    code = (
+        "import sys\n"
+        "from thrustmap.fleet.table import read_table, write_table\n"
+        f"write_table(read_table({str(ours)!r}), {str(tmp_path / 'again.parquet')!r})\n"
+        "assert 'pandas' not in sys.modules, 'pandas imported'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "again.parquet").read_bytes() == ours.read_bytes()

@@ -60,6 +60,18 @@ def comparable(table: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def timeless_bytes(table: Path) -> bytes:
+    """The Parquet file the table would be with every log's run time zeroed (the only column
+    that differs between two runs of the same fleet that reuse nothing)."""
+    import dataclasses
+
+    from thrustmap.fleet.table import write_table
+
+    copy = table.with_name("timeless.parquet")
+    write_table([dataclasses.replace(o, seconds=0.0) for o in read_table(table)], copy)
+    return copy.read_bytes()
+
+
 def args(fleet: Fleet, out: Path, *extra: str) -> list[str]:
     return ["fleet", "extract", str(fleet.folder), "-o", str(out), "--masses",
             str(fleet.masses_csv), "--map", str(fleet.stand_map), *extra]  # fmt: skip
@@ -196,6 +208,10 @@ def test_an_existing_scheduler_gives_the_same_table(
         out = tmp_path / "out"
         main(args(fleet, out, "--scheduler", address, "--quiet"))
         assert comparable(out / "fleet.parquet") == serial_table
+        # and byte for byte the table of local (forked) workers, but for the run times
+        main(args(fleet, tmp_path / "local", "--workers", "2", "--quiet"))
+        local = timeless_bytes(tmp_path / "local" / "fleet.parquet")
+        assert timeless_bytes(out / "fleet.parquet") == local
     finally:
         for p in reversed(started):
             p.send_signal(signal.SIGINT)

@@ -89,17 +89,31 @@ def finish(proc: subprocess.Popen[str]) -> tuple[int, str]:
     return proc.returncode, err
 
 
-def test_a_local_cluster_listens_on_loopback_only_and_serves_no_dashboard(
-    fleet: Fleet, tmp_path: Path
-) -> None:
+def test_local_workers_listen_nowhere(fleet: Fleet, tmp_path: Path) -> None:
+    """Forked local workers talk to the command over pipes: no socket listens at all."""
     proc = start(args(fleet, tmp_path / "out", "--workers", "2", "--quiet"))
-    seen, answers = watch(proc)
+    seen, _ = watch(proc)
     code, err = finish(proc)
     assert code == 0, err
-    assert len(seen) >= 4  # the scheduler, its HTTP server, the nannies and workers
-    outside = [(ip, port) for ip, port in seen if not ipaddress.ip_address(ip).is_loopback]
-    assert outside == []
-    assert 200 not in answers.values()  # no dashboard page answers, even on loopback
+    assert "local workers: 2 processes forked from this command" in err
+    assert seen == set()
+
+
+def test_a_local_dask_cluster_listens_on_loopback_only_and_serves_no_dashboard() -> None:
+    """Where local workers are a Dask LocalCluster (not Linux, or --dashboard): every server
+    on 127.0.0.1, and without --dashboard no page but health checks."""
+    from thrustmap.fleet import run
+
+    cluster, client = run.start_local_cluster(run.LocalClusterSpec(2, 1 << 30))
+    try:
+        seen = listening(os.getpid())
+        assert len(seen) >= 4  # the scheduler, its HTTP server, the nannies and workers
+        outside = [(ip, port) for ip, port in seen if not ipaddress.ip_address(ip).is_loopback]
+        assert outside == []
+        answers = {port: http_status(port, "/json/identity.json") for _, port in seen}
+        assert 200 not in answers.values()  # no dashboard page answers, even on loopback
+    finally:
+        run.close_cluster(cluster, client)
 
 
 def test_the_dashboard_only_when_asked_for(fleet: Fleet, tmp_path: Path) -> None:
@@ -119,8 +133,9 @@ def test_ctrl_c_while_the_local_cluster_starts_stops_the_run(
 ) -> None:
     """The workers start with SIGINT blocked (a Ctrl-C at the terminal reaches the whole
     process group, only the command acts on it), and the command itself answers it at once:
-    exit 130, nothing left running, no traceback."""
-    proc = start(args(fleet, tmp_path / "out", "--workers", "2"))
+    exit 130, nothing left running, no traceback. (A local Dask cluster: --dashboard here;
+    forked workers, which start in milliseconds: tests/test_fleet_local.py.)"""
+    proc = start(args(fleet, tmp_path / "out", "--workers", "2", "--dashboard", "127.0.0.1:0"))
     assert proc.stderr is not None
     deadline = time.monotonic() + 60
     for line in proc.stderr:
@@ -182,42 +197,3 @@ def test_fleet_gamma_with_no_group_fitted_says_so_and_exits_1(
     html = (out / "fleet-report.html").read_text()
     section = html[html.index("<section id='gamma'>") :]
     assert "No group was fitted" in section and "too small: 2 logs" in section
-
-
-def test_the_first_logs_run_in_this_process_while_the_cluster_starts(tmp_path: Path) -> None:
-    """Start-up overlapped with work: until ``ready()``, logs run here (the outcomes are those
-    of the serial loop); a log over BATCH_BYTES waits for a worker (its memory limit)."""
-    from thrustmap.fleet import run
-
-    small = make_fleet(tmp_path, 1, corrupt=False, no_mass=0)
-    config = run.FleetConfig(
-        out_dir=tmp_path / "out",
-        df_options={"rotors": None},
-        masses=run.read_masses(small.masses_csv),
-        map_path=small.stand_map,
-    )
-    asked: list[int] = []
-
-    def never_connect() -> tuple[Any, int]:
-        raise AssertionError("no log was left for the cluster")
-
-    def not_yet() -> bool:
-        asked.append(1)
-        return False
-
-    result = run.fleet_extract([small.folder], config, connect=never_connect, ready=not_yet)
-    assert len(result.outcomes) == len(small.good) and len(asked) >= len(small.good)
-    assert all(o.status == "ok" for o in result.outcomes)
-
-    big = small.folder / "big.bin"
-    big.write_bytes(b"\xa3\x95\x80" + bytes(run.BATCH_BYTES))  # waits for a worker
-    config = run.FleetConfig(out_dir=tmp_path / "out2", df_options={"rotors": None, "mass_kg": 1})
-
-    class Connected(Exception):
-        pass
-
-    def connect() -> tuple[Any, int]:
-        raise Connected
-
-    with pytest.raises(Connected):
-        run.fleet_extract([big], config, connect=connect, ready=lambda: False)

@@ -4,13 +4,15 @@ only inside the commands)."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import click
 
+from thrustmap.cli import textwidth
 from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.safety import terminate_as_exception
@@ -48,14 +50,25 @@ def _require(*modules: str) -> None:
 
 
 class _Bar:
-    """A progress bar on stderr when it is a terminal, else a line every 10 %."""
+    """Progress on stderr: on a terminal, one bar line redrawn in place and fitted to its width;
+    elsewhere (a pipe, a file, CI) a plain ``progress:`` line every 10 %.
 
-    def __init__(self) -> None:
-        self.tty = sys.stderr.isatty()
+    Never a bar and another line on one line: every other line the command prints while the bar
+    is shown goes through :meth:`note`, and log records through a filter on the log handlers
+    (:meth:`attach`), which first clear the bar; the next update draws it again."""
+
+    WIDTH = 30  # the bar's own characters, fewer on a narrow terminal
+
+    def __init__(self, stream: TextIO | None = None, columns: int | None = None) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = self.stream.isatty()
+        self.columns = columns if columns is not None else (textwidth.width(err=True) or 80)
         self.started = time.monotonic()
         self.last_decile = -1
         self.refused = 0
-        self.shown = 0.0
+        self.shown = float("-inf")
+        self.drawn = False  # a bar is on the current line
+        self._handlers: list[logging.Handler] = []
 
     def __call__(self, done: int, total: int, outcome: Any) -> None:
         self.refused += int(outcome.status == "refused")
@@ -63,27 +76,66 @@ class _Bar:
         frac = done / total if total else 1.0
         text = f"{done}/{plural(total, 'log')} ({rate:.1f}/s, {self.refused} refused)"
         now = time.monotonic()
-        if self.tty and (now - self.shown >= 0.1 or done >= total):
-            self.shown = now
-            width = 30
-            fill = int(frac * width)
-            sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {text}")
-            if done >= total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+        if self.tty:
+            if now - self.shown >= 0.1 or done >= total or not self.drawn:
+                self.shown = now
+                self._draw(frac, text)
+                if done >= total:
+                    self._write("\n")
+                    self.drawn = False
         elif int(frac * 10) > self.last_decile:
             self.last_decile = int(frac * 10)
-            sys.stderr.write(f"progress: {text}\n")
-            sys.stderr.flush()
+            self._write(f"progress: {text}\n")
+
+    def _draw(self, frac: float, text: str) -> None:
+        room = self.columns - 1  # the last column of a line makes some terminals wrap
+        width = min(self.WIDTH, room - len(text) - 3)
+        if width >= 10:
+            fill = int(frac * width)
+            line = f"[{'#' * fill}{'.' * (width - fill)}] {text}"
+        else:
+            line = text[:room]
+        self._write(f"\r\x1b[K{line}")
+        self.drawn = True
+
+    def clear(self) -> None:
+        """Take the bar off the current line (the next update draws it again)."""
+        if self.drawn:
+            self._write("\r\x1b[K")
+            self.drawn = False
+
+    def note(self, text: str) -> None:
+        """A line of its own while the bar may be shown."""
+        self.clear()
+        self._write(textwidth.wrap(text, self.columns if self.tty else None, err=True) + "\n")
 
     def end(self) -> None:
+        self.clear()
+        for h in self._handlers:
+            h.removeFilter(self._before_record)
+        self._handlers = []
+
+    def attach(self) -> None:
+        """Clear the bar before any log record reaches a handler of the root logger."""
         if self.tty:
-            sys.stderr.write("\n")
+            self._handlers = list(logging.getLogger().handlers)
+            for h in self._handlers:
+                h.addFilter(self._before_record)
+
+    def _before_record(self, record: logging.LogRecord) -> bool:
+        self.clear()
+        return True
+
+    def _write(self, text: str) -> None:
+        with contextlib.suppress(OSError, ValueError):  # stderr closed: no progress, no crash
+            self.stream.write(text)
+            self.stream.flush()
 
 
 @click.group("fleet")
 def fleet_group() -> None:
-    """Df and γ(B) over a fleet of flight logs, on Dask (pip install 'thrustmap[fleet]')."""
+    """Df and γ(B) over a fleet of flight logs, on local workers or Dask (pip install
+    'thrustmap[fleet]')."""
 
 
 @fleet_group.command("extract")
@@ -105,16 +157,16 @@ def fleet_group() -> None:
 @click.option("--climb-max", type=float, default=1.0, show_default=True)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--workers", type=int,
-              help="Local Dask workers (processes, one log each at a time); default: the "
-              "machine's cores; 0: a plain serial loop without Dask.")  # fmt: skip
+              help="Local worker processes, forked from this command, one log at a time each; "
+              "default: the machine's cores; 0: the plain serial loop in this command.")  # fmt: skip
 @click.option("--scheduler",
               help="Address of an existing Dask scheduler (tcp://host:8786, or tls://host:8786 "
               "with Dask's own security configuration: docs/fleet.md).")  # fmt: skip
 @click.option("--dashboard", "dashboard", is_flag=False, flag_value="127.0.0.1:8787",
               default=None, metavar="[ADDR]",
-              help="Serve the local cluster's Dask dashboard at ADDR (default 127.0.0.1:8787; "
-              "bokeh needed). Off unless given; every server of the cluster is on 127.0.0.1 "
-              "otherwise.")  # fmt: skip
+              help="Run the local workers as a Dask cluster and serve its dashboard at ADDR "
+              "(default 127.0.0.1:8787; bokeh needed). Off unless given; every other server of "
+              "the cluster is on 127.0.0.1.")  # fmt: skip
 @click.option("--memory-per-worker", default="auto", show_default=True,
               help="Memory limit of each local worker (e.g. 2GiB); auto: min(4 GiB, RAM/workers).")  # fmt: skip
 @click.option("--max-log-mb", type=float, default=512.0, show_default=True,
@@ -148,15 +200,19 @@ def extract_cmd(
     table of outcomes (OUT_DIR/fleet.parquet). A bad log is listed with its reason and never
     stops the fleet. A re-run skips logs already done with the same content and options.
     """
-    _require("pyarrow", *(() if workers == 0 else ("distributed",)))
-    from thrustmap.fleet import run
+    from thrustmap.fleet import local, run
 
     if workers is not None and scheduler is not None:
-        raise ConfigError("give --workers (a local cluster) or --scheduler, not both")
+        raise ConfigError("give --workers (local workers) or --scheduler, not both")
     if dashboard is not None and (scheduler is not None or workers == 0):
         raise ConfigError(
-            "--dashboard is for the local cluster (not with --scheduler or --workers 0)"
+            "--dashboard is for a local Dask cluster (not with --scheduler or --workers 0)"
         )
+    # local workers are processes forked from this command (thrustmap.fleet.local); Dask runs
+    # them only to serve its dashboard, or where fork is not safe (not Linux)
+    dask_local = workers != 0 and scheduler is None and (dashboard is not None
+                                                         or not local.available())  # fmt: skip
+    _require("pyarrow", *(("distributed",) if scheduler is not None or dask_local else ()))
     dash = None if dashboard is None else run.dashboard_address(dashboard)
     if max_log_mb <= 0:
         raise ConfigError(f"--max-log-mb must be positive, got {max_log_mb:g}")
@@ -183,21 +239,32 @@ def extract_cmd(
         fmt=fmt,
         max_log_bytes=int(max_log_mb * 2**20),
     )
+    # the number of local workers and their memory, checked before anything is read
+    spec = None if workers == 0 or scheduler is not None else run.local_cluster_spec(
+        workers, mem, dash)  # fmt: skip
     bar = None if quiet else _Bar()
-    before = run.child_pids()
+
+    def say(text: str) -> None:
+        """A line on stderr of its own (the bar, if shown, is cleared first)."""
+        if bar is not None:
+            bar.note(text)
+        else:
+            echo(text, err=True)
+
+    # what a Dask cluster may leave behind is looked for at the end (forked workers are each
+    # stopped and confirmed gone by the pool itself)
+    before = run.child_pids() if scheduler is not None or dask_local else set()
     started = time.monotonic()
     holder: dict[str, Any] = {}
+    limits = f"logs over {max_log_mb:g} MB refused unread"
 
     def begin() -> Any:
-        """Start the local cluster in the background (once); the caller goes on with logs."""
+        """Start the local Dask cluster in the background (once)."""
         if "start" not in holder:
-            spec = run.local_cluster_spec(workers, mem, dash)
-            click.echo(
+            assert spec is not None
+            say(
                 f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
-                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; logs over "
-                f"{max_log_mb:g} MB refused unread"
-                + ("" if dash else "; the first logs run here while it starts"),
-                err=True,
+                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; {limits}"
             )
             holder["local"] = True  # from here, whatever happens, no child may outlive it
             holder["spec"] = spec
@@ -209,15 +276,28 @@ def extract_cmd(
         if scheduler is not None:
             client = holder["client"] = run.connect(scheduler)
             threads = sum(client.nthreads().values()) or 1
-            echo(f"Dask scheduler {scheduler}: {threads} worker threads", err=True)
+            say(f"Dask scheduler {scheduler}: {threads} worker threads")
             return client, 2 * threads
         _, client = begin().wait()
         if dash is not None:
-            click.echo(f"Dask dashboard: {client.dashboard_link}", err=True)
+            say(f"Dask dashboard: {client.dashboard_link}")
         return client, 2 * holder["spec"].workers
 
+    def on_local_workers(tasks: list[Any]) -> Any:
+        assert spec is not None
+        n = min(spec.workers, len(tasks))  # no idle worker for a handful of logs
+        say(
+            f"local workers: {plural(n, 'process', 'processes')} forked from this command, one "
+            f"log at a time each, memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per "
+            f"worker; {limits}"
+        )
+        pool = holder["pool"] = local.ForkPool(local.LocalSpec(n, spec.memory_limit_bytes))
+        return pool.run(tasks)
+
     if workers == 0:
-        echo("serial loop in this process (no Dask)", err=True)
+        say("serial loop in this process (no worker processes)")
+    if bar is not None:
+        bar.attach()
     try:
         try:
             # SIGTERM (a batch system, systemd, kill) or SIGHUP ends the run as Ctrl-C does:
@@ -226,23 +306,22 @@ def extract_cmd(
                 result = run.fleet_extract(
                     sources,
                     config,
-                    connect=None if workers == 0 else connect,
+                    connect=connect if scheduler is not None or dask_local else None,
+                    local=None if workers == 0 or scheduler or dask_local else on_local_workers,
                     progress=bar,
-                    # the first logs run here while the local cluster starts (not with a
-                    # dashboard: whoever asked for one wants to watch the cluster do them)
-                    ready=None if workers == 0 or scheduler or dash else lambda: begin().ready(),
                 )
         except KeyboardInterrupt:
-            if bar is not None:
-                bar.end()
-            echo(
+            say(
                 f"interrupted: the table of the logs finished so far is in "
-                f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume",
-                err=True,
+                f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume"
             )
             raise
     finally:
+        if bar is not None:
+            bar.end()
         # closing must not hide the real outcome (and stop_children() below is the backstop)
+        if "pool" in holder:
+            holder["pool"].close()
         if "start" in holder:
             holder["start"].close()
         elif holder.get("client") is not None:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap import __version__
+import thrustmap
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
@@ -125,7 +125,9 @@ class ThrustMap:
     spin_up: dict[str, Any] = field(default_factory=dict)
     #: where the selected points are in (T, B) (None: a map written before; its box is used)
     supported: Region | None = None
-    tool_version: str = __version__
+    # read when a map is made, not when this module is imported (importlib.metadata: ~20-60 ms
+    # of every command that reads a map, e.g. each fleet worker)
+    tool_version: str = field(default_factory=lambda: thrustmap.__version__)
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
     )

@@ -167,7 +167,7 @@ def fleet_gamma(
     min_span_v: float | None = None,
 ) -> list[Group]:
     """Every airframe group, fitted or with the reason it was not."""
-    from thrustmap.fitting.gamma import MIN_SLOPE_SPAN_V
+    from thrustmap.fitting.gamma import MIN_SLOPE_SPAN_V, physical_refusals
 
     span_min = MIN_SLOPE_SPAN_V if min_span_v is None else min_span_v
     groups = group_logs(outcomes, out_dir)
@@ -191,10 +191,18 @@ def fleet_gamma(
             )
             continue
         try:
-            g.fit, g.band = fit_pooled(g.df_paths, tmap, loss)
+            fit, band = fit_pooled(g.df_paths, tmap, loss)
         except ThrustmapError as exc:
             g.status, g.reason = "not fitted", one_line(exc)
             continue
+        # what `gamma fit` refuses (without --force) is refused here: a Df too short for a
+        # γ fit, or a γ outside the physical band over the flown voltages
+        refusals = physical_refusals(fit)
+        if refusals:
+            g.status = "refused"
+            g.reason = "; ".join(refusals) + " (as `gamma fit` refuses it: no corrected map)"
+            continue
+        g.fit, g.band = fit, band
         g.status = "fitted"
         g.warnings = list(g.fit.warnings)
     return groups

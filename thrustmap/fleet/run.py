@@ -1,11 +1,11 @@
-"""Running a fleet: plan (what is already done), then the logs serially or on a Dask cluster.
+"""Running a fleet: plan (what is already done), then the logs serially, on local workers
+(:mod:`thrustmap.fleet.local`) or on a Dask cluster.
 
-Bounded by construction: every worker runs one thread, so it holds one log at a time; the
-client keeps at most ``window`` tasks submitted (2 per worker thread; small logs go several to
-a task, one after the other), so the scheduler and the driver never hold the whole fleet; a log
-larger than ``max_log_bytes`` is refused unread; and a local cluster's workers each get a
-``memory_limit`` (a worker that exceeds it is restarted by its nanny and the log it held is
-recorded as refused, not retried).
+Bounded by construction: a worker holds one log at a time (a Dask worker runs one thread); the
+driver keeps at most two logs per worker queued (on Dask ``window`` tasks submitted, small logs
+several to a task, one after the other), so neither it nor a scheduler holds the whole fleet; a
+log larger than ``max_log_bytes`` is refused unread; and each local worker gets a memory limit
+(a worker that exceeds it is stopped and the log it held is recorded as refused, not retried).
 
 Resumable: a log whose path, size, modification time and options key match the previous table
 is not touched; any other log is hashed by its worker, and when ``OUT_DIR/df`` already holds the
@@ -179,19 +179,6 @@ def run_serial(tasks: list[LogTask]) -> Iterator[Outcome]:
         yield Outcome.from_dict(process_log(t))
 
 
-def run_while_starting(
-    tasks: list[LogTask], connect: Callable[[], tuple[Any, int]], ready: Callable[[], bool]
-) -> Iterator[Outcome]:
-    """The first logs in this process while the cluster starts, the rest on the cluster."""
-    i = 0
-    while i < len(tasks) and not ready() and _size(tasks[i]) <= BATCH_BYTES:
-        yield Outcome.from_dict(process_log(tasks[i]))
-        i += 1
-    if i < len(tasks):
-        client, window = connect()
-        yield from run_on_client(client, tasks[i:], window)
-
-
 #: logs smaller than this together go to a worker as one Dask task (about 0.4 s of work): a task
 #: costs ~10 ms of CPU in the scheduler, the client and the worker together on top of its logs
 #: (bench_fleet.py: 165 one-log tasks against 19 batches), so 4 MB batches (~0.1 s) lost ~8 %
@@ -346,19 +333,16 @@ def fleet_extract(
     config: FleetConfig,
     *,
     connect: Callable[[], tuple[Any, int]] | None = None,
+    local: Callable[[list[LogTask]], Iterator[Outcome]] | None = None,
     progress: Progress | None = None,
-    ready: Callable[[], bool] | None = None,
 ) -> FleetResult:
     """Extract every log of the fleet.
 
-    ``connect`` returns a Dask client and the number of logs to keep submitted; it is called
-    only when some log is left to do (a re-run with nothing new starts no cluster). Without it
-    the logs run in the plain serial loop.
-
-    ``ready`` (with ``connect``) says whether the cluster has started; it is asked first, so it
-    may start it, and until it has, the logs run in this process, one at a time (small ones
-    only: a log over ``BATCH_BYTES`` waits for a worker and its memory limit). The cluster's
-    start-up (~1 s, several on a busy machine) is then spent on logs rather than waited out.
+    ``connect`` returns a Dask client and the number of logs to keep submitted; ``local`` runs
+    the tasks on local worker processes (``thrustmap.fleet.local.ForkPool.run``). Either is
+    called only when some log is left to do (a re-run with nothing new starts no worker), after
+    the extraction rules are imported here (forked workers inherit them). Without either the
+    logs run in the plain serial loop.
 
     The table (``OUT_DIR/fleet.parquet``) is written at the end, and also when the run is
     interrupted (KeyboardInterrupt is re-raised after the table of what finished is written).
@@ -385,8 +369,8 @@ def fleet_extract(
     if progress is not None:
         for k, o in enumerate(reused, start=1):
             progress(k, total, o)
-    if tasks and connect is not None and ready is not None:
-        stream = run_while_starting(tasks, connect, ready)
+    if tasks and local is not None:
+        stream = local(tasks)
     elif tasks and connect is not None:
         client, window = connect()
         stream = run_on_client(client, tasks, window)
@@ -429,14 +413,23 @@ def local_cluster_spec(
     workers: int | None, memory_per_worker: int | None, dashboard_address: str | None = None
 ) -> LocalClusterSpec:
     """How many local workers and how much memory each may use (stated to the user)."""
-    import psutil
-
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n < 1:
         raise ConfigError(f"--workers must be at least 1 (0 runs the plain serial loop), got {n}")
-    total = psutil.virtual_memory().total
+    total = _total_memory_bytes()
     mem = memory_per_worker if memory_per_worker is not None else min(4 << 30, total // n)
     return LocalClusterSpec(n, int(mem), dashboard_address)
+
+
+def _total_memory_bytes() -> int:
+    """The machine's RAM: from the C library where it says (no psutil import on a local run's
+    path, ~10 ms), else psutil."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        import psutil
+
+        return int(psutil.virtual_memory().total)
 
 
 def dashboard_address(text: str) -> str:
