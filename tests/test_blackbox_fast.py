@@ -153,9 +153,10 @@ def test_truncated_or_corrupt_logs_go_to_the_reference() -> None:
     assert bd.decode_log(garbage).stats["skipped_bytes"] == 2
 
 
-def test_a_value_needing_the_32_bit_wrap_goes_to_the_reference() -> None:
-    """Unsigned amperage driven past 2**32 by its inter-frame deltas: only the reference's
-    wrapped decode is right, so the fast path declines."""
+def test_a_value_needing_the_32_bit_wrap_is_wrapped_in_bulk() -> None:
+    """Unsigned vbat driven past 2**32 by its inter-frame deltas (predicted from the previous
+    frame, a sum): the bulk decoder wraps it once at the end, exactly as the reference wraps it
+    after every frame."""
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
     out = bytearray(enc.header_bytes())
     for k in range(16):
@@ -165,9 +166,55 @@ def test_a_value_needing_the_32_bit_wrap_goes_to_the_reference() -> None:
             values[6] = 1640 + k * (1 << 30)
         out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
     section = bytes(out)
-    assert bf.decode_log_fast(section) is None
+    compare_fast(section)
     decoded = bd.decode_log(section)
     assert int(decoded.main[:, 6].max()) <= 0xFFFFFFFF
+    assert decoded.main[1:8, 6].tolist() == [
+        (1640 + k * (1 << 30)) % (1 << 32) for k in range(1, 8)
+    ]
+
+
+def test_betaflight_3_throttle_and_motors_below_their_low_end_are_wrapped_in_bulk() -> None:
+    """Betaflight 3.x predicts rcCommand[3] from minthrottle and motor[0] from the motor low end
+    in intra frames, and logs a value below either as an unsigned residual (1000 - 1070 ->
+    2**32 - 70): only the 32-bit wrap brings it back. The motors are averaged in inter frames,
+    so they are wrapped at every step; both as the reference decodes them."""
+    main = dataclasses.replace(be.SIM_MAIN, predictor=[*be.SIM_MAIN.predictor])
+    main.predictor[5] = bd.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
+    enc = be.Encoder(be.SIM_HEADERS, main, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    out = bytearray(enc.header_bytes())
+    for k in range(64):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        values[5] = 1000 + (k % 3)  # below minthrottle 1070
+        if k < 40:
+            values[14:18] = [0, 0, 0, 0]  # disarmed: below the motor low end 158
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+    section = bytes(out)
+    compare_fast(section)
+    decoded = bd.decode_log(section)
+    assert decoded.main[:, 5].tolist() == [1000 + (k % 3) for k in range(64)]
+    assert decoded.main[:40, 14:18].tolist() == [[0, 0, 0, 0]] * 40
+
+
+def test_a_bare_residual_out_of_range_goes_to_the_reference() -> None:
+    """A field read bare (no prediction: the reference does not wrap it) beyond 32 bits: the
+    fast path declines, the reference decodes it."""
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    out = bytearray(enc.header_bytes())
+    for k in range(16):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+    section = bytearray(out)
+    # the first intra frame's rcCommand[0] (signed varint, predictor zero) as 2**33: 5 bytes
+    first = section.index(b"I", len(enc.header_bytes()) - 1)
+    at = first + 1 + len(be.uvb(4096)) + len(be.uvb(5_000_000))
+    old = be.svb(-3)
+    assert section[at : at + len(old)] == old
+    section[at : at + len(old)] = bytes([0x80, 0x80, 0x80, 0x80, 0x20])  # zigzag 2**33: 2**32
+    section = bytes(section)
+    assert bf.decode_log_fast(section) is None
+    decoded = bd.decode_log(section)
+    assert int(decoded.main[0, 2]) == 1 << 32  # the reference keeps a bare residual unwrapped
     assert_same(decoded, bd.decode_log_reference(section))
 
 

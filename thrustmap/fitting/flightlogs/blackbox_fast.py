@@ -620,8 +620,7 @@ def _decode(
         f"after t = {1e-6 * int(last_t[r]):.3f} s"
         for r in checked[dt[checked] >= bd.MAX_TIME_JUMP_US].tolist()
     ]
-    if not bd.in_32bit_range(headers, [names[k] for k in kept], vals):
-        raise _Unsupported("a value needs the 32-bit wrap")
+    _wrap_32bit(vals, kept, idef, pdef, constants, motor0)
 
     main = vals if start is None else np.concatenate((start.main, vals))
     if not complete:
@@ -663,6 +662,61 @@ def _decode(
     )
 
 
+def _wrapped_by_reference(fd: bd.FrameDef, fi: int, constants: dict[str, int], motor0: int) -> bool:
+    """Whether the reference's parser of ``fd`` wraps field ``fi`` to 32 bits in every frame
+    (as :func:`blackbox_decode.compile_frame` writes it): a predicted field, an incremented one,
+    an unsigned varint; not a bare signed residual."""
+    n = len(fd.names)
+    pred = (list(fd.predictor) + [bd.PRED_ZERO] * n)[fi]
+    if pred == bd.PRED_INC:
+        return True
+    if bd._prediction(fi, pred, constants, motor0) != "0":
+        return True
+    enc = (list(fd.encoding) + [bd.ENC_NULL] * n)[fi]
+    return enc == bd.ENC_UNSIGNED_VB
+
+
+def _wrap_32bit(
+    vals: I64,
+    kept: list[int],
+    idef: bd.FrameDef,
+    pdef: bd.FrameDef,
+    constants: dict[str, int],
+    motor0: int,
+) -> None:
+    """The firmware's 32-bit wrap-around of the fields that left their range, in place.
+
+    The reference wraps a field to 32 bits after each prediction. Every prediction but the
+    average of the previous two (previous, straight line, increment, constants, motor[0]) is a
+    sum, and a sum commutes with the reduction modulo 2**32, so a field the reference wraps in
+    both intra and inter frames is wrapped once here, at the end, with the same result; averaged
+    fields were wrapped at every step already (:func:`_main_values`). Betaflight 3.x logs
+    rcCommand[3] below minthrottle, and motors below their low end when disarmed, as unsigned
+    residuals that only the wrap brings back (1025 + (2**32 - 25) -> 1000). A field read bare
+    (no prediction) or the loop iteration out of range: left to the reference."""
+    if not len(vals):
+        return
+    names = idef.names
+    signed = (list(idef.signed) + [0] * len(names))[: len(names)]
+    for c, fi in enumerate(kept):
+        if fi == 1:  # time: its rollovers are checked as the reference does (step 4)
+            continue
+        col = vals[:, c]
+        lo, hi = (-(1 << 31), (1 << 31) - 1) if signed[fi] else (0, (1 << 32) - 1)
+        if int(col.min()) >= lo and int(col.max()) <= hi:
+            continue
+        if (
+            fi == 0
+            or not _wrapped_by_reference(idef, fi, constants, motor0)
+            or not _wrapped_by_reference(pdef, fi, constants, motor0)
+        ):
+            raise _Unsupported("a value needs the 32-bit wrap")
+        if signed[fi]:
+            vals[:, c] = ((col + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+        else:
+            vals[:, c] = col & 0xFFFFFFFF
+
+
 def _main_values(
     buf: npt.NDArray[np.uint8],
     starts: I64,
@@ -696,6 +750,17 @@ def _main_values(
         c = _constant(ppred[fi], constants)
         if c:
             pres[:, col[fi]] += c
+    signed = (list(idef.signed) + [0] * len(idef.names))[: len(idef.names)]
+    for fi in kept:  # the 32-bit wrap of intra frames (see _wrap_32bit), but iteration and time
+        if fi < 2:
+            continue
+        c = col[fi]
+        lo, hi = (-(1 << 31), (1 << 31) - 1) if signed[fi] else (0, (1 << 32) - 1)
+        if len(ires) and (int(ires[:, c].min()) < lo or int(ires[:, c].max()) > hi):
+            if not _wrapped_by_reference(idef, fi, constants, motor0):
+                raise _Unsupported("a value needs the 32-bit wrap")
+            off = 1 << 31 if signed[fi] else 0
+            ires[:, c] = ((ires[:, c] + off) & 0xFFFFFFFF) - off
     vals[i_rows] = ires
     vals[p_rows] = pres
     seg_len = np.diff(np.append(i_rows, len(main_at)))
@@ -707,6 +772,9 @@ def _main_values(
 
     prev_c, line_c = cols(bd.PRED_PREVIOUS), cols(bd.PRED_STRAIGHT_LINE)
     avg_c, inc_c, mot_c = cols(bd.PRED_AVERAGE_2), cols(bd.PRED_INC), cols(bd.PRED_MOTOR_0)
+    # an average of the previous two does not commute with the 32-bit wrap as sums do: those
+    # fields are wrapped at every step, as the reference wraps them (intra frames above)
+    avg_off = np.array([1 << 31 if signed[kept[c]] else 0 for c in avg_c], dtype=np.int64)
 
     def predict(cur: I64, prev: I64, prev2: I64) -> None:
         """Add their predictions to inter frames ``cur`` (residuals) in place."""
@@ -716,7 +784,8 @@ def _main_values(
             cur[:, line_c] += 2 * prev[:, line_c] - prev2[:, line_c]
         if avg_c:
             a = prev[:, avg_c] + prev2[:, avg_c]
-            cur[:, avg_c] += (a + (a < 0)) >> 1
+            w = cur[:, avg_c] + ((a + (a < 0)) >> 1) + avg_off
+            cur[:, avg_c] = (w & 0xFFFFFFFF) - avg_off
         if inc_c:
             last_iter = prev[:, 0]
             cur[:, inc_c] += (last_iter + skip[last_iter % i_interval] + 1)[:, None]
