@@ -391,7 +391,7 @@ def _wrap_32bit(
     average of the previous two (previous, straight line, increment, constants, motor[0]) is a
     sum, and a sum commutes with the reduction modulo 2**32, so a field the reference wraps in
     both intra and inter frames is wrapped once here, at the end, with the same result; averaged
-    fields were wrapped at every step already (:func:`_main_values`). Betaflight 3.x logs
+    fields were wrapped at every step already when they needed it (:func:`_main_values`). Betaflight 3.x logs
     rcCommand[3] below minthrottle, and motors below their low end when disarmed, as unsigned
     residuals that only the wrap brings back (1025 + (2**32 - 25) -> 1000). A field read bare
     (no prediction) or the loop iteration out of range: left to the reference."""
@@ -406,8 +406,10 @@ def _wrap_32bit(
         lo, hi = (-(1 << 31), (1 << 31) - 1) if signed[fi] else (0, (1 << 32) - 1)
         if int(col.min()) >= lo and int(col.max()) <= hi:
             continue
+        ppred = (list(pdef.predictor) + [fmt.PRED_ZERO] * len(names))[fi]
         if (
             fi == 0
+            or ppred == fmt.PRED_AVERAGE_2  # in range when wrapped at every step: it was not
             or not _wrapped_by_reference(idef, fi, constants, motor0)
             or not _wrapped_by_reference(pdef, fi, constants, motor0)
         ):
@@ -452,6 +454,7 @@ def _main_values(
         if c:
             pres[:, col[fi]] += c
     signed = (list(idef.signed) + [0] * len(idef.names))[: len(idef.names)]
+    wrapped_intra: set[int] = set()
     for fi in kept:  # the 32-bit wrap of intra frames (see _wrap_32bit), but iteration and time
         if fi < 2:
             continue
@@ -462,6 +465,7 @@ def _main_values(
                 raise Unsupported("a value needs the 32-bit wrap")
             off = 1 << 31 if signed[fi] else 0
             ires[:, c] = ((ires[:, c] + off) & 0xFFFFFFFF) - off
+            wrapped_intra.add(fi)
     vals[i_rows] = ires
     vals[p_rows] = pres
     seg_len = np.diff(np.append(i_rows, len(main_at)))
@@ -473,8 +477,10 @@ def _main_values(
 
     prev_c, line_c = cols(fmt.PRED_PREVIOUS), cols(fmt.PRED_STRAIGHT_LINE)
     avg_c, inc_c, mot_c = cols(fmt.PRED_AVERAGE_2), cols(fmt.PRED_INC), cols(fmt.PRED_MOTOR_0)
-    # an average of the previous two does not commute with the 32-bit wrap as sums do: those
-    # fields are wrapped at every step, as the reference wraps them (intra frames above)
+    # an average of the previous two does not commute with the 32-bit wrap as sums do: when an
+    # intra frame needed the wrap (above), those fields are wrapped at every step as the reference
+    # wraps them; otherwise they must stay in range (_wrap_32bit checks) and need no wrap
+    avg_wrap = any(kept[c] in wrapped_intra for c in avg_c)
     avg_off = np.array([1 << 31 if signed[kept[c]] else 0 for c in avg_c], dtype=np.int64)
 
     def predict(cur: I64, prev: I64, prev2: I64) -> None:
@@ -485,8 +491,11 @@ def _main_values(
             cur[:, line_c] += 2 * prev[:, line_c] - prev2[:, line_c]
         if avg_c:
             a = prev[:, avg_c] + prev2[:, avg_c]
-            w = cur[:, avg_c] + ((a + (a < 0)) >> 1) + avg_off
-            cur[:, avg_c] = (w & 0xFFFFFFFF) - avg_off
+            if avg_wrap:
+                w = cur[:, avg_c] + ((a + (a < 0)) >> 1) + avg_off
+                cur[:, avg_c] = (w & 0xFFFFFFFF) - avg_off
+            else:
+                cur[:, avg_c] += (a + (a < 0)) >> 1
         if inc_c:
             last_iter = prev[:, 0]
             cur[:, inc_c] += (last_iter + skip[last_iter % i_interval] + 1)[:, None]
