@@ -226,14 +226,14 @@ def test_a_bare_residual_out_of_range_goes_to_the_reference() -> None:
     for k in range(16):
         values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
         out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
-    section = bytearray(out)
+    damaged = bytearray(out)
     # the first intra frame's rcCommand[0] (signed varint, predictor zero) as 2**33: 5 bytes
-    first = section.index(b"I", len(enc.header_bytes()) - 1)
+    first = damaged.index(b"I", len(enc.header_bytes()) - 1)
     at = first + 1 + len(be.uvb(4096)) + len(be.uvb(5_000_000))
     old = be.svb(-3)
-    assert section[at : at + len(old)] == old
-    section[at : at + len(old)] = bytes([0x80, 0x80, 0x80, 0x80, 0x20])  # zigzag 2**33: 2**32
-    section = bytes(section)
+    assert damaged[at : at + len(old)] == old
+    damaged[at : at + len(old)] = bytes([0x80, 0x80, 0x80, 0x80, 0x20])  # zigzag 2**33: 2**32
+    section = bytes(damaged)
     assert bf.decode_log_fast(section) is None
     decoded = bd.decode_log(section)
     assert int(decoded.main[0, 2]) == 1 << 32  # the reference keeps a bare residual unwrapped
@@ -472,3 +472,19 @@ def test_bulk_decoding_resumes_after_a_corrupt_stretch(monkeypatch: pytest.Monke
         assert_same(decoded, bd.decode_log_reference(damaged, keep_field=keep))
         assert decoded.stats["corrupt"] + decoded.stats["skipped_bytes"] > 0
         assert any("corrupt frame(s)" in w for w in decoded.warnings)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(min_size=0, max_size=40), st.integers(2, 12))
+def test_a_run_of_varints_frames_as_one_varint_at_a_time(data: bytes, count: int) -> None:
+    """The framing expression's run of varints (all one byte at once, else one at a time)
+    matches exactly what ``count`` varints read one at a time match, on any bytes."""
+    import re
+
+    from thrustmap.fitting.flightlogs import blackbox_framing as framing
+
+    run = re.compile(framing._varint_run(count), re.DOTALL)
+    one_by_one = re.compile(framing._VB * count, re.DOTALL)
+    for start in range(len(data) + 1):
+        got, want = run.match(data, start), one_by_one.match(data, start)
+        assert (got and got.end()) == (want and want.end())
