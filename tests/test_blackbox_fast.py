@@ -488,3 +488,12 @@ def test_a_run_of_varints_frames_as_one_varint_at_a_time(data: bytes, count: int
     for start in range(len(data) + 1):
         got, want = run.match(data, start), one_by_one.match(data, start)
         assert (got and got.end()) == (want and want.end())
+
+
+def test_bytes_after_the_log_end_event_are_not_decoded() -> None:
+    """A log whose frames end with the log-end event and then hold stray bytes (junk the frames
+    do not tile): decoded in bulk up to the event, as the reference decodes it."""
+    section = be.simulate_hover_log(2.0)
+    assert section.endswith(b"E\xff" + bd.END_OF_LOG_TEXT)
+    for tail in (b"\x01\x02\x03", b"P\x00", b"\xff" * 7 + b"\x00"):
+        compare_fast(section + tail)

@@ -199,13 +199,13 @@ def _decode(
 
     # 1. framing: the frames must tile the data up to the end (or the log-end event), or a
     #    first stretch of it that the reference decoder carries on from
-    frames, complete, ended = framing(pattern, section, pos)
+    frames, lengths, complete, ended = framing(pattern, section, pos)
     if max_frames is not None and max_frames < len(frames):
         frames, complete, ended = frames[:max_frames], False, False
+        lengths = lengths[:max_frames]
     if not complete and len(frames) < MIN_PREFIX_FRAMES:
         raise Unsupported("frames do not tile the data")
     n = len(section)
-    lengths = np.fromiter(map(len, frames), dtype=np.int64, count=len(frames))
     if len(frames) and int(lengths.max()) - 1 > fmt.MAX_FRAME_BYTES:
         raise Unsupported("over-long frame")
     ends = pos + np.cumsum(lengths)

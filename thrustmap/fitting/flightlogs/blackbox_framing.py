@@ -13,6 +13,7 @@ import re
 import sys
 
 import numpy as np
+import numpy.typing as npt
 
 from thrustmap.fitting.flightlogs import blackbox_format as fmt
 from thrustmap.fitting.flightlogs import blackbox_frames as bfr
@@ -156,27 +157,36 @@ def frames_pattern(
     return re.compile(b"|".join(alts), re.DOTALL)
 
 
-def framing(pattern: re.Pattern[bytes], section: bytes, pos: int) -> tuple[list[bytes], bool, bool]:
-    """The frames from ``pos`` on, whether they tile the whole log (to its end or its log-end
-    event), and whether it ended with that event. When they do not, only the frames that tile
-    the data up to the first byte no frame covers are returned, less the last of them (the
-    reference checks a frame by what follows it, so it takes over one frame early)."""
+def framing(
+    pattern: re.Pattern[bytes], section: bytes, pos: int
+) -> tuple[list[bytes], npt.NDArray[np.int64], bool, bool]:
+    """The frames from ``pos`` on, their lengths, whether they tile the whole log (to its end or
+    its log-end event), and whether it ended with that event. When they do not, only the frames
+    that tile the data up to the first byte no frame covers are returned, less the last of them
+    (the reference checks a frame by what follows it, so it takes over one frame early)."""
     n = len(section)
     # erased flash (0xFF) after a log cut off by a power loss: no frame there to look for
     data_end = len(section.rstrip(b"\xff")) if section.endswith(b"\xff\xff") else n
     frames: list[bytes] = pattern.findall(section, pos, data_end)
-    end_marker = b"E\xff" + fmt.END_OF_LOG_TEXT
-    ended = False
-    if end_marker in frames:
-        frames = frames[: frames.index(end_marker) + 1]
-        ended = True
+    lengths = np.fromiter(map(len, frames), dtype=np.int64, count=len(frames))
+    # the matches are disjoint and lie in [pos, data_end): when their lengths add up to all of
+    # it, they tile it (the usual case, checked without joining them back together)
+    gapless = pos + int(lengths.sum()) == data_end
+    try:
+        last = frames.index(b"E\xff" + fmt.END_OF_LOG_TEXT)
+    except ValueError:
+        last = -1
+    ended = last >= 0
+    if ended:
+        frames, lengths = frames[: last + 1], lengths[: last + 1]
+    if gapless and (ended or data_end == n):
+        return frames, lengths, True, ended
     joined = b"".join(frames)
     if section.startswith(joined, pos) and (ended or pos + len(joined) == n):
-        return frames, True, ended
+        return frames, lengths, True, ended
     a = np.frombuffer(joined, dtype=np.uint8)
     b = np.frombuffer(section, dtype=np.uint8)[pos : pos + len(a)]
     differ = np.flatnonzero(a[: len(b)] != b)
     first_bad = int(differ[0]) if len(differ) else len(b)
-    ends = np.cumsum(np.fromiter(map(len, frames), dtype=np.int64, count=len(frames)))
-    count = int(np.searchsorted(ends, first_bad, side="right")) - 1
-    return frames[: max(count, 0)], False, False
+    count = max(int(np.searchsorted(np.cumsum(lengths), first_bad, side="right")) - 1, 0)
+    return frames[:count], lengths[:count], False, False
