@@ -483,11 +483,12 @@ def _main_values(
     avg_wrap = any(kept[c] in wrapped_intra for c in avg_c)
     avg_off = np.array([1 << 31 if signed[kept[c]] else 0 for c in avg_c], dtype=np.int64)
 
-    def predict(cur: I64, prev: I64, prev2: I64) -> None:
-        """Add their predictions to inter frames ``cur`` (residuals) in place."""
-        if prev_c:
+    def predict(cur: I64, prev: I64, prev2: I64, sums: bool = True) -> None:
+        """Add their predictions to inter frames ``cur`` (residuals) in place (``sums``: the
+        previous-frame and straight-line ones too)."""
+        if prev_c and sums:
             cur[:, prev_c] += prev[:, prev_c]
-        if line_c:
+        if line_c and sums:
             cur[:, line_c] += 2 * prev[:, line_c] - prev2[:, line_c]
         if avg_c:
             a = prev[:, avg_c] + prev2[:, avg_c]
@@ -502,17 +503,37 @@ def _main_values(
         if mot_c:
             cur[:, mot_c] += cur[:, [col[motor0]]]
 
-    # all segments' step-th inter frame at once (after an intra frame, prev2 is prev)
+    def predict_grid(g: I64) -> None:
+        """Every inter frame of segments laid out as ``g[segment, step, column]`` (step 0: the
+        intra frame; after it, prev2 is prev). A previous-frame prediction is a running sum
+        along the segment, a straight line a running sum of running sums (its step from the
+        previous frame is a running sum): both at once; the others a step at a time."""
+        if prev_c:
+            g[:, :, prev_c] = np.cumsum(g[:, :, prev_c], axis=1)
+        if line_c and g.shape[1] > 1:
+            step_sizes = np.cumsum(g[:, 1:, line_c], axis=1)
+            g[:, 1:, line_c] = np.cumsum(step_sizes, axis=1) + g[:, :1, line_c]
+        if avg_c or inc_c or mot_c:
+            for step in range(1, g.shape[1]):
+                prev2 = g[:, step - 1 if step == 1 else step - 2]
+                predict(g[:, step], g[:, step - 1], prev2, sums=False)
+
     longest = int(seg_len.max())
+    width = vals.shape[1]
+    if (seg_len[:-1] == longest).all():
+        # every segment but the last of one length, as in real logs: the frames are already a
+        # grid (segment, step) in place, each step a view
+        full = (len(i_rows) - 1) * longest
+        if full:
+            predict_grid(vals[:full].reshape(len(i_rows) - 1, longest, width))
+        predict_grid(vals[full:].reshape(1, len(vals) - full, width))
+        return
     if len(i_rows) * longest <= 2 * len(vals) + 4096:
-        # segments (nearly) all of one length, as in real logs: laid out on a grid (segment,
-        # step) each step is a view, not a gather; the padding rows are never read back
+        # segments of nearly one length: laid out on a grid with padding rows, never read back
         at = np.repeat(np.arange(len(i_rows)) * longest - i_rows, seg_len) + np.arange(len(vals))
-        grid = np.zeros((len(i_rows) * longest, vals.shape[1]), dtype=np.int64)
+        grid = np.zeros((len(i_rows) * longest, width), dtype=np.int64)
         grid[at] = vals
-        g = grid.reshape(len(i_rows), longest, vals.shape[1])
-        for step in range(1, longest):
-            predict(g[:, step], g[:, step - 1], g[:, step - 1 if step == 1 else step - 2])
+        predict_grid(grid.reshape(len(i_rows), longest, width))
         vals[:] = grid[at]
         return
     for step in range(1, longest):
