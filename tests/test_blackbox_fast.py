@@ -497,3 +497,19 @@ def test_bytes_after_the_log_end_event_are_not_decoded() -> None:
     assert section.endswith(b"E\xff" + bd.END_OF_LOG_TEXT)
     for tail in (b"\x01\x02\x03", b"P\x00", b"\xff" * 7 + b"\x00"):
         compare_fast(section + tail)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sets(st.integers(0, 255), min_size=1))
+def test_a_byte_class_matches_exactly_its_bytes(values: set[int]) -> None:
+    """The framing expression's byte classes hold the bytes themselves (escaped where the class
+    syntax needs it): each matches exactly the bytes it was built from, without a warning."""
+    import re
+    import warnings
+
+    from thrustmap.fitting.flightlogs import blackbox_framing as framing
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cls = re.compile(framing._byte_class(sorted(values)), re.DOTALL)
+    assert {v for v in range(256) if cls.fullmatch(bytes([v]))} == values
