@@ -513,3 +513,23 @@ def test_a_byte_class_matches_exactly_its_bytes(values: set[int]) -> None:
         warnings.simplefilter("error")
         cls = re.compile(framing._byte_class(sorted(values)), re.DOTALL)
     assert {v for v in range(256) if cls.fullmatch(bytes([v]))} == values
+
+
+def test_a_tagged_group_of_unused_fields_with_none_set_is_skipped() -> None:
+    """INAV 8 logs rcCommand[0..2] (fields a flight log does not use) as a TAG8_8SVB group; a
+    frame where none of them changed has a header byte of 0 and no varint after it. The
+    per-frame decoder skipping the unused group read it as "no varints" (it raised on such a
+    real INAV log before); both decoders agree, with and without the unused fields."""
+    p_encoding = [*be.SIM_P_ENCODING]
+    p_encoding[2:6] = [bd.ENC_TAG8_8SVB] * 3 + [bd.ENC_SIGNED_VB]
+    enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, p_encoding)
+    out = bytearray(enc.header_bytes())
+    for k in range(40):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        values[2:5] = [0, 0, 0] if k < 20 else [k % 3, 0, -1]
+        out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
+    section = bytes(out)
+    compare_fast(section)
+    for keep in (None, used_field):
+        ref = bd.decode_log_reference(section, keep_field=keep)
+        assert ref.stats["corrupt"] == 0 and len(ref.main) == 40

@@ -78,6 +78,8 @@ _TAG8_4S16_V2_LEN = [
 
 def _skip_vb(d: bytes, p: int, count: int) -> int:
     """Past ``count`` variable-byte integers (their values are not needed)."""
+    if count <= 0:  # a tagged group whose header flags no field
+        return p
     chunk = d[p : p + count]
     if len(chunk) == count and max(chunk) < 0x80:  # the usual case: one byte each
         return p + count
