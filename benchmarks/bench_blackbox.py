@@ -44,6 +44,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # describe() decodes with this tree's thrustmap, as the runs do
 SHARED_BETAFLIGHT = ROOT.parent / "shared/data/flightlogs/betaflight"
 SUFFIXES = (".bbl", ".bfl", ".txt")
 
