@@ -153,7 +153,11 @@ def bench_file(
     path: Path, repeat: int, ob_cmd: list[str] | None, ob_env: dict[str, str], floor_s: float
 ) -> None:
     mb = path.stat().st_size / 1e6
-    print(f"{path.name}: {mb:.2f} MB, {describe(path)}")
+    try:
+        what = describe(path)
+    except Exception as exc:  # noqa: BLE001 - one odd file must not end the whole run
+        what = f"not described ({type(exc).__name__}: {exc})"
+    print(f"{path.name}: {mb:.2f} MB, {what}")
     with tempfile.TemporaryDirectory() as tmp:
         ours = [sys.executable, "-m", "thrustmap", "flightlog", "extract", str(path),
                 "--mass-kg", "1.0", "-o", str(Path(tmp) / "df.csv")]  # fmt: skip
