@@ -381,3 +381,18 @@ def test_used_fields_decode_matches_on_damaged_logs(seed: int) -> None:
         idx = [full.main_fields.index(n) for n in part.main_fields]
         assert np.array_equal(full.main[:, idx], part.main)
         assert part.stats == full.stats and part.warnings == full.warnings
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 10, 1001])
+def test_median_is_the_nan_median(n: int) -> None:
+    """blackbox.median (by partition) gives series.nanmedian's value (by sort), NaN and
+    infinities ignored."""
+    from thrustmap.fitting.flightlogs.blackbox import median
+    from thrustmap.fitting.flightlogs.series import nanmedian
+
+    rng = np.random.default_rng(n)
+    x = np.round(rng.normal(1640.0, 30.0, n), 1)
+    x[rng.random(n) < 0.1] = np.nan
+    x[rng.random(n) < 0.05] = np.inf
+    want, got = nanmedian(x), median(x)
+    assert (np.isnan(want) and np.isnan(got)) or got == want

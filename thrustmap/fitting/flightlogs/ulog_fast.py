@@ -31,6 +31,7 @@ _STRUCT = {
     "uint32_t": "I", "int64_t": "q", "uint64_t": "Q", "float": "f", "double": "d", "bool": "?",
 }  # fmt: skip
 _KNOWN = frozenset(b"BFIMPQARDLCSO")
+_KNOWN_TYPES = np.frombuffer(bytes(sorted(_KNOWN)), dtype=np.uint8)
 _DEFINITION_END = frozenset(b"ALC")
 
 
@@ -127,21 +128,23 @@ def parse(raw: bytes, topics: list[str]) -> FastULog | None:
     append = starts.append
     pos = 16
     problem = None
-    known = _KNOWN
-    while pos + 3 <= n:
-        size = raw[pos] | (raw[pos + 1] << 8)
-        if raw[pos + 2] not in known:
-            return None  # corruption: pyulog resynchronises, the walk reports it
-        if pos + 3 + size > n:
+    last = n - 3
+    while pos <= last:  # the one Python loop: message sizes only (types checked below at once)
+        after = pos + 3 + (raw[pos] | (raw[pos + 1] << 8))
+        if after > n:
+            if raw[pos + 2] not in _KNOWN:
+                return None  # corruption: pyulog resynchronises, the walk reports it
             problem = f"corrupt tail: last message truncated at byte {n}; ignored"
             break
         append(pos)
-        pos += 3 + size
+        pos = after
     if pos < n and problem is None:
         problem = f"corrupt tail: {n - pos} stray bytes at the end; ignored"
     buf = np.frombuffer(raw, dtype=np.uint8)
     at = np.asarray(starts, dtype=np.int64)
     kinds = buf[at + 2] if len(at) else np.zeros(0, np.uint8)
+    if not np.isin(kinds, _KNOWN_TYPES).all():
+        return None  # corruption: pyulog resynchronises, the walk reports it
     sizes = (buf[at].astype(np.int64) | (buf[at + 1].astype(np.int64) << 8)) if len(at) else at
     out = FastULog(start_ts, start_ts, problem=problem)
     formats: dict[str, list[tuple[str, int, str]]] = {}
