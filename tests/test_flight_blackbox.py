@@ -340,7 +340,8 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
     code = (
         "import sys\n"
         "from thrustmap.cli import main\n"
-        "rc = main(['flightlog', 'extract', sys.argv[1], '--mass-kg', '1', '-o', sys.argv[2]])\n"
+        "rc = main(['flightlog', 'extract', sys.argv[1], '--mass-kg', '1', '--settle-s', '1',\n"
+        "           '-o', sys.argv[2]])\n"
         "bad = [m for m in ('pandas', 'numpy.ma', 'thrustmap.fitting.mapfile') if m in sys.modules]\n"
         "print('HEAVY', bad)\n"
     )
@@ -356,7 +357,8 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
         from thrustmap.fitting.df import DfOptions, extract
         from thrustmap.fitting.flightlogs.detect import read_log
 
-        df = extract(read_log(FIXTURES / name), DfOptions(mass_kg=1.0))
+        # settle 1 s: the blackbox fixture's logs (4 s, 3 s) are otherwise too short to be used
+        df = extract(read_log(FIXTURES / name), DfOptions(mass_kg=1.0, settle_s=1.0))
         assert out.read_text() == df.table.to_csv(index=False, float_format="%.6g")
         assert isinstance(df.table, pd.DataFrame) and len(df.table) == len(df)
         assert len(df) > 50 or name.endswith(".bbl")  # the blackbox fixture is too short

@@ -225,14 +225,24 @@ def extract_cmd(
         from thrustmap.fitting.mapfile import ThrustMap
 
         tmap = ThrustMap.load(map_path)
+    from thrustmap.fitting.df.extraction import NoUsableLog, refusal_lines
+
     flights: list[FlightLog] = []
     for path in logs:
         flights.extend(read_log(path, format=fmt))
-    df = extract(flights, opts, tmap)
+    try:
+        df = extract(flights, opts, tmap)
+    except NoUsableLog as exc:  # one line per refused log, then the error line (exit 2)
+        for line in refusal_lines(exc.refused):
+            echo(f"refused: {line}", err=True)
+        raise
     if tmap is not None:
         _check_hover(df.sources, tmap, force)
     df.sources["logs"] = [{"path": str(p), "sha256": _sha256(p)} for p in logs if p.is_file()]
     side = write_df(df, output)
+    refused = df.sources.get("refused", [])
+    for line in refusal_lines(refused):  # the logs of a flash dump that could not be used
+        echo(f"warning: {line}", err=True)
     for r in df.reports:
         if r.voltage_unknown is not None:
             echo(f"warning: {r.flight}: {r.voltage_unknown}", err=True)
@@ -242,8 +252,10 @@ def extract_cmd(
             "empty Df: " + "; ".join(_summary(r) for r in df.reports),
             err=True,
         )
-    if as_json:
-        click.echo(json.dumps([r.to_dict() for r in df.reports], indent=2))
+    if as_json:  # the flights used (status "used") and the logs refused (status "refused")
+        out = [{**r.to_dict(), "status": "used"} for r in df.reports]
+        out += [{**ref, "status": "refused"} for ref in refused]
+        click.echo(json.dumps(out, indent=2))
         return
     for r in df.reports:
         if len(df):  # an empty Df's summaries are in the warning above: said once
@@ -253,6 +265,8 @@ def extract_cmd(
             if w != r.voltage_unknown and not (not len(df) and w.startswith("only 0 samples")):
                 echo(f"  warning: {w}")
     replaced = [str(x.path) for x in (plan, side_plan) if x.replaced]
+    if refused:
+        echo(f"used {len(df.reports)} log(s), refused {len(refused)} (listed in {side})")
     echo(
         f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")

@@ -285,6 +285,7 @@ def _extract(task: LogTask, out: Outcome) -> None:
     import numpy as np
 
     from thrustmap.fitting.df import MIN_DF_SAMPLES, DfOptions, extract, write_df
+    from thrustmap.fitting.df.extraction import refusal_lines
     from thrustmap.fitting.flightlogs.detect import read_log
     from thrustmap.fitting.mapfile import ThrustMap
 
@@ -293,8 +294,9 @@ def _extract(task: LogTask, out: Outcome) -> None:
     flights = read_log(task.path, format=task.fmt)
     out.format = flights[0].format
     out.flights = len(flights)
-    df = extract(flights, opts, tmap)
+    df = extract(flights, opts, tmap)  # a flash dump's unusable logs: skipped, listed below
     df.sources["logs"] = [{"path": task.path, "sha256": out.sha256}]
+    out.warnings.extend(refusal_lines(df.sources.get("refused", [])))
     rel = Path("df") / f"{stem_for(out.sha256, task.options_key)}.csv"
     write_df(df, Path(task.out_dir) / rel)
     out.df_path = rel.as_posix()

@@ -82,6 +82,9 @@ def extract_flight_columns(
     flight = select_motors(flight, opts.rotors)
     fid = _flight_id(flight)
     if flight.accel_up_mps2 is None or not len(flight.accel_up_mps2):
+        off = [w for w in flight.warnings if w.startswith("no accelerometer data")]
+        if off:  # the reader saw an accelerometer that reads exactly zero: say that
+            raise DataFormatError(f"{off[0]}: a Df needs it for F_m", file=flight.path)
         why = [w for w in flight.warnings if "acceler" in w or "IMU" in w]
         raise DataFormatError(
             "flight log has no upward acceleration: a Df needs it for F_m"
@@ -396,14 +399,69 @@ def extract_flight_columns(
     return table, meta, report
 
 
+#: the reason the blackbox reader gives for a log with no data frames (blackbox.EMPTY_LOG)
+EMPTY_LOG = "empty (no data frames)"
+
+
+def _too_short(flight: FlightLog, opts: DfOptions) -> str | None:
+    """Why one log of a multi-log file is too short to give a Df sample (None when it is not):
+    the settle rule trims settle_s from both ends of every airborne run."""
+    acc = flight.accel_up_mps2
+    if acc is None or len(acc) < 2:
+        return None  # extract_flight_columns names what is missing
+    span_s = float(acc.time_s[-1] - acc.time_s[0])
+    if span_s > 2.0 * opts.settle_s:
+        return None
+    return (
+        f"too short: {span_s:.1f} s of data, a Df sample needs more than 2 × settle "
+        f"({2.0 * opts.settle_s:g} s)"
+    )
+
+
+def _refusal(flight: FlightLog, why: str) -> dict[str, Any]:
+    """One unusable log of a multi-log file, numbered as Betaflight's viewer numbers them."""
+    return {
+        "flight": _flight_id(flight),
+        "path": flight.path,
+        "log": flight.index + 1,
+        "logs_in_file": int(flight.metadata.get("logs_in_file", 1)),
+        "reason": why,
+    }
+
+
 def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = None) -> Df:
-    """Df from every flight; each keeps its own id in the ``flight`` column."""
+    """Df from every flight; each keeps its own id in the ``flight`` column.
+
+    A flight from a file holding several logs (a flash dump) that cannot be used (no or an
+    unphysical accelerometer, too short, anything else the rules refuse) is skipped and listed
+    in the sidecar's ``refused`` (with the logs the reader could not decode); the others are
+    extracted. Only when no log at all is left is the extraction refused, naming each log.
+    A single-log file's refusal is raised as it is."""
     tables: list[Columns] = []
     reports = []
     sources: dict[str, Any] = {}
     per_flight: dict[str, Any] = {}
+    refused: list[dict[str, Any]] = []
+    seen_paths: set[str] = set()
     for fl in flights:
-        table, meta, report = extract_flight_columns(fl, opts, tmap)
+        if fl.path not in seen_paths:
+            seen_paths.add(fl.path)
+            for r in fl.metadata.get("logs_refused_by_reader", []):
+                refused.append({"flight": f"{Path(fl.path).name}#{int(r['log']) - 1}",
+                                "path": fl.path, **r})  # fmt: skip
+        multi = int(fl.metadata.get("logs_in_file", 1)) > 1
+        try:
+            short = _too_short(fl, opts) if multi else None
+            if short is not None:
+                raise DataFormatError(short, file=fl.path)
+            table, meta, report = extract_flight_columns(fl, opts, tmap)
+        except DataFormatError as exc:
+            if not multi:
+                raise
+            refused.append(
+                _refusal(fl, (f"column '{exc.column}': " if exc.column else "") + exc.message)
+            )
+            continue
         tables.append(table)
         reports.append(report)
         per_flight[report.flight] = meta
@@ -419,4 +477,59 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
         "reports": [r.to_dict() for r in reports],
     }
+    if refused:
+        refused.sort(key=lambda r: (str(r["path"]), int(r["log"])))
+        side["refused"] = refused
+    if not reports:
+        raise NoUsableLog(refused)
     return Df(None, side, reports, columns=concat_columns(tables))
+
+
+class NoUsableLog(DataFormatError):
+    """Every log of the input was refused: ``refused`` says which and why (one line each)."""
+
+    def __init__(self, refused: list[dict[str, Any]]) -> None:
+        paths = sorted({str(r["path"]) for r in refused})
+        lines = [ln.split(": ", 1)[1] if len(paths) == 1 else ln for ln in refusal_lines(refused)]
+        super().__init__(
+            f"none of its {len(refused)} log(s) could be used: "
+            + "; ".join(lines[:3])
+            + (f"; ... ({len(lines) - 3} more lines)" if len(lines) > 3 else ""),
+            file=", ".join(paths),
+        )
+        self.refused = refused
+
+
+def refusal_lines(refused: list[dict[str, Any]]) -> list[str]:
+    """One line per refused log, except that a file's empty logs (flash chips hold dozens)
+    share one line naming their numbers."""
+    lines: list[str] = []
+    empty: dict[str, list[dict[str, Any]]] = {}
+    for r in refused:
+        if r["reason"] == EMPTY_LOG:
+            empty.setdefault(str(r["path"]), []).append(r)
+        else:
+            lines.append(refusal_line(r))
+    for path, rs in empty.items():
+        if len(rs) == 1:
+            lines.append(refusal_line(rs[0]))
+            continue
+        nums = _ranges([int(r["log"]) for r in rs])
+        lines.append(f"{path}: logs {nums} of {rs[0]['logs_in_file']} skipped: {EMPTY_LOG}")
+    return lines
+
+
+def _ranges(nums: list[int]) -> str:
+    """1, 2, 3, 5 -> "1-3, 5"."""
+    out: list[str] = []
+    for n in sorted(nums):
+        if out and n == int(out[-1].split("-")[-1]) + 1:
+            out[-1] = out[-1].split("-")[0] + f"-{n}"
+        else:
+            out.append(str(n))
+    return ", ".join(out)
+
+
+def refusal_line(r: dict[str, Any]) -> str:
+    """One refused log in one line: its file, its number (1-based, as the viewer's) and why."""
+    return f"{r['path']}: log {r['log']} of {r['logs_in_file']} skipped: {r['reason']}"

@@ -38,6 +38,8 @@ G0 = 9.80665
 #: Betaflight motor protocols at or above this index are digital (DShot150.., ProShot).
 FIRST_DIGITAL_PROTOCOL = 5
 DSHOT_RANGE = (48.0, 2047.0)
+#: why a log with no data frames is skipped (df.extraction groups these in one line)
+EMPTY_LOG = "empty (no data frames)"
 
 
 @dataclass
@@ -96,34 +98,57 @@ def read(
     notes: list[str] = []
     if ranges[0][0] > 0:
         notes.append(f"{ranges[0][0]} bytes before the first log header ignored")
+    refused: list[dict[str, Any]] = []  # logs of a multi-log file that could not be read
     for i, (a, b) in enumerate(ranges):
         try:
             decoded = bd.decode_log(data[a:b], index=i, offset=a, keep_field=used_field)
         except bd.CorruptFrame as exc:
             notes.append(f"log {i + 1} of {len(ranges)} skipped: {exc}")
+            refused.append(refusal(i, len(ranges), f"corrupt: {exc}"))
             continue
         if len(decoded.main) == 0:
             notes.append(f"log {i + 1} of {len(ranges)} holds no data frames (empty log), skipped")
+            refused.append(refusal(i, len(ranges), EMPTY_LOG))
             continue
         table = table_from_decoded(decoded)
-        flights.append(to_flightlog(table, str(p), "blackbox", i, acc_1g, vbat_scale_v))
+        try:
+            flights.append(to_flightlog(table, str(p), "blackbox", i, acc_1g, vbat_scale_v))
+        except DataFormatError as exc:
+            if len(ranges) == 1:
+                raise
+            # one log of a flash dump that cannot be normalised: the others are still read
+            why = (f"column '{exc.column}': " if exc.column else "") + exc.message
+            notes.append(f"log {i + 1} of {len(ranges)} skipped: {why}")
+            refused.append(refusal(i, len(ranges), why))
     if not flights:
         detail = "; ".join(notes) or "no frames"
         raise DataFormatError(
             f"blackbox file holds {len(ranges)} log(s) but none with usable data ({detail})",
             file=str(p),
         )
+    # the logs skipped are listed once (metadata, reported by whoever extracts: one line each),
+    # not repeated in the warnings of every flight of a 44-log flash dump
+    skipped = {f"log {r['log']} of {len(ranges)} " for r in refused}
+    general = [n for n in notes if not any(n.startswith(k) for k in skipped)]
     for fl in flights:
-        fl.warnings[:0] = notes
+        fl.warnings[:0] = general
         fl.metadata["logs_in_file"] = len(ranges)
-    for note in notes:  # carried in each flight's warnings and shown once by whoever reports it
+        fl.metadata["logs_refused_by_reader"] = refused
+    for note in notes:
         log.debug("%s: %s", p, note)
     return flights
 
 
-#: the main-frame fields a flight log is built from (to_flightlog); the decoder skips the rest
+def refusal(index: int, logs: int, why: str) -> dict[str, Any]:
+    """One unusable log of a multi-log file: its number as Betaflight's viewer and
+    blackbox_decode count them (1-based over every log start in the file), and why."""
+    return {"log": index + 1, "logs_in_file": logs, "reason": why}
+
+
+#: the main-frame fields a flight log is built from (to_flightlog); the decoder skips the rest.
+#: INAV names the battery fields ``vbat`` and ``amperage`` (its blackbox.c blackboxMainFields).
 USED_FIELDS = re.compile(
-    r"vbatLatest|amperageLatest|accSmooth\[[012]\]|motor\[\d+\]|rcCommand\[3\]"
+    r"vbatLatest|amperageLatest|vbat|amperage|accSmooth\[[012]\]|motor\[\d+\]|rcCommand\[3\]"
 )
 
 
@@ -268,6 +293,8 @@ def motor_scale(
     if lo < 0 or hi <= lo:
         lo = bd.header_int(headers, "minthrottle", -1)
         hi = bd.header_int(headers, "maxthrottle", -1)
+    if firmware_version(headers)[0] == "INAV":
+        return inav_motor_scale(headers, lo, hi, protocol, warnings)
     digital = protocol >= FIRST_DIGITAL_PROTOCOL
     if protocol < 0:  # no headers: guess from the values
         digital = bool(len(motors)) and float(np.nanmin(motors)) < 900.0
@@ -299,6 +326,64 @@ def motor_scale(
         "is the armed idle (minthrottle)"
     )
     return scale, float(lo), src
+
+
+#: INAV's default ``min_command`` (µs), the motor value it sends when stopped: used when the
+#: log's headers do not carry ``mincommand`` (INAV 8 writes no such header).
+INAV_MINCOMMAND_DEFAULT = 1000
+
+
+def inav_motor_scale(
+    headers: dict[str, str], lo: int, hi: int, protocol: int, warnings: list[str]
+) -> tuple[ThrottleScale, float, str]:
+    """INAV logs motor[] as its mixer computes them (blackbox.c loadMainState: motor[i]), in
+    µs-equivalent mincommand..maxthrottle whatever the protocol; for DShot, flight/mixer.c
+    writeMotors scales mincommand..maxthrottle onto DShot 48..2047 when it sends them. So 0 %
+    is mincommand and 100 % maxthrottle; the ``motorOutput`` low end is the armed idle
+    (getThrottleIdleValue). Betaflight's DShot range never applies to these values."""
+    zero = bd.header_int(headers, "mincommand", -1)
+    zero_src = "mincommand"
+    if not 0 < zero < hi:
+        zero, zero_src = INAV_MINCOMMAND_DEFAULT, "INAV's default min_command (not in the headers)"
+    if lo < 0 or hi <= lo:
+        lo, hi = 1100, 2000
+        warnings.append(f"motorOutput range unknown; assumed INAV's {lo}..{hi}")
+    scale = ThrottleScale("pwm", float(zero), float(hi), "us")
+    proto = f"motor_pwm_protocol {protocol}" if protocol >= 0 else "protocol not in the headers"
+    src = (
+        f"INAV: motor[] in µs-equivalent {zero}..{hi} ({zero_src} .. motorOutput high end, "
+        f"maxthrottle) whatever the protocol ({proto}: INAV's mixer scales these onto DShot "
+        f"48..2047 itself); motorOutput low end {lo} is the armed idle"
+    )
+    return scale, float(lo), src
+
+
+def inav_vbat_scale(raw: FloatArray) -> tuple[float | None, str]:
+    """INAV's ``vbat`` field is getBatteryRawVoltage(), in 0.01 V (sensors/battery.c); the
+    ``vbatref`` header is the same value at log start."""
+    good = raw[np.isfinite(raw) & (raw > 0)]
+    med = median(good)
+    if len(good) == 0 or med * 0.01 < 1.0:
+        return None, "no battery voltage sensed (INAV vbat ~ 0)"
+    v = med * 0.01
+    why = "INAV logs vbat in 0.01 V (blackbox.c loadMainState: getBatteryRawVoltage())"
+    if not plausible_pack_voltage(v):
+        return None, f"{why}, but the median {v:.2f} V is no lithium pack's voltage"
+    return 0.01, why
+
+
+def accelerometer_off_reason(headers: dict[str, str]) -> str:
+    """Why a log's accelerometer reads exactly zero, naming what the headers say."""
+    said = []
+    fw = firmware_version(headers)[0]
+    if "acc_hardware" in headers:
+        hw = bd.header_int(headers, "acc_hardware", -1)
+        # Betaflight/Cleanflight accelerationSensor_e: 0 default (auto), 1 NONE
+        none = hw == 1 and fw != "INAV"
+        said.append(f"header acc_hardware:{headers['acc_hardware']}" + (" is NONE" if none else ""))
+    if "acc_1G" in headers and bd.header_int(headers, "acc_1G", -1) == 0:
+        said.append("acc_1G:0")
+    return "all zero: accelerometer disabled?" + (f" {', '.join(said)}" if said else "")
 
 
 def _armed(
@@ -367,30 +452,40 @@ def to_flightlog(
     )
     meta.update(table.metadata)
 
-    if "vbatLatest" in cols:
-        unit = table.units.get("vbatLatest", "raw")
+    inav = fw == "INAV"
+    vbat_name = "vbatLatest" if "vbatLatest" in cols or not inav else "vbat"
+    if vbat_name in cols:
+        unit = table.units.get(vbat_name, "raw")
         if vbat_scale_v is not None:
             scale_v: float | None = vbat_scale_v
             reason = "given"
+        elif inav and unit == "raw":
+            scale_v, reason = inav_vbat_scale(cols[vbat_name])
         else:
-            scale_v, reason = decide_vbat_scale(cols["vbatLatest"], unit, headers)
+            scale_v, reason = decide_vbat_scale(cols[vbat_name], unit, headers)
         meta["vbat_scale_v_per_unit"] = scale_v
         meta["vbat_scale_reason"] = reason
         if scale_v is None:
             warnings.append(f"battery voltage not used: {reason}")
         else:
             fl.voltage_v = Signal(
-                time_s, cols["vbatLatest"] * scale_v, "V", f"vbatLatest ({unit}) × {scale_v:g}"
+                time_s, cols[vbat_name] * scale_v, "V", f"{vbat_name} ({unit}) × {scale_v:g}"
             )
-    if "amperageLatest" in cols:
-        unit = table.units.get("amperageLatest", "raw")
+    amp_name = "amperageLatest" if "amperageLatest" in cols or not inav else "amperage"
+    if amp_name in cols:  # 0.01 A: Betaflight's amperageLatest, INAV's getAmperage()
+        unit = table.units.get(amp_name, "raw")
         factor = 0.01 if unit == "raw" else (1e-3 if unit.lower() == "ma" else 1.0)
         fl.extras["current_a"] = Signal(
-            time_s, cols["amperageLatest"] * factor, "A", f"amperageLatest ({unit})"
+            time_s, cols[amp_name] * factor, "A", f"{amp_name} ({unit})"
         )
 
     acc_names = [f"accSmooth[{k}]" for k in range(3)]
-    if all(n in cols for n in acc_names):
+    acc_zero = all(n in cols for n in acc_names) and not any(
+        np.any(np.nan_to_num(cols[n]) != 0.0) for n in acc_names
+    )
+    if acc_zero:  # the craft logs accSmooth but has no accelerometer running
+        warnings.append(f"no accelerometer data in this log ({accelerometer_off_reason(headers)})")
+    if all(n in cols for n in acc_names) and not acc_zero:
         if acc_1g is not None:
             source = "option"
         elif "acc_1G" in headers:
