@@ -370,11 +370,57 @@ def sim_frame_values(
     ]  # fmt: skip
 
 
+#: INAV 8 as it writes its headers (blackbox.c): "Firmware type" still says Cleanflight, the
+#: revision says INAV; motor[] in µs-equivalent (mincommand 1000 .. maxthrottle), the idle as
+#: motorOutput's low end; motor_pwm_protocol 6 (DShot); battery fields named vbat, amperage.
+INAV_HEADERS = [
+    ("Firmware type", "Cleanflight"),
+    ("Firmware revision", "INAV 8.0.1 (thrustmap-sim) SIM"),
+    ("Craft name", ""),
+    ("I interval", "256"),
+    ("P interval", "32"),
+    ("P ratio", "8"),
+    ("minthrottle", "1100"),
+    ("maxthrottle", "2000"),
+    ("motorOutput", "1100,2000"),
+    ("acc_1G", "2048"),
+    ("vbat_scale", "110"),
+    ("vbatcellvoltage", "33,35,42"),
+    ("vbatref", "1650"),
+    ("looptime", "125"),
+    ("acc_hardware", "8"),
+    ("motor_pwm_protocol", "6"),
+]
+INAV_MAIN = bd.FrameDef(
+    names=["vbat" if n == "vbatLatest" else "amperage" if n == "amperageLatest" else n
+           for n in SIM_MAIN.names],
+    signed=SIM_MAIN.signed,
+    predictor=[4 if n == "motor[0]" else p for n, p in zip(SIM_MAIN.names, SIM_MAIN.predictor, strict=True)],
+    encoding=SIM_MAIN.encoding,
+)  # fmt: skip
+#: INAV's hover in the simulated log: motor[] 1500 µs-equivalent = 50 % of 1000..2000
+INAV_HOVER_MOTOR = 1500
+
+
 def simulate_hover_log(
-    duration_s: float, *, start_iteration: int = 4096, start_time_us: int = 5_000_000
+    duration_s: float,
+    *,
+    start_iteration: int = 4096,
+    start_time_us: int = 5_000_000,
+    acc_scale: float = 1.0,
+    inav: bool = False,
+    headers: Sequence[tuple[str, str]] = (),
 ) -> bytes:
-    """One armed hover log at 250 Hz ending with a disarm and the log-end event."""
-    enc = Encoder(SIM_HEADERS, SIM_MAIN, SIM_P_PREDICTOR, SIM_P_ENCODING, SIM_SLOW)
+    """One armed hover log at 250 Hz ending with a disarm and the log-end event.
+
+    ``acc_scale`` multiplies the accelerometer (0: an accelerometer that reads zero, -1: a
+    downward axis); ``inav`` writes the log as INAV 8 does (its headers, field names and motor
+    units); ``headers`` are added to (or replace) the header lines."""
+    base = INAV_HEADERS if inav else SIM_HEADERS
+    extra = dict(headers)
+    hdrs = [(k, extra.pop(k, v)) for k, v in base] + list(extra.items())
+    enc = Encoder(hdrs, INAV_MAIN if inav else SIM_MAIN, SIM_P_PREDICTOR, SIM_P_ENCODING,
+                  SIM_SLOW)  # fmt: skip
     out = bytearray(enc.header_bytes())
     out += enc.event(bd.EVENT_SYNC_BEEP, start_time_us - 1000)
     out += enc.s_frame([1, 0, 0, 1])  # ARM box active
@@ -382,6 +428,9 @@ def simulate_hover_log(
     frames_per_i = 256 // SIM_P_INTERVAL
     for k in range(n):
         values = sim_frame_values(k, start_iteration, start_time_us, duration_s)
+        values[11:14] = [round(v * acc_scale) for v in values[11:14]]
+        if inav:  # the mixer's µs-equivalent output, not DShot values
+            values[14:18] = [v - 880 + INAV_HOVER_MOTOR for v in values[14:18]]
         out += enc.i_frame(values) if k % frames_per_i == 0 else enc.p_frame(values)
     out += enc.event(bd.EVENT_DISARM, 4)
     out += enc.s_frame([0, 0, 0, 1])
@@ -389,11 +438,18 @@ def simulate_hover_log(
     return bytes(out)
 
 
-def simulate_hover_file(durations_s: Sequence[float] = (4.0, 3.0)) -> bytes:
-    """A file with one log per duration (each an armed hover; several flights in one file)."""
+def simulate_hover_file(
+    durations_s: Sequence[float] = (4.0, 3.0), acc_scales: Sequence[float] = ()
+) -> bytes:
+    """A file with one log per duration (each an armed hover; several flights in one file);
+    ``acc_scales`` (one per log, default 1) as ``simulate_hover_log`` takes it. A duration of
+    0 is an empty log (headers, then the log end at once), as flash chips hold them."""
+    scales = list(acc_scales) + [1.0] * (len(durations_s) - len(acc_scales))
     return b"".join(
-        simulate_hover_log(d, start_iteration=4096 * (i + 1), start_time_us=5_000_000 * (i + 1))
-        for i, d in enumerate(durations_s)
+        simulate_hover_log(
+            d, start_iteration=4096 * (i + 1), start_time_us=5_000_000 * (i + 1), acc_scale=a
+        )
+        for i, (d, a) in enumerate(zip(durations_s, scales, strict=True))
     )
 
 
