@@ -69,6 +69,14 @@ def test_a_flash_dump_extracts_every_log_it_can_and_names_each_it_cannot(
     code, stdout, _ = _extract(log, tmp_path / "df2.csv", capsys, "--json")
     items = json.loads(stdout)
     assert [i["status"] for i in items] == ["used", "used"] + ["refused"] * 4
+    # inspect names the log the reader could not read, once
+    try:
+        main(["flightlog", "inspect", str(log)])
+    except SystemExit as exc:
+        assert not exc.code
+    stdout = capsys.readouterr().out
+    assert stdout.count("not read: ") == 1
+    assert f"not read: {log}: log 5 of 6 skipped: empty (no data frames)" in stdout
 
 
 def test_a_flash_dump_with_no_usable_log_exits_2_with_one_line_per_log(

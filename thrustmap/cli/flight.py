@@ -123,6 +123,17 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
         )
         for w in info["warnings"]:
             echo(f"  warning: {w}")
+    from thrustmap.fitting.df.extraction import refusal_lines
+
+    skipped: dict[str, list[dict[str, Any]]] = {}  # the logs a reader skipped, once per file
+    for info in out:
+        for r in info["metadata"].get("logs_refused_by_reader") or []:
+            entry = {"path": info["path"], **r}
+            if entry not in skipped.setdefault(str(info["path"]), []):
+                skipped[str(info["path"])].append(entry)
+    for rs in skipped.values():
+        for line in refusal_lines(rs):
+            echo(f"not read: {line}")
 
 
 @flightlog_group.command("readers")

@@ -522,7 +522,7 @@ def refusal_lines(refused: list[dict[str, Any]]) -> list[str]:
 def _ranges(nums: list[int]) -> str:
     """1, 2, 3, 5 -> "1-3, 5"."""
     out: list[str] = []
-    for n in sorted(nums):
+    for n in sorted(set(nums)):
         if out and n == int(out[-1].split("-")[-1]) + 1:
             out[-1] = out[-1].split("-")[0] + f"-{n}"
         else:
