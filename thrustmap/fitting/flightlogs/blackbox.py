@@ -339,8 +339,8 @@ def inav_motor_scale(
     """INAV logs motor[] as its mixer computes them (blackbox.c loadMainState: motor[i]), in
     µs-equivalent mincommand..maxthrottle whatever the protocol; for DShot, flight/mixer.c
     writeMotors scales mincommand..maxthrottle onto DShot 48..2047 when it sends them. So 0 %
-    is mincommand and 100 % maxthrottle; the ``motorOutput`` low end is the armed idle
-    (getThrottleIdleValue). Betaflight's DShot range never applies to these values."""
+    is mincommand and 100 % maxthrottle; the ``motorOutput`` low end is the armed idle (the
+    mixer's throttleIdleValue). Betaflight's DShot range never applies to these values."""
     zero = bd.header_int(headers, "mincommand", -1)
     zero_src = "mincommand"
     if not 0 < zero < hi:
