@@ -143,6 +143,23 @@ def test_a_worker_whose_memory_creeps_over_the_limit_is_stopped(
     assert pool.started == 2
 
 
+def test_memory_the_worker_shares_with_the_command_is_not_its_own(
+    fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A command holding more than --memory-per-worker (here 320 MiB written before the fork,
+    as a test runner or a big map can) forks workers whose RSS starts over the limit: the
+    watchdog counts a worker's private pages, so none is stopped (it stopped every worker, and
+    each replacement, when it read the RSS)."""
+    limit = 256 << 20
+    ballast = bytearray(b"\x01" * (320 << 20))
+    monkeypatch.setattr(local, "_limit_address_space", lambda limit_bytes: None)
+    result, pool = run_pool(fleet, tmp_path / "out", local.LocalSpec(2, limit), poll_s=0.05)
+    rows = {Path(o.path): o for o in result.outcomes}
+    assert all(rows[p].status == "ok" for p in fleet.good), [rows[p].reason for p in fleet.good]
+    assert pool.started == 2
+    assert len(ballast) == 320 << 20
+
+
 def slow_command(argv: list[str], delay_s: float = 0.3) -> list[str]:
     """``thrustmap ARGV`` with every log taking ``delay_s`` longer in the workers, so a signal
     lands while they are busy (the patch is the test's, inherited by the forked workers)."""

@@ -15,7 +15,8 @@ The guarantees of the Dask path, kept:
   and only discovers, plans, collects and writes the table.
 - ``--memory-per-worker``: each worker's address space may grow by at most the limit after it
   is forked (``RLIMIT_AS``: an allocation beyond it fails, and the log is refused as out of
-  memory), and the parent reads each worker's resident memory every ``poll_s`` and kills a
+  memory), and the parent reads each worker's own resident memory (private pages, not those
+  it still shares with the command) every ``poll_s`` and kills a
   worker over the limit (what Dask's nanny does); the log it held is refused with that reason.
 - A log that kills its worker (a crash, the memory limit, the OOM killer) is that log's
   refusal; the logs queued behind it go to a new worker, forked in its place, and the run goes
@@ -71,6 +72,31 @@ class _Worker:
     conn: Any  # multiprocessing.connection.Connection (the command's end)
     queued: deque[LogTask] = field(default_factory=deque)
     killed_for: str = ""  # why the command killed it (over its memory limit)
+
+
+def _own_bytes(pid: int) -> int:
+    """Memory a forked worker holds of its own: its private resident pages (Linux
+    /proc/PID/smaps_rollup, Private_Clean + Private_Dirty; 0 when it is gone).
+
+    Not its RSS: a forked worker's RSS counts the pages it still shares with the command
+    (copy-on-write), so a command holding 0.5 GB would see every worker "over" a 0.25 GB limit
+    the moment it is forked. Where smaps_rollup is missing (kernels before 4.14) the resident
+    size minus what was resident at the fork is used."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup", "rb") as f:
+            total_kb = 0
+            for line in f:
+                if line.startswith((b"Private_Clean:", b"Private_Dirty:")):
+                    total_kb += int(line.split()[1])
+            return total_kb * 1024
+    except FileNotFoundError:
+        return max(0, _rss_bytes(pid) - _RSS_AT_FORK.get(pid, 0))
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+#: resident size of each worker just after its fork (the fallback of ``_own_bytes``)
+_RSS_AT_FORK: dict[int, int] = {}
 
 
 def _rss_bytes(pid: int) -> int:
@@ -221,6 +247,7 @@ class ForkPool:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         theirs.close()
+        _RSS_AT_FORK[proc.pid] = _rss_bytes(proc.pid)
         self.started += 1
         return _Worker(proc, mine)
 
@@ -267,7 +294,7 @@ class ForkPool:
         """Kill a worker over its memory limit (its log is refused when its death is seen)."""
         limit = self.spec.memory_limit_bytes
         for w in self._workers:
-            rss = _rss_bytes(w.proc.pid)
+            rss = _own_bytes(w.proc.pid)
             if rss > limit and not w.killed_for:
                 w.killed_for = (
                     f"stopped at {rss / 2**30:.2f} GiB, over its memory limit of "
