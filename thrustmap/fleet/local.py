@@ -247,7 +247,8 @@ class ForkPool:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         theirs.close()
-        _RSS_AT_FORK[proc.pid] = _rss_bytes(proc.pid)
+        if proc.pid is not None:
+            _RSS_AT_FORK[proc.pid] = _rss_bytes(proc.pid)
         self.started += 1
         return _Worker(proc, mine)
 
