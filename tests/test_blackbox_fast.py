@@ -533,3 +533,41 @@ def test_a_tagged_group_of_unused_fields_with_none_set_is_skipped() -> None:
     for keep in (None, used_field):
         ref = bd.decode_log_reference(section, keep_field=keep)
         assert ref.stats["corrupt"] == 0 and len(ref.main) == 40
+
+
+def test_a_corrupt_stretch_in_a_log_needing_the_wrap_resumes_in_bulk(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Betaflight 3.x values that need the 32-bit wrap (throttle below minthrottle, disarmed
+    motors below their low end) and a corrupt stretch early on: the frames across the stretch
+    are decoded by the reference with the wrap, as the bulk passes around them are, so the log
+    is not decoded again by the reference from its start (a real 4 MB Betaflight 3.1.7 log went
+    from 0.5 s to 2.9 s that way); the result is the reference's."""
+    main = dataclasses.replace(be.SIM_MAIN, predictor=[*be.SIM_MAIN.predictor])
+    main.predictor[5] = bd.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
+    enc = be.Encoder(be.SIM_HEADERS, main, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
+    head = enc.header_bytes()
+    out = bytearray(head)
+    for k in range(40_000):
+        values = be.sim_frame_values(k, 4096, 5_000_000, 10.0)
+        values[5] = 1000 + (k % 3)  # below minthrottle 1070
+        if k % 10_000 < 300:
+            values[14:18] = [0, 0, 0, 0]  # disarmed: below the motor low end 158
+        out += enc.i_frame(values) if k % 32 == 0 else enc.p_frame(values)
+    section = bytes(out)
+    assert len(section) - len(head) > 2 * bd.MIN_HANDBACK_BYTES
+    at = len(head) + (len(section) - len(head)) // 8
+    damaged = section[:at] + b"\x01\x02\x03" + section[at + 40 :]
+    from_start: list[bool] = []
+    frame_by_frame = bd._decode_log
+
+    def spy(*args: object, **kwargs: object) -> object:
+        from_start.append(kwargs.get("resume") is None)
+        return frame_by_frame(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(bd, "_decode_log", spy)
+    decoded = bd.decode_log(damaged)
+    assert from_start and not any(from_start), from_start
+    monkeypatch.setattr(bd, "_decode_log", frame_by_frame)
+    assert_same(decoded, bd.decode_log_reference(damaged))
+    assert decoded.main[:300, 14:18].tolist() == [[0, 0, 0, 0]] * 300

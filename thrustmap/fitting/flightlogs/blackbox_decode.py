@@ -259,8 +259,11 @@ def decode_log(
         if n - state.pos < MIN_HANDBACK_BYTES or framing_left < n - state.pos:
             after = None
         try:
+            # with the 32-bit wrap, as the bulk passes around it do (blackbox_fast._wrap_32bit):
+            # without it a stretch of Betaflight 3.x motors below their low end left the whole
+            # log to the reference, a 4 MB log at 2 MB/s
             ref = _decode_log(
-                section, index, offset, wrap=False, keep_field=keep_field, resume=state,
+                section, index, offset, wrap=True, keep_field=keep_field, resume=state,
                 handback_after=after,
             )  # fmt: skip
         except OverflowError:
