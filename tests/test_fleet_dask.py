@@ -104,6 +104,19 @@ def stop_as_asked(proc: subprocess.Popen[str], how: str, timeout_s: float) -> st
     return str(err)
 
 
+def stop_servers(started: list[subprocess.Popen[bytes]]) -> None:
+    """Dask's own scheduler and workers, last started first: SIGINT (their clean stop), then
+    SIGKILL for any still up after 30 s."""
+    for p in reversed(started):
+        p.send_signal(signal.SIGINT)
+    for p in reversed(started):
+        try:
+            p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def alive(p: Any) -> bool:
     try:
         return bool(p.is_running() and p.status() != psutil.STATUS_ZOMBIE)
@@ -222,14 +235,7 @@ def test_an_existing_scheduler_gives_the_same_table(
         local = timeless_bytes(tmp_path / "local" / "fleet.parquet")
         assert timeless_bytes(out / "fleet.parquet") == local
     finally:
-        for p in reversed(started):
-            p.send_signal(signal.SIGINT)
-        for p in reversed(started):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_servers(started)
 
 
 def test_a_worker_that_dies_refuses_its_log_and_the_fleet_goes_on(tmp_path: Path) -> None:
@@ -391,11 +397,4 @@ def test_a_tls_scheduler_with_dasks_security_configuration(
         (line,) = bare.stderr.strip().splitlines()
         assert "tls:// needs Dask's TLS configuration" in line and address in line
     finally:
-        for p in reversed(started):
-            p.send_signal(signal.SIGINT)
-        for p in reversed(started):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_servers(started)

@@ -182,18 +182,24 @@ def slow_command(argv: list[str], delay_s: float = 0.3) -> list[str]:
     return [sys.executable, "-c", code]
 
 
+def workers_once_busy(proc: subprocess.Popen[str], n: int) -> list[Any]:
+    """The command's worker processes once it has reported progress (they are on logs)."""
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        if line.startswith("progress:"):
+            break
+    kids = psutil.Process(proc.pid).children()
+    assert len(kids) == n
+    return kids
+
+
 def test_a_killed_command_takes_its_workers_with_it(fleet: Fleet, tmp_path: Path) -> None:
     """SIGKILL cannot be caught: the workers die with the command anyway (PR_SET_PDEATHSIG)."""
     cmd = slow_command(args(fleet, tmp_path / "out", "--workers", "2"))
     proc = subprocess.Popen(cmd, env=env(), stderr=subprocess.PIPE, text=True)
     kids: list[Any] = []
     try:
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            if line.startswith("progress:"):
-                break
-        kids = psutil.Process(proc.pid).children()
-        assert len(kids) == 2
+        kids = workers_once_busy(proc, 2)
         proc.kill()
         proc.wait(30)
         deadline = time.monotonic() + 10
@@ -223,12 +229,7 @@ def test_local_workers_listen_nowhere_and_a_stop_keeps_the_table_and_resumes(
                                 start_new_session=True)  # fmt: skip
     kids: list[Any] = []
     try:
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            if line.startswith("progress:"):
-                break
-        kids = psutil.Process(proc.pid).children()
-        assert len(kids) == 2
+        kids = workers_once_busy(proc, 2)
         sockets = [c for p in [psutil.Process(proc.pid), *kids] for c in p.net_connections()]
         assert sockets == []
         stop_as_asked(proc, how, 60)
