@@ -7,7 +7,12 @@ serve reads from it the same way.
 
 from __future__ import annotations
 
-from serial.serialutil import PortNotOpenError, SerialBase
+from collections.abc import Callable
+from typing import Any
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+MAX_FOREIGN_SENDERS = 32  # distinct intruding addresses remembered (the count goes on)
 
 
 class BufferedEndpoint(SerialBase):
@@ -16,6 +21,37 @@ class BufferedEndpoint(SerialBase):
 
     _buffer: bytearray
     _remote: tuple[str, int] | None
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        # set before SerialBase.__init__, which opens the port when one is given
+        self._remote = None
+        self._buffer = bytearray()
+        self.dropped_writes = 0
+        #: which bytes identify the peer (None: the first sender is it); udpin reads it
+        self.identifies_peer: Callable[[bytes], bool] | None = None
+        self.foreign_claims = 0  # intruders' datagrams that would have identified a peer
+        self.foreign_senders: dict[tuple[str, int], int] = {}
+        self.last_foreign: tuple[str, int] | None = None
+        kwargs.pop("clock", None)  # real sockets run on real time
+        super().__init__(*args, **kwargs)
+
+    def _check_openable(self) -> None:
+        if self.port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        if self.is_open:
+            raise SerialException("Port is already open.")
+
+    def _count_foreign(self, sender: tuple[str, int]) -> bool:
+        """Count an intruder (bounded: at most ``MAX_FOREIGN_SENDERS`` addresses are kept, the
+        count goes on); True the first time its address is kept, to be logged once."""
+        self.last_foreign = sender
+        if sender in self.foreign_senders:
+            self.foreign_senders[sender] += 1
+            return False
+        if len(self.foreign_senders) < MAX_FOREIGN_SENDERS:
+            self.foreign_senders[sender] = 1
+            return True
+        return False
 
     def _reconfigure_port(self) -> None:
         pass

@@ -17,17 +17,16 @@ import logging
 import select
 import socket
 import time
-from collections.abc import Callable
 from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialException
 
+from thrustmap.protocols.urlhandlers.buffered import MAX_FOREIGN_SENDERS as MAX_FOREIGN_SENDERS
 from thrustmap.protocols.urlhandlers.buffered import BufferedEndpoint
 
 log = logging.getLogger(__name__)
 
 MAX_READ = 65536
-MAX_FOREIGN_SENDERS = 32
 MAX_SELECTS_PER_DRAIN = 4  # bounded: intruders connecting in a loop cannot pin a reader
 
 
@@ -46,23 +45,14 @@ class Serial(BufferedEndpoint):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._listener: socket.socket | None = None
         self._conn: socket.socket | None = None
-        self._remote: tuple[str, int] | None = None
         self._closed_by_peer = False
-        self._buffer = bytearray()
-        self.dropped_writes = 0
-        self.identifies_peer: Callable[[bytes], bool] | None = None  # the interface; unused
-        self.intrusions = 0
-        self.foreign_claims = 0  # the interface; a refused connection is never read
-        self.foreign_senders: dict[tuple[str, int], int] = {}
-        self.last_foreign: tuple[str, int] | None = None
-        kwargs.pop("clock", None)  # real sockets run on real time
+        self.intrusions = (
+            0  # identifies_peer and foreign_claims: a refused connection is never read
+        )
         super().__init__(*args, **kwargs)
 
     def open(self) -> None:
-        if self.port is None:
-            raise SerialException("Port must be configured before it can be used.")
-        if self.is_open:
-            raise SerialException("Port is already open.")
+        self._check_openable()
         rest = normalize_tcpin_url(str(self.port)).partition("://")[2].split("?", 1)[0]
         host, sep, port = rest.rpartition(":")
         if not sep or not port.isdigit() or not 0 < int(port) < 65536:
@@ -94,11 +84,7 @@ class Serial(BufferedEndpoint):
             return
         conn.close()  # never read from, never written to
         self.intrusions += 1
-        self.last_foreign = sender
-        if sender in self.foreign_senders:
-            self.foreign_senders[sender] += 1
-        elif len(self.foreign_senders) < MAX_FOREIGN_SENDERS:  # bounded: so is the log
-            self.foreign_senders[sender] = 1
+        if self._count_foreign(sender):  # once per address, bounded: so is the log
             log.warning(
                 "%s: refused a connection from %s:%d (the link is locked to %s)",
                 self.port,

@@ -33,18 +33,17 @@ from __future__ import annotations
 import logging
 import select
 import socket
-from collections.abc import Callable
 from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialException
 
+from thrustmap.protocols.urlhandlers.buffered import MAX_FOREIGN_SENDERS as MAX_FOREIGN_SENDERS
 from thrustmap.protocols.urlhandlers.buffered import BufferedEndpoint
 
 log = logging.getLogger(__name__)
 
 MAX_DATAGRAM = 65535
 MAX_DATAGRAMS_PER_POLL = 64
-MAX_FOREIGN_SENDERS = 32  # distinct intruding addresses remembered (the count goes on)
 UDP_SCHEMES = ("udpin", "udpout", "udp")
 
 
@@ -77,26 +76,15 @@ class UdpSerial(BufferedEndpoint):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._sock: socket.socket | None = None
-        self._remote: tuple[str, int] | None = None  # the locked peer (udpout: the target)
-        self._buffer = bytearray()
-        self.dropped_writes = 0
-        #: udpin: which datagram identifies the peer (None: the first one does)
-        self.identifies_peer: Callable[[bytes], bool] | None = None
+        # _remote is the locked peer (udpout: the target); identifies_peer says which datagram
+        # identifies it (None: the first one does)
         self.unidentified_datagrams = 0  # dropped before the lock: they identified nobody
         self.foreign_datagrams = 0  # dropped after the lock: from another address
-        #: of those, datagrams that would have identified a peer (a second "vehicle")
-        self.foreign_claims = 0
         self.last_claim: tuple[str, int] | None = None
-        self.foreign_senders: dict[tuple[str, int], int] = {}
-        self.last_foreign: tuple[str, int] | None = None
-        kwargs.pop("clock", None)  # real sockets run on real time
         super().__init__(*args, **kwargs)
 
     def open(self) -> None:
-        if self.port is None:
-            raise SerialException("Port must be configured before it can be used.")
-        if self.is_open:
-            raise SerialException("Port is already open.")
+        self._check_openable()
         _, listen, address = _address(str(self.port))
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -133,15 +121,11 @@ class UdpSerial(BufferedEndpoint):
         if sender == self._remote:
             return True
         self.foreign_datagrams += 1
-        self.last_foreign = sender
         check = self.identifies_peer
         if check is not None and check(data):
             self.foreign_claims += 1
             self.last_claim = sender
-        if sender in self.foreign_senders:
-            self.foreign_senders[sender] += 1
-        elif len(self.foreign_senders) < MAX_FOREIGN_SENDERS:  # bounded: so is the log
-            self.foreign_senders[sender] = 1
+        if self._count_foreign(sender):  # once per address, bounded: so is the log
             log.warning(
                 "%s: dropped a datagram from %s:%d (the link is locked to %s)",
                 self.port,
