@@ -72,9 +72,10 @@ class _Worker:
     conn: Any  # multiprocessing.connection.Connection (the command's end)
     queued: deque[LogTask] = field(default_factory=deque)
     killed_for: str = ""  # why the command killed it (over its memory limit)
+    rss_at_fork: int = 0  # its resident size just after the fork (the fallback of _own_bytes)
 
 
-def _own_bytes(pid: int) -> int:
+def _own_bytes(pid: int, rss_at_fork: int) -> int:
     """Memory a forked worker holds of its own: its private resident pages (Linux
     /proc/PID/smaps_rollup, Private_Clean + Private_Dirty; 0 when it is gone).
 
@@ -90,13 +91,9 @@ def _own_bytes(pid: int) -> int:
                     total_kb += int(line.split()[1])
             return total_kb * 1024
     except FileNotFoundError:
-        return max(0, _rss_bytes(pid) - _RSS_AT_FORK.get(pid, 0))
+        return max(0, _rss_bytes(pid) - rss_at_fork)
     except (OSError, ValueError, IndexError):
         return 0
-
-
-#: resident size of each worker just after its fork (the fallback of ``_own_bytes``)
-_RSS_AT_FORK: dict[int, int] = {}
 
 
 def _rss_bytes(pid: int) -> int:
@@ -247,10 +244,8 @@ class ForkPool:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         theirs.close()
-        if proc.pid is not None:
-            _RSS_AT_FORK[proc.pid] = _rss_bytes(proc.pid)
         self.started += 1
-        return _Worker(proc, mine)
+        return _Worker(proc, mine, rss_at_fork=_rss_bytes(proc.pid or 0))
 
     def run(self, tasks: list[LogTask]) -> Iterator[Outcome]:
         """Every task's outcome, in completion order."""
@@ -295,7 +290,7 @@ class ForkPool:
         """Kill a worker over its memory limit (its log is refused when its death is seen)."""
         limit = self.spec.memory_limit_bytes
         for w in self._workers:
-            rss = _own_bytes(w.proc.pid)
+            rss = _own_bytes(w.proc.pid, w.rss_at_fork)
             if rss > limit and not w.killed_for:
                 w.killed_for = (
                     f"stopped at {rss / 2**30:.2f} GiB, over its memory limit of "
