@@ -261,7 +261,8 @@ class AdaptiveDriver:
             if self._clipped:
                 reason += f" (wanted {level:.1f} %, held at the plan's range)"
             self._pending = {"reason": reason, "pi_before_pct": before}
-            yield hold_segment(round(clipped, 3), self.dwell_s, self.settle, self.record_s, "probe")
+            level_pct = min(max(round(clipped, 3), self.lo_pct), self.hi_pct)
+            yield hold_segment(level_pct, self.dwell_s, self.settle, self.record_s, "probe")
 
     def _voltage_move(self, a: Assessment) -> Discharge | PackChange | None:
         """Across voltage: discharge toward ``a.move_to_v`` when holding a load can get there
@@ -300,7 +301,7 @@ class AdaptiveDriver:
                     "after_point": len(self.records),
                 }
             )
-            return Discharge(round(self.hi_pct, 3), until, max_s, self.record_s)
+            return Discharge(min(round(self.hi_pct, 3), self.hi_pct), until, max_s, self.record_s)
         why_not = (
             "above the pack's voltage"
             if wanted >= now

@@ -18,6 +18,7 @@ The segments live in ``rig.segments`` and the adaptive plan's feedback side in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -84,6 +85,21 @@ class Plan:
     #: an adaptive plan's feedback side: ``segments`` is then its coarse pass, and the runner
     #: takes the levels that follow from ``adaptive.segments()``
     adaptive: AdaptiveDriver | None = field(default=None, compare=False)
+    #: the most the user allowed (``--to``, an explicit plan's highest level): no segment may
+    #: lie above it, checked here when the plan is built and again for every level an adaptive
+    #: plan chooses as it runs (None: the plan's own highest level)
+    ceiling_pct: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.ceiling_pct is None:
+            return
+        for seg in self.segments:
+            _within_ceiling(seg, self.ceiling_pct, self.name)
+        if self.adaptive is not None and self.adaptive.max_throttle_pct > self.ceiling_pct:
+            raise ConfigError(
+                f"plan '{self.name}': its range reaches {self.adaptive.max_throttle_pct:g} %, "
+                f"above --to {self.ceiling_pct:g} %"
+            )
 
     @property
     def max_throttle_pct(self) -> float:
@@ -99,8 +115,11 @@ class Plan:
         """What the runner executes: the segments, or an adaptive plan's levels as it decides."""
         if self.adaptive is None:
             yield from self.segments
-        else:
-            yield from self.adaptive.segments()
+            return
+        for seg in self.adaptive.segments():
+            if self.ceiling_pct is not None:
+                _within_ceiling(seg, self.ceiling_pct, self.name)
+            yield seg
 
     @property
     def duration_s(self) -> float:
@@ -196,17 +215,48 @@ class Plan:
         return out
 
 
-def _levels(start_pct: float, stop_pct: float, step_pct: float) -> list[float]:
-    if step_pct <= 0:
-        raise ConfigError(f"step must be positive, got {step_pct:g} %")
-    if not 0 <= start_pct <= 100 or not 0 <= stop_pct <= 100:
-        raise ConfigError(f"levels must lie in 0..100 %, got {start_pct:g}..{stop_pct:g}")
-    if stop_pct < start_pct:
-        raise ConfigError(f"--to ({stop_pct:g} %) must be at least --from ({start_pct:g} %)")
-    n = int(round((stop_pct - start_pct) / step_pct + 1e-9))
-    levels = [round(start_pct + k * step_pct, 6) for k in range(n + 1)]
-    if levels[-1] < stop_pct - 1e-9:
-        levels.append(stop_pct)
+def _segment_top_pct(seg: RunSegment) -> float:
+    """The highest level a segment commands (a pack change commands none)."""
+    if isinstance(seg, Ramp):
+        return max(seg.start_pct, seg.end_pct)
+    if isinstance(seg, (Hold, Discharge)):
+        return seg.throttle_pct
+    return 0.0
+
+
+def _within_ceiling(seg: RunSegment, ceiling_pct: float, plan_name: str) -> None:
+    """Refuse a segment above what the user allowed (never commanded: the plan is refused)."""
+    top = _segment_top_pct(seg)
+    if top > ceiling_pct:
+        raise ConfigError(
+            f"plan '{plan_name}': {seg.label} at {top:g} % is above --to {ceiling_pct:g} %; "
+            "nothing is commanded above what was asked"
+        )
+
+
+def _finite_pct(value: float, option: str) -> float:
+    """A level option in 0..100 % (also refusing NaN and infinity), named when it is not."""
+    if not 0.0 <= value <= 100.0:
+        raise ConfigError(f"{option} {value:g}: expected a throttle level in 0..100 %")
+    return float(value)
+
+
+def levels_between(start_pct: float, stop_pct: float, step_pct: float) -> list[float]:
+    """The levels ``start_pct``, ``start_pct + step_pct``, ... that do not pass ``stop_pct``,
+    then ``stop_pct`` itself: a sweep ends exactly at ``--to`` and no level lies above it,
+    whatever the step (``10..60`` by 20 is 10, 30, 50, 60; by 100 it is 10, 60)."""
+    start = _finite_pct(start_pct, "--from")
+    stop = _finite_pct(stop_pct, "--to")
+    if not step_pct > 0 or not math.isfinite(step_pct):  # also NaN
+        raise ConfigError(f"--step {step_pct:g}: expected a positive increment in %")
+    if stop < start:
+        raise ConfigError(f"--to ({stop:g} %) must be at least --from ({start:g} %)")
+    n = math.floor((stop - start) / step_pct + 1e-9)
+    levels = [min(round(start + k * step_pct, 6), stop) for k in range(n + 1)]
+    if levels[-1] < stop - 1e-6:
+        levels.append(stop)
+    else:
+        levels[-1] = stop
     return levels
 
 
@@ -227,10 +277,16 @@ def steps(
     A level equal to the low level is no step (it would hold the low level twice), so it is left
     out: ``--from 10 --low 10`` steps to 15, 20, ... and back to 10 between them.
     """
-    levels = [lv for lv in _levels(start_pct, stop_pct, step_pct) if abs(lv - low_pct) > 1e-9]
+    low = _finite_pct(low_pct, "--low")
+    if low > stop_pct:
+        raise ConfigError(
+            f"--low {low:g} % is above --to {stop_pct:g} %: steps returns to --low between "
+            "steps, so it must not exceed --to"
+        )
+    levels = [lv for lv in levels_between(start_pct, stop_pct, step_pct) if abs(lv - low) > 1e-9]
     if not levels:
         raise ConfigError(
-            f"steps: every level in {start_pct:g}..{stop_pct:g} % equals the low level "
+            f"--from/--to: every level in {start_pct:g}..{stop_pct:g} % equals --low "
             f"({low_pct:g} %): nothing to step to"
         )
     segs: list[Segment] = [hold_segment(low_pct, low_dwell_s, settle, record_s, "low")]
@@ -250,6 +306,7 @@ def steps(
             "settle": settle,
             "repeats": repeats,
         },
+        ceiling_pct=stop_pct,
     )
 
 
@@ -265,7 +322,7 @@ def stairs(
     repeats: int = 1,
 ) -> Plan:
     """Stairs up (paper: *-steps-up.csv) or down through the levels."""
-    levels = _levels(start_pct, stop_pct, step_pct)
+    levels = levels_between(start_pct, stop_pct, step_pct)
     if down:
         levels = levels[::-1]
     segs = tuple(
@@ -277,6 +334,7 @@ def stairs(
         "stairs-down" if down else "stairs-up",
         segs,
         {"from": start_pct, "to": stop_pct, "step": step_pct, "dwell_s": dwell_s, "settle": settle},
+        ceiling_pct=stop_pct,
     )
 
 
@@ -291,7 +349,7 @@ def ramp(
     """Slow ramp up then down (paper: *-ramp.csv); pairs of up/down ramps cancel rotor lag."""
     if duration_s <= 0:
         raise ConfigError(f"ramp duration must be positive, got {duration_s:g} s")
-    _levels(start_pct, stop_pct, max(stop_pct - start_pct, 1e-6))
+    levels_between(start_pct, stop_pct, max(stop_pct - start_pct, 1e-6))
     segs: list[Segment] = []
     for _ in range(max(repeats, 1)):
         segs.append(hold_segment(start_pct, hold_s, False, 0.0, "base"))
@@ -302,6 +360,7 @@ def ramp(
         "ramp",
         tuple(segs),
         {"from": start_pct, "to": stop_pct, "duration_s": duration_s, "repeats": repeats},
+        ceiling_pct=stop_pct,
     )
 
 
@@ -321,6 +380,7 @@ def explicit(
         "explicit",
         tuple(hold_segment(v, dwell_s, settle, record_s, "level") for v in levels_pct),
         {"levels": list(levels_pct), "dwell_s": dwell_s, "settle": settle},
+        ceiling_pct=max(levels_pct),
     )
 
 
@@ -346,11 +406,16 @@ def adaptive(
     the chooser's target is met or a budget (``max_minutes``, ``max_wh``, ``max_points``) ends
     it. ``duration_s`` is the budget when there is one (the run may end much sooner)."""
     if coarse_levels < 2:
-        raise ConfigError(f"the coarse pass needs at least 2 levels, got {coarse_levels}")
+        raise ConfigError(f"--coarse {coarse_levels}: the coarse pass needs at least 2 levels")
+    _finite_pct(start_pct, "--from")
+    _finite_pct(stop_pct, "--to")
     if stop_pct <= start_pct:
         raise ConfigError(f"--to ({stop_pct:g} %) must be above --from ({start_pct:g} %)")
     step = (stop_pct - start_pct) / (coarse_levels - 1)
-    coarse = [round(start_pct + k * step, 3) for k in range(coarse_levels)]
+    coarse = [
+        min(max(round(start_pct + k * step, 3), start_pct), stop_pct) for k in range(coarse_levels)
+    ]
+    coarse[-1] = stop_pct
     driver = AdaptiveDriver(
         chooser,
         coarse,
@@ -381,6 +446,7 @@ def adaptive(
             **({"voltage_range_v": list(voltage_range_v)} if voltage_range_v else {}),
         },
         adaptive=driver,
+        ceiling_pct=stop_pct,
     )
 
 

@@ -473,7 +473,11 @@ class Runner:
         # Slew-rate limit (steps become short ramps at the configured rate).
         max_step = self.limits.max_slew_pct_s * self.cfg.tick_s
         delta = float(np.clip(target_pct - self._cmd_pct, -max_step, max_step))
-        self._cmd_pct = min(self._cmd_pct + delta, self.limits.max_throttle_pct)
+        # never above the interlock's ceiling nor above what the plan was asked to reach
+        ceiling_pct = self.limits.max_throttle_pct
+        if self.plan.ceiling_pct is not None:
+            ceiling_pct = min(ceiling_pct, self.plan.ceiling_pct)
+        self._cmd_pct = min(self._cmd_pct + delta, ceiling_pct)
         if self._sent_pct is None and self._cmd_pct <= 0.0:
             return  # nothing commanded yet and nothing to command: the motors are stopped
         changed = self._sent_pct is None or abs(self._cmd_pct - self._sent_pct) > 1e-9

@@ -6,6 +6,7 @@ them, ``rig.adaptive_plan`` chooses them one at a time, and ``rig.runner`` execu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from thrustmap.core.errors import ConfigError
@@ -67,6 +68,8 @@ PACK_MOVE_MIN_REL = 0.02
 
 def hold_segment(level: float, dwell_s: float, settle: bool, record_s: float, label: str) -> Hold:
     """A ``Hold``, refusing a dwell that is not positive."""
-    if dwell_s <= 0:
-        raise ConfigError(f"dwell must be positive, got {dwell_s:g} s")
+    if not 0 < dwell_s < math.inf:  # also NaN
+        raise ConfigError(f"--dwell {dwell_s:g}: expected a positive number of seconds")
+    if not 0 <= record_s < math.inf:
+        raise ConfigError(f"--record {record_s:g}: expected a positive number of seconds")
     return Hold(level, dwell_s, settle, record_s, label)
