@@ -387,6 +387,59 @@ ROWS = [
         "--seconds 0: expected a positive duration",
     ),
     Row("a command typo", "fti {run}", 2, "No such command"),
+    # -- issue 44, bench side: never past what was asked, every role checked first ----------
+    Row(
+        "44.1 stairs --to 60 --step 20 ends at 60, not 70",
+        "sweep stairs-up --stand sim://tyto-1585 --throttle sim://betaflight --to 60 --step 20 "
+        "--dwell 1 --dry-run -o {tmp}/c44a.csv",
+        0,
+        "ceiling 60.0 %",
+        absent="70.0 %",
+    ),
+    Row(
+        "44.1 --step 100 within --to 60",
+        "sweep stairs-up --stand sim://tyto-1585 --throttle sim://betaflight --to 60 --step 100 "
+        "--dwell 1 --dry-run -o {tmp}/c44b.csv",
+        0,
+        "ceiling 60.0 %",
+        absent="110",
+    ),
+    Row(
+        "44.1 steps returning above --to",
+        "sweep steps --stand sim://tyto-1585 --from 2 --to 5 --step 1 --dry-run -o {tmp}/c44c.csv",
+        2,
+        "--low 10 % is above --to 5 %",
+    ),
+    Row(
+        "44.6 a stand given as the throttle",
+        "sweep stairs-up --stand sim://tyto-1585 --throttle sim://line-stand --to 30 --dwell 1 "
+        "--yes -o {tmp}/c44d.csv",
+        2,
+        "is a thrust stand, not a flight controller",
+        absent="thrown propeller",
+    ),
+    Row(
+        "44.6 the stand given twice",
+        "sweep stairs-up --stand sim://tyto-1585 --throttle sim://tyto-1585 --to 30 --dwell 1 "
+        "--yes -o {tmp}/c44e.csv",
+        2,
+        "not a flight controller",
+        absent="thrown propeller",
+    ),
+    Row(
+        "44.12 spin --throttle 0.5 meant as 50 %",
+        "spin sim://betaflight --motor 1 --throttle 0.5 --yes",
+        2,
+        "did you mean 50 %?",
+        absent="spinning",
+    ),
+    Row(
+        "44.12 probe names no test file",
+        "probe sim://betaflight",
+        0,
+        "against real Betaflight 4.6.0 SITL",
+        absent="tests/",
+    ),
 ]
 
 

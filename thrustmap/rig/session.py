@@ -144,6 +144,12 @@ def pairing_warnings(rig: Rig) -> list[str]:
     return out
 
 
+_STAND_AS_THROTTLE = (
+    "--throttle {url} is {kind}, not a flight controller: give the FC (MSP or MAVLink) that "
+    "drives the motor on --stand, or omit --throttle to drive the ESC from the stand's own output"
+)
+
+
 class BenchSession:
     """The devices of one bench session, open between ``__enter__`` and ``__exit__`` (see
     module). ``output`` and ``stand`` are available inside the block."""
@@ -205,7 +211,9 @@ class BenchSession:
         if rig.throttle is None:
             assert self._stand is not None
             return connect.stand_esc_output(self._stand, rig.motor)
-        return connect.open_throttle_output(
+        if rig.stand is not None and rig.throttle == rig.stand:
+            raise ConfigError(_STAND_AS_THROTTLE.format(url=rig.throttle, kind="the stand"))
+        output = connect.open_throttle_output(
             rig.throttle,
             self.clock,
             kind=rig.kind,
@@ -217,6 +225,12 @@ class BenchSession:
             watchdog_log=rig.watchdog_log,
             signing_key=rig.signing_key,
         )
+        if rig.stand is not None and isinstance(output, connect.StandEscOutput):
+            # a stand's own ESC output given as --throttle beside a measuring --stand: the roles
+            # are checked here, after opening (which commands nothing) and before any command
+            output.close()
+            raise ConfigError(_STAND_AS_THROTTLE.format(url=rig.throttle, kind="a thrust stand"))
+        return output
 
     def resolve_motor(self, text: str | int) -> tuple[int, str]:
         """The 0-based FC motor for ``--motor`` (a number, or an ArduPilot test-order letter)

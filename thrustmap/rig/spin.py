@@ -74,6 +74,11 @@ class SpinResult:
             raise self.error
 
 
+#: below this a throttle in % is a fraction typed as percent (0.5 meant as 50 %): no ESC spins
+#: there (their spin-up is 3-10 %; Betaflight's idle is 5.5 % by default)
+MIN_SPIN_PCT = 1.0
+
+
 def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROTTLE_PCT) -> None:
     """Refuse a request outside the caps (nothing has been sent yet)."""
     if not 0.0 < max_throttle_pct <= 100.0:
@@ -81,6 +86,11 @@ def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROT
     pct = request.throttle_pct
     if not math.isfinite(pct) or pct < 0.0:
         raise ConfigError(f"throttle must be 0..100 %, got {pct:g}")
+    if 0.0 < pct < MIN_SPIN_PCT:
+        raise ConfigError(
+            f"--throttle {pct:g} is in percent: {pct:g} % is below any ESC's spin-up, so "
+            f"nothing would turn (did you mean {pct * 100:g} %?); give {MIN_SPIN_PCT:g} % or more"
+        )
     if pct > max_throttle_pct:
         raise SafetyError(
             f"throttle {pct:g} % is above the {max_throttle_pct:g} % cap; raise it explicitly "

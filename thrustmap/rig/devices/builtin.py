@@ -57,7 +57,7 @@ MSP = Driver(
     sim_detect=_msp_sim,
     host_prefixes=(b"$M<", b"$X<"),
     open_output=_open_msp,
-    verified="against real Betaflight 4.6.0 SITL (tests/test_betaflight_sitl.py)",
+    verified="against real Betaflight 4.6.0 SITL (in CI, on every change)",
 )
 
 # --------------------------------------------------------------------------- MAVLink
