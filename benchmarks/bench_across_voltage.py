@@ -125,10 +125,10 @@ def run(seed: int, drop_v: float, out: Path, which: str) -> Run:
                     10,
                     60,
                     dwell_s=3.0,
-                    max_minutes=BUDGET_MIN,
-                    voltage_range_v=rng,
-                    connect_pack=connect if rng else None,
-                    discharge=which != "across-pack",
+                    budget=plans.Budget(max_minutes=BUDGET_MIN),
+                    across=None
+                    if rng is None
+                    else plans.AcrossVoltage(rng, connect, discharge=which != "across-pack"),
                 ),
             )
         ]

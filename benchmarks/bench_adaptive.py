@@ -62,7 +62,7 @@ RIGS: dict[str, tuple[str, dict[str, float]]] = {
 
 
 def adaptive_plan() -> plans.Plan:
-    return plans.adaptive(MapChooser(TARGET_PI_PCT), 10, 60, dwell_s=3.0, settle=True, record_s=1.0)
+    return plans.adaptive(MapChooser(TARGET_PI_PCT), 10, 60, dwell_s=3.0, record_s=1.0)
 
 
 @dataclass

@@ -40,8 +40,7 @@ def plan() -> plans.Plan:
         coarse_levels=COARSE_LEVELS,
         dwell_s=DWELL_S,
         record_s=RECORD_S,
-        max_minutes=MAX_MINUTES,
-        max_wh=MAX_WH,
+        budget=plans.Budget(max_minutes=MAX_MINUTES, max_wh=MAX_WH),
     )
 
 

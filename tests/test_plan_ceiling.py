@@ -171,9 +171,8 @@ def test_no_level_above_to_on_an_adaptive_plan(
             stop,
             coarse_levels=coarse,
             dwell_s=dwell,
-            max_points=30,
-            voltage_range_v=(20.0, 25.0) if across else None,
-            connect_pack=(lambda change: True) if across else None,
+            budget=plans.Budget(max_points=30),
+            across=plans.AcrossVoltage((20.0, 25.0), lambda change: True) if across else None,
         )
     except ConfigError as exc:
         assert _refused_naming_an_option(exc), str(exc)

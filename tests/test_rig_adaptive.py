@@ -123,9 +123,9 @@ def test_bad_targets_refused(kwargs: dict[str, object], message: str) -> None:
 def test_bad_budgets_refused() -> None:
     chooser = MapChooser(1.0)
     with pytest.raises(ConfigError, match="max-minutes"):
-        plans.adaptive(chooser, max_minutes=0)
+        plans.adaptive(chooser, budget=plans.Budget(max_minutes=0))
     with pytest.raises(ConfigError, match="max-wh"):
-        plans.adaptive(chooser, max_wh=-1)
+        plans.adaptive(chooser, budget=plans.Budget(max_wh=-1))
     with pytest.raises(ConfigError, match="must be above"):
         plans.adaptive(chooser, 40, 30)
 
@@ -204,7 +204,9 @@ def test_completed_run_stops_at_the_target_and_says_why(tmp_path: Path) -> None:
 def test_a_budget_ends_the_run(tmp_path: Path, budget: dict[str, float], reason: str) -> None:
     peers.reset_benches()
     rig = make_rig()
-    plan = plans.adaptive(MapChooser(0.01), 10, 60, dwell_s=3.0, **budget)  # unreachable target
+    plan = plans.adaptive(
+        MapChooser(0.01), 10, 60, dwell_s=3.0, budget=plans.Budget(**budget)
+    )  # unreachable target
     with rig.fc, rig.stand:
         result = adaptive_run(rig, tmp_path / "b.csv", plan)
     assert result.status == "completed" and result.stop_verified and motors_at_rest(rig)
@@ -437,7 +439,7 @@ def test_the_plan_revisits_the_range_as_the_voltage_sags(tmp_path: Path) -> None
     plan measures the envelope's low and high ends again at the lower voltages."""
     peers.reset_benches()
     rig = make_rig()
-    plan = plans.adaptive(MapChooser(0.01), 10, 60, max_minutes=3.0, **PLAN_KW)
+    plan = plans.adaptive(MapChooser(0.01), 10, 60, budget=plans.Budget(max_minutes=3.0), **PLAN_KW)
     with rig.fc, rig.stand:
         result = adaptive_run(rig, tmp_path / "v.csv", plan)
     assert result.status == "completed" and "budget reached" in result.reason
@@ -541,8 +543,7 @@ def across_plan(
         10,
         60,
         dwell_s=3.0,
-        voltage_range_v=(20.0, 25.0),
-        connect_pack=connect,
+        across=plans.AcrossVoltage((20.0, 25.0), connect),
         **kw,  # type: ignore[arg-type]
     )
 
@@ -677,7 +678,7 @@ def test_a_discharge_stops_on_sigterm_and_on_a_tripped_limit(tmp_path: Path, how
     if how == "limit":
         plan = plans.adaptive(
             ScriptedChooser(23.0, 22.0),  # type: ignore[arg-type]
-            10, 45, coarse_levels=3, dwell_s=3.0, voltage_range_v=(20.0, 25.0),
+            10, 45, coarse_levels=3, dwell_s=3.0, across=plans.AcrossVoltage((20.0, 25.0)),
         )  # fmt: skip
         plan.adaptive.hi_pct = 60.0  # type: ignore[union-attr]  # the discharge at 60 %
     with rig.fc, rig.stand:

@@ -159,19 +159,22 @@ def _adaptive_plan(kw: dict[str, Any]) -> plans.Plan:
     chooser = MapChooser(
         kw["target_pi"], thrust_range_n=thrust_range, voltage_range_v=voltage_range
     )
+    across = (
+        None
+        if voltage_range is None
+        else plans.AcrossVoltage(
+            voltage_range, kw.get("connect_pack"), discharge=kw.get("discharge", True)
+        )
+    )
     return plans.adaptive(
         chooser,
         kw["start"],
         kw["stop"],
         coarse_levels=kw["coarse"],
         dwell_s=kw["dwell"],
-        settle=True,
         record_s=kw["record"],
-        max_minutes=kw["max_minutes"],
-        max_wh=kw["max_wh"],
-        voltage_range_v=voltage_range,
-        connect_pack=kw.get("connect_pack") if voltage_range else None,
-        discharge=kw.get("discharge", True),
+        budget=plans.Budget(kw["max_minutes"], kw["max_wh"]),
+        across=across,
     )
 
 

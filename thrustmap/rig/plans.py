@@ -384,6 +384,26 @@ def explicit(
     )
 
 
+@dataclass(frozen=True)
+class Budget:
+    """What may end an adaptive run before its target: minutes, watt-hours, points."""
+
+    max_minutes: float | None = None
+    max_wh: float | None = None
+    max_points: int = 200
+
+
+@dataclass(frozen=True)
+class AcrossVoltage:
+    """An adaptive run across voltage: the range the map must cover (volts at the battery),
+    how another pack is asked for (None: the run ends where one would be needed) and whether
+    the bench pack may be discharged toward a lower voltage."""
+
+    voltage_range_v: tuple[float, float]
+    connect_pack: Callable[[PackChange], bool] | None = None
+    discharge: bool = True
+
+
 def adaptive(
     chooser: Chooser,
     start_pct: float = 10.0,
@@ -391,20 +411,16 @@ def adaptive(
     *,
     coarse_levels: int = 5,
     dwell_s: float = 3.0,
-    settle: bool = True,
     record_s: float = 1.0,
-    max_minutes: float | None = None,
-    max_wh: float | None = None,
-    max_points: int = 200,
-    voltage_range_v: tuple[float, float] | None = None,
-    connect_pack: Callable[[PackChange], bool] | None = None,
-    discharge: bool = True,
+    budget: Budget | None = None,
+    across: AcrossVoltage | None = None,
 ) -> Plan:
     """An adaptive plan: ``coarse_levels`` evenly spaced holds from ``start_pct`` to
     ``stop_pct``, then holds chosen one at a time by ``chooser`` (for the fitted map's least
     certain throttle at the battery voltage now), never outside ``start_pct..stop_pct``, until
-    the chooser's target is met or a budget (``max_minutes``, ``max_wh``, ``max_points``) ends
-    it. ``duration_s`` is the budget when there is one (the run may end much sooner)."""
+    the chooser's target is met or the ``budget`` ends it. Every hold settles (``dwell_s`` is its
+    maximum, then ``record_s`` is recorded)."""
+    budget = budget or Budget()
     if coarse_levels < 2:
         raise ConfigError(f"--coarse {coarse_levels}: the coarse pass needs at least 2 levels")
     _finite_pct(start_pct, "--from")
@@ -423,13 +439,13 @@ def adaptive(
         hi_pct=stop_pct,
         dwell_s=dwell_s,
         record_s=record_s,
-        settle=settle,
-        max_minutes=max_minutes,
-        max_wh=max_wh,
-        max_points=max_points,
-        voltage_range_v=voltage_range_v,
-        connect_pack=connect_pack,
-        discharge=discharge,
+        settle=True,
+        max_minutes=budget.max_minutes,
+        max_wh=budget.max_wh,
+        max_points=budget.max_points,
+        voltage_range_v=None if across is None else across.voltage_range_v,
+        connect_pack=None if across is None else across.connect_pack,
+        discharge=True if across is None else across.discharge,
     )
     return Plan(
         "adaptive",
@@ -439,11 +455,11 @@ def adaptive(
             "to": stop_pct,
             "coarse_levels": coarse_levels,
             "dwell_s": dwell_s,
-            "settle": settle,
+            "settle": True,
             "target_pi_pct": chooser.target_pi_pct,
-            "max_minutes": max_minutes,
-            "max_wh": max_wh,
-            **({"voltage_range_v": list(voltage_range_v)} if voltage_range_v else {}),
+            "max_minutes": budget.max_minutes,
+            "max_wh": budget.max_wh,
+            **({"voltage_range_v": list(across.voltage_range_v)} if across else {}),
         },
         adaptive=driver,
         ceiling_pct=stop_pct,
