@@ -100,7 +100,7 @@ def run(rig: str, seed: int, out: Path, which: str) -> Run:
         exps = {
             "stairs-up": plans.stairs(10, 60, 5, dwell_s=3.0, settle=True, record_s=1.0),
             "steps": plans.steps(
-                15, 60, 5, low_pct=10, dwell_s=3.0, low_dwell_s=2.0, settle=True, record_s=1.0
+                15, 60, 5, low=plans.Low(10, 2.0), dwell_s=3.0, settle=True, record_s=1.0
             ),
         }
         cfg = SETTLE_CFG

@@ -50,7 +50,7 @@ def settle_experiments(record_s: float = SETTLE_RECORD_S) -> dict[str, plans.Pla
     """The demo's campaign with settle detection on every hold (the dwells become maxima)."""
     return {
         "steps": plans.steps(
-            15, 60, 5, low_pct=10, dwell_s=3.0, low_dwell_s=2.0, settle=True, record_s=record_s
+            15, 60, 5, low=plans.Low(10, 2.0), dwell_s=3.0, settle=True, record_s=record_s
         ),
         "stairs-up": plans.stairs(10, 60, 5, dwell_s=3.0, settle=True, record_s=record_s),
         "stairs-down": plans.stairs(
@@ -63,7 +63,7 @@ def settle_experiments(record_s: float = SETTLE_RECORD_S) -> dict[str, plans.Pla
 def short_fixed_experiments(factor: float) -> dict[str, plans.Plan]:
     """The demo's campaign with every fixed dwell scaled by ``factor``."""
     return {
-        "steps": plans.steps(15, 60, 5, low_pct=10, dwell_s=3.0 * factor, low_dwell_s=2.0 * factor),
+        "steps": plans.steps(15, 60, 5, low=plans.Low(10, 2.0 * factor), dwell_s=3.0 * factor),
         "stairs-up": plans.stairs(10, 60, 5, dwell_s=3.0 * factor),
         "stairs-down": plans.stairs(10, 60, 5, down=True, dwell_s=3.0 * factor),
         "ramp": experiments()["ramp"],

@@ -32,9 +32,8 @@ def plan() -> plans.Plan:
         FROM_PCT,
         TO_PCT,
         STEP_PCT,
-        low_pct=LOW_PCT,
+        low=plans.Low(LOW_PCT, LOW_DWELL_S),
         dwell_s=DWELL_S,
-        low_dwell_s=LOW_DWELL_S,
         settle=SETTLE,
         record_s=RECORD_S,
     )

@@ -52,7 +52,7 @@ def _top(seg: RunSegment) -> float:
 
 def _build(kind: str, start: float, stop: float, step: float, dwell: float) -> plans.Plan:
     if kind == "steps":
-        return plans.steps(start, stop, step, low_pct=min(10.0, start), dwell_s=dwell)
+        return plans.steps(start, stop, step, low=plans.Low(min(10.0, start), dwell), dwell_s=dwell)
     if kind == "stairs-up":
         return plans.stairs(start, stop, step, dwell_s=dwell)
     if kind == "stairs-down":

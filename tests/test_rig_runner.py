@@ -156,7 +156,7 @@ def test_completed_sweep_and_true_map_recovered(tmp_path: Path) -> None:
     with rig.fc, rig.stand:
         for name, plan in {
             "stairs": plans.stairs(10, 60, 5, dwell_s=3.0),
-            "steps": plans.steps(15, 60, 5, dwell_s=3.0, low_dwell_s=2.0),
+            "steps": plans.steps(15, 60, 5, low=plans.Low(10, 2.0), dwell_s=3.0),
         }.items():
             result = sweep(rig, tmp_path / f"{name}.csv", plan)
             assert result.status == "completed" and result.stop_verified

@@ -118,7 +118,7 @@ def _remember(out_dir: Path, written: list[Path]) -> None:
 def experiments() -> dict[str, plans.Plan]:
     """The paper's Fig. 5 campaign, in % of 1000–2000 µs (1100–1600 µs steps, 1800 µs ramp top)."""
     return {
-        "steps": plans.steps(15, 60, 5, low_pct=10, dwell_s=3.0, low_dwell_s=2.0),
+        "steps": plans.steps(15, 60, 5, low=plans.Low(10, 2.0), dwell_s=3.0),
         "stairs-up": plans.stairs(10, 60, 5, dwell_s=3.0),
         "stairs-down": plans.stairs(10, 60, 5, down=True, dwell_s=3.0),
         "ramp": plans.ramp(0, 70, duration_s=30.0),
@@ -203,8 +203,7 @@ def run_strategy(
                 str(path),
                 clock,
                 limits=limits,
-                config=RunConfig(rotors_on_esc=rotors),
-                meta={"simulated": True},
+                config=RunConfig(rotors_on_esc=rotors, sidecar={"simulated": True}),
             )
             say(
                 f"{strategy} {name:<11} {run.status}: {run.samples} samples, {run.duration_s:.0f} s simulated"

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.adaptive_plan import (
@@ -260,14 +260,24 @@ def levels_between(start_pct: float, stop_pct: float, step_pct: float) -> list[f
     return levels
 
 
+class Low(NamedTuple):
+    """The level ``steps`` returns to between steps, and how long it holds it there."""
+
+    pct: float = 10.0
+    dwell_s: float = 3.0
+
+
+#: steps' default low level: 10 % held 3 s
+DEFAULT_LOW = Low()
+
+
 def steps(
     start_pct: float = 15,
     stop_pct: float = 60,
     step_pct: float = 5,
     *,
-    low_pct: float = 10,
+    low: Low = DEFAULT_LOW,
     dwell_s: float = 3.0,
-    low_dwell_s: float = 3.0,
     settle: bool = False,
     record_s: float = 1.0,
     repeats: int = 1,
@@ -277,13 +287,16 @@ def steps(
     A level equal to the low level is no step (it would hold the low level twice), so it is left
     out: ``--from 10 --low 10`` steps to 15, 20, ... and back to 10 between them.
     """
-    low = _finite_pct(low_pct, "--low")
-    if low > stop_pct:
+    low_pct, low_dwell_s = low
+    low_pct = _finite_pct(low_pct, "--low")
+    if low_pct > stop_pct:
         raise ConfigError(
-            f"--low {low:g} % is above --to {stop_pct:g} %: steps returns to --low between "
+            f"--low {low_pct:g} % is above --to {stop_pct:g} %: steps returns to --low between "
             "steps, so it must not exceed --to"
         )
-    levels = [lv for lv in levels_between(start_pct, stop_pct, step_pct) if abs(lv - low) > 1e-9]
+    levels = [
+        lv for lv in levels_between(start_pct, stop_pct, step_pct) if abs(lv - low_pct) > 1e-9
+    ]
     if not levels:
         raise ConfigError(
             f"--from/--to: every level in {start_pct:g}..{stop_pct:g} % equals --low "

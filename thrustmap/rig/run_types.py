@@ -6,7 +6,9 @@ session, bench scripts, the live panel). Plain values, no I/O.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 from thrustmap.rig.interfaces import StandSample, Telemetry
 from thrustmap.rig.interlocks import Reading, Trip
@@ -28,6 +30,8 @@ class RunConfig:
     spin_down_max_s: float = 10.0  # ... within this time, or the run is refused
     #: confirm the motors at rest before the run (stopping them if not)
     check_at_rest: bool = True
+    #: extra fields for the Ds log's sidecar (e.g. ``{"simulated": True}``)
+    sidecar: Mapping[str, Any] = field(default_factory=dict)
 
 
 #: the phases a run goes through, in order (``Status.phase``)

@@ -676,9 +676,9 @@ def record_sweep(
     limits: Limits | None = None,
     config: RunConfig | None = None,
     monitor: Callable[[Status], None] | None = None,
-    meta: dict[str, Any] | None = None,
 ) -> RunResult:
-    """Run ``plan`` and record it as a Ds log (``log_path`` + its ``.meta.json`` sidecar)."""
+    """Run ``plan`` and record it as a Ds log (``log_path`` + its ``.meta.json`` sidecar, with
+    ``config.sidecar``'s fields)."""
     limits = limits or Limits()
     config = config or RunConfig()
     check_plan(plan, limits)
@@ -696,7 +696,7 @@ def record_sweep(
             "plan": plan.to_dict(),
             "limits": limits.to_dict(),
             "run_config": config.__dict__,
-            **(meta or {}),
+            **dict(config.sidecar),
         },
     )
     return Runner(

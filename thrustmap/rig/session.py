@@ -26,7 +26,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import TracebackType
 from typing import Any
 
@@ -285,9 +285,10 @@ class BenchSession:
             log_path,
             self.clock,
             limits=limits,
-            config=config,
+            config=replace(
+                config or RunConfig(), sidecar={**(config or RunConfig()).sidecar, **(meta or {})}
+            ),
             monitor=monitor,
-            meta=meta,
         )
 
     def spin(
