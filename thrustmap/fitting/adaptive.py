@@ -229,10 +229,57 @@ class MapChooser:
         except (ThrustmapError, np.linalg.LinAlgError, ValueError) as exc:
             log.info("adaptive fit failed with %d points: %s", len(usable), exc)
             return _keep_going(f"no fit yet ({exc})")
+        el = np.array([p.elapsed_s for p in usable], float)
+        grid = self._grid(fitted, (t, b, el), voltage_v, throttle_range_pct)
+        note = self._span_note(b)
+
+        def pi_at(thrust_n: float, volts: float) -> float | None:
+            value = float(fitted.half_width_pct(np.array([thrust_n]), np.array([volts]))[0])
+            return value if math.isfinite(value) else None
+
+        worst = grid.worst
+        met = worst is not None and worst <= self.target_pi_pct and len(usable) >= self.min_points
+        if met:
+            return Verdict(worst, True, None, "target met", None, pi_at, note)
+        # the choice: at the voltage now, widest interval; among equal ones, the largest gap
+        # the voltage each candidate would be measured at: now, less the sag its load brings
+        # (a linear fit of the points' voltage on thrust and time)
+        pi_now = fitted.half_width_pct(grid.grid_t, grid.cand_b)
+        if throttle_range_pct is not None:
+            th_now = fitted.throttle_pct(grid.grid_t, grid.cand_b)
+            inside_now = (th_now >= throttle_range_pct[0] - 0.5) & (
+                th_now <= throttle_range_pct[1] + 0.5
+            )
+            if inside_now.any():
+                pi_now = np.where(inside_now, pi_now, -np.inf)
+        # gap: distance to the nearest point in thrust (envelope units) and voltage (units of
+        # the span that identifies the voltage scaling, 5 % of the mean)
+        unit_b = IDENTIFY_SPAN_REL * float(b.mean())
+        if self.voltage_range_v is not None and worst is not None:
+            move = self._move(
+                grid.hw, grid.tt, grid.bb, grid.grid_t, grid.cand_b, pi_now, (t, b), unit_b
+            )
+            if move is not None:
+                return Verdict(worst, False, None, move[0], None, pi_at, note, *move[1:])
+        level, why, before = _least_certain(fitted, grid, pi_now, (t, b), voltage_v, unit_b)
+        if level is None:
+            return _keep_going(why)
+        return Verdict(worst, False, level, why, before, pi_at, note)
+
+    def _grid(
+        self,
+        fitted: Any,
+        points: tuple[FloatArray, FloatArray, FloatArray],
+        voltage_v: float,
+        throttle_range_pct: tuple[float, float] | None,
+    ) -> _Grid:
+        """The candidates over the envelope and the voltages to judge, each candidate's voltage
+        now (less its load's sag), the interval over the grid and its worst (None: no interval
+        yet), within the plan's throttle range where the map says it reaches."""
+        t, b, el = points
         t_lo, t_hi = self.envelope(t)
         grid_t = np.linspace(t_lo, t_hi, self.candidates)
         b_lo, b_hi = float(b.min()), float(b.max())
-        el = np.array([p.elapsed_s for p in usable], float)
         cand_b = _voltage_model(t, el, b, grid_t, float(el.max()), voltage_v)
         if self.voltage_range_v is not None:
             # the asked range, not the voltages seen; its top at each thrust less the sag
@@ -257,83 +304,21 @@ class MapChooser:
         if fitted.worst_over_region_pct is not None and math.isfinite(worst_all):
             # the target holds where fit will say it does: over the supported region too
             worst_all = max(worst_all, fitted.worst_over_region_pct)
-        worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
-        note = ""
-        span = b_hi - b_lo
+        worst = worst_all if math.isfinite(worst_all) else None
+        return _Grid(grid_t, cand_b, tt, bb, hw, worst, (t_lo, t_hi))
+
+    def _span_note(self, b: FloatArray) -> str:
+        """When the voltages seen span too little to identify the voltage scaling, say so."""
+        span = float(b.max() - b.min())
         mean_b = float(b.mean())
         if span < IDENTIFY_SPAN_REL * mean_b and self.voltage_range_v is None:
-            note = (
+            return (
                 f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V): "
                 "how the map scales with voltage rests on motor physics; for a measured "
                 "scaling, continue on a battery at another charge or a bench supply "
                 f"(at least {IDENTIFY_SPAN_REL * mean_b:.1f} V apart)"
             )
-
-        def pi_at(thrust_n: float, volts: float) -> float | None:
-            value = float(fitted.half_width_pct(np.array([thrust_n]), np.array([volts]))[0])
-            return value if math.isfinite(value) else None
-
-        met = worst is not None and worst <= self.target_pi_pct and len(usable) >= self.min_points
-        if met:
-            return Verdict(worst, True, None, "target met", None, pi_at, note)
-        # the choice: at the voltage now, widest interval; among equal ones, the largest gap
-        # the voltage each candidate would be measured at: now, less the sag its load brings
-        # (a linear fit of the points' voltage on thrust and time)
-        pi_now = fitted.half_width_pct(grid_t, cand_b)
-        if throttle_range_pct is not None:
-            th_now = fitted.throttle_pct(grid_t, cand_b)
-            inside_now = (th_now >= throttle_range_pct[0] - 0.5) & (
-                th_now <= throttle_range_pct[1] + 0.5
-            )
-            if inside_now.any():
-                pi_now = np.where(inside_now, pi_now, -np.inf)
-        # gap: distance to the nearest point in thrust (envelope units) and voltage (units of
-        # the span that identifies the voltage scaling, 5 % of the mean)
-        span_t = max(t_hi - t_lo, 1e-9)
-        unit_b = IDENTIFY_SPAN_REL * mean_b
-        if self.voltage_range_v is not None and worst is not None:
-            move = self._move(hw, tt, bb, grid_t, cand_b, pi_now, (t, b), unit_b)
-            if move is not None:
-                return Verdict(worst, False, None, move[0], None, pi_at, note, *move[1:])
-        gap = np.min(
-            np.hypot(
-                (grid_t[:, None] - t[None, :]) / span_t, (cand_b[:, None] - b[None, :]) / unit_b
-            ),
-            axis=1,
-        )
-        near = np.abs(b - voltage_v) <= unit_b
-        wide = pi_now >= float(pi_now.max()) * 0.98
-        # the widest interval, weighed by how far it is from the points: a point measured
-        # again where one already is narrows the coefficients' term little (the map's
-        # interval includes it), so the plan does not sit on one end of the range
-        finite = np.isfinite(pi_now)
-        top = float(pi_now.max()) if finite.any() else math.inf
-        close = finite & (pi_now >= NEAR_WIDEST * top)
-        score = np.where(close, np.where(finite, pi_now, 0.0) * (1.0 + gap), -np.inf)
-        if not finite.any() or bool(wide.all()):
-            score = np.where(wide, gap, -1.0)
-        k = int(np.argmax(score))
-        target_t = float(grid_t[k])
-        level = float(fitted.throttle_pct(np.array([target_t]), np.array([cand_b[k]]))[0])
-        if not math.isfinite(level):
-            return _keep_going("the map gives no throttle for the envelope")
-        flat = bool(wide.all())
-        why = (
-            (
-                f"widest interval ±{float(pi_now[k]):.2f} %"
-                if worst is not None
-                else "no interval yet (too few points to hold any out)"
-            )
-            + f" at {target_t:.3g} N, {cand_b[k]:.2f} V"
-            + (
-                f" (equal over the range: largest gap, {gap[k] * 100:.0f} % of the envelope)"
-                if flat
-                else ""
-            )
-            + ("" if near.any() else "; no point yet near this voltage")
-        )
-        before = float(pi_now[k]) if math.isfinite(float(pi_now[k])) else None
-        return Verdict(worst, False, level, why, before, pi_at, note)
+        return ""
 
     def _move(
         self,
@@ -398,6 +383,74 @@ def _voltage_model(
     c_t = min(float(coef[1]), 0.0)  # more thrust never raises the battery voltage
     predicted_now = float(coef[0] + coef[2] * now_s)
     return np.asarray(predicted_now + c_t * grid_t, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """Where an assessment judges the map: candidate thrusts, each one's voltage now, the grid
+    over thrust and voltage, its interval (``-inf`` outside the plan's range) and the worst."""
+
+    grid_t: FloatArray
+    cand_b: FloatArray
+    tt: FloatArray
+    bb: FloatArray
+    hw: FloatArray
+    worst: float | None
+    envelope_n: tuple[float, float]
+
+
+def _least_certain(
+    fitted: Any,
+    grid: _Grid,
+    pi_now: FloatArray,
+    points: tuple[FloatArray, FloatArray],
+    voltage_v: float,
+    unit_b: float,
+) -> tuple[float | None, str, float | None]:
+    """The next level (None: the map gives none, with why), why it was chosen and the interval
+    there before measuring: the widest interval at the voltage now, weighed by its distance to
+    the points (thrust in envelope units, voltage in ``unit_b``)."""
+    t, b = points
+    grid_t, cand_b = grid.grid_t, grid.cand_b
+    t_lo, t_hi = grid.envelope_n
+    span_t = max(t_hi - t_lo, 1e-9)
+    gap = np.min(
+        np.hypot((grid_t[:, None] - t[None, :]) / span_t, (cand_b[:, None] - b[None, :]) / unit_b),
+        axis=1,
+    )
+    near = np.abs(b - voltage_v) <= unit_b
+    wide = pi_now >= float(pi_now.max()) * 0.98
+    # the widest interval, weighed by how far it is from the points: a point measured
+    # again where one already is narrows the coefficients' term little (the map's
+    # interval includes it), so the plan does not sit on one end of the range
+    finite = np.isfinite(pi_now)
+    top = float(pi_now.max()) if finite.any() else math.inf
+    close = finite & (pi_now >= NEAR_WIDEST * top)
+    score = np.where(close, np.where(finite, pi_now, 0.0) * (1.0 + gap), -np.inf)
+    if not finite.any() or bool(wide.all()):
+        score = np.where(wide, gap, -1.0)
+    k = int(np.argmax(score))
+    target_t = float(grid_t[k])
+    level = float(fitted.throttle_pct(np.array([target_t]), np.array([cand_b[k]]))[0])
+    if not math.isfinite(level):
+        return None, "the map gives no throttle for the envelope", None
+    flat = bool(wide.all())
+    why = (
+        (
+            f"widest interval ±{float(pi_now[k]):.2f} %"
+            if grid.worst is not None
+            else "no interval yet (too few points to hold any out)"
+        )
+        + f" at {target_t:.3g} N, {cand_b[k]:.2f} V"
+        + (
+            f" (equal over the range: largest gap, {gap[k] * 100:.0f} % of the envelope)"
+            if flat
+            else ""
+        )
+        + ("" if near.any() else "; no point yet near this voltage")
+    )
+    before = float(pi_now[k]) if math.isfinite(float(pi_now[k])) else None
+    return level, why, before
 
 
 def _keep_going(why: str) -> Verdict:
