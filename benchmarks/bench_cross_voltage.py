@@ -240,14 +240,16 @@ def creeping_staircases(seeds: tuple[int, ...] = (1, 2, 3)) -> list[Scored]:
 
     from thrustmap.fitting.loaders import load_dataset
     from thrustmap.rig.sim.physics import LoadCellCreep
-    from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
+    from thrustmap.rig.sim.sysid import StaircaseSpec, simulate_staircase, write_csv
 
     with tempfile.TemporaryDirectory() as tmp:
         logs = [
             load_dataset(
                 write_csv(
                     simulate_staircase(
-                        seed=s, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep()
+                        StaircaseSpec(
+                            seed=s, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep()
+                        )
                     ),
                     Path(tmp) / f"creep{s}.csv",
                 )

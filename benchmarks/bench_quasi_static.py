@@ -30,7 +30,7 @@ from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.selection import Selection, select
 from thrustmap.rig.sim.physics import true_throttle_fraction
 from thrustmap.rig.sim.presets import preset
-from thrustmap.rig.sim.sysid import SYSID_BATTERY, simulate_staircase, write_csv
+from thrustmap.rig.sim.sysid import SYSID_BATTERY, StaircaseSpec, simulate_staircase, write_csv
 
 PARAMS = replace(preset("crazyflie-2.1"), **SYSID_BATTERY)  # type: ignore[arg-type]
 BASELINE = Selection(quasi_static_updates=0.0, quasi_static_lags=0.0)
@@ -59,7 +59,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for update_s in (0.025, 0.05, 0.096, 0.1, 0.104):
             for seed in (1, 2, 3):
-                log = simulate_staircase(seed=seed, cell_update_s=update_s)
+                log = simulate_staircase(StaircaseSpec(seed=seed, cell_update_s=update_s))
                 path = write_csv(log, Path(tmp) / "cf.csv")
                 # the truth over what the rotor really did: true steady thrust at each stair's
                 # command and the voltage measured there, from 10 % of the top thrust up

@@ -17,12 +17,12 @@ from thrustmap.fitting.loaders import load_dataset, load_datasets
 from thrustmap.fitting.models import MODELS
 from thrustmap.fitting.selection import Selection, select
 from thrustmap.rig.sim.physics import LoadCellCreep
-from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
+from thrustmap.rig.sim.sysid import StaircaseSpec, simulate_staircase, write_csv
 
 
 def _creeping(tmp_path: Path, seed: int) -> Path:
     log = simulate_staircase(
-        seed=seed, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep()
+        StaircaseSpec(seed=seed, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep())
     )
     return write_csv(log, tmp_path / f"creep{seed}.csv")
 

@@ -21,7 +21,13 @@ from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.selection import Selection, describe, select
 from thrustmap.rig.sim.physics import LoadCellCreep, true_throttle_fraction
 from thrustmap.rig.sim.presets import preset
-from thrustmap.rig.sim.sysid import SYSID_BATTERY, lag_ratio, simulate_staircase, write_csv
+from thrustmap.rig.sim.sysid import (
+    SYSID_BATTERY,
+    StaircaseSpec,
+    lag_ratio,
+    simulate_staircase,
+    write_csv,
+)
 
 FIXTURE = Path(__file__).resolve().parent.parent / "fixtures" / "stands" / "crazyflie_sysid_sim.csv"
 PARAMS = replace(preset("crazyflie-2.1"), **SYSID_BATTERY)  # type: ignore[arg-type]
@@ -61,7 +67,7 @@ def check_quasi_static(path: Path) -> dict[str, float]:
 
 
 def test_simulated_sysid_deck_has_the_crazyflie_shape() -> None:
-    log = simulate_staircase(seed=1, cell_update_s=0.104)
+    log = simulate_staircase(StaircaseSpec(seed=1, cell_update_s=0.104))
     assert log.row_s == pytest.approx(0.01)
     steps = np.flatnonzero(np.diff(log.pwm) != 0)
     assert np.median(np.diff(steps)) == 10  # a new command every 100 ms
@@ -87,7 +93,9 @@ def test_quasi_static_for_any_sensor_rate_near_the_dwell(
     tmp_path: Path, update_s: float, seed: int
 ) -> None:
     """One to four sensor updates per stair, the sensor's clock free against the command's."""
-    path = write_csv(simulate_staircase(seed=seed, cell_update_s=update_s), tmp_path / "cf.csv")
+    path = write_csv(
+        simulate_staircase(StaircaseSpec(seed=seed, cell_update_s=update_s)), tmp_path / "cf.csv"
+    )
     check_quasi_static(path)
 
 
@@ -110,7 +118,7 @@ def test_inspect_and_fit_say_what_the_staircase_kept(
 def test_slow_steps_are_still_plateaus() -> None:
     """Stairs long enough to settle (many sensor updates, many lag time constants) stay
     plateaus: a classic steps sweep is not paired."""
-    log = simulate_staircase(seed=1, dwell_s=1.0, cell_update_s=0.0125, levels=8)
+    log = simulate_staircase(StaircaseSpec(seed=1, dwell_s=1.0, cell_update_s=0.0125, levels=8))
     from thrustmap.core.units import SCALES
     from thrustmap.fitting.dataset import Dataset
 
@@ -145,7 +153,7 @@ def test_report_sweep_shows_the_paired_stairs_not_plateaus() -> None:
 
 def test_one_way_staircase_says_why_it_was_not_kept(tmp_path: Path) -> None:
     """Up only: no opposite leg, so the lag cannot be cancelled; the output says so."""
-    log = simulate_staircase(seed=1, cell_update_s=0.1)
+    log = simulate_staircase(StaircaseSpec(seed=1, cell_update_s=0.1))
     top = int(np.argmax(log.pwm))
     up_only = replace(
         log,
@@ -197,7 +205,9 @@ def test_any_staircase_shape_keeps_the_range_and_matches_the_truth(
     range the rotor swept: kept points over >= 80 % of the thrust, within 1 % of the truth on
     average and 2 % anywhere (whether selection pairs the legs or averages plateaus)."""
     log = simulate_staircase(
-        seed=5, dwell_s=dwell_s, cell_update_s=update_s, levels=levels, top_pct=top_pct
+        StaircaseSpec(
+            seed=5, dwell_s=dwell_s, cell_update_s=update_s, levels=levels, top_pct=top_pct
+        )
     )
     ds = load_dataset(write_csv(log, tmp_path / "cf.csv"))
     pts = select(ds, Selection())
@@ -216,7 +226,9 @@ def creeping_staircase(tmp_path: Path, seed: int, dwell_s: float = 1.0) -> Path:
     """A Crazyflie-style staircase with 1 s stairs (ten load-cell updates each) on a creeping
     load cell: part of each load change arrives over seconds, so the legs disagree."""
     log = simulate_staircase(
-        seed=seed, levels=8, dwell_s=dwell_s, cell_update_s=0.1, creep=LoadCellCreep()
+        StaircaseSpec(
+            seed=seed, levels=8, dwell_s=dwell_s, cell_update_s=0.1, creep=LoadCellCreep()
+        )
     )
     return write_csv(log, tmp_path / f"creep{seed}.csv")
 
@@ -250,7 +262,7 @@ def test_one_second_stairs_on_a_creeping_load_cell_are_read_leg_by_leg(
 
 
 def test_one_second_stairs_without_creep_are_not_corrected(tmp_path: Path) -> None:
-    log = simulate_staircase(seed=2, levels=8, dwell_s=1.0, cell_update_s=0.1)
+    log = simulate_staircase(StaircaseSpec(seed=2, levels=8, dwell_s=1.0, cell_update_s=0.1))
     pts = select(load_dataset(write_csv(log, tmp_path / "cf.csv")), Selection())
     legs = pts.report["staircase_legs"]
     assert "load_cell_creep" not in legs and legs["disagreement_p95_pct"] < 1.0

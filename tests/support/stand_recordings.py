@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
+from thrustmap.rig.sim.sysid import StaircaseSpec, simulate_staircase, write_csv
 
 #: the fixture's simulation: a 10 SPS converter on its own oscillator runs a few % slow, so a
 #: 100 ms stair sometimes holds no fresh reading at all
@@ -20,4 +20,8 @@ CRAZYFLIE_SYSID = {"seed": 1, "cell_update_s": 0.104}
 
 
 def write_fixtures(folder: Path) -> list[Path]:
-    return [write_csv(simulate_staircase(**CRAZYFLIE_SYSID), folder / "crazyflie_sysid_sim.csv")]
+    return [
+        write_csv(
+            simulate_staircase(StaircaseSpec(**CRAZYFLIE_SYSID)), folder / "crazyflie_sysid_sim.csv"
+        )
+    ]

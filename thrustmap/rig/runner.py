@@ -695,7 +695,7 @@ def record_sweep(
             "devices": {"throttle_output": ident.to_dict(), "stand": stand.identify().to_dict()},
             "plan": plan.to_dict(),
             "limits": limits.to_dict(),
-            "run_config": config.__dict__,
+            "run_config": {k: v for k, v in config.__dict__.items() if k != "sidecar"},
             **dict(config.sidecar),
         },
     )

@@ -69,24 +69,35 @@ def staircase_commands(
     return np.asarray(np.round(rows / 100.0 * CF_PWM_MAX), dtype=np.int64)
 
 
-def simulate_staircase(
-    *,
-    seed: int = 1,
-    levels: int = 40,
-    top_pct: float = 100.0,
-    dwell_s: float = 0.1,
-    row_s: float = 0.01,
-    cell_update_s: float = 0.1,
-    cell_noise_g: float = 0.3,
-    substeps: int = 10,
-    creep: LoadCellCreep | None = None,
-) -> StaircaseLog:
+@dataclass(frozen=True)
+class StaircaseSpec:
+    """A simulated Crazyflie system-id staircase: ``levels`` equal steps up to ``top_pct`` and
+    back, ``dwell_s`` each, logged every ``row_s``; the load cell converts over
+    ``cell_update_s`` with ``cell_noise_g`` rms noise, and may creep (``creep``); the plant is
+    integrated ``substeps`` times a row."""
+
+    seed: int = 1
+    levels: int = 40
+    top_pct: float = 100.0
+    dwell_s: float = 0.1
+    row_s: float = 0.01
+    cell_update_s: float = 0.1
+    cell_noise_g: float = 0.3
+    substeps: int = 10
+    creep: LoadCellCreep | None = None
+
+
+def simulate_staircase(spec: StaircaseSpec | None = None) -> StaircaseLog:
     """Run the up-then-down staircase on a simulated Crazyflie and log it as the deck does.
 
     The load cell converts over ``cell_update_s`` (the mean force over the conversion, plus
     Gaussian noise of ``cell_noise_g`` rms) and holds the result until the next conversion; its
     clock is free-running (a seeded phase), not tied to the command steps. ``creep``: the load
     cell creeps (part of each load change arrives late, ``rig.sim.physics.LoadCellCreep``)."""
+    spec = spec or StaircaseSpec()
+    seed, levels, top_pct, dwell_s = spec.seed, spec.levels, spec.top_pct, spec.dwell_s
+    row_s, cell_update_s, cell_noise_g = spec.row_s, spec.cell_update_s, spec.cell_noise_g
+    substeps, creep = spec.substeps, spec.creep
     dwell_rows = max(1, round(dwell_s / row_s))
     pwm = staircase_commands(levels=levels, top_pct=top_pct, dwell_rows=dwell_rows)
     plant = make_plant("crazyflie-2.1", rotors_on_esc=4, seed=seed, noise=False, **SYSID_BATTERY)
