@@ -65,9 +65,9 @@ def select(ds: Dataset, sel: Selection) -> Points:
             kind = np.full(len(ds), "step-summary")
             report.update({"layout": STEP_SUMMARY, "step_summary_rows": len(ds)})
         else:
-            t, b, th, kind, stopped, info, roles, leg = steady_state(
-                ds, sel, rotor_stopped(ds, sel)
-            )
+            found = steady_state(ds, sel, rotor_stopped(ds, sel))
+            t, b, th, kind = found.thrust_n, found.voltage_v, found.command, found.kinds
+            stopped, info, roles, leg = found.at_rest, found.info, found.roles, found.leg
             report.update(info)
             if "staircase_legs" not in info:
                 leg = None
