@@ -4,7 +4,7 @@ takeoff. Each rule reports what it drops through the ``apply`` callback of the e
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +17,9 @@ from thrustmap.fitting.df.options import (
 )
 from thrustmap.fitting.df.resample import long_runs, mask_runs
 from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, nanmedian
+
+if TYPE_CHECKING:
+    from thrustmap.fitting.df.flight_run import FlightRun
 
 
 def airborne_windows(flight: FlightLog) -> list[tuple[float, float]]:
@@ -165,13 +168,15 @@ def _height_rule(
           f"takeoff and landing, no land flag needed ({origin})", mid)  # fmt: skip
 
 
+def _hover_pct(run: FlightRun) -> FloatArray | None:
+    """The autopilot's hover-thrust estimate on the bins, in % (None: the log has none)."""
+    hover = run.flight.hover_thrust_estimate or run.flight.extras.get("hover_throttle")
+    binned = run.rs(hover)
+    return None if binned is None else binned * 100.0
+
+
 def in_air_evidence(
-    flight: FlightLog,
-    centres: FloatArray,
-    rs: Any,
-    opts: DfOptions,
-    apply: Any,
-    warnings: list[str],
+    run: FlightRun,
     cmd_pct: FloatArray | None,
     cmd_any: FloatArray | None = None,
     a_up: FloatArray | None = None,
@@ -187,6 +192,8 @@ def in_air_evidence(
     before), and ends symmetrically before landing. A margin of ``settle_s`` is trimmed
     afterwards by the caller, then the climb rate must stay within ``climb_max_mps``
     (``climb_rule``)."""
+    flight, centres, rs, opts = run.flight, run.centres, run.rs, run.opts
+    apply, warnings = run.apply, run.warnings
     ex = flight.extras
     n = len(centres)
     gc = ex.get("ground_contact")
@@ -230,8 +237,7 @@ def in_air_evidence(
                      hs.origin if hs else "altitude")  # fmt: skip
     if cmd_pct is not None and opts.liftoff_frac > 0:
         ok = np.ones(n, bool)
-        hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
-        est = rs(hover) * 100.0 if hover is not None else None
+        est = _hover_pct(run)
         for a, b in stretches:
             c = cmd_pct[a:b]
             if not np.isfinite(c).any():
@@ -253,8 +259,7 @@ def in_air_evidence(
         apply("liftoff", f"command below {opts.liftoff_frac:.0%} of the hover command before "
               "liftoff or after touchdown (spool-up / spool-down on the ground)", ok)  # fmt: skip
     if cmd_any is not None and opts.ground_cmd_frac > 0 and a_up is not None:
-        hover = flight.hover_thrust_estimate or ex.get("hover_throttle")
-        est = rs(hover) * 100.0 if hover is not None and cmd_pct is not None else None
+        est = _hover_pct(run) if cmd_pct is not None else None
         apply(
             "ground-physics",
             f"supported on the ground: command below {opts.ground_cmd_frac:.0%} of hover while "

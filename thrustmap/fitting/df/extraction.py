@@ -3,6 +3,7 @@ every flight (the sidecar naming each column's origin)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -11,15 +12,14 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.fitting.df.airborne import climb_rule, in_air_evidence, rest_calibration
+from thrustmap.fitting.df.flight_run import FlightRun
 from thrustmap.fitting.df.options import (
     DF_FORMAT,
     G0,
     MIN_ACCEL_RATE_HZ,
     MIN_DF_SAMPLES,
     SATURATED_NORM,
-    BoolArray,
     DfOptions,
-    FilterStep,
     FlightReport,
 )
 from thrustmap.fitting.df.resample import (
@@ -40,7 +40,6 @@ from thrustmap.fitting.df.thrust import (
 from thrustmap.fitting.flightlogs.series import (
     FlightLog,
     FloatArray,
-    Signal,
     nanmedian,
     refuse_unphysical_specific_force,
     specific_force_unit,
@@ -78,9 +77,44 @@ def extract_flight(
 def extract_flight_columns(
     flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None = None
 ) -> tuple[Columns, dict[str, Any], FlightReport]:
-    """As ``extract_flight``, the table as columns of numpy arrays (no pandas needed)."""
+    """As ``extract_flight``, the table as columns of numpy arrays (no pandas needed): the
+    flight on one timeline (``_start``), its signals (``_signals``), ``FILTERS`` in order,
+    then the Df columns and the "values" filter."""
     flight = select_motors(flight, opts.rotors)
-    fid = _flight_id(flight)
+    run = _start(flight, opts, tmap)
+    _signals(run)
+    for rule in FILTERS:
+        rule(run)
+    cols, sources, rotors = _columns(run)
+    valid = np.isfinite(run.a_up) & (run.a_up > 0)
+    if run.voltage_unknown is None:
+        valid &= np.isfinite(run.volt) & (run.volt > 0)
+    cmd = cols.get("thrust_cmd_n", cols.get("thrust_cmd_norm", cols.get("throttle_pct")))
+    if cmd is not None:
+        valid &= np.isfinite(cmd) & (cmd > 0)
+    run.apply("values", "missing or non-positive voltage, acceleration or command", valid)
+    table = _table(run, cols, rotors)
+    report = FlightReport(
+        flight=_flight_id(flight),
+        path=flight.path,
+        format=flight.format,
+        duration_s=float(run.nbins * run.dt_s),
+        kept_s=float(run.keep.sum() * run.dt_s),
+        samples=int(run.keep.sum()),
+        steps=run.steps,
+        warnings=run.warnings,
+        voltage_unknown=run.voltage_unknown,
+    )
+    meta: dict[str, Any] = {"mass_kg": run.mass_kg, "rotors": rotors, "sources": sources}
+    if run.voltage_unknown is not None:
+        meta["voltage_source"] = None
+        meta["voltage_unknown"] = run.voltage_missing
+    return table, meta, report
+
+
+def _start(flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None) -> FlightRun:
+    """The flight's acceleration on a plausible timeline, in m/s², its bins, its mass and what
+    is known of its voltage; refused when it has no acceleration or no mass."""
     if flight.accel_up_mps2 is None or not len(flight.accel_up_mps2):
         off = [w for w in flight.warnings if w.startswith("no accelerometer data")]
         if off:  # the reader saw an accelerometer that reads exactly zero: say that
@@ -107,209 +141,312 @@ def extract_flight_columns(
     # converted and said, one that cannot be a specific force is refused (issue 31 item 8),
     # after the ground-rest calibration below: only what that cannot explain (issue 34)
     acc, unit_notes = specific_force_unit(acc)
-    time_warnings = [*time_warnings, *unit_notes]
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
-    dt = 1.0 / opts.rate_hz
-    centres: FloatArray = np.asarray(t0 + (np.arange(nbins) + 0.5) * dt, dtype=np.float64)
-
-    binned: dict[int, FloatArray] = {}  # each signal is binned once (callers do not mutate)
-
-    def rs(sig: Signal | None) -> FloatArray | None:
-        if sig is None:
-            return None
-        if id(sig) not in binned:
-            binned[id(sig)] = bin_mean(sig, t0, opts.rate_hz, nbins, opts.max_gap_s)
-        return binned[id(sig)]
-
-    a_up = rs(acc)
-    volt = rs(flight.voltage_v) if voltage_unknown is None else np.full(nbins, np.nan)
-    assert a_up is not None and volt is not None
-    has_data = np.isfinite(a_up)  # a sample in the bin, or one within max_gap_s
-    if opts.accel_smooth_s > 0:
-        a_up = running_mean(a_up, int(round(opts.accel_smooth_s * opts.rate_hz)))
-    tilt = rs(flight.extras.get("tilt_deg"))
-    steps: list[FilterStep] = []
-    duration = float(nbins * dt)
-    keep = np.ones(nbins, bool)
-
-    def apply(name: str, reason: str, ok: BoolArray) -> None:
-        nonlocal keep
-        before = keep.sum()
-        keep = keep & ok
-        steps.append(
-            FilterStep(name, reason, float((before - keep.sum()) * dt), float(keep.sum() * dt))
-        )
-
     warnings = [w for w in flight.warnings if voltage_unknown is None or w not in voltage_unknown]
-    warnings += time_warnings
+    warnings += [*time_warnings, *unit_notes]
     if voltage_unknown is not None:
         warnings.append(voltage_unknown)
+    return FlightRun(
+        flight, opts, tmap, mass, acc, t0, nbins, voltage_missing, voltage_unknown, warnings
+    )
+
+
+def _signals(run: FlightRun) -> None:
+    """a_up and the voltage on the bins (a_up smoothed), the bins with an accelerometer
+    sample, the tilt; a slow accelerometer is warned about."""
+    opts, acc = run.opts, run.acc
+    a_up = run.rs(acc)
+    volt = (
+        run.rs(run.flight.voltage_v) if run.voltage_unknown is None else np.full(run.nbins, np.nan)
+    )
+    assert a_up is not None and volt is not None
+    run.has_data = np.isfinite(a_up)  # a sample in the bin, or one within max_gap_s
+    if opts.accel_smooth_s > 0:
+        a_up = running_mean(a_up, int(round(opts.accel_smooth_s * opts.rate_hz)))
+    run.a_up, run.volt = a_up, volt
+    run.tilt = run.rs(run.flight.extras.get("tilt_deg"))
     span_s = float(acc.time_s[-1] - acc.time_s[0]) if len(acc) > 1 else 0.0
     acc_rate_hz = (len(acc) - 1) / span_s if span_s > 0 else 0.0
     if 0 < acc_rate_hz < MIN_ACCEL_RATE_HZ:
-        warnings.append(
+        run.warnings.append(
             f"upward acceleration logged at only {acc_rate_hz:.0f} Hz ({acc.origin}): vibration "
             "aliases into a_up, so F_m scatters; log the IMU faster for a tighter γ"
         )
-    # Rule "log-pause": no message of any kind within max_gap_s is the log pausing, not a gap
-    # in the IMU: ArduCopter 3.2-3.3 write only while armed (motors.pde: init_disarm_motors
-    # logs DISARMED then DataFlash.EnableWrites(false); init_arm_motors start_logging()), PX4
-    # and others stop a log with the vehicle disarmed. Named apart from an accelerometer gap.
-    paused = ~has_data
+
+
+def _log_pause(run: FlightRun) -> None:
+    """Rule "log-pause": no message of any kind within max_gap_s is the log pausing, not a gap
+    in the IMU: ArduCopter 3.2-3.3 write only while armed (motors.pde: init_disarm_motors
+    logs DISARMED then DataFlash.EnableWrites(false); init_arm_motors start_logging()), PX4
+    and others stop a log with the vehicle disarmed. Named apart from an accelerometer gap."""
+    flight, opts = run.flight, run.opts
+    paused = ~run.has_data
     for other in (flight.thrust_cmd_n, flight.thrust_cmd_norm, flight.motor_outputs,
                   flight.voltage_v):  # fmt: skip
-        binned_other = rs(other) if other is not None and len(other) else None
+        binned_other = run.rs(other) if other is not None and len(other) else None
         if binned_other is not None:
             fin = np.isfinite(binned_other)
             paused &= ~(fin if fin.ndim == 1 else fin.any(axis=1))
-    apply("log-pause", f"the log pauses (no message within {opts.max_gap_s:g} s): logging "
-          "stopped, e.g. disarmed (ArduCopter 3.2-3.3 log only while armed)", ~paused)  # fmt: skip
-    apply("data", f"no accelerometer sample within {opts.max_gap_s:g} s (IMU gap)", has_data)
-    if flight.armed is not None:
-        apply("armed", "disarmed", flight.armed.hold(centres) > 0.5)
+    run.apply("log-pause", f"the log pauses (no message within {opts.max_gap_s:g} s): logging "
+              "stopped, e.g. disarmed (ArduCopter 3.2-3.3 log only while armed)", ~paused)  # fmt: skip
+
+
+def _imu_data(run: FlightRun) -> None:
+    run.apply(
+        "data", f"no accelerometer sample within {run.opts.max_gap_s:g} s (IMU gap)", run.has_data
+    )
+
+
+def _armed(run: FlightRun) -> None:
+    if run.flight.armed is not None:
+        run.apply("armed", "disarmed", run.flight.armed.hold(run.centres) > 0.5)
     else:
-        warnings.append("no armed state in the log: every sample taken as armed")
-    if flight.landed is not None:
-        airborne = flight.landed.hold(centres) < 0.5
+        run.warnings.append("no armed state in the log: every sample taken as armed")
+
+
+def _landed(run: FlightRun) -> None:
+    landed = run.flight.landed
+    if landed is not None:
+        run.airborne = landed.hold(run.centres) < 0.5
         # the state's own origin: the log's land detector, or what rebuilt it (throttle-zero)
-        apply("airborne", f"landed ({flight.landed.origin})", airborne)
+        run.apply("airborne", f"landed ({landed.origin})", run.airborne)
     else:
-        airborne = np.ones(nbins, bool)
-        warnings.append("no landed state in the log: airborne time judged by the filters alone")
-    cmd_for_steady = rs(flight.thrust_cmd_n) if flight.thrust_cmd_n is not None else None
-    if cmd_for_steady is None:
-        cmd_for_steady = rs(flight.thrust_cmd_norm)
-    if cmd_for_steady is None and flight.motor_outputs is not None:
-        m = rs(flight.motor_outputs)
+        run.warnings.append("no landed state in the log: airborne time judged by the filters alone")
+
+
+def _command(run: FlightRun) -> None:
+    """The command that tells steady flight (newtons, normalised, or the mean motor output in
+    %), the same in %; a_up calibrated on the ground rest before takeoff and a specific force
+    that cannot be physical refused."""
+    flight = run.flight
+    cmd = run.rs(flight.thrust_cmd_n) if flight.thrust_cmd_n is not None else None
+    if cmd is None:
+        cmd = run.rs(flight.thrust_cmd_norm)
+    if cmd is None and flight.motor_outputs is not None:
+        m = run.rs(flight.motor_outputs)
         if m is not None and flight.motor_output_scale is not None:
             m = flight.motor_output_scale.to_pct(m)
-        cmd_for_steady = None if m is None else (m.mean(axis=1) if m.ndim == 2 else m)
-    cmd_pct = cmd_for_steady
+        cmd = None if m is None else (m.mean(axis=1) if m.ndim == 2 else m)
+    cmd_pct = cmd
     if cmd_pct is not None and flight.thrust_cmd_n is None and flight.thrust_cmd_norm is not None:
         cmd_pct = cmd_pct * 100.0
-    if cmd_for_steady is not None:
-        a_up = rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
-    calibrated = any(w.startswith("accelerometer calibrated at rest") for w in warnings)
-    refuse_unphysical_specific_force(a_up, acc.origin, flight.path,
+    run.cmd_steady, run.cmd_pct = cmd, cmd_pct
+    if cmd is not None:
+        run.a_up = rest_calibration(
+            run.a_up, run.rs(run.acc), cmd, run.tilt, run.opts, run.apply, run.warnings
+        )
+    calibrated = any(w.startswith("accelerometer calibrated at rest") for w in run.warnings)
+    refuse_unphysical_specific_force(run.a_up, run.acc.origin, flight.path,
                                      calibrated="its calibration at rest" if calibrated else "")  # fmt: skip
+
+
+def _in_air(run: FlightRun) -> None:
     in_air_evidence(
-        flight, centres, rs, opts, apply, warnings,
-        cmd_pct if flight.thrust_cmd_n is None else None, cmd_for_steady, a_up,
-    )  # fmt: skip
-    # takeoff / landing transients: trim settle_s from both ends of every airborne run
-    settled = np.zeros(nbins, bool)
-    trim = int(round(opts.settle_s * opts.rate_hz))
-    for a, b in mask_runs(keep):
+        run,
+        run.cmd_pct if run.flight.thrust_cmd_n is None else None,
+        run.cmd_steady,
+        run.a_up,
+    )
+
+
+def _settle(run: FlightRun) -> None:
+    """Takeoff / landing transients: trim settle_s from both ends of every airborne run."""
+    settled = np.zeros(run.nbins, bool)
+    trim = int(round(run.opts.settle_s * run.opts.rate_hz))
+    for a, b in mask_runs(run.keep):
         if b - a > 2 * trim:
             settled[a + trim : b - trim] = True
-    apply("settle", f"within {opts.settle_s:g} s of takeoff or landing", settled)
-    climb_rule(flight, rs, opts, apply, warnings)
-    apply(
+    run.apply("settle", f"within {run.opts.settle_s:g} s of takeoff or landing", settled)
+
+
+def _climb(run: FlightRun) -> None:
+    climb_rule(run.flight, run.rs, run.opts, run.apply, run.warnings)
+
+
+def _hover(run: FlightRun) -> None:
+    tol = run.opts.accel_tol_mps2
+    run.apply(
         "hover",
-        f"|a_up − g| > {opts.accel_tol_mps2:g} m/s² (not near hover)",
-        np.abs(np.nan_to_num(a_up, nan=np.inf) - G0) <= opts.accel_tol_mps2,
+        f"|a_up − g| > {tol:g} m/s² (not near hover)",
+        np.abs(np.nan_to_num(run.a_up, nan=np.inf) - G0) <= tol,
     )
-    sat = np.zeros(nbins, bool)
+
+
+def _saturation(run: FlightRun) -> None:
+    """A saturated command or motor output: thrust limited, not steady flight."""
+    flight = run.flight
+    sat = np.zeros(run.nbins, bool)
     sat_what = []
-    norm_cmd = rs(flight.thrust_cmd_norm)
+    norm_cmd = run.rs(flight.thrust_cmd_norm)
     if norm_cmd is not None:
         sat |= np.nan_to_num(norm_cmd, nan=0.0) >= SATURATED_NORM
         sat_what.append(f"normalised command ≥ {SATURATED_NORM:g}")
     if flight.motor_outputs is not None and flight.motor_output_scale is not None:
-        binned_motors = rs(flight.motor_outputs)
+        binned_motors = run.rs(flight.motor_outputs)
         assert binned_motors is not None
         mpct = flight.motor_output_scale.to_pct(binned_motors)
         if mpct.ndim == 2 and mpct.shape[1] > 1:
             sat |= np.nan_to_num(mpct, nan=0.0).max(axis=1) >= SATURATED_NORM * 100.0
             sat_what.append(f"a motor output ≥ {SATURATED_NORM:.0%} of its range")
     if sat_what:
-        apply("saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat)
-    # the level of the bins that can enter the Df (a command of 0 never does: "values"):
-    # idle bins still kept (an armed wait no state signal placed on the ground) must not
-    # pull the median to 0, which then dropped every bin commanding thrust
-    flying = keep if cmd_for_steady is None else keep & (np.nan_to_num(cmd_for_steady) > 0)
-    if cmd_for_steady is not None and keep.any():
-        level = float(nanmedian(cmd_for_steady[flying])) if flying.any() else float("nan")
-        with np.errstate(invalid="ignore"):
-            near = np.abs(cmd_for_steady - level) <= 0.5 * abs(level)
-        apply(
-            "level",
-            "command below half or above 1.5× the median of the kept bins commanding thrust "
-            "(idle on the ground?)",
-            near,
-        )
-    if cmd_for_steady is not None and opts.steady_tol > 0:
-        window = int(round(opts.steady_window_s * opts.rate_hz))
-        steady = steady_mask(cmd_for_steady, window, opts.steady_tol)
-        apply(
-            "steady",
-            f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
-            steady,
-        )
-        # the rotor answers a command step within its lag; the bins straddling the step hold a
-        # partial command and a_up is a centred running mean: drop those around every change
-        lag = opts.rotor_lag_s + 0.5 * opts.accel_smooth_s + 1.0 / opts.rate_hz
-        apply(
-            "transient",
-            f"within {lag:.2g} s of a command change > {opts.steady_tol:.0%} (rotor lag "
-            f"{opts.rotor_lag_s:g} s, a_up smoothing, one bin)",
-            ~dilate(~steady & np.isfinite(cmd_for_steady), int(np.ceil(lag * opts.rate_hz))),
-        )
-    if tilt is not None:
-        apply(
-            "tilt",
-            f"tilt > {opts.tilt_max_deg:g}°",
-            np.nan_to_num(tilt, nan=0.0) <= opts.tilt_max_deg,
+        run.apply(
+            "saturation", " or ".join(sat_what) + " (thrust limited: not steady flight)", ~sat
         )
 
+
+def _level(run: FlightRun) -> None:
+    """The level of the bins that can enter the Df (a command of 0 never does: "values"):
+    idle bins still kept (an armed wait no state signal placed on the ground) must not pull
+    the median to 0, which then dropped every bin commanding thrust."""
+    cmd, keep = run.cmd_steady, run.keep
+    if cmd is None or not keep.any():
+        return
+    flying = keep & (np.nan_to_num(cmd) > 0)
+    level = float(nanmedian(cmd[flying])) if flying.any() else float("nan")
+    with np.errstate(invalid="ignore"):
+        near = np.abs(cmd - level) <= 0.5 * abs(level)
+    run.apply(
+        "level",
+        "command below half or above 1.5× the median of the kept bins commanding thrust "
+        "(idle on the ground?)",
+        near,
+    )
+
+
+def _steady(run: FlightRun) -> None:
+    """A command off its running median, and the bins around every command step (the rotor
+    answers within its lag; those bins hold a partial command and a_up is a centred mean)."""
+    opts, cmd = run.opts, run.cmd_steady
+    if cmd is None or not opts.steady_tol > 0:
+        return
+    window = int(round(opts.steady_window_s * opts.rate_hz))
+    steady = steady_mask(cmd, window, opts.steady_tol)
+    run.apply(
+        "steady",
+        f"command off its {opts.steady_window_s:g} s running median by > {opts.steady_tol:.0%}",
+        steady,
+    )
+    lag = opts.rotor_lag_s + 0.5 * opts.accel_smooth_s + 1.0 / opts.rate_hz
+    run.apply(
+        "transient",
+        f"within {lag:.2g} s of a command change > {opts.steady_tol:.0%} (rotor lag "
+        f"{opts.rotor_lag_s:g} s, a_up smoothing, one bin)",
+        ~dilate(~steady & np.isfinite(cmd), int(np.ceil(lag * opts.rate_hz))),
+    )
+
+
+def _tilt(run: FlightRun) -> None:
+    if run.tilt is not None:
+        run.apply(
+            "tilt",
+            f"tilt > {run.opts.tilt_max_deg:g}°",
+            np.nan_to_num(run.tilt, nan=0.0) <= run.opts.tilt_max_deg,
+        )
+
+
+#: the filters, in order (each sees the bins the ones before it kept)
+FILTERS: tuple[Callable[[FlightRun], None], ...] = (
+    _log_pause,
+    _imu_data,
+    _armed,
+    _landed,
+    _command,
+    _in_air,
+    _settle,
+    _climb,
+    _hover,
+    _saturation,
+    _level,
+    _steady,
+    _tilt,
+)
+
+
+def _columns(run: FlightRun) -> tuple[dict[str, FloatArray], dict[str, Any], int | None]:
+    """The Df's columns on the bins (voltage, a_up, F_m, the motor outputs in %, the thrust
+    command), where each came from, and the rotor count."""
+    flight, opts = run.flight, run.opts
     sources: dict[str, Any] = {
         "time_s": f"bin centres at {opts.rate_hz:g} Hz, from the first accelerometer sample",
         "voltage_v": None if flight.voltage_v is None else flight.voltage_v.origin,
-        "accel_up_mps2": acc.origin
+        "accel_up_mps2": run.acc.origin
         + f" (bin mean at {opts.rate_hz:g} Hz, centred {opts.accel_smooth_s:g} s running mean)",
-        "force_n": f"mass_kg × accel_up_mps2, collective (mass {mass:g} kg)",
+        "force_n": f"mass_kg × accel_up_mps2, collective (mass {run.mass_kg:g} kg)",
     }
-    cols: dict[str, FloatArray] = {"voltage_v": volt, "accel_up_mps2": a_up, "force_n": mass * a_up}
-    # thrust command
-    motors = rs(flight.motor_outputs)
+    cols: dict[str, FloatArray] = {
+        "voltage_v": run.volt,
+        "accel_up_mps2": run.a_up,
+        "force_n": run.mass_kg * run.a_up,
+    }
+    motors = run.rs(flight.motor_outputs)
     rotors = opts.rotors
     collective_motor = bool(flight.metadata.get("motor_outputs_collective"))
     if motors is not None and motors.ndim == 2 and rotors is None and not collective_motor:
         rotors = motors.shape[1]
     if motors is not None and flight.motor_output_scale is not None:
-        pct = flight.motor_output_scale.to_pct(motors)
-        for i in range(pct.shape[1]):
-            cols[f"motor{i}_pct"] = pct[:, i]
-        sc = flight.motor_output_scale
-        sources["motor_pct"] = (
-            f"{flight.motor_outputs.origin if flight.motor_outputs else ''} as % of "
-            f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit}"
-        )
-        sources["motor_output_scale"] = sc.to_dict()
-        sources["motor_output_scale_source"] = flight.metadata.get(
-            "motor_output_scale_source", "not stated by the reader"
-        )
-        if "motor_channels" in flight.metadata:
-            sources["motor_channels"] = flight.metadata["motor_channels"]
-    norm = rs(flight.thrust_cmd_norm)
+        _motor_columns(run, motors, cols, sources)
+    norm = run.rs(flight.thrust_cmd_norm)
     if norm is not None:
         cols["thrust_cmd_norm"] = norm
         sources["thrust_cmd_norm"] = flight.thrust_cmd_norm.origin if flight.thrust_cmd_norm else ""
-    src = opts.thrust_source
+    _thrust_command(run, (motors, norm), rotors, cols, sources)
+    if "throttle_pct" not in cols and motors is not None and flight.motor_output_scale is not None:
+        cols["throttle_pct"] = flight.motor_output_scale.to_pct(motors).mean(axis=1)
+        sources["throttle_pct"] = "mean motor output, % of the log's own scale"
+    hover = flight.hover_thrust_estimate or flight.extras.get("hover_throttle")
+    if hover is not None:
+        cols["hover_thrust_est"] = bin_mean(hover, run.t0, opts.rate_hz, run.nbins, opts.max_gap_s)
+        sources["hover_thrust_est"] = hover.origin
+    return cols, sources, rotors
+
+
+def _motor_columns(
+    run: FlightRun, motors: FloatArray, cols: dict[str, FloatArray], sources: dict[str, Any]
+) -> None:
+    """Each motor output in % of its scale, and where the outputs and their scale came from."""
+    flight = run.flight
+    sc = flight.motor_output_scale
+    assert sc is not None
+    pct = sc.to_pct(motors)
+    for i in range(pct.shape[1]):
+        cols[f"motor{i}_pct"] = pct[:, i]
+    sources["motor_pct"] = (
+        f"{flight.motor_outputs.origin if flight.motor_outputs else ''} as % of "
+        f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit}"
+    )
+    sources["motor_output_scale"] = sc.to_dict()
+    sources["motor_output_scale_source"] = flight.metadata.get(
+        "motor_output_scale_source", "not stated by the reader"
+    )
+    if "motor_channels" in flight.metadata:
+        sources["motor_channels"] = flight.metadata["motor_channels"]
+
+
+def _thrust_command(
+    run: FlightRun,
+    commands: tuple[FloatArray | None, FloatArray | None],
+    rotors: int | None,
+    cols: dict[str, FloatArray],
+    sources: dict[str, Any],
+) -> None:
+    """T_c in newtons: from the log, else the motor outputs (or the normalised command)
+    through the stand map's forward direction (``--thrust-source`` decides which may be used)."""
+    flight, tmap, src = run.flight, run.tmap, run.opts.thrust_source
+    motors, norm = commands
     t_cmd: FloatArray | None = None
     if flight.thrust_cmd_n is not None and src in ("auto", "log"):
-        t_cmd = rs(flight.thrust_cmd_n)
+        t_cmd = run.rs(flight.thrust_cmd_n)
         sources["thrust_cmd_n"] = flight.thrust_cmd_n.origin + " (collective, from the log)"
     elif src == "log":
         raise DataFormatError("the log has no thrust command in newtons", file=flight.path)
     needs_b = tmap is not None and (
         (src in ("auto", "motors") and motors is not None) or (src == "norm" and norm is not None)
     )
-    if t_cmd is None and needs_b and voltage_unknown is not None:
+    if t_cmd is None and needs_b and run.voltage_unknown is not None:
         raise DataFormatError(
             "T_c must come from the motor outputs through the stand map, whose forward direction "
-            f"needs the battery voltage, and the log has none ({voltage_missing}); extract "
+            f"needs the battery voltage, and the log has none ({run.voltage_missing}); extract "
             "without --map",
             file=flight.path,
         )
@@ -322,7 +459,7 @@ def extract_flight_columns(
             flight.motor_output_scale,
             tmap.throttle_scale,
         )
-        t_cmd = thrust_from_motors(mp, volt, tmap, rotors)
+        t_cmd = thrust_from_motors(mp, run.volt, tmap, rotors)
         cols["throttle_pct"] = mp.mean(axis=1)
         sources["throttle_pct"] = f"mean motor output, % of the map's scale ({how})"
         sources["thrust_cmd_n"] = (
@@ -332,7 +469,7 @@ def extract_flight_columns(
     if t_cmd is None and tmap is not None and src in ("auto", "norm") and norm is not None:
         if rotors is None:
             raise ConfigError("give the rotor count (--rotors) to turn the command into newtons")
-        t_cmd = rotors * tmap.thrust_n(norm * 100.0, volt, corrected=False)
+        t_cmd = rotors * tmap.thrust_n(norm * 100.0, run.volt, corrected=False)
         cols["throttle_pct"] = norm * 100.0
         sources["thrust_cmd_n"] = (
             f"normalised collective command × 100 % of the map's scale through its forward "
@@ -346,57 +483,34 @@ def extract_flight_columns(
             file=flight.path,
         )
     else:
-        warnings.append("no map given: T_c in newtons not computed (thrust_cmd_norm only)")
-    if "throttle_pct" not in cols and motors is not None and flight.motor_output_scale is not None:
-        cols["throttle_pct"] = flight.motor_output_scale.to_pct(motors).mean(axis=1)
-        sources["throttle_pct"] = "mean motor output, % of the log's own scale"
-    hover = flight.hover_thrust_estimate or flight.extras.get("hover_throttle")
-    if hover is not None:
-        cols["hover_thrust_est"] = bin_mean(hover, t0, opts.rate_hz, nbins, opts.max_gap_s)
-        sources["hover_thrust_est"] = hover.origin
-    valid = np.isfinite(a_up) & (a_up > 0)
-    if voltage_unknown is None:
-        valid &= np.isfinite(volt) & (volt > 0)
-    cmd = cols.get("thrust_cmd_n", cols.get("thrust_cmd_norm", cols.get("throttle_pct")))
-    if cmd is not None:
-        valid &= np.isfinite(cmd) & (cmd > 0)
-    apply("values", "missing or non-positive voltage, acceleration or command", valid)
-    table: Columns = {"flight": np.full(int(keep.sum()), fid, dtype=object),
-                      "time_s": centres[keep]}  # fmt: skip
+        run.warnings.append("no map given: T_c in newtons not computed (thrust_cmd_norm only)")
+
+
+def _table(run: FlightRun, cols: dict[str, FloatArray], rotors: int | None) -> Columns:
+    """The kept bins as the Df's columns; warnings for thrust beyond the map and for a Df
+    too short for a γ fit."""
+    keep, n = run.keep, int(run.keep.sum())
+    table: Columns = {"flight": np.full(n, _flight_id(run.flight), dtype=object),
+                      "time_s": run.centres[keep]}  # fmt: skip
     for k, v in cols.items():
         table[k] = np.asarray(v, float)[keep]
-    if tmap is not None and int(keep.sum()) and rotors:
-        warnings.extend(
+    if run.tmap is not None and n and rotors:
+        run.warnings.extend(
             map_extrapolation(
-                tmap,
+                run.tmap,
                 table["voltage_v"],
                 table["force_n"] / rotors,
                 "per-rotor thrust (F_m / rotors)",
             )
         )
-    if int(keep.sum()) < MIN_DF_SAMPLES:
-        worst = sorted((st for st in steps if st.dropped_s > 0), key=lambda st: -st.dropped_s)
-        warnings.append(
-            f"only {int(keep.sum())} samples of steady flight (fewer than {MIN_DF_SAMPLES}): too "
+    if n < MIN_DF_SAMPLES:
+        worst = sorted((st for st in run.steps if st.dropped_s > 0), key=lambda st: -st.dropped_s)
+        run.warnings.append(
+            f"only {n} samples of steady flight (fewer than {MIN_DF_SAMPLES}): too "
             "short for a γ fit; most time dropped by "
             + ", ".join(f"{st.name} {st.dropped_s:.1f} s ({st.reason})" for st in worst[:3])
         )
-    report = FlightReport(
-        flight=fid,
-        path=flight.path,
-        format=flight.format,
-        duration_s=duration,
-        kept_s=float(keep.sum() * dt),
-        samples=int(keep.sum()),
-        steps=steps,
-        warnings=warnings,
-        voltage_unknown=voltage_unknown,
-    )
-    meta: dict[str, Any] = {"mass_kg": mass, "rotors": rotors, "sources": sources}
-    if voltage_unknown is not None:
-        meta["voltage_source"] = None
-        meta["voltage_unknown"] = voltage_missing
-    return table, meta, report
+    return table
 
 
 #: the reason the blackbox reader gives for a log with no data frames (blackbox.EMPTY_LOG)
