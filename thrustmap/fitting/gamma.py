@@ -197,6 +197,25 @@ def _check_pooling(side: dict[str, Any], allow_mixed: bool, warnings: list[str])
     warnings.append(text + " (pooled on request)")
 
 
+@dataclass(frozen=True)
+class _Samples:
+    """The Df's usable samples: B (zeros without a voltage), γ = T_c / F_m, the flight or
+    block each belongs to and its time, which rows of ``table`` (the Df's rows with a battery
+    voltage) they are, and where T_c came from."""
+
+    b: FloatArray
+    gam: FloatArray
+    groups: npt.NDArray[Any]
+    time_s: FloatArray
+    ok: npt.NDArray[np.bool_]
+    t_cmd: FloatArray
+    force: FloatArray
+    volt: FloatArray
+    no_voltage: bool
+    t_src: str
+    table: pd.DataFrame
+
+
 def fit_gamma(
     table: pd.DataFrame,
     sidecar: dict[str, Any] | None = None,
@@ -210,7 +229,8 @@ def fit_gamma(
     rotors: int | None = None,
     allow_mixed: bool = False,
 ) -> GammaFit:
-    """Fit γ(B) on a Df (one or more flights); ``degree=None`` chooses it by held-out error."""
+    """Fit γ(B) on a Df (one or more flights); ``degree=None`` chooses it by held-out error,
+    among the degrees whose corrected map is no worse than the uncorrected one."""
     side = sidecar or {}
     if loss not in ("l1", "l2"):
         raise ConfigError(f"unknown loss '{loss}'; expected l1 or l2")
@@ -218,6 +238,84 @@ def fit_gamma(
         raise ConfigError(f"γ degree must be one of {DEGREES}, got {degree}")
     warnings: list[str] = []
     _check_pooling(side, allow_mixed, warnings)
+    smp = _samples(table, side, tmap, rotors, degree, warnings)
+    table = smp.table  # the rows with a battery voltage (all when the Df has none)
+    candidates = _candidates(smp, degree, degrees, warnings)
+    masks, how = _folds(smp.groups, smp.time_s, blocks)
+    heldout, heldout_se = _heldout_errors(smp, candidates, masks, loss)
+    vbox = Box(float(smp.b.min()), float(smp.b.max()))
+    if smp.no_voltage:  # γ is constant: its voltage box only records where it may be applied
+        vbox = tmap.validity.voltage_v if tmap is not None else Box(0.0, 0.0)
+    if tmap is not None:
+        rotors = _rotors(table, side, rotors)
+
+    def metrics_of(corr: GammaCorrection) -> dict[str, Any]:
+        return flight_metrics(
+            table[smp.ok],
+            side,
+            None if smp.no_voltage else tmap,
+            corr,
+            smp.t_cmd[smp.ok],
+            voltage_bins,
+            rotors,
+        )
+
+    # The no-worse check: each degree's corrected map against the uncorrected one, per
+    # populated voltage bin (in the Table-4 metric the output shows).
+    tried: dict[int, tuple[tuple[float, ...], dict[str, Any], list[dict[str, Any]]]] = {}
+    for d in candidates:
+        c = _fit_poly(smp.b, smp.gam, d, loss)
+        mets = metrics_of(GammaCorrection(coefficients=c, voltage_v=vbox, loss=loss))
+        tried[d] = (c, mets, worse_bins(mets))
+    chosen, corrected, guard = _choose(tried, heldout, heldout_se, degree, warnings)
+    for w in warnings:
+        log.warning("γ fit: %s", w)
+    if corrected or degree is not None:
+        coef = tried[chosen][0]
+    else:
+        coef, chosen = (1.0,), 0  # the simpler choice: no correction
+    guard["kept"] = f"degree {chosen}" if corrected or degree is not None else "γ = 1 (none)"
+    correction = GammaCorrection(coefficients=coef, voltage_v=vbox, loss=loss)
+    if tmap is not None and rotors:
+        ok = smp.ok
+        outside = map_extrapolation(
+            tmap, smp.volt[ok], smp.force[ok] / rotors, "per-rotor thrust (F_m / rotors)"
+        )
+        for w in outside:
+            log.warning("γ fit: %s", w)
+        warnings.extend(outside)
+    fit = GammaFit(correction, chosen, loss, heldout, how, int(smp.ok.sum()))
+    fit.heldout_se = heldout_se
+    fit.warnings = warnings
+    fit.guard = guard
+    fit.corrected = corrected or degree is not None
+    fit.metrics = metrics_of(correction)
+    fit.metrics["no_worse_check"] = guard
+    if smp.no_voltage:
+        fit.metrics["voltage_unknown"] = (
+            "no battery voltage in the Df: γ fitted as a constant; e_Th (which needs B) not "
+            "computed, no voltage bins"
+        )
+    fit.metrics["thrust_cmd_source"] = smp.t_src
+    fit.correction = GammaCorrection(
+        coefficients=coef,
+        voltage_v=correction.voltage_v,
+        loss=loss,
+        metrics={"degree": chosen, "heldout_error": heldout, "validation": how, **fit.metrics},
+    )
+    return fit
+
+
+def _samples(
+    table: pd.DataFrame,
+    side: dict[str, Any],
+    tmap: ThrustMap | None,
+    rotors: int | None,
+    degree: int | None,
+    warnings: list[str],
+) -> _Samples:
+    """The usable samples (T_c and F_m positive, B known unless the Df has none at all); at
+    least 10, and a Df without voltage only with T_c in newtons and a constant γ."""
     table, no_voltage = _voltage_rows(table, warnings)
     if no_voltage and not ("thrust_cmd_n" in table.columns and table["thrust_cmd_n"].notna().all()):
         raise FitError(
@@ -240,13 +338,22 @@ def fit_gamma(
         table["time_s"].to_numpy(float)[ok] if "time_s" in table.columns else np.arange(len(b)),
         dtype=np.float64,
     )
-    span = float(np.ptp(b))
-    n = len(b)
-    candidates = [degree] if degree is not None else list(degrees)
     if no_voltage:
-        candidates = [0]
-        b = np.zeros(n)  # a constant γ does not depend on B; the zeros only feed the solver
-    elif degree is None:
+        b = np.zeros(len(b))  # a constant γ does not depend on B; the zeros only feed the solver
+    return _Samples(b, gam, groups, time_s, ok, t_cmd, force, volt, no_voltage, t_src, table)
+
+
+def _candidates(
+    smp: _Samples, degree: int | None, degrees: tuple[int, ...], warnings: list[str]
+) -> list[int]:
+    """The degrees to try: the one asked for, else those the samples can support (enough
+    samples per coefficient; a slope only over a voltage span that can show one)."""
+    n = len(smp.b)
+    span = float(np.ptp(smp.volt[smp.ok])) if not smp.no_voltage else 0.0
+    candidates = [degree] if degree is not None else list(degrees)
+    if smp.no_voltage:
+        return [0]
+    if degree is None:
         few = [d for d in candidates if n < MIN_SAMPLES_PER_COEF * (d + 1)]
         if few and len(few) < len(candidates):
             warnings.append(
@@ -266,7 +373,14 @@ def fit_gamma(
             f"battery voltage spans only {span:.2f} V (< {MIN_SLOPE_SPAN_V:g} V): the requested "
             f"degree-{degree} γ(B) is not supported by the data"
         )
-    masks, how = _folds(groups, time_s, blocks)
+    return candidates
+
+
+def _heldout_errors(
+    smp: _Samples, candidates: list[int], masks: list[npt.NDArray[np.bool_]], loss: Loss
+) -> tuple[dict[int, float], dict[int, float]]:
+    """Each degree's held-out error of γ over the folds, and its standard error."""
+    b, gam = smp.b, smp.gam
     heldout: dict[int, float] = {}
     heldout_se: dict[int, float] = {}
     for d in candidates:
@@ -283,24 +397,19 @@ def fit_gamma(
         heldout[d] = _error(res[np.isfinite(res)], loss) if np.isfinite(res).any() else np.inf
         k = len(per_fold)
         heldout_se[d] = float(np.std(per_fold, ddof=1) / np.sqrt(k)) if k >= 2 else np.inf
-    vbox = Box(float(b.min()), float(b.max()))
-    if no_voltage:  # γ is constant: its voltage box only records where it may be applied
-        vbox = tmap.validity.voltage_v if tmap is not None else Box(0.0, 0.0)
-    if tmap is not None:
-        rotors = _rotors(table, side, rotors)
+    return heldout, heldout_se
 
-    def metrics_of(corr: GammaCorrection) -> dict[str, Any]:
-        return flight_metrics(
-            table[ok], side, None if no_voltage else tmap, corr, t_cmd[ok], voltage_bins, rotors
-        )
 
-    # The no-worse check: each degree's corrected map against the uncorrected one, per
-    # populated voltage bin (in the Table-4 metric the output shows).
-    tried: dict[int, tuple[tuple[float, ...], dict[str, Any], list[dict[str, Any]]]] = {}
-    for d in candidates:
-        c = _fit_poly(b, gam, d, loss)
-        mets = metrics_of(GammaCorrection(coefficients=c, voltage_v=vbox, loss=loss))
-        tried[d] = (c, mets, worse_bins(mets))
+def _choose(
+    tried: dict[int, tuple[tuple[float, ...], dict[str, Any], list[dict[str, Any]]]],
+    heldout: dict[int, float],
+    heldout_se: dict[int, float],
+    degree: int | None,
+    warnings: list[str],
+) -> tuple[int, bool, dict[str, Any]]:
+    """The degree kept (one standard error over the folds among those no worse than the
+    uncorrected map in any populated bin), whether it corrects at all, and the no-worse
+    check's record."""
     if degree is None:
         by_heldout = _one_se(heldout, heldout_se, list(heldout))
         passing = [d for d in heldout if not tried[d][2]]
@@ -340,41 +449,7 @@ def fit_gamma(
                 f"the requested degree-{degree} γ(B) makes the map worse than uncorrected: "
                 f"{_worse_text(tried[chosen][2])}"
             )
-    for w in warnings:
-        log.warning("γ fit: %s", w)
-    if corrected or degree is not None:
-        coef = tried[chosen][0]
-    else:
-        coef, chosen = (1.0,), 0  # the simpler choice: no correction
-    guard["kept"] = f"degree {chosen}" if corrected or degree is not None else "γ = 1 (none)"
-    correction = GammaCorrection(coefficients=coef, voltage_v=vbox, loss=loss)
-    if tmap is not None and rotors:
-        outside = map_extrapolation(
-            tmap, volt[ok], force[ok] / rotors, "per-rotor thrust (F_m / rotors)"
-        )
-        for w in outside:
-            log.warning("γ fit: %s", w)
-        warnings.extend(outside)
-    fit = GammaFit(correction, chosen, loss, heldout, how, int(ok.sum()))
-    fit.heldout_se = heldout_se
-    fit.warnings = warnings
-    fit.guard = guard
-    fit.corrected = corrected or degree is not None
-    fit.metrics = metrics_of(correction)
-    fit.metrics["no_worse_check"] = guard
-    if no_voltage:
-        fit.metrics["voltage_unknown"] = (
-            "no battery voltage in the Df: γ fitted as a constant; e_Th (which needs B) not "
-            "computed, no voltage bins"
-        )
-    fit.metrics["thrust_cmd_source"] = t_src
-    fit.correction = GammaCorrection(
-        coefficients=coef,
-        voltage_v=correction.voltage_v,
-        loss=loss,
-        metrics={"degree": chosen, "heldout_error": heldout, "validation": how, **fit.metrics},
-    )
-    return fit
+    return chosen, corrected, guard
 
 
 def _one_se(heldout: dict[int, float], se: dict[int, float], among: list[int]) -> int:
