@@ -15,6 +15,12 @@ from pathlib import Path
 import pytest
 from support import public_data as pd
 from support.shared import ABSENT_REASON, shared_data_dir
+from support.skip_gate import (  # noqa: F401 - hooks: --skip-report (the CI's skip table)
+    pytest_addoption,
+    pytest_collectreport,
+    pytest_runtest_logreport,
+    pytest_sessionfinish,
+)
 
 # With pyarrow installed (the fleet extra), pandas keeps strings in Arrow, whose default
 # allocators (mimalloc/jemalloc) reserve large address ranges up front, so the fuzz suite's
