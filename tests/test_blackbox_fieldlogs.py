@@ -162,8 +162,12 @@ def test_real_inav_logs_read_with_inav_semantics(public_data: PublicFiles, name:
         assert fl.voltage_v is not None and fl.voltage_v.origin.startswith("vbat (raw) × 0.01")
         v = float(np.median(fl.voltage_v.values))
         assert 3.0 <= v <= 4.45 * 6  # a pack, not centivolts read as volts
-        m = sc.to_pct(fl.motor_outputs.values)  # type: ignore[union-attr]
-        assert 0.0 <= float(np.median(m)) <= 60.0  # DShot's 48..2047 put an idle at 50 %
+        raw = np.asarray(fl.motor_outputs.values, float)  # type: ignore[union-attr]
+        # CHANGELOG (issue 34): a hover at 13-16 % that Betaflight's DShot 48..2047 read as 54 %
+        hover_pct = float(np.median(np.median(sc.to_pct(raw), axis=1)))
+        assert 12.5 <= hover_pct <= 16.5, hover_pct
+        as_dshot_pct = (float(np.median(np.median(raw, axis=1))) - 48) / (2047 - 48) * 100
+        assert 54.0 <= as_dshot_pct <= 56.0, as_dshot_pct
     assert len(extract(flights, DfOptions(mass_kg=1.0))) > 0
 
 
