@@ -35,7 +35,8 @@ import numpy as np  # noqa: E402
 from support import public_data as pd  # noqa: E402
 
 from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
-from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
+from thrustmap.fitting.df.extraction import extract  # noqa: E402
+from thrustmap.fitting.df.options import DfOptions  # noqa: E402
 from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
 from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
 
