@@ -31,8 +31,8 @@ thrustmap's own imports) is printed too: on a loaded machine both scale, their r
         [--orangebox-path DIR | --orangebox-python PY]
 
 ``--manifest``: the Betaflight and INAV logs pinned in benchmarks/public-data.toml (fc-blackbox,
-gimbal-ghost, blackbox-log, xerox-inav; under THRUSTMAP_PUBLIC_DATA), each named by its manifest name and
-role (development or set-aside) and checked against its sha256 first.
+gimbal-ghost, blackbox-log, pid-analyzer, xerox-inav; under THRUSTMAP_PUBLIC_DATA), each named
+by its manifest name and role (development or set-aside) and checked against its sha256 first.
 """
 
 from __future__ import annotations
@@ -208,7 +208,7 @@ def bench_file(
 #: the manifest name and role of a file read by ``--manifest``, printed instead of its file name
 LABELS: dict[Path, str] = {}
 #: the manifest's blackbox sources (benchmarks/public-data.toml)
-MANIFEST_SOURCES = ("fc-blackbox", "gimbal-ghost", "blackbox-log", "xerox-inav")
+MANIFEST_SOURCES = ("fc-blackbox", "gimbal-ghost", "blackbox-log", "pid-analyzer", "xerox-inav")
 
 
 def manifest_files() -> list[Path]:

@@ -22,7 +22,7 @@ FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 #: the public blackbox logs of benchmarks/public-data.toml, by manifest name
 PUBLIC_BLACKBOX = [
     n
-    for s in ("fc-blackbox", "gimbal-ghost", "blackbox-log", "xerox-inav")
+    for s in ("fc-blackbox", "gimbal-ghost", "blackbox-log", "pid-analyzer", "xerox-inav")
     for n in names(source=s)
 ]
 
