@@ -109,3 +109,19 @@ def test_a_file_whose_bytes_differ_from_the_manifest_fails_naming_the_entry(
     fake.write_bytes(bytes(data[:-1]))
     with pytest.raises(PublicDataError, match=r"erle/7-9-2014_24: .* is \d+ bytes"):
         PublicFiles(tmp_path)(entry.name)
+
+
+def test_a_public_data_variable_naming_no_folder_fails_instead_of_skipping(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from support.public_data import public_data_dir
+
+    monkeypatch.setenv("THRUSTMAP_PUBLIC_DATA", str(tmp_path / "nowhere"))
+    with pytest.raises(PublicDataError, match="nowhere: not a folder"):
+        public_data_dir()
+    monkeypatch.setenv("THRUSTMAP_PUBLIC_DATA", str(tmp_path))
+    assert public_data_dir() == tmp_path
+    with pytest.raises(
+        PublicDataError, match=r"erle/7-9-2014_24: .* is missing \(from erlerobot/logs"
+    ):
+        PublicFiles(tmp_path)("erle/7-9-2014_24")

@@ -73,10 +73,13 @@ def manifest(path: Path = MANIFEST) -> dict[str, Entry]:
 
 
 def public_data_dir() -> Path | None:
-    """The folder holding the files, or None when none of the places is a folder."""
+    """The folder holding the files, or None when none of the default places is a folder
+    (THRUSTMAP_PUBLIC_DATA naming no folder is an error, not a reason to skip)."""
     env = os.environ.get("THRUSTMAP_PUBLIC_DATA")
     if env:
-        return Path(env) if Path(env).is_dir() else None
+        if not Path(env).is_dir():
+            raise PublicDataError(f"THRUSTMAP_PUBLIC_DATA={env}: not a folder")
+        return Path(env)
     shared = os.environ.get("THRUSTMAP_SHARED_DATA")
     candidates = ([Path(shared) / "public"] if shared else []) + [
         ROOT.parent / "shared" / "data" / "public"
@@ -145,7 +148,11 @@ def main(argv: list[str] | None = None) -> int:
         "--dir", type=Path, help="the public-data folder (default as the tests find it)"
     )
     a = ap.parse_args(argv)
-    folder = a.dir or public_data_dir()
+    try:
+        folder = a.dir or public_data_dir()
+    except PublicDataError as exc:
+        print(f"error: {exc}")
+        return 2
     if folder is None:
         print(ABSENT_REASON)
         return 2
