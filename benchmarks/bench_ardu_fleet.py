@@ -2,53 +2,62 @@
 
 Issue 34 item 2: of the real flights of a 2014-2016 fleet of ArduCopter DataFlash logs (mostly
 3.3-dev builds on PXF/Erle boards), how many give ≥ 100 clean Df samples. The logs are not in
-the repository (public logs gathered by hand, e.g. the erlerobot/logs repository); give their
-folder(s) or files:
+the repository: the 39 flights of the public erlerobot/logs repository are pinned by name,
+commit, path and sha256 in benchmarks/public-data.toml (placed under THRUSTMAP_PUBLIC_DATA):
 
-    python benchmarks/bench_ardu_fleet.py /data/ardu [--split split.json]
+    python benchmarks/bench_ardu_fleet.py --manifest [--why]
+    python benchmarks/bench_ardu_fleet.py FOLDER_OR_FILE ... [--why]
 
-A flight: an ArduCopter log whose barometer (CTUN.BarAlt / BAlt) shows at least 20 s above
-1.5 m over its level at the start while the command is above 0.2 (a log that never left the
-ground is not one); copies of the same content count once. One whose accelerometer does not
-shake as turning rotors shake it is named below the table (a bench test with the propellers
-off whose barometer drifted as the board warmed?) but still counted. ``--split`` is a
-JSON ``{"dev": [paths], "holdout": [paths]}``: the logs the rules were developed on and those
-set aside, reported apart. Every flight gets ``DfOptions(mass_kg=1.5)`` (the mass changes no
-filter). Baseline: the sample count the same file gave at 716adde (recorded by content hash
-here; "—" for a file not recorded), printed beside ours, and which of the rules of
-docs/old-arducopter.md fired.
+With folders or files, a flight is an ArduCopter log whose barometer (CTUN.BarAlt / BAlt) shows
+at least 20 s above 1.5 m over its level at the start while the command is above 0.2 (a log that
+never left the ground is not one); copies of the same content count once; a file the manifest
+pins takes its manifest name and role. One whose accelerometer does not shake as turning rotors
+shake it is named below the table (a bench test with the propellers off whose barometer drifted
+as the board warmed?) but still counted. The role column is the manifest's (development or
+set-aside); every erlerobot flight is development (the manifest says why). Every flight gets
+``DfOptions(mass_kg=1.5)`` (the mass changes no filter). Baseline: the sample count the same
+file gave at 716adde ("—" for a file the manifest does not pin), printed beside ours, and which
+of the rules of docs/old-arducopter.md fired. tests/test_ardu_fleet_public.py checks the counts.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # support.public_data: the manifest's files by name
 
 import numpy as np  # noqa: E402
+from support import public_data as pd  # noqa: E402
 
 from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
-from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
+from thrustmap.fitting.df.extraction import extract  # noqa: E402
+from thrustmap.fitting.df.options import DfOptions  # noqa: E402
 from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
 from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
 
-#: clean Df samples at 716adde (issue 34's "before"), by the first 12 hex digits of SHA-256
+#: clean Df samples at 716adde (issue 34's "before"), by manifest name (benchmarks/public-data.toml);
+#: reproduced on 2026-11-28 with 716adde's own code: ``git worktree add /tmp/t 716adde`` and, per
+#: file, ``len(extract(read_log(path), DfOptions(mass_kg=1.5)))`` with that tree on sys.path
 BASELINE_716ADDE = {
-    "05060bc28530": 729, "109654e93c1f": 0, "13cffbaf95d8": 520, "175faf944437": 0,
-    "1b1c6d780411": 396, "286e2ecd06f2": 33, "2dbf6e570046": 1799, "2e506a406c65": 995,
-    "2f564baf3146": 22, "3fae98243011": 1, "41b9ecf8dd27": 42, "433039559645": 25,
-    "58ac513f6b33": 0, "5a0fcd318891": 0, "5a60e49c9c3b": 0, "5c1a5952c00c": 238,
-    "5d19528c3180": 621, "6cf8e2e22790": 0, "7220a2d8d849": 0, "780948991dd6": 0,
-    "7cdb63ca4e42": 1314, "803c10cf5059": 1378, "8053394e67b2": 1229, "883edb95d20c": 2005,
-    "97da4335ca0c": 642, "a439b3603b5b": 1173, "a49372f9a84b": 181, "a54f53c1ec72": 44,
-    "abf755937656": 42, "ae7f8a0273d7": 0, "af685aab085d": 428, "b0fc3c4badb2": 2115,
-    "b71a97259af2": 1, "b7d62e998453": 89, "c64e3b366719": 2699, "d20e3d90f4f9": 712,
-    "e8ca56c15499": 2135, "ea503ce26cc9": 89, "fc7734f83b54": 549,
+    "erle/09-10-2014_25": 1314, "erle/09-10-2014_30": 621, "erle/09-10-2014_31": 2135,
+    "erle/10-11-2014_103": 729, "erle/10-11-2014_104": 642, "erle/10-11-2014_105": 0,
+    "erle/11-2-2015_112": 1173, "erle/14-11-2014_118": 1378, "erle/15-10-2014_42": 89,
+    "erle/15-10-2014_44": 0, "erle/15-12-2014_16": 1229, "erle/18-03-2014_althold_error": 0,
+    "erle/18-03-2014_althold_error2": 0, "erle/19-10-2014_ALT_HOLD_test1": 2005,
+    "erle/20-10-2014_land_mode_test1": 396, "erle/22-12-2014_41": 0, "erle/23-9-2014_52": 1,
+    "erle/25-9-2014_3": 238, "erle/26-11-2014_181": 428, "erle/29-09-2014_1": 44,
+    "erle/29-09-2014_2": 0, "erle/29-09-2014_4": 33, "erle/30-3-2015_73": 89,
+    "erle/31-3-2015_83": 0, "erle/5-12-2014_218": 2699, "erle/6-11-2014_GPS_issues1": 520,
+    "erle/6-11-2014_GPS_issues2": 712, "erle/6-11-2014_GPS_issues3": 549,
+    "erle/6-11-2014_Loiter_RTL": 1799, "erle/6-3-2014_7": 42, "erle/7-9-2014_21": 25,
+    "erle/7-9-2014_24": 22, "erle/7-9-2014_25": 181, "erle/8-10-2014_11": 0,
+    "erle/8-10-2014_18": 42, "erle/aux_baroexterno_bmp085": 1, "erle/aux_barointerno": 0,
+    "erle/copter_Erle-Brain3": 2115, "erle/copter_PXFv2.0b+Rpi": 995,
 }  # fmt: skip
 RULES = ("inav-baro", "climb-crt", "accelerometer calibrated", "events untimed")
 MIN_SAMPLES = 100
@@ -92,64 +101,89 @@ def flight_seconds(path: Path) -> tuple[float, float] | None:
     return up_s, shake
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sources", nargs="+", type=Path, help="folders or DataFlash files")
-    ap.add_argument("--split", type=Path, help='JSON {"dev": [...], "holdout": [...]}')
-    ap.add_argument("--why", action="store_true",
-                    help="for a flight under the target, the filter steps that dropped most")  # fmt: skip
-    a = ap.parse_args()
+def flights(a: argparse.Namespace) -> list[tuple[str, str, Path]]:
+    """(role, name, file) of each flight: the manifest's erlerobot entries, or every distinct
+    ArduCopter flight in the files given (named and given a role by the manifest when it pins
+    their bytes)."""
+    if a.manifest:
+        pd.manifest()  # a broken manifest fails before anything runs
+        return [
+            (pd.manifest()[n].role, n, pd.resolve(n, a.public_data))
+            for n in pd.names(source="erlerobot")
+        ]
+    by_sha = {e.sha256: e for e in pd.manifest().values()}
     files = sorted(
         p for s in a.sources for p in ([s] if s.is_file() else s.rglob("*")) if p.is_file()
     )
-    part: dict[str, str] = {}
-    if a.split:
-        split = json.loads(a.split.read_text())
-        part = {str(Path(p).resolve()): k for k, ps in split.items() for p in ps}
+    out: list[tuple[str, str, Path]] = []
     seen: set[str] = set()
-    rows: list[tuple[str, str, int, int | None, list[str]]] = []
-    benches: list[str] = []
     for p in files:
-        digest = hashlib.sha256(p.read_bytes()).hexdigest()[:12]
+        digest = hashlib.sha256(p.read_bytes()).hexdigest()
         if digest in seen:
             continue
         found = flight_seconds(p)
         if found is None or found[0] < 20.0:
             continue
         seen.add(digest)
-        group, base = part.get(str(p.resolve()), "all"), BASELINE_716ADDE.get(digest)
-        if not found[1] > ROTOR_VIBRATION_MPS2:  # the barometer drifted; nothing flew?
-            benches.append(p.name)
-        try:
-            df = extract(read_log(p), DfOptions(mass_kg=1.5))
-        except (DataFormatError, ConfigError) as exc:  # refused: a row saying why, not a crash
-            rows.append((group, p.name, 0, base, [f"REFUSED: {exc}"]))
-            continue
-        fired = [r for r in RULES if any(w.startswith(r) for w in df.reports[0].warnings)]
-        steps = {s.name: s.dropped_s for s in df.reports[0].steps}
-        if steps.get("log-pause", 0.0) > 0:
-            fired.append(f"log-pause {steps['log-pause']:.0f} s")
-        if a.why and len(df) < MIN_SAMPLES:
-            worst = sorted(steps.items(), key=lambda kv: -kv[1])[:4]
-            fired.append("dropped: " + ", ".join(f"{k} {v:.0f} s" for k, v in worst if v > 0))
-        rows.append((group, p.name, len(df), base, fired))
-    print(f"{'part':8s} {'flight':44s} {'716adde':>8s} {'now':>6s}  rules that fired")
-    for group, name, n, base, fired in sorted(rows):
+        e = by_sha.get(digest)
+        out.append((e.role, e.name, p) if e else ("—", p.name, p))
+    return out
+
+
+def score(role: str, name: str, path: Path, why: bool) -> tuple[str, str, int, list[str]]:
+    """(role, name, clean Df samples, the rules that fired) of one flight; a refused file is a
+    row saying why, never a crash."""
+    try:
+        df = extract(read_log(path), DfOptions(mass_kg=1.5))
+    except (DataFormatError, ConfigError) as exc:
+        return role, name, 0, [f"REFUSED: {exc}"]
+    fired = [r for r in RULES if any(w.startswith(r) for w in df.reports[0].warnings)]
+    steps = {s.name: s.dropped_s for s in df.reports[0].steps}
+    if steps.get("log-pause", 0.0) > 0:
+        fired.append(f"log-pause {steps['log-pause']:.0f} s")
+    if why and len(df) < MIN_SAMPLES:
+        worst = sorted(steps.items(), key=lambda kv: -kv[1])[:4]
+        fired.append("dropped: " + ", ".join(f"{k} {v:.0f} s" for k, v in worst if v > 0))
+    return role, name, len(df), fired
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sources", nargs="*", type=Path, help="folders or DataFlash files")
+    ap.add_argument("--manifest", action="store_true",
+                    help="the erlerobot flights of benchmarks/public-data.toml, by name")  # fmt: skip
+    ap.add_argument("--public-data", type=Path,
+                    help="the public-data folder (default: THRUSTMAP_PUBLIC_DATA, ...)")  # fmt: skip
+    ap.add_argument("--why", action="store_true",
+                    help="for a flight under the target, the filter steps that dropped most")  # fmt: skip
+    a = ap.parse_args()
+    if not a.manifest and not a.sources:
+        ap.error("give --manifest or the folders/files of the logs")
+    try:
+        found = flights(a)
+    except pd.PublicDataError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    rows, benches = [], []
+    for role, name, path in found:
+        shake = flight_seconds(path)
+        if shake is not None and not shake[1] > ROTOR_VIBRATION_MPS2:  # nothing flew?
+            benches.append(name)
+        rows.append(score(role, name, path, a.why))
+    print(f"{'role':11s} {'flight':36s} {'716adde':>8s} {'now':>6s}  rules that fired")
+    for role, name, n, fired in sorted(rows):
+        base = BASELINE_716ADDE.get(name)
         shown = "—" if base is None else str(base)
-        print(f"{group:8s} {name[:44]:44s} {shown:>8s} {n:6d}  {', '.join(fired)}")
-    for group in sorted({r[0] for r in rows}):
-        sel = [r for r in rows if r[0] == group]
-        now = sum(r[2] >= MIN_SAMPLES for r in sel)
-        base = sum((r[3] or 0) >= MIN_SAMPLES for r in sel)
-        print(f"{group}: {len(sel)} flights; ≥ {MIN_SAMPLES} clean samples: 716adde {base}, "
-              f"now {now}")  # fmt: skip
+        print(f"{role:11s} {name[:36]:36s} {shown:>8s} {n:6d}  {', '.join(fired)}")
     for name in benches:
         print(f"{name}: -IMU.AccZ shakes ≤ {ROTOR_VIBRATION_MPS2:g} m/s² with the command above "
               "0.2: a bench test with the propellers off? (counted as a flight)")  # fmt: skip
-    now = sum(r[2] >= MIN_SAMPLES for r in rows)
-    base = sum((r[3] or 0) >= MIN_SAMPLES for r in rows)
-    print(f"all: {len(rows)} flights; ≥ {MIN_SAMPLES} clean samples: 716adde {base}, now {now} "
-          f"(issue 34's target: ≥ 30 of 36)")  # fmt: skip
+    for role in sorted({r[0] for r in rows}) + ["all"]:
+        sel = [r for r in rows if role in ("all", r[0])]
+        now = sum(r[2] >= MIN_SAMPLES for r in sel)
+        base = sum(BASELINE_716ADDE.get(r[1], 0) >= MIN_SAMPLES for r in sel)
+        print(f"{role}: {len(sel)} flights; ≥ {MIN_SAMPLES} clean samples: 716adde {base}, "
+              f"now {now}")  # fmt: skip
 
 
 if __name__ == "__main__":

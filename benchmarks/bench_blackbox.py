@@ -27,8 +27,12 @@ floor`` (judged on the median CPU time), and files under 300 kB (error-recovery 
 ``tiny``: measured, never counted as met. The CPU time above the floor (decoding, Df, CSV and
 thrustmap's own imports) is printed too: on a loaded machine both scale, their ratio less.
 
-    python benchmarks/bench_blackbox.py [FILE_OR_DIR ...] [--repeat 5]
+    python benchmarks/bench_blackbox.py [--manifest] [FILE_OR_DIR ...] [--repeat 5]
         [--orangebox-path DIR | --orangebox-python PY]
+
+``--manifest``: the Betaflight and INAV logs pinned in benchmarks/public-data.toml (fc-blackbox,
+gimbal-ghost, blackbox-log, pid-analyzer, xerox-inav; under THRUSTMAP_PUBLIC_DATA), each named
+by its manifest name and role (development or set-aside) and checked against its sha256 first.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # describe() decodes with this tree's thrustmap, as the runs do
+sys.path.insert(0, str(ROOT / "tests"))  # support.public_data: the manifest's files by name
 SHARED_BETAFLIGHT = ROOT.parent / "shared/data/flightlogs/betaflight"
 SUFFIXES = (".bbl", ".bfl", ".txt")
 
@@ -167,7 +172,7 @@ def bench_file(
         what = describe(path)
     except Exception as exc:  # noqa: BLE001 - one odd file must not end the whole run
         what = f"not described ({type(exc).__name__}: {exc})"
-    print(f"{path.name}: {mb:.2f} MB, {what}")
+    print(f"{LABELS.get(path, path.name)}: {mb:.2f} MB, {what}")
     with tempfile.TemporaryDirectory() as tmp:
         ours = [sys.executable, "-m", "thrustmap", "flightlog", "extract", str(path),
                 "--mass-kg", "1.0", "-o", str(Path(tmp) / "df.csv")]  # fmt: skip
@@ -200,19 +205,46 @@ def bench_file(
         print("  orangebox: not importable here (--orangebox-path DIR): no baseline measured")
 
 
+#: the manifest name and role of a file read by ``--manifest``, printed instead of its file name
+LABELS: dict[Path, str] = {}
+#: the manifest's blackbox sources (benchmarks/public-data.toml)
+MANIFEST_SOURCES = ("fc-blackbox", "gimbal-ghost", "blackbox-log", "pid-analyzer", "xerox-inav")
+
+
+def manifest_files() -> list[Path]:
+    """The manifest's blackbox files, by name, each checked against its size and sha256."""
+    from support import public_data as pd
+
+    files = []
+    try:
+        for source in MANIFEST_SOURCES:
+            for name in pd.names(source=source):
+                path = pd.resolve(name)
+                LABELS[path] = f"{name} ({pd.manifest()[name].role})"
+                files.append(path)
+    except pd.PublicDataError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    return files
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("logs", nargs="*", help="blackbox files or folders (default: the shared logs)")
+    ap.add_argument("--manifest", action="store_true",
+                    help="the blackbox files of benchmarks/public-data.toml, by name")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--orangebox-path", help="folder holding the orangebox package")
     ap.add_argument("--orangebox-python", help="an interpreter that can import orangebox")
     args = ap.parse_args()
     targets = list(args.logs)
-    if SHARED_BETAFLIGHT.is_dir():
+    if args.manifest:
+        pass
+    elif SHARED_BETAFLIGHT.is_dir():
         targets.insert(0, str(SHARED_BETAFLIGHT))
     else:
         print(f"shared logs not found at {SHARED_BETAFLIGHT}; skipped")
-    files = log_files(targets)
+    files = (manifest_files() if args.manifest else []) + log_files(targets)
     ob_python = args.orangebox_python or sys.executable
     ob_env = env_with(args.orangebox_path)
     probe = subprocess.run([ob_python, "-c", "import orangebox"], env=ob_env, capture_output=True)

@@ -1,7 +1,10 @@
 """Shared test fixtures.
 
-``shared_data``: the real recordings in ../shared/data (beside the project). Tests that need
-them skip with a clear reason when the folder is absent (a fresh clone elsewhere).
+``shared_data``: the real recordings in ../shared/data (beside the project, or
+``THRUSTMAP_SHARED_DATA``): every test that reads them takes the folder from this fixture (or,
+while collecting, from ``support.shared.shared_data_dir``). ``public_data``: the public files of
+benchmarks/public-data.toml by name, size and sha256 checked. Tests that need either skip with
+an allow-listed reason (tests/skip-allowlist.toml) when it is absent (a fresh clone elsewhere).
 """
 
 from __future__ import annotations
@@ -10,6 +13,14 @@ import os
 from pathlib import Path
 
 import pytest
+from support import public_data as pd
+from support.shared import ABSENT_REASON, shared_data_dir
+from support.skip_gate import (  # noqa: F401 - hooks: --skip-report (the CI's skip table)
+    pytest_addoption,
+    pytest_collectreport,
+    pytest_runtest_logreport,
+    pytest_sessionfinish,
+)
 
 # With pyarrow installed (the fleet extra), pandas keeps strings in Arrow, whose default
 # allocators (mimalloc/jemalloc) reserve large address ranges up front, so the fuzz suite's
@@ -18,18 +29,24 @@ import pytest
 os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
-#: THRUSTMAP_SHARED_DATA points elsewhere (a git worktree is not beside ../shared)
-SHARED_DATA = Path(
-    os.environ.get("THRUSTMAP_SHARED_DATA") or PROJECT_ROOT.parent / "shared" / "data"
-)
 FIXTURES = PROJECT_ROOT / "fixtures"
 
 
 @pytest.fixture
 def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"reference data not found at {SHARED_DATA} (../shared is absent)")
-    return SHARED_DATA
+    folder = shared_data_dir()
+    if folder is None:
+        pytest.skip(ABSENT_REASON)
+    return folder
+
+
+@pytest.fixture
+def public_data() -> pd.PublicFiles:
+    """The files of benchmarks/public-data.toml: ``public_data("erle/31-3-2015_83")``."""
+    folder = pd.public_data_dir()
+    if folder is None:
+        pytest.skip(pd.ABSENT_REASON)
+    return pd.PublicFiles(folder)
 
 
 @pytest.fixture

@@ -13,6 +13,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support.shared import ABSENT_REASON as SHARED_ABSENT
+from support.shared import shared_data_dir
 
 from thrustmap.core.clock import SimClock
 from thrustmap.protocols.msp.framing import (
@@ -48,9 +50,17 @@ from thrustmap.rig.spin import SpinRequest, run_spin
 
 connect.load_sim_peers()  # this file opens sim:// ports directly (the rig registers them)
 
-TRANSCRIPTS = (
-    Path(__file__).resolve().parents[1].parent / "shared" / "data" / "firmware-transcripts"
-) / "betaflight"
+
+def transcripts_dir() -> Path:
+    """The real Betaflight transcripts in the shared data (skipped without the shared data)."""
+    shared = shared_data_dir()
+    if shared is None:
+        pytest.skip(SHARED_ABSENT)
+    folder = shared / "firmware-transcripts" / "betaflight"
+    assert folder.is_dir(), f"{folder} missing from the shared data"
+    return folder
+
+
 NAMES = ("probe", "probe_after_ctrlc", "spin", "sweep_steps_ctrlc", "sweep_steps_full")
 
 #: replies whose bytes depend only on the firmware and its configuration, not on time
@@ -69,10 +79,7 @@ STATIC = {
 
 
 def transcript(name: str) -> Transcript:
-    path = TRANSCRIPTS / f"{name}.jsonl"
-    if not path.is_file():
-        pytest.skip(f"real Betaflight transcripts not available ({path} is absent)")
-    return read_transcript(path)
+    return read_transcript(transcripts_dir() / f"{name}.jsonl")
 
 
 def exchanges(t: Transcript) -> Iterator[tuple[float, MspFrame, MspFrame]]:
@@ -182,9 +189,7 @@ def test_the_peer_honours_set_motor_internally_while_motor_reads_zero() -> None:
 
 def test_replaying_the_real_probe_reports_the_stop_as_unverifiable() -> None:
     """The real probe, byte for byte through the real driver: 0 from MSP_MOTOR is not a stop."""
-    path = TRANSCRIPTS / "probe.jsonl"
-    if not path.is_file():
-        pytest.skip(f"real Betaflight transcripts not available ({path} is absent)")
+    path = transcripts_dir() / "probe.jsonl"
     clock = SimClock()
     report = connect.probe_device(f"replay://{path}", clock)
     assert report.identity is not None

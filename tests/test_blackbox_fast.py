@@ -12,12 +12,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import blackbox_encode as be
+from support.public_data import PublicFiles, names
 
 from thrustmap.fitting.flightlogs import blackbox_decode as bd
 from thrustmap.fitting.flightlogs import blackbox_fast as bf
 from thrustmap.fitting.flightlogs.blackbox import used_field
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
+#: the public blackbox logs of benchmarks/public-data.toml, by manifest name
+PUBLIC_BLACKBOX = [
+    n
+    for s in ("fc-blackbox", "gimbal-ghost", "blackbox-log", "pid-analyzer", "xerox-inav")
+    for n in names(source=s)
+]
 
 
 def assert_same(fast: bd.DecodedLog, ref: bd.DecodedLog) -> None:
@@ -392,27 +399,20 @@ def test_inter_frame_runs_of_any_lengths(shape: str) -> None:
     compare_fast(bytes(out))
 
 
-def test_more_logs_frame_by_frame() -> None:
-    """Blackbox logs not in the repository (THRUSTMAP_BLACKBOX_LOGS: a folder of .bbl/.bfl/.txt,
-    e.g. public logs gathered for a benchmark): every log of every file decodes exactly as the
-    reference decoder decodes it, in bulk where it is clean."""
-    import os
-
-    folder = os.environ.get("THRUSTMAP_BLACKBOX_LOGS")
-    if not folder or not Path(folder).is_dir():
-        pytest.skip("THRUSTMAP_BLACKBOX_LOGS is not set to a folder of blackbox logs")
-    paths = sorted(
-        p for p in Path(folder).rglob("*") if p.suffix.lower() in (".bbl", ".bfl", ".txt")
-    )
-    assert paths, folder
-    for path in paths:
-        data = path.read_bytes()
-        for i, (a, b) in enumerate(bd.split_logs(data)):
-            for keep in (None, used_field):
-                assert_same(
-                    bd.decode_log(data[a:b], i, a, keep_field=keep),
-                    bd.decode_log_reference(data[a:b], i, a, keep_field=keep),
-                )
+@pytest.mark.parametrize("name", PUBLIC_BLACKBOX)
+def test_public_logs_frame_by_frame(public_data: PublicFiles, name: str) -> None:
+    """The public Betaflight/INAV logs of benchmarks/public-data.toml, by name (sha256 checked):
+    every log of every file decodes exactly as the reference decoder decodes it, in bulk where
+    it is clean."""
+    data = public_data(name).read_bytes()
+    ranges = bd.split_logs(data)
+    assert ranges, name
+    for i, (a, b) in enumerate(ranges):
+        for keep in (None, used_field):
+            assert_same(
+                bd.decode_log(data[a:b], i, a, keep_field=keep),
+                bd.decode_log_reference(data[a:b], i, a, keep_field=keep),
+            )
 
 
 @pytest.mark.parametrize("case", ["rollover", "time jump"])

@@ -4,7 +4,6 @@ reads zero, INAV's own motor range and battery fields."""
 from __future__ import annotations
 
 import json
-import os
 import re
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from support.blackbox_encode import (
     simulate_hover_file,
     simulate_hover_log,
 )
+from support.public_data import PublicFiles, names
 
 from thrustmap.cli import main
 from thrustmap.fitting.df import DfOptions, extract
@@ -150,37 +150,44 @@ def test_inav_motor_outputs_are_mincommand_to_maxthrottle_and_vbat_is_centivolts
     assert np.all((v > 15.9) & (v < 16.5))
 
 
-def _gathered_inav_logs() -> list[Path]:
-    folder = os.environ.get("THRUSTMAP_BLACKBOX_LOGS")
-    if not folder or not Path(folder).is_dir():
-        return []
-    out = []
-    for p in sorted(Path(folder).rglob("*")):
-        if p.is_file() and b"Firmware revision:INAV" in p.open("rb").read(4096):
-            out.append(p)
-    return out
-
-
-@pytest.mark.skipif(
-    not _gathered_inav_logs(), reason="THRUSTMAP_BLACKBOX_LOGS holds no INAV blackbox logs"
-)
-@pytest.mark.parametrize("path", _gathered_inav_logs(), ids=lambda p: p.name)
-def test_real_inav_logs_read_with_inav_semantics(path: Path) -> None:
-    for fl in read(path):
+@pytest.mark.parametrize("name", names(source="xerox-inav"))
+def test_real_inav_logs_read_with_inav_semantics(public_data: PublicFiles, name: str) -> None:
+    """Real INAV 8.0.1 logs of benchmarks/public-data.toml, by name (sha256 checked)."""
+    path = public_data(name)
+    flights = read(path)
+    assert flights
+    for fl in flights:
         sc = fl.motor_output_scale
         assert sc is not None and sc.unit == "us" and sc.lo == 1000.0
         assert fl.voltage_v is not None and fl.voltage_v.origin.startswith("vbat (raw) × 0.01")
         v = float(np.median(fl.voltage_v.values))
         assert 3.0 <= v <= 4.45 * 6  # a pack, not centivolts read as volts
-        m = sc.to_pct(fl.motor_outputs.values)  # type: ignore[union-attr]
-        assert 0.0 <= float(np.median(m)) <= 60.0  # DShot's 48..2047 put an idle at 50 %
-    from thrustmap.fitting.df.extraction import NoUsableLog
+        raw = np.asarray(fl.motor_outputs.values, float)  # type: ignore[union-attr]
+        # CHANGELOG (issue 34): a hover at 13-16 % that Betaflight's DShot 48..2047 read as 54 %
+        hover_pct = float(np.median(np.median(sc.to_pct(raw), axis=1)))
+        assert 12.5 <= hover_pct <= 16.5, hover_pct
+        as_dshot_pct = (float(np.median(np.median(raw, axis=1))) - 48) / (2047 - 48) * 100
+        assert 54.0 <= as_dshot_pct <= 56.0, as_dshot_pct
+    assert len(extract(flights, DfOptions(mass_kg=1.0))) > 0
 
-    try:
-        df = extract(read(path), DfOptions(mass_kg=1.0))
-    except NoUsableLog as exc:  # pragma: no cover - shown when a gathered log regresses
-        pytest.fail(str(exc))
-    assert len(df) > 0
+
+def test_the_public_44_log_flash_dump_gives_2_logs_and_56_samples(
+    public_data: PublicFiles, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CHANGELOG (issue 34): fc-blackbox's btfl_all.bbl, a flash dump of 44 Betaflight 4.2.8
+    logs, was exit 2; now 2 logs used, 56 samples, the 42 others named as refused."""
+    log = public_data("fcbb/btfl_all")
+    out = tmp_path / "df.csv"
+    code, stdout, _ = _extract(log, out, capsys)
+    assert code == 0
+    assert "used 2 log(s), refused 42" in stdout
+    side = json.loads(out.with_suffix(".json").read_text())
+    assert len(side["refused"]) == 42
+    assert [(r["flight"], r["samples"]) for r in side["reports"]] == [
+        ("btfl_all.bbl#3", 56),
+        ("btfl_all.bbl#11", 0),
+    ]
+    assert len(out.read_text().splitlines()) == 1 + 56
 
 
 def test_fleet_extract_keeps_a_flash_dump_with_some_usable_logs(

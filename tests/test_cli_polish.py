@@ -20,7 +20,6 @@ from thrustmap import cli
 from thrustmap.cli import main
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
-XNOVA_SR = Path(__file__).resolve().parents[2] / "shared/data/xnova-thrust-stand/single_rotor"
 
 
 def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:

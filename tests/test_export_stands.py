@@ -19,6 +19,7 @@ import re
 
 import numpy as np
 import pytest
+from support.shared import ABSENT_REASON as SHARED_ABSENT
 from support.stand_maps import shared_data, stand_map, stand_sets
 
 from thrustmap.fitting.export.encodings import ExportOptions
@@ -29,7 +30,7 @@ SPIN_ARM_DEFAULT = 0.10
 SPIN_MARGIN = 0.03
 
 NAMES = sorted(stand_sets())
-needs_data = pytest.mark.skipif(shared_data() is None, reason="../shared/data is absent")
+needs_data = pytest.mark.skipif(shared_data() is None, reason=SHARED_ABSENT)
 
 
 def _params(text: str, sep: str = ",") -> dict[str, float]:

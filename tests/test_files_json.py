@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -49,19 +51,49 @@ def test_output_never_overwrites_an_input(tmp_path: Path) -> None:
     assert not plan.replaced
 
 
+def _error_as_nobody(path: Path) -> str:
+    """``check_output_path(path)``'s ConfigError text, checked in a forked child that has given
+    up root for nobody (65534): a folder's mode does not bind root, who may write anywhere."""
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        try:
+            os.close(read_end)
+            os.setgid(65534)
+            os.setuid(65534)
+            try:
+                check_output_path(path)
+                said = "no error"
+            except ConfigError as exc:
+                said = str(exc)
+            os.write(write_end, said.encode())
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    with os.fdopen(read_end, "rb") as f:
+        said = f.read().decode()
+    os.waitpid(pid, 0)
+    return said
+
+
 def test_output_folder_checks(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="does not exist"):
         check_output_path(tmp_path / "missing" / "x.json")
-    ro = tmp_path / "ro"
+    # a folder every user can reach (pytest's own is root's alone), holding a read-only one
+    base = Path(tempfile.mkdtemp())
+    ro = base / "ro"
     ro.mkdir()
-    os.chmod(ro, 0o500)
     try:
-        if os.access(ro, os.W_OK):
-            pytest.skip("running as a user who can write anywhere")
-        with pytest.raises(ConfigError, match="not writable"):
-            check_output_path(ro / "x.json")
+        base.chmod(0o755)
+        ro.chmod(0o555)
+        if os.access(ro, os.W_OK):  # root: ask as an unprivileged user
+            assert "not writable" in _error_as_nobody(ro / "x.json")
+        else:
+            with pytest.raises(ConfigError, match="not writable"):
+                check_output_path(ro / "x.json")
     finally:
-        os.chmod(ro, 0o700)
+        ro.chmod(0o700)
+        shutil.rmtree(base)
 
 
 def test_new_recording_path_never_overwrites(tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support import simulate_flight as sim
+from support.shared import shared_data_dir
 
 from thrustmap.fitting.flightlogs.detect import detect, read_log
 from thrustmap.fitting.flightlogs.series import FlightLog
@@ -186,8 +187,8 @@ def _ulogs() -> list[Path]:
     fixtures = sorted(
         (Path(__file__).resolve().parent.parent / "fixtures/flightlogs").glob("*.ulg")
     )
-    shared = Path(__file__).resolve().parent.parent.parent / "shared/data/flightlogs/px4"
-    return fixtures + (sorted(shared.glob("*.ulg")) if shared.is_dir() else [])
+    shared = shared_data_dir()
+    return fixtures + (sorted((shared / "flightlogs/px4").glob("*.ulg")) if shared else [])
 
 
 @pytest.mark.parametrize("path", _ulogs(), ids=lambda p: p.name)

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import pytest
 from support import simulate_flight as sim
+from support.shared import ABSENT_REASON as SHARED_ABSENT
+from support.shared import shared_data_dir
 
 from thrustmap.cli import COMMANDS, main
 from thrustmap.fitting.mapfile import ThrustMap
@@ -136,12 +138,12 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def xnova(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    root = (
-        Path(__file__).resolve().parents[1].parent / "shared/data/xnova-thrust-stand/single_rotor"
-    )
+    shared = shared_data_dir()
+    if shared is None:
+        pytest.skip(SHARED_ABSENT)
+    root = shared / "xnova-thrust-stand" / "single_rotor"
     files = [root / f for f in XNOVA_SR]
-    if not all(f.is_file() for f in files):
-        pytest.skip(f"xNova SR files not found in {root} (../shared is absent)")
+    assert all(f.is_file() for f in files), f"xNova SR files missing in {root}"
     out = tmp_path_factory.mktemp("xnova")
     cli = [sys.executable, "-m", "thrustmap"]
     subprocess.run([*cli, "fit", *map(str, files), "-o", str(out / "map.json")],

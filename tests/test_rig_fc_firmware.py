@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from support.shared import ABSENT_REASON as SHARED_ABSENT
+from support.shared import shared_data_dir
 
 from thrustmap.core.clock import MonotonicClock, SimClock
 from thrustmap.core.dslog import DsWriter
@@ -51,13 +53,14 @@ from thrustmap.rig.sim.plant import ConstantPlant, Plant
 from thrustmap.rig.spin import SpinRequest, run_spin
 
 R = mav.MavResult
-SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "firmware-transcripts"
 
 
 def real_transcript(name: str) -> Transcript:
-    path = SHARED / f"{name}.jsonl"
-    if not path.is_file():
-        pytest.skip(f"real firmware transcript {name} not available (../shared absent)")
+    shared = shared_data_dir()
+    if shared is None:
+        pytest.skip(SHARED_ABSENT)
+    path = shared / "firmware-transcripts" / f"{name}.jsonl"
+    assert path.is_file(), f"real firmware transcript {path} missing from the shared data"
     return _read_cached(str(path))
 
 

@@ -7,9 +7,9 @@ beside ``shared`` (a worktree); tests skip when neither is found.
 from __future__ import annotations
 
 import functools
-import os
 from pathlib import Path
 
+from support.shared import shared_data_dir
 from thrustmap.fitting.fit import fit_map
 from thrustmap.fitting.loaders import load_dataset
 from thrustmap.fitting.mapfile import ThrustMap
@@ -18,11 +18,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 
 def shared_data() -> Path | None:
-    env = os.environ.get("THRUSTMAP_SHARED_DATA")
-    for candidate in ([Path(env)] if env else []) + [PROJECT_ROOT.parent / "shared" / "data"]:
-        if candidate.is_dir():
-            return candidate
-    return None
+    return shared_data_dir()
 
 
 def stand_sets() -> dict[str, tuple[Path, ...]]:
