@@ -103,3 +103,28 @@ def change_lines(rules: Firmware, written: dict[str, float]) -> list[str]:
     return [f"firmware: {rules.header()}", "written vs the firmware defaults:"] + [
         f"  {line}" for line in rules.changes(written)
     ]
+
+
+def voltage_outside_line(tmap: ThrustMap, what: str, voltage_v: float) -> str | None:
+    """The header line for a written voltage outside the voltages the map was measured at (None
+    inside them): how far, and the map's interval there against inside (its κ term)."""
+    region = tmap.supported_region()
+    lo_v, hi_v = region.voltage_lo_v, region.voltage_hi_v
+    if lo_v <= voltage_v <= hi_v:
+        return None
+    edge = min(max(voltage_v, lo_v), hi_v)
+    t_lo, t_hi = (float(x) for x in region.thrust_range(edge))
+    t_mid = 0.5 * (t_lo + t_hi)
+    inside = tmap.interval_pct(t_mid, edge)
+    there = tmap.interval_pct(t_mid, voltage_v)
+    side = "below" if voltage_v < lo_v else "above"
+    iv = (
+        ""
+        if inside is None or there is None
+        else f"; the map's 95 % interval at {t_mid:.3g} N grows from ±{float(inside):.2f} % "
+        f"throttle at {edge:.2f} V to ±{float(there):.2f} % there"
+    )
+    return (
+        f"{what} = {voltage_v:.4g} V: {side} the voltages measured ({lo_v:.2f}..{hi_v:.2f} V), "
+        f"|ln(B/B_edge)| = {abs(math.log(voltage_v / edge)):.3f}{iv}"
+    )
