@@ -6,6 +6,7 @@ validity box, with the residual of the exported form in the comment header.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -227,6 +228,9 @@ def export_aerostack2(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     doc += "      # gamma(V) = gamma2*V^2 + gamma1*V + gamma0\n"
     for name, v in zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True):
         doc += f"      {name}: {v!r}\n"
-    values: dict[str, float] = dict(zip("abcdef", ab, strict=True))
+    values: dict[str, Any] = dict(zip("abcdef", ab, strict=True))
+    if mv.full_throttle is not None:
+        values["full_throttle_thrust_n"] = mv.full_throttle.value
+    values["map_values"] = mv
     values.update(dict(zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True)))
     return ExportResult("aerostack2", doc, values, {"rms_pct": r[0], "max_pct": r[1]}, ".yaml")

@@ -115,6 +115,16 @@ def _px4_hover(
     )
 
 
+def _px4_outside(tmap: ThrustMap, b_ref: float, hover_line: str) -> list[str]:
+    """The header's written values outside the supported region beyond the map's own: the
+    battery scaling's low end, and MPC_THR_HOVER when its full thrust is extrapolated."""
+    out = [x for x in [_bat_outside(tmap, b_ref)] if x]
+    if hover_line:
+        out.append(f"MPC_THR_HOVER: {hover_line.split('MPC_THR_HOVER = ')[-1]} (a fraction "
+                   "of the extrapolated full-throttle thrust)")  # fmt: skip
+    return out
+
+
 def _bat_outside(tmap: ThrustMap, b_ref: float) -> str | None:
     """PX4 scales thrust by BAT1_V_CHARGED / V_cell up to 1.3 (``rules.PX4_BATTERY_SCALE_MAX``):
     it compensates down to V_charged / 1.3, below the stand's voltages when they are narrower."""
@@ -245,10 +255,8 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     written = {n: float(v) for n, v, _ in params}
     rules.require(written)
     values.update(written)
-    outside = [x for x in [_bat_outside(tmap, b_ref)] if x]
-    if "MPC_THR_HOVER" in values and (full is None or full.extrapolated):
-        outside.append(f"MPC_THR_HOVER: {hover_line.split('MPC_THR_HOVER = ')[-1]} (a "
-                       "fraction of the extrapolated full-throttle thrust)")  # fmt: skip
+    hover_out = hover_line if full is None or full.extrapolated else ""
+    outside = _px4_outside(tmap, b_ref, hover_out)
     lines = (
         header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual, mv, outside)
         + change_lines(rules, written)
