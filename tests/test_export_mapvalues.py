@@ -188,6 +188,7 @@ def test_ardupilot_battery_range_is_the_documented_per_cell_range_for_a_physics_
     assert res.values["MOT_BAT_VOLT_MAX"] == 25.2  # 4.2 V x 6 cells, not the stand's 24.86
     assert res.values["MOT_BAT_VOLT_MIN"] == 19.8  # 3.3 V x 6 cells, not the stand's 23.16
     assert "documented 4.2/3.3 V a cell x 6 cells" in res.text
+    assert "# pack: 6S, read from the map's 23.16..24.86 V" in res.text  # the frame named
     out = res.text.split("written values outside the supported region (extrapolated):")[1]
     line = next(ln for ln in out.splitlines() if "MOT_BAT_VOLT_MIN = 19.8 V" in ln)
     assert "below the voltages measured" in line and "95 % interval" in line

@@ -28,6 +28,7 @@ from thrustmap.fitting.export.encodings import (
 from thrustmap.fitting.export.firmware.common import (
     FloatArray,
     change_lines,
+    pack_line,
     pwm_scale,
     spin_up_fraction,
     supported_samples,
@@ -401,6 +402,7 @@ def _ardupilot_notes(
     pct_min = float(SCALES[scale.name].to_pct(scale.lo + shown.spin_min * scale.span))
     t_at_min = thrust_at(tmap, pct_min, min(v_max, tmap.validity.voltage_v.hi))
     notes = [
+        pack_line(tmap),
         spin_note,
         f"the map gives {t_at_min:.4g} N per rotor at MOT_SPIN_MIN; ArduPilot's curve starts "
         "from zero there (the residual above covers this)",

@@ -26,6 +26,7 @@ from thrustmap.fitting.export.encodings import (
 from thrustmap.fitting.export.firmware.common import (
     FloatArray,
     change_lines,
+    pack_line,
     spin_up_fraction,
     spin_up_native,
     supported_samples,
@@ -244,6 +245,7 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
             "the map is more curved than this firmware's curve can follow"
         )
     notes.append(idle_note)
+    notes.append(pack_line(tmap))
     written = {"thrust_linear": float(fit.thrust_linear), **{k: float(v) for k, v in settings}}
     rules.require(written)
     lines = (

@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.core.physical import cells_from_voltage
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.export.encodings import ExportOptions, Samples, map_samples, target_scale
 from thrustmap.fitting.export.rules import Firmware
@@ -127,4 +128,21 @@ def voltage_outside_line(tmap: ThrustMap, what: str, voltage_v: float) -> str | 
     return (
         f"{what} = {voltage_v:.4g} V: {side} the voltages measured ({lo_v:.2f}..{hi_v:.2f} V), "
         f"|ln(B/B_edge)| = {abs(math.log(voltage_v / edge)):.3f}{iv}"
+    )
+
+
+def pack_line(tmap: ThrustMap) -> str:
+    """The header line naming the pack the map was measured on (its cell count, read from its
+    voltages): the vehicle this export is loaded on must fly the same pack."""
+    box = tmap.validity.voltage_v
+    cells = cells_from_voltage(box.lo, box.hi)
+    if cells is None:
+        return (
+            f"pack: the map's voltages {box.lo:.2f}..{box.hi:.2f} V do not tell the cell count; "
+            "load this only on a vehicle flying the pack the stand used"
+        )
+    return (
+        f"pack: {cells}S, read from the map's {box.lo:.2f}..{box.hi:.2f} V "
+        f"({box.lo / cells:.2f}..{box.hi / cells:.2f} V a cell): load this only on a {cells}S "
+        "vehicle"
     )
