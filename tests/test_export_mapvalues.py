@@ -164,20 +164,25 @@ def test_the_report_shows_the_same_values(tmap: ThrustMap) -> None:
 
 
 def test_hover_is_one_value_in_each_firmware_unit(tmap: ThrustMap) -> None:
+    """The map's hover throttle, written as the value each firmware turns back into it."""
     opts = ExportOptions(mass_kg=2.0, rotors=4)
-    hover_n = 2.0 * 9.80665 / 4
-    full = map_values(tmap).full_throttle
-    assert full is not None
-    px4 = export_map(tmap, "px4", opts)
-    assert px4.values["MPC_THR_HOVER"] == pytest.approx(hover_n / full.value, abs=5e-4)
-    ap = export_map(tmap, "ardupilot", opts)
-    assert ap.values["MOT_THST_HOVER"] == pytest.approx(
-        hover_n / ap.values["thrust_max_n"], abs=5e-5
-    )
-    hover = map_values(tmap, hover_thrust_n=hover_n).hover
+    hover = map_values(tmap, hover_thrust_n=2.0 * 9.80665 / 4).hover
     assert hover is not None and not hover.extrapolated
+    hover_us = 1000.0 + 10.0 * hover.value
+    px4 = export_map(tmap, "px4", opts)
+    lo_us, f = px4.values["PWM_MAIN_MIN1"], px4.values["THR_MDL_FAC"]
+    s = float(fw.px4_throttle(px4.values["MPC_THR_HOVER"], f))  # PX4's mixer output
+    assert lo_us + s * (2000.0 - lo_us) == pytest.approx(hover_us, abs=1.0)  # 3-digit param
+    ap = export_map(tmap, "ardupilot", opts)
+    p = fw.ArduPilotParams(
+        ap.values["MOT_THST_EXPO"], ap.values["MOT_SPIN_MIN"], ap.values["MOT_SPIN_MAX"],
+        ap.values["MOT_BAT_VOLT_MAX"], ap.values["MOT_BAT_VOLT_MIN"], ap.values["thrust_max_n"],
+    )  # fmt: skip
+    demand_n = ap.values["MOT_THST_HOVER"] * p.thrust_max_n  # ArduPilot's throttle x full lift
+    act = float(fw.ardupilot_actuator(demand_n, hover.voltage_v, p))
+    assert 1000.0 + 1000.0 * act == pytest.approx(hover_us, abs=0.2)
     for res in (px4, ap):
-        assert f"hover throttle at {full.voltage_v:.4g} V: {hover.value:.4g} %" in res.text
+        assert f"hover throttle at {hover.voltage_v:.4g} V: {hover.value:.4g} %" in res.text
 
 
 # -- firmware parameters beyond the stand's range (issue 40 item 3) ------------------------------

@@ -42,7 +42,7 @@ from thrustmap.fitting.export.rules import (
     ardupilot_rules,
 )
 from thrustmap.fitting.mapfile import ThrustMap
-from thrustmap.fitting.mapvalues import MapValue, MapValues, fraction_of, thrust_at, thrust_value
+from thrustmap.fitting.mapvalues import MapValue, MapValues, thrust_at, thrust_value
 
 
 @dataclass(frozen=True)
@@ -320,20 +320,9 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         if (line := voltage_outside_line(tmap, name, v)) is not None
     ]  # fmt: skip
     if mv.hover is not None:
-        frac, lo, hi = (
-            fraction_of(mv.hover.thrust_n, k) if k is not None
-            else (mv.hover.thrust_n / fit.thrust_max_n, None, None)
-        )  # fmt: skip
-        iv = "" if lo is None or hi is None else f" (95 % interval {lo:.4f}..{hi:.4f})"
-        notes.append(
-            f"hover: {opts.mass_kg:g} kg on {opts.rotors or 4} rotors = {mv.hover.thrust_n:.4g} "
-            f"N per rotor -> MOT_THST_HOVER = {mv.hover.thrust_n:.4g} N / {fit.thrust_max_n:.4g} N at "
-            f"MOT_SPIN_MAX = {frac:.4f}{iv} (ArduPilot learns it with MOT_HOVER_LEARN)"
-        )
-        if k is None or k.extrapolated or mv.hover.extrapolated:
-            outside.append(f"MOT_THST_HOVER = {frac:.4f}{iv}: a fraction of the extrapolated "
-                           "thrust at MOT_SPIN_MAX")  # fmt: skip
-        params.append(("MOT_THST_HOVER", round(frac, 4), ".4f"))
+        hover, hover_line = _ardupilot_hover(mv.hover, scale, shown, opts)
+        notes.append(hover_line)
+        params.append(("MOT_THST_HOVER", hover, ".4f"))
     written = {n: float(format(v, fmt)) for n, v, fmt in params}
     rules.require(written)
     lines = (
@@ -350,6 +339,30 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     if spin_frac is not None:
         values["spin_up_fraction"] = spin_frac
     return ExportResult("ardupilot", text, values, resid, ".param")
+
+
+def _ardupilot_hover(
+    hover: MapValue, scale: ThrottleScale, p: ArduPilotParams, opts: ExportOptions
+) -> tuple[float, str]:
+    """MOT_THST_HOVER: the map's hover throttle in ArduPilot's units, the throttle demand
+    ArduPilot's curve (with its voltage scaling at the hover's voltage) turns into that output:
+    demand = thrust / full lift at that output (and its interval the same way)."""
+
+    def demand(pct: float) -> float:
+        act = float(throttle_fraction(np.array([pct]), scale)[0])
+        return float(ardupilot_thrust(act, hover.voltage_v, p)[()]) / p.thrust_max_n
+
+    frac = demand(hover.value)
+    iv = (
+        "" if hover.lo is None or hover.hi is None
+        else f" (95 % interval {demand(hover.lo):.4f}..{demand(hover.hi):.4f})"
+    )  # fmt: skip
+    return round(frac, 4), (
+        f"hover: {opts.mass_kg:g} kg on {opts.rotors or 4} rotors = {hover.thrust_n:.4g} N per "
+        f"rotor, throttle {hover.value:.2f} % at {hover.voltage_v:g} V -> MOT_THST_HOVER "
+        f"{frac:.4f}{iv}, the demand ArduPilot's curve turns into that output (ArduPilot learns "
+        "it with MOT_HOVER_LEARN)"
+    )
 
 
 def _ardupilot_residual(

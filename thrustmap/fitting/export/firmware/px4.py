@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import FitError
 from thrustmap.core.physical import CELL_V_RANGE, cells_from_voltage
+from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.export.encodings import (
     ExportOptions,
     ExportResult,
@@ -33,7 +34,7 @@ from thrustmap.fitting.export.firmware.common import (
 )
 from thrustmap.fitting.export.rules import PX4_BATTERY_SCALE_MAX, px4_rules
 from thrustmap.fitting.mapfile import ThrustMap
-from thrustmap.fitting.mapvalues import MapValue, fraction_of
+from thrustmap.fitting.mapvalues import MapValue
 
 log = logging.getLogger(__name__)
 
@@ -98,31 +99,31 @@ def _fit_px4_fixed(t: FloatArray, s: FloatArray, thrust_max_n: float) -> Px4Fit:
 
 
 def _px4_hover(
-    hover: MapValue, full: MapValue | None, thrust_max_n: float, opts: ExportOptions
+    hover: MapValue, scale: ThrottleScale, f: float, opts: ExportOptions
 ) -> tuple[float, str]:
-    """MPC_THR_HOVER: the hover thrust as a fraction of the full-throttle thrust (PX4's thrust
-    setpoint is relative to it: the map's, else the fitted curve's), and its header line."""
-    frac, lo, hi = (
-        fraction_of(hover.thrust_n, full) if full is not None
-        else (hover.thrust_n / thrust_max_n, None, None)
+    """MPC_THR_HOVER: the map's hover throttle in PX4's units, the thrust setpoint whose output
+    through THR_MDL_FAC is that throttle (and its interval the same way), and its line."""
+
+    def rel(pct: float) -> float:
+        s_h = float(throttle_fraction(np.array([pct]), scale)[0])
+        return float(px4_rel_thrust(min(max(s_h, 0.0), 1.0), f))
+
+    frac = rel(hover.value)
+    iv = (
+        "" if hover.lo is None or hover.hi is None
+        else f" (95 % interval {rel(hover.lo):.3f}..{rel(hover.hi):.3f})"
     )  # fmt: skip
-    iv = "" if lo is None or hi is None else f" (95 % interval {lo:.3f}..{hi:.3f})"
-    where = " EXTRAPOLATED" if hover.extrapolated or full is None or full.extrapolated else ""
     return round(frac, 3), (
         f"hover: {opts.mass_kg:g} kg on {opts.rotors or 4} rotors = {hover.thrust_n:.4g} N per "
-        f"rotor, throttle {hover.value:.2f} % at {hover.voltage_v:g} V; MPC_THR_HOVER = "
-        f"{hover.thrust_n:.4g} N / full-throttle {thrust_max_n:.4g} N = {frac:.3f}{iv}{where}"
+        f"rotor, throttle {hover.value:.2f} % at {hover.voltage_v:g} V; MPC_THR_HOVER "
+        f"{frac:.3f}{iv}: the setpoint PX4's curve (THR_MDL_FAC {f:g}) turns into that throttle"
     )
 
 
-def _px4_outside(tmap: ThrustMap, b_ref: float, hover_line: str) -> list[str]:
-    """The header's written values outside the supported region beyond the map's own: the
-    battery scaling's low end, and MPC_THR_HOVER when its full thrust is extrapolated."""
-    out = [x for x in [_bat_outside(tmap, b_ref)] if x]
-    if hover_line:
-        out.append(f"MPC_THR_HOVER: {hover_line.split('MPC_THR_HOVER = ')[-1]} (a fraction "
-                   "of the extrapolated full-throttle thrust)")  # fmt: skip
-    return out
+def _px4_outside(tmap: ThrustMap, b_ref: float) -> list[str]:
+    """The header's written values outside the supported region beyond the map's own values:
+    the battery scaling's low end."""
+    return [x for x in [_bat_outside(tmap, b_ref)] if x]
 
 
 def _bat_outside(tmap: ThrustMap, b_ref: float) -> str | None:
@@ -240,7 +241,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     values["MC_BAT_SCALE_EN"] = bat_en
     hover_line = ""
     if mv.hover is not None:
-        hover, hover_line = _px4_hover(mv.hover, full, fit.thrust_max_n, opts)
+        hover, hover_line = _px4_hover(mv.hover, scale, f, opts)
         notes.append(hover_line)
         params.append(("MPC_THR_HOVER", hover, 9))
         values["MPC_THR_HOVER"] = hover
@@ -255,8 +256,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     written = {n: float(v) for n, v, _ in params}
     rules.require(written)
     values.update(written)
-    hover_out = hover_line if full is None or full.extrapolated else ""
-    outside = _px4_outside(tmap, b_ref, hover_out)
+    outside = _px4_outside(tmap, b_ref)
     lines = (
         header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual, mv, outside)
         + change_lines(rules, written)
