@@ -285,3 +285,12 @@ def test_physical_pack_checks() -> None:
     assert physical.voltage_against_pack(4.0, 3.86, 4.14) is None
     assert physical.pack_assumed(23.16, 24.86) is None
     assert physical.pack_assumed(3.86, 4.14) is not None
+
+
+def test_the_terminal_is_told_what_the_file_extrapolates(tmap: ThrustMap, tmp_path: Path) -> None:
+    path, out = tmp_path / "map.json", tmp_path / "px4.params"
+    tmap.save(path)
+    code, text = _cli("export", str(path), "--to", "px4", "-o", str(out))
+    full = map_values(tmap).full_throttle
+    assert code == 0 and full is not None
+    assert f"extrapolated: full-throttle thrust {full.value:.4g} N, 95 % interval" in text
