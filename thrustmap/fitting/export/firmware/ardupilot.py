@@ -230,10 +230,10 @@ def ardupilot_battery_range(tmap: ThrustMap, given_max_v: float | None) -> tuple
     cells = cells_from_voltage(box.lo, box.hi)
     if tmap.model == "motor" and cells is not None:
         lo_c, hi_c = ARDUPILOT_CELL_V
-        v_max = given_max_v if given_max_v is not None else hi_c * cells
+        v_max = given_max_v if given_max_v is not None else round(hi_c * cells, 2)
         return (
             v_max,
-            lo_c * cells,
+            round(lo_c * cells, 2),
             (
                 f"MOT_BAT_VOLT_MAX/MIN: ArduPilot's documented {hi_c:g}/{lo_c:g} V a cell x {cells} "
                 f"cells (a {cells}S pack, read from the map's {box.lo:.2f}..{box.hi:.2f} V): the "
