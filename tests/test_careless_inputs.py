@@ -440,6 +440,19 @@ ROWS = [
         "against real Betaflight 4.6.0 SITL",
         absent="tests/",
     ),
+    # --- issue 44 items 5 and 8: a voltage that is one cell, a map for another platform -------
+    Row(
+        "44.5 predict at one cell of a 6S map",
+        "predict {map} --thrust-n 4 --voltage-v 4.1",
+        2,
+        "is one cell of the map's 6S pack",
+    ),
+    Row(
+        "44.8 a 6S map exported to the 1S Crazyflie",
+        "export {map} --to crazyflie -o {tmp}/cf.yaml",
+        2,
+        "measured on a 6S pack (20.40..25.20 V) but crazyflie flies on 1S",
+    ),
 ]
 
 

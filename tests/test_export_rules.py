@@ -187,7 +187,10 @@ def test_betaflight_idle_and_px4_minimum_follow_the_spin_up() -> None:
 
 CASES = [
     (["--to", "ardupilot", "--range", "1000:2100"], "MOT_PWM_MAX = 2100 is outside"),
-    (["--to", "ardupilot", "--mass-kg", "8"], "MOT_THST_HOVER = 0.8499 is outside its range"),
+    (
+        ["--to", "ardupilot", "--mass-kg", "8"],
+        "MOT_THST_HOVER = 0.9401 is outside its range 0.125..0.6875",
+    ),
     (["--to", "ardupilot", "--mass-kg", "40"], "grams typed as kilograms, or the wrong map?"),
     (["--to", "px4", "--range", "1100:2300"], "PWM_MAIN_MAX1 = 2300 is outside"),
     (["--to", "px4", "--range", "1050:2000"], "below 1087, the lowest command the stand saw"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -135,3 +136,16 @@ def export_cmd(
     summary = ", ".join(f"{k} {v:.3g}" for k, v in result.residual.items())
     replaced = "; replaced the previous file" if plan.replaced else ""
     echo(f"wrote {output} ({target}; residual {summary or 'n/a'}{replaced})", err=True)
+    for line in _extrapolated_lines(result.values.get("map_values")):
+        echo(line, err=True)
+
+
+def _extrapolated_lines(values: Any) -> list[str]:
+    """One line per written map value outside the supported region (the header lists them
+    too): the user sees on the terminal what the file extrapolates."""
+    if values is None:
+        return []
+    return [
+        f"extrapolated: {v.name} {v.value:.4g} {v.unit}, {v.interval_text()}"
+        for v in values.outside()
+    ]

@@ -432,6 +432,7 @@ def predict_cmd(
     if throttle_pct is not None and throttle_pct < 0:
         raise ConfigError(f"--throttle-pct: expected a value >= 0, got {throttle_pct:g}")
     tmap = ThrustMap.load(map_file)
+    _check_pack(tmap, voltage_v)
     sc = tmap.throttle_scale
     corrected = not no_correction
     if thrust_n is None:
@@ -519,6 +520,10 @@ def predict_cmd(
         "interval_widening": factor,
         "interval_at_region_pct": base,
     }
+    thrust_line = None
+    if thrust_n is None:
+        thrust_line = _forward_thrust(tmap if corrected else tmap.with_correction(None), pct,
+                                      voltage_v, result)  # fmt: skip
     if not inside:
         where = (
             f"at {voltage_v:.2f} V the data reach T {r_lo:.3f}..{r_hi:.3f} N"
@@ -545,8 +550,38 @@ def predict_cmd(
             f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
             f"{native:.2f}{pm_native} {sc.unit_label}{level}"
         )
+        if thrust_line:
+            click.echo(thrust_line)
         if applied:
             click.echo(applied)
+
+
+def _check_pack(tmap: Any, voltage_v: float) -> None:
+    """Refuse a voltage that is one cell of the map's pack (or a whole pack given to a
+    per-cell map); say which pack a one-cell map's voltages were read as."""
+    box = tmap.validity.voltage_v
+    problem = physical.voltage_against_pack(voltage_v, box.lo, box.hi)
+    if problem is not None:
+        raise ConfigError(problem)
+    assumed = physical.pack_assumed(box.lo, box.hi)
+    if assumed is not None:
+        echo(f"note: {assumed}", err=True)
+
+
+def _forward_thrust(tmap: Any, pct: float, voltage_v: float, result: dict[str, Any]) -> str:
+    """The thrust at a throttle as every export writes it (``fitting.mapvalues``): its 95 %
+    interval in N and whether it is extrapolated, added to ``result``; the line to print."""
+    from thrustmap.core.errors import FitError
+    from thrustmap.fitting.mapvalues import thrust_value
+
+    try:
+        v = thrust_value(tmap, pct, voltage_v, key="thrust_n", name="thrust")
+    except FitError as exc:
+        result["thrust_interval_n"] = None
+        return f"  thrust interval: {exc}"
+    result["thrust_interval_n"] = None if v.lo is None else [v.lo, v.hi]
+    result["thrust_extrapolated"] = v.extrapolated
+    return f"  {v.line()}"
 
 
 def _gamma_line(tmap: Any, gamma: float, voltage_v: float) -> str:

@@ -152,3 +152,71 @@ def check_header_unit(header: str, unit: str, *, file: str) -> None:
         f"use --thrust-unit {named}",
         file=file,
     )
+
+
+# -- packs and platforms: how many cells a map's voltages are, and where a map may go ------------
+#: a LiPo/LiHV cell on a stand, under load up to full charge (V per cell): reads a cell count
+CELL_V_RANGE = (3.0, 4.35)
+#: the cell counts each export target's platform flies on (a target not named takes any)
+TARGET_CELLS: dict[str, tuple[int, int]] = {
+    "crazyflie": (1, 1),  # Crazyflie 2.x: one 1S LiPo (bitcraze)
+    "crazyflie-cmd": (1, 1),
+}
+
+
+def cells_from_voltage(lo_v: float, hi_v: float) -> int | None:
+    """The fewest cells whose per-cell voltage holds ``lo_v..hi_v`` within ``CELL_V_RANGE``
+    (a stand's pack is near charged, so the fewest cells is the likely count); None if none."""
+    for cells in range(1, 15):
+        if hi_v / cells <= CELL_V_RANGE[1] and lo_v / cells >= CELL_V_RANGE[0]:
+            return cells
+    return None
+
+
+def target_cells_problem(lo_v: float, hi_v: float, target: str) -> str | None:
+    """Why a map measured at ``lo_v..hi_v`` must not be exported to ``target`` (its platform
+    flies another cell count), or None when it may (or the count cannot be read)."""
+    allowed = TARGET_CELLS.get(target)
+    cells = cells_from_voltage(lo_v, hi_v)
+    if allowed is None or cells is None or allowed[0] <= cells <= allowed[1]:
+        return None
+    want = f"{allowed[0]}S" if allowed[0] == allowed[1] else f"{allowed[0]}S..{allowed[1]}S"
+    return (
+        f"the map was measured on a {cells}S pack ({lo_v:.2f}..{hi_v:.2f} V) but {target} flies "
+        f"on {want}: its thrust and throttle would be another motor's; measure this vehicle's "
+        "motor on its own pack"
+    )
+
+
+def voltage_against_pack(voltage_v: float, lo_v: float, hi_v: float) -> str | None:
+    """Why ``voltage_v`` is not a voltage of the pack a map was measured on (``lo_v..hi_v``)
+    but one cell of it, or the whole pack of a per-cell map; None when it is neither."""
+    cells = cells_from_voltage(lo_v, hi_v)
+    if cells is None:
+        return None
+    lo_c, hi_c = CELL_V_RANGE
+    if cells > 1 and lo_c <= voltage_v <= hi_c and voltage_v < lo_v / 1.5:
+        return (
+            f"--voltage-v {voltage_v:g} V is one cell of the map's {cells}S pack "
+            f"({lo_v:.2f}..{hi_v:.2f} V); give the pack voltage: {voltage_v * cells:.4g} V is "
+            f"--voltage-v {voltage_v * cells:.4g}"
+        )
+    n = round(voltage_v / ((lo_v + hi_v) / 2))
+    if cells == 1 and n >= 2 and lo_c <= voltage_v / n <= hi_c:
+        return (
+            f"--voltage-v {voltage_v:g} V is a {n}S pack but the map's voltages "
+            f"({lo_v:.2f}..{hi_v:.2f} V) are one cell (a 1S map, or per-cell voltages of a "
+            f"larger pack); give the voltage per cell: --voltage-v {voltage_v / n:.4g}"
+        )
+    return None
+
+
+def pack_assumed(lo_v: float, hi_v: float) -> str | None:
+    """The sentence saying which pack a one-cell map's voltages were read as (None: not a
+    one-cell map)."""
+    if cells_from_voltage(lo_v, hi_v) != 1:
+        return None
+    return (
+        f"the map's voltages {lo_v:.2f}..{hi_v:.2f} V are one lithium cell: read as a 1S pack "
+        "(or the per-cell voltage of a larger pack); --voltage-v is per cell here"
+    )

@@ -20,6 +20,7 @@ from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit import Pool, Row, pool, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+from thrustmap.fitting.mapvalues import MapValues, map_values
 from thrustmap.fitting.names import DEFAULT_MODEL, Loss
 from thrustmap.fitting.selection import (
     ROLE_PLATEAU,
@@ -91,6 +92,8 @@ class ReportData:
     exports: list[ExportRow]
     notes: list[str] = field(default_factory=list)
     tool_version: str = __version__
+    #: the map's values every export writes (``fitting.mapvalues``), None: not computed
+    map_values: MapValues | None = None
 
     @property
     def map_label(self) -> str:
@@ -398,6 +401,7 @@ def build(
         suggestion=suggestion,
         gamma=_gamma_data(tmap, map_path),
         exports=_exports(tmap, _betaflight_firmware(sidecars)) if with_exports else [],
+        map_values=map_values(tmap) if with_exports else None,
         notes=notes,
     )
 

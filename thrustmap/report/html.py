@@ -499,9 +499,31 @@ def _exports(rd: ReportData) -> str:
         resid = ", ".join(f"{k} {v:.3g}" for k, v in e.residual.items()) or "–"
         rows.append([_td(e.target), _td(params), _td(resid)])
     return (
-        "<p>Each firmware's own thrust-curve form fitted to this map (defaults of "
+        _map_values(rd)
+        + "<p>Each firmware's own thrust-curve form fitted to this map (defaults of "
         "<code>thrustmap export</code>), with the residual its curve leaves (% throttle).</p>"
         + _table(("target", "parameters", "residual"), rows)
+    )
+
+
+def _map_values(rd: ReportData) -> str:
+    """The values every export writes, computed once from the map (``fitting.mapvalues``)."""
+    if rd.map_values is None:
+        return ""
+    rows = [
+        [
+            _td(v.name),
+            _td(f"{v.value:.4g} {v.unit}"),
+            _td(v.interval_text()),
+            _td(f"{v.voltage_v:.4g} V"),
+            _td("EXTRAPOLATED (outside the supported region)" if v.extrapolated else "inside"),
+        ]
+        for v in rd.map_values.all()
+    ]
+    return (
+        "<p>The map's values every export writes (in its own units), computed once: the same "
+        "numbers as <code>thrustmap predict</code>.</p>"
+        + _table(("value", "map", "95 % interval", "at", "where"), rows)
     )
 
 

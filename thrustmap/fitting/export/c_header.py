@@ -29,11 +29,14 @@ from thrustmap.fitting.export.encodings import (
     ExportOptions,
     ExportResult,
     comment,
+    export_values,
     header_lines,
+    reference_voltage,
     target_scale,
 )
 from thrustmap.fitting.export.rules import C_HEADER
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.mapvalues import MapValues
 from thrustmap.fitting.models import LinearTmaxModel, PolyModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -113,7 +116,7 @@ def _motor_body(tmap: ThrustMap, scale: ThrottleScale) -> list[str]:
     ]
 
 
-def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
+def c_header_text(tmap: ThrustMap, scale: ThrottleScale, values: MapValues | None = None) -> str:
     model = tmap.model_def
     box = tmap.validity
     bc = Fraction(round((box.voltage_v.lo + box.voltage_v.hi) / 2 * 64), 64)
@@ -140,6 +143,7 @@ def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
             "0 for the map form (exact coefficients, re-centred exactly); compiled, it agrees with "
             "the map to the float return value's rounding (double) or ~3e-7 of the range (float)",
         ],
+        values,
     )
     lines.append(f"firmware: {C_HEADER.header()}; it replaces no firmware default")
     lines += [
@@ -172,6 +176,8 @@ def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
         f"#define THRUSTMAP_VS_V {float(bs):.17g} /* voltage scale (power of two) */\n"
     )
     out.extend(d + "\n" for d in defines)
+    if values is not None:
+        out.append(_value_defines(values))
     out.append(
         "\nstatic inline THRUSTMAP_REAL thrustmap_clamp_(THRUSTMAP_REAL x, THRUSTMAP_REAL lo,"
         " THRUSTMAP_REAL hi)\n{\n    return x < lo ? lo : (x > hi ? hi : x);\n}\n\n"
@@ -215,12 +221,31 @@ def c_header_text(tmap: ThrustMap, scale: ThrottleScale) -> str:
     return "".join(out)
 
 
+def _value_defines(values: MapValues) -> str:
+    """The map's full-throttle thrust (``fitting.mapvalues``) as C constants, its interval and
+    whether it is extrapolated (1: outside the supported region)."""
+    full = values.full_throttle
+    if full is None:
+        return "/* full-throttle thrust: the map cannot say (see the header) */\n"
+    hi = full.hi if full.hi is not None and math.isfinite(full.hi) else math.nan
+    lo = full.lo if full.lo is not None else math.nan
+    return (
+        f"#define THRUSTMAP_FULL_THROTTLE_THRUST_N {full.value:.17g} /* at "
+        f"{full.voltage_v:.6g} V, per rotor */\n"
+        f"#define THRUSTMAP_FULL_THROTTLE_THRUST_LO_N {lo:.17g} /* 95 % interval */\n"
+        f"#define THRUSTMAP_FULL_THROTTLE_THRUST_HI_N {hi:.17g}\n"
+        f"#define THRUSTMAP_FULL_THROTTLE_EXTRAPOLATED {int(full.extrapolated)}\n"
+    ).replace("nan", "NAN")
+
+
 def export_c_header(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     scale = target_scale(opts.encoding or "percent", opts.range_)
     C_HEADER.require({"range_lo": scale.lo, "range_hi": scale.hi})
+    mv = export_values(tmap, scale, opts, reference_voltage(tmap, opts.voltage_v))
     return ExportResult(
         target="c-header",
-        text=c_header_text(tmap, scale),
-        values={"scale": scale},
+        text=c_header_text(tmap, scale, mv),
+        values={"scale": scale, "map_values": mv}
+        | ({} if mv.full_throttle is None else {"full_throttle_thrust_n": mv.full_throttle.value}),
         suffix=".h",
     )

@@ -15,16 +15,41 @@ from thrustmap.fitting.export.encodings import (
     ExportOptions,
     ExportResult,
     comment,
+    export_values,
     header_lines,
     map_samples,
+    reference_voltage,
     rescale,
 )
 from thrustmap.fitting.export.platforms import crazyflie_seed2
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.mapvalues import MapValues
 
 
 def _num(x: float) -> str:
     return repr(float(x))
+
+
+def _values_yaml(mv: MapValues, scale: ThrottleScale) -> str:
+    """The map's values (``fitting.mapvalues``) as a YAML block: value, 95 % interval (null:
+    none; .inf: unbounded), extrapolated; throttle values also in this encoding's units."""
+
+    def num(x: float | None) -> str:
+        if x is None:
+            return "null"
+        return ".inf" if x == float("inf") else _num(x)
+
+    out = ["map_values:  # computed once from the map; the same in every export and predict\n"]
+    for v in mv.all():
+        out.append(
+            f"  {v.key}: {{value: {num(v.value)}, interval_95: [{num(v.lo)}, {num(v.hi)}], "
+            f"unit: {json.dumps(v.unit)}, voltage_v: {num(v.voltage_v)}, "
+            f"extrapolated: {'true' if v.extrapolated else 'false'}"
+        )
+        if v.unit == "%":
+            out.append(f", {scale.name}: {num(float(scale.from_pct(v.value)))}")
+        out.append("}\n")
+    return "".join(out)
 
 
 def export_encoding(
@@ -36,8 +61,11 @@ def export_encoding(
     extra_residual: list[str] = []
     extra_text = ""
     values: dict[str, Any] = {}
+    b_ref = reference_voltage(tmap, opts.voltage_v)
+    mv = export_values(tmap, scale, opts, b_ref)
     if scale.name in ("crazyflie", "crazyflie-cmd"):
-        cf = crazyflie_seed2(tmap, scale, opts)
+        full_n = None if mv.full_throttle is None else mv.full_throttle.value
+        cf = crazyflie_seed2(tmap, scale, opts, full_n)
         extra_residual, extra_text, values = cf.residual_lines, cf.text, {"seed2": cf}
     # Show the identity on the box: exported coefficients vs map-then-convert.
     s = map_samples(tmap, n_thrust=21, n_voltage=5)
@@ -54,6 +82,7 @@ def export_encoding(
             f"map-then-convert to {dev:.1e} of the range on the validity box)",
             *extra_residual,
         ],
+        mv,
     )
     out = [comment(lines, "#")]
     box = tmap.validity
@@ -89,6 +118,10 @@ def export_encoding(
             f"  voltage_v: [{_num(g.voltage_v.lo)}, {_num(g.voltage_v.hi)}]\n"
         )
     out.append(extra_text)
+    out.append(_values_yaml(mv, scale))
+    if mv.full_throttle is not None:
+        values["full_throttle_thrust_n"] = mv.full_throttle.value
+    values["map_values"] = mv
     values.update({"offset": enc.offset, "coefficients": enc.coefficients, "encoded": enc})
     return ExportResult(
         target=scale.name,

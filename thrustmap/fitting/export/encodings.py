@@ -27,6 +27,7 @@ from thrustmap import __version__
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
+from thrustmap.fitting.mapvalues import MapValue, MapValues, map_values, pct_to_native
 from thrustmap.fitting.models import PolyModel
 
 log = logging.getLogger(__name__)
@@ -171,8 +172,17 @@ def rms_max(err: npt.ArrayLike) -> tuple[float, float]:
     return float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e)))
 
 
-def header_lines(tmap: ThrustMap, title: str, residual: Sequence[str]) -> list[str]:
-    """Comment header lines (without the comment marker) every export starts with."""
+def header_lines(
+    tmap: ThrustMap,
+    title: str,
+    residual: Sequence[str],
+    values: MapValues | None = None,
+    outside: Sequence[str] = (),
+) -> list[str]:
+    """Comment header lines (without the comment marker) every export starts with: the map,
+    its box, the residual of the exported form, the map's values this export writes (computed
+    once, ``fitting.mapvalues``) and every written value outside the supported region
+    (``values``' extrapolated ones and the export's own ``outside`` lines), with its interval."""
     box = tmap.validity
     digest = tmap.file_sha256 or "(map built in memory; no file hash)"
     lines = [
@@ -194,7 +204,33 @@ def header_lines(tmap: ThrustMap, title: str, residual: Sequence[str]) -> list[s
             + f", B clamped to {g.voltage_v.lo:g}..{g.voltage_v.hi:g} V"
         )
     lines.extend(f"residual: {r}" for r in residual)
+    if values is not None:
+        lines += value_lines(tmap, values, outside)
     return lines
+
+
+def value_lines(tmap: ThrustMap, values: MapValues, outside: Sequence[str] = ()) -> list[str]:
+    """The map's values (one computation for every export, the report and predict) and the
+    list of written values outside the supported region, each with its interval."""
+    native = pct_to_native(tmap)
+    unit = tmap.throttle_scale.unit
+
+    def shown(v: MapValue) -> str:
+        if v.unit != "%":
+            return v.line()
+        lo, hi = (None, None) if v.lo is None or v.hi is None else (native(v.lo), native(v.hi))
+        extra = "" if lo is None else f" ({lo:.6g}..{hi:.6g} {unit})"
+        return f"{v.line()}; = {native(v.value):.6g} {unit}{extra}"
+
+    lines = ["map values (computed once from the map: the same in every export, the report "
+             "and `thrustmap predict`):"]  # fmt: skip
+    lines += [f"  {shown(v)}" for v in values.all()]
+    lines += [f"  {why}" for why in values.unknown]
+    out = [f"  {v.name}: {v.value:.4g} {v.unit}, {v.interval_text()}" for v in values.outside()]
+    out += [f"  {line}" for line in outside]
+    lines.append("written values outside the supported region (extrapolated):" if out else
+                 "written values outside the supported region: none")  # fmt: skip
+    return lines + out
 
 
 def comment(lines: Sequence[str], marker: str) -> str:
@@ -222,6 +258,23 @@ class ExportOptions:
     firmware: str | None = None
     spin_max: float = 0.95
     c_real: str = "double"
+
+
+def hover_thrust_n(opts: ExportOptions) -> float | None:
+    """Thrust per rotor to hover, N (None without --mass-kg)."""
+    if opts.mass_kg is None:
+        return None
+    return opts.mass_kg * G0_MPS2 / (opts.rotors or 4)
+
+
+def export_values(
+    tmap: ThrustMap, scale: ThrottleScale, opts: ExportOptions, voltage_v: float
+) -> MapValues:
+    """The map's values an export writes (``fitting.mapvalues``): the full-throttle thrust at
+    the top of ``scale`` (the export's output range), the hover throttle with --mass-kg, the
+    spin-up, at ``voltage_v``: one computation, the same numbers in every export."""
+    full_pct = float(SCALES[scale.name].to_pct(scale.hi))
+    return map_values(tmap, voltage_v, full_pct=full_pct, hover_thrust_n=hover_thrust_n(opts))
 
 
 def is_poly(tmap: ThrustMap) -> bool:

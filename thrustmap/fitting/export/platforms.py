@@ -6,6 +6,7 @@ validity box, with the residual of the exported form in the comment header.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -17,6 +18,7 @@ from thrustmap.fitting.export.encodings import (
     ExportOptions,
     ExportResult,
     comment,
+    export_values,
     header_lines,
     map_samples,
     reference_voltage,
@@ -45,12 +47,18 @@ class CrazyflieSeed2:
     text: str
 
 
-def fit_quadratic(u: npt.ArrayLike, thrust_g: npt.ArrayLike) -> tuple[float, float, float]:
-    """Seed 2 eq. 2 by least squares (solved centred and scaled, expanded exactly)."""
+def fit_quadratic(
+    u: npt.ArrayLike, thrust_g: npt.ArrayLike, through: tuple[float, float] | None = None
+) -> tuple[float, float, float]:
+    """Seed 2 eq. 2 by least squares (solved centred and scaled, expanded exactly); with
+    ``through`` = (u_top, f_top) the polynomial passes exactly through that point (the map's
+    full-throttle thrust at the top of the command range)."""
     x = np.asarray(u, float)
     y = np.asarray(thrust_g, float)
     if x.size < 3:
         raise FitError("the Crazyflie thrust polynomial needs at least three points")
+    if through is not None:
+        return _fit_quadratic_through(x, y, *through)
     xc, xs = float(np.mean(x)), float(np.std(x)) or 1.0
     z = (x - xc) / xs
     (p2, p1, p0), *_ = np.linalg.lstsq(np.stack([z * z, z, np.ones_like(z)], axis=1), y, rcond=None)
@@ -60,13 +68,31 @@ def fit_quadratic(u: npt.ArrayLike, thrust_g: npt.ArrayLike) -> tuple[float, flo
     return float(a), float(b), float(c)
 
 
-def crazyflie_seed2(tmap: ThrustMap, scale: ThrottleScale, opts: ExportOptions) -> CrazyflieSeed2:
+def _fit_quadratic_through(
+    x: FloatArray, y: FloatArray, u_top: float, f_top: float
+) -> tuple[float, float, float]:
+    """a·u² + b·u + c with a·u_top² + b·u_top + c = f_top: least squares in (a, b) on
+    y − f_top = a·(u² − u_top²) + b·(u − u_top), scaled by u_top for conditioning."""
+    s = abs(u_top) or 1.0
+    z, zt = x / s, u_top / s
+    cols = np.stack([z * z - zt * zt, z - zt], axis=1)
+    (p2, p1), *_ = np.linalg.lstsq(cols, y - f_top, rcond=None)
+    a, b = p2 / s**2, p1 / s
+    return float(a), float(b), float(f_top - a * u_top**2 - b * u_top)
+
+
+def crazyflie_seed2(
+    tmap: ThrustMap, scale: ThrottleScale, opts: ExportOptions, full_thrust_n: float | None
+) -> CrazyflieSeed2:
+    """Seed 2's polynomial at the reference voltage, through the map's full-throttle thrust
+    (``full_thrust_n`` per rotor, ``fitting.mapvalues``) at the top of the command range."""
     rotors = opts.rotors or 4
     b_ref = reference_voltage(tmap, opts.voltage_v)
     ref = map_samples(tmap, voltage_v=b_ref, n_thrust=81)
     u = scale.from_pct(ref.throttle_pct)
     to_g = 1000.0 / G0_MPS2 * rotors
-    a, b, c = fit_quadratic(u, ref.thrust_n * to_g)
+    top = None if full_thrust_n is None else (scale.hi, full_thrust_n * to_g)
+    a, b, c = fit_quadratic(u, ref.thrust_n * to_g, through=top)
     f_max = a * scale.hi**2 + b * scale.hi + c
     r_ref = rms_max(a * u * u + b * u + c - ref.thrust_n * to_g)
     box = map_samples(tmap)
@@ -187,7 +213,9 @@ def export_aerostack2(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     AEROSTACK2.require(written)
     notes.append(f"firmware: {AEROSTACK2.header()}")
     notes += [f"writes {line}" for line in AEROSTACK2.changes(written)]
-    lines = header_lines(tmap, "Aerostack2 platform parameters (ROS 2 YAML)", residual) + notes
+    mv = export_values(tmap, scale, opts, reference_voltage(tmap, opts.voltage_v))
+    title = "Aerostack2 platform parameters (ROS 2 YAML)"
+    lines = header_lines(tmap, title, residual, mv) + notes
     doc = comment(lines, "#") + "/**:\n  ros__parameters:\n    use_thrust_map: true\n"
     doc += f"    thrust:\n      max: {rotors * box.hi!r}  # N, collective\n"
     doc += f"      min: {rotors * box.lo!r}  # N, collective\n"
@@ -200,6 +228,9 @@ def export_aerostack2(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     doc += "      # gamma(V) = gamma2*V^2 + gamma1*V + gamma0\n"
     for name, v in zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True):
         doc += f"      {name}: {v!r}\n"
-    values: dict[str, float] = dict(zip("abcdef", ab, strict=True))
+    values: dict[str, Any] = dict(zip("abcdef", ab, strict=True))
+    if mv.full_throttle is not None:
+        values["full_throttle_thrust_n"] = mv.full_throttle.value
+    values["map_values"] = mv
     values.update(dict(zip(("gamma2", "gamma1", "gamma0"), gamma, strict=True)))
     return ExportResult("aerostack2", doc, values, {"rms_pct": r[0], "max_pct": r[1]}, ".yaml")

@@ -34,6 +34,15 @@ from thrustmap.core.errors import ConfigError
 #: MOT_SPIN_MIN above MOT_SPIN_ARM (ArduPilot wiki, "Setting motor range": SPIN_ARM + 0.03)
 ARDUPILOT_SPIN_MARGIN = 0.03
 
+#: ArduPilot's recommended battery compensation range per cell: MOT_BAT_VOLT_MIN "Recommend 3.3 *
+#: cell count", MOT_BAT_VOLT_MAX "Recommend 4.2 * cell count" (libraries/AP_Motors/
+#: AP_Motors_Thrust_Linearization.cpp, @Param BAT_V_MIN / BAT_V_MAX)
+ARDUPILOT_CELL_V = (3.3, 4.2)
+#: PX4 scales the thrust setpoint by BAT1_V_CHARGED / V_cell, constrained to 1..1.3
+#: (PX4-Autopilot src/lib/battery/battery.cpp, Battery::computeScale: "Allow at most 30%
+#: compensation")
+PX4_BATTERY_SCALE_MAX = 1.3
+
 Term = tuple[float, str]  # coefficient x parameter value ("1" is the constant 1)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from thrustmap.core.errors import ConfigError
+from thrustmap.core.physical import target_cells_problem
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.export import c_header, firmware, platforms
 from thrustmap.fitting.export.encoding_yaml import export_encoding
@@ -24,6 +25,11 @@ def export_map(tmap: ThrustMap, target: str, options: ExportOptions | None = Non
         raise ConfigError(f"--rotors must be at least 1, got {opts.rotors}")
     if opts.mass_kg is not None and not opts.mass_kg > 0:
         raise ConfigError(f"--mass-kg must be positive, got {opts.mass_kg:g}")
+    box = tmap.validity.voltage_v
+    for platform in (target, opts.encoding or ""):
+        problem = target_cells_problem(box.lo, box.hi, platform)
+        if problem is not None:
+            raise ConfigError(f"export --to {target} refused: {problem}")
     if target in SCALES:
         if opts.encoding is not None and opts.encoding != target:
             raise ConfigError(

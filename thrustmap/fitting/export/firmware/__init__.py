@@ -18,6 +18,7 @@ name): ``px4``, ``ardupilot``, ``betaflight``, over ``common`` (the samples, the
 the spin-up they share). No module imports another's private name.
 """
 
+from thrustmap.core.physical import CELL_V_RANGE, cells_from_voltage
 from thrustmap.fitting.export.firmware.ardupilot import (
     ArduPilotParams,
     ardupilot_actuator,
@@ -45,9 +46,7 @@ from thrustmap.fitting.export.firmware.common import (
     supported_samples,
 )
 from thrustmap.fitting.export.firmware.px4 import (
-    CELL_V_RANGE,
     Px4Fit,
-    cells_from_voltage,
     export_px4,
     fit_px4,
     px4_rel_thrust,

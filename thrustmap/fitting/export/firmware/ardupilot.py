@@ -6,18 +6,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import scipy.optimize as opt
 
 from thrustmap.core.errors import FitError
-from thrustmap.core.units import SCALES
+from thrustmap.core.physical import cells_from_voltage
+from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.export.encodings import (
-    G0_MPS2,
     ExportOptions,
     ExportResult,
     comment,
+    export_values,
     header_lines,
     reference_voltage,
     require_voltage,
@@ -26,13 +28,21 @@ from thrustmap.fitting.export.encodings import (
 from thrustmap.fitting.export.firmware.common import (
     FloatArray,
     change_lines,
+    pack_line,
     pwm_scale,
     spin_up_fraction,
     supported_samples,
     throttle_fraction,
+    voltage_outside_line,
 )
-from thrustmap.fitting.export.rules import ARDUPILOT_SPIN_MARGIN, Firmware, ardupilot_rules
+from thrustmap.fitting.export.rules import (
+    ARDUPILOT_CELL_V,
+    ARDUPILOT_SPIN_MARGIN,
+    Firmware,
+    ardupilot_rules,
+)
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.mapvalues import MapValue, MapValues, thrust_at, thrust_value
 
 
 @dataclass(frozen=True)
@@ -46,11 +56,15 @@ class ArduPilotParams:
 
 
 def ardupilot_voltage_ratio(voltage_v: npt.ArrayLike, p: ArduPilotParams) -> FloatArray:
-    if not (p.bat_volt_max > 0 and p.bat_volt_min > 0):
-        return np.ones_like(np.asarray(voltage_v, float))
+    """ArduPilot's battery ratio (Thrust_Linearization::update_lift_max_from_batt_voltage):
+    off (1) when MOT_BAT_VOLT_MAX <= 0, MIN >= MAX or the voltage reads below a quarter of MIN;
+    MIN raised to 0.6 x MAX; the voltage clamped to MIN..MAX, over MAX."""
+    b = np.asarray(voltage_v, float)
+    if not (p.bat_volt_max > 0 and p.bat_volt_min > 0) or p.bat_volt_min >= p.bat_volt_max:
+        return np.ones_like(b)
     lo = max(p.bat_volt_min, 0.6 * p.bat_volt_max)
-    v = np.clip(np.asarray(voltage_v, float), lo, p.bat_volt_max) / p.bat_volt_max
-    return np.asarray(v, dtype=float)
+    v = np.clip(b, lo, p.bat_volt_max) / p.bat_volt_max
+    return np.asarray(np.where(b < 0.25 * lo, 1.0, v), dtype=float)
 
 
 def ardupilot_actuator(
@@ -89,17 +103,21 @@ def fit_ardupilot(
     bat_volt_max: float,
     bat_volt_min: float,
     spin_min: float | None = None,
+    thrust_max_n: float | None = None,
 ) -> ArduPilotParams:
     """Fit MOT_THST_EXPO and MOT_SPIN_MIN (and the thrust scale) minimising actuator error.
 
     With ``spin_min`` given (the measured spin-up and the firmware's margin), MOT_SPIN_MIN is
-    held there and only MOT_THST_EXPO and the thrust scale are fitted, on the points above it.
+    held there and only MOT_THST_EXPO and the thrust scale are fitted, on the points above it;
+    with ``thrust_max_n`` too (the map's thrust at MOT_SPIN_MAX, ``fitting.mapvalues``) the scale
+    is held as well and MOT_THST_EXPO alone is fitted.
     """
     t = np.asarray(thrust_n, float)
     b = np.asarray(voltage_v, float)
     a = np.asarray(actuator, float)
     if spin_min is not None:
-        return _fit_ardupilot_expo(t, b, a, spin_min, spin_max, bat_volt_max, bat_volt_min)
+        volts = (bat_volt_max, bat_volt_min)
+        return _fit_ardupilot_expo(t, b, a, (spin_min, spin_max), volts, thrust_max_n)
     if t.size < 3:
         raise FitError("ArduPilot fit needs at least three points")
 
@@ -140,11 +158,12 @@ def _fit_ardupilot_expo(
     t: FloatArray,
     b: FloatArray,
     a: FloatArray,
-    spin_min: float,
-    spin_max: float,
-    bat_volt_max: float,
-    bat_volt_min: float,
+    spins: tuple[float, float],
+    volts: tuple[float, float],
+    thrust_max_n: float | None,
 ) -> ArduPilotParams:
+    spin_min, spin_max = spins
+    bat_volt_max, bat_volt_min = volts
     keep = a >= spin_min
     t, b, a = t[keep], b[keep], a[keep]
     if t.size < 3:
@@ -154,13 +173,19 @@ def _fit_ardupilot_expo(
         )
 
     def params(x: FloatArray) -> ArduPilotParams:
-        return ArduPilotParams(
-            float(x[0]), spin_min, spin_max, bat_volt_max, bat_volt_min, float(np.exp(x[1]))
-        )
+        k = thrust_max_n if thrust_max_n is not None else float(np.exp(x[1]))
+        return ArduPilotParams(float(x[0]), spin_min, spin_max, bat_volt_max, bat_volt_min, k)
 
     def resid(x: FloatArray) -> FloatArray:
         return np.asarray(ardupilot_actuator(t, b, params(x)) - a, dtype=float)
 
+    if thrust_max_n is not None:
+        grid = np.linspace(-1.0, 1.0, 41)
+        e0 = grid[int(np.argmin([np.sum(resid(np.array([e])) ** 2) for e in grid]))]
+        sol1 = opt.least_squares(
+            resid, np.array([e0]), bounds=([-1.0], [1.0]), x_scale=[0.1], xtol=1e-12, ftol=1e-12
+        )
+        return params(sol1.x)
     best: tuple[float, FloatArray] | None = None
     for e0 in (-0.5, 0.0, 0.3, 0.65, 0.9):
         g = ardupilot_thrust(
@@ -191,13 +216,68 @@ def ardupilot_spin_min(spin_frac: float | None, rules: Firmware) -> float:
     return math.ceil(max(spin_frac, arm + ARDUPILOT_SPIN_MARGIN) * 1e4 - 1e-6) / 1e4
 
 
+def ardupilot_battery_range(tmap: ThrustMap, given_max_v: float | None) -> tuple[float, float, str]:
+    """MOT_BAT_VOLT_MAX/MIN by the rule in docs/howto/export.md, and the sentence saying why.
+
+    A ``motor`` map's voltage term is physics (throttle for a thrust ∝ 1/B, checked carrying
+    maps from 2S to 3S on other rigs, a wider ratio than a discharge from 4.2 to 3.3 V a cell):
+    it is trusted over the whole discharge, so the range is ArduPilot's documented one
+    (``ARDUPILOT_CELL_V`` x the cell count read from the map's voltages). A polynomial map's
+    voltage term is not (it diverges across voltage), and a map whose cell count cannot be read
+    gives no pack: then the stand's band is kept and the header says what ArduPilot does below
+    it. ``given_max_v`` (--voltage-v) sets MOT_BAT_VOLT_MAX in every case."""
+    box = tmap.validity.voltage_v
+    cells = cells_from_voltage(box.lo, box.hi)
+    if tmap.model == "motor" and cells is not None:
+        lo_c, hi_c = ARDUPILOT_CELL_V
+        v_max = given_max_v if given_max_v is not None else round(hi_c * cells, 2)
+        return (
+            v_max,
+            round(lo_c * cells, 2),
+            (
+                f"MOT_BAT_VOLT_MAX/MIN: ArduPilot's documented {hi_c:g}/{lo_c:g} V a cell x {cells} "
+                f"cells (a {cells}S pack, read from the map's {box.lo:.2f}..{box.hi:.2f} V): the "
+                "map's voltage term is motor physics, checked from 2S to 3S on other rigs "
+                "(docs/howto/export.md), so compensation runs over the whole discharge"
+            ),
+        )
+    v_max = reference_voltage(tmap, given_max_v)
+    why = (
+        f"a {tmap.model} map's voltage term is a polynomial with no evidence outside the "
+        "voltages measured"
+        if cells is not None
+        else "the map's voltages do not tell the cell count"
+    )
+    return (
+        v_max,
+        box.lo,
+        (
+            f"MOT_BAT_VOLT_MAX/MIN: the stand's band {box.lo:g}..{v_max:g} V ({why}); below "
+            "MOT_BAT_VOLT_MIN ArduPilot holds the compensation of MOT_BAT_VOLT_MIN, so a pack "
+            "sagging further gets less thrust than demanded (the altitude loop makes it up)"
+        ),
+    )
+
+
+def _k_value(
+    tmap: ThrustMap, scale: ThrottleScale, spin_max: float, v_max: float
+) -> MapValue | None:
+    """The map's thrust at MOT_SPIN_MAX and MOT_BAT_VOLT_MAX: ArduPilot's full lift (u = 1);
+    None when the map cannot say (then the fit finds it)."""
+    pct = float(SCALES[scale.name].to_pct(scale.lo + spin_max * scale.span))
+    try:
+        return thrust_value(
+            tmap, pct, v_max, key="thrust_at_spin_max_n", name="thrust at MOT_SPIN_MAX (u = 1)"
+        )
+    except FitError:
+        return None
+
+
 def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     rules = ardupilot_rules(opts.firmware)
     require_voltage(tmap, "ardupilot")
     scale = pwm_scale(opts)
-    vbox = tmap.validity.voltage_v
-    v_max = reference_voltage(tmap, opts.voltage_v)
-    v_min = vbox.lo
+    v_max, v_min, bat_why = ardupilot_battery_range(tmap, opts.voltage_v)
     spin_frac, spin_why = spin_up_fraction(tmap, scale)
     spin_min = ardupilot_spin_min(spin_frac, rules)
     arm = rules.param("MOT_SPIN_ARM").default or 0.0
@@ -207,77 +287,22 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
          "MOT_PWM_MIN": scale.lo, "MOT_PWM_MAX": scale.hi,
          "MOT_BAT_VOLT_MAX": round(v_max, 2), "MOT_BAT_VOLT_MIN": round(v_min, 2)}
     )  # fmt: skip
+    k = _k_value(tmap, scale, opts.spin_max, v_max)
+    mv = export_values(tmap, scale, opts, reference_voltage(tmap, opts.voltage_v))
+    mv = MapValues(
+        mv.voltage_v, mv.full_throttle, mv.hover, mv.spin_up, () if k is None else (k,), mv.unknown
+    )
     box = supported_samples(tmap)
     act = throttle_fraction(box.throttle_pct, scale)
     fit = fit_ardupilot(
-        box.thrust_n,
-        box.voltage_v,
-        act,
-        spin_max=opts.spin_max,
-        bat_volt_max=v_max,
-        bat_volt_min=v_min,
-        spin_min=spin_min,
-    )
+        box.thrust_n, box.voltage_v, act, spin_max=opts.spin_max, bat_volt_max=v_max,
+        bat_volt_min=v_min, spin_min=spin_min, thrust_max_n=None if k is None else k.value,
+    )  # fmt: skip
     shown = ArduPilotParams(
         round(fit.thst_expo, 4), spin_min, opts.spin_max,
         round(v_max, 2), round(v_min, 2), fit.thrust_max_n,
     )  # fmt: skip
-    above = act >= spin_min  # the region the firmware's curve covers
-    err_box = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, shown) - act)[above]
-    at_ref = (box.voltage_v == np.max(box.voltage_v))[above]
-    no_comp = ArduPilotParams(
-        shown.thst_expo, shown.spin_min, shown.spin_max, 0.0, 0.0, shown.thrust_max_n
-    )
-    err_nocomp = 100 * (ardupilot_actuator(box.thrust_n, box.voltage_v, no_comp) - act)[above]
-    r_box, r_ref, r_nc = rms_max(err_box), rms_max(err_box[at_ref]), rms_max(err_nocomp)
-    t_at_min = float(
-        tmap.thrust_n(
-            np.array([float(SCALES[scale.name].to_pct(scale.lo + spin_min * scale.span))]),
-            np.array([v_max]),
-        )[0]
-    )
-    residual = [
-        f"ArduPilot curve vs map over the supported region above MOT_SPIN_MIN (with its "
-        "voltage scaling): "
-        f"RMS {r_box[0]:.3f} %, max {r_box[1]:.3f} % of the {scale.lo:g}..{scale.hi:g} "
-        f"{scale.unit} range ({int(above.sum())} points)",
-        f"at {vbox.hi:g} V only: RMS {r_ref[0]:.3f} %, max {r_ref[1]:.3f} %; without voltage "
-        f"scaling (MOT_BAT_VOLT_MAX=0): RMS {r_nc[0]:.3f} %, max {r_nc[1]:.3f} %",
-    ]
-    if spin_frac is None:
-        spin_note = (
-            f"MOT_SPIN_MIN kept at the firmware default {spin_min:g}: {spin_why}; check on the "
-            "vehicle that every motor spins reliably at MOT_SPIN_MIN"
-        )
-    else:
-        spin_note = (
-            f"MOT_SPIN_MIN {spin_min:g} = max(measured spin-up {spin_frac:.4f}, default "
-            f"MOT_SPIN_ARM {arm:g} + {ARDUPILOT_SPIN_MARGIN:g}); {spin_why}"
-        )
-    notes = [
-        spin_note,
-        f"the map gives {t_at_min:.4g} N per rotor at MOT_SPIN_MIN and {v_max:g} V; ArduPilot's "
-        "curve starts from zero there (the residual above covers this)",
-        f"MOT_SPIN_ARM is not written: this file assumes its default {arm:g}; keep MOT_SPIN_ARM "
-        f"at least {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN (pre-arm refuses ARM > MIN)",
-        f"MOT_SPIN_MAX {opts.spin_max:g} is a convention (headroom) and fixes the scale of "
-        "MOT_THST_EXPO, fitted above MOT_SPIN_MIN",
-        f"MOT_BAT_VOLT_MAX/MIN: the pack under load on the stand ({vbox.lo:g}..{vbox.hi:g} V); "
-        "ArduPilot compensates on its resting-voltage estimate (sag removed) unless "
-        "MOT_OPTIONS bit 0 (raw voltage) is set, which matches these loaded voltages",
-        f"thrust at u=1 and {v_max:g} V: {fit.thrust_max_n:.4g} N per rotor",
-        "MOT_PWM_TYPE must match the ESC protocol",
-    ]
-    if spin_frac is not None and spin_frac > arm:
-        notes.append(
-            f"the stand saw no reliable spin below {spin_frac:.4f}: at MOT_SPIN_ARM {arm:g} the "
-            "motors may not turn when armed on the ground; raise MOT_SPIN_ARM to where they do, "
-            f"still {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN"
-        )
-    if 0.6 * v_max > v_min:
-        notes.append(
-            f"ArduPilot raises MOT_BAT_VOLT_MIN to 0.6 x MOT_BAT_VOLT_MAX = {0.6 * v_max:.2f} V"
-        )
+    residual, resid = _ardupilot_residual(box.thrust_n, box.voltage_v, act, shown, scale)
     params: list[tuple[str, float, str]] = [
         ("MOT_THST_EXPO", shown.thst_expo, ".4f"),
         ("MOT_SPIN_MIN", shown.spin_min, ".4f"),
@@ -287,33 +312,133 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         ("MOT_BAT_VOLT_MAX", shown.bat_volt_max, ".2f"),
         ("MOT_BAT_VOLT_MIN", shown.bat_volt_min, ".2f"),
     ]
-    if scale.name != "pwm":
-        notes.append(f"MOT_PWM_MIN/MAX are in {scale.name} units here ({scale.unit})")
-    if opts.mass_kg is not None:
-        rotors = opts.rotors or 4
-        hover_n = opts.mass_kg * G0_MPS2 / rotors
-        hover = hover_n / fit.thrust_max_n
-        notes.append(
-            f"hover: {opts.mass_kg:g} kg on {rotors} rotors = {hover_n:.4g} N per rotor -> "
-            f"MOT_THST_HOVER {hover:.4f} (ArduPilot learns it with MOT_HOVER_LEARN)"
-        )
-        params.append(("MOT_THST_HOVER", round(hover, 4), ".4f"))
+    notes = _ardupilot_notes(tmap, shown, (spin_frac, spin_why, arm), scale, bat_why)
+    outside = [
+        line
+        for name, v in (("MOT_BAT_VOLT_MAX", shown.bat_volt_max),
+                        ("MOT_BAT_VOLT_MIN", shown.bat_volt_min))
+        if (line := voltage_outside_line(tmap, name, v)) is not None
+    ]  # fmt: skip
+    if mv.hover is not None:
+        hover, hover_line = _ardupilot_hover(mv.hover, scale, shown, opts)
+        notes.append(hover_line)
+        params.append(("MOT_THST_HOVER", hover, ".4f"))
     written = {n: float(format(v, fmt)) for n, v, fmt in params}
     rules.require(written)
     lines = (
-        header_lines(tmap, "ArduPilot parameters (.param)", residual)
+        header_lines(tmap, "ArduPilot parameters (.param)", residual, mv, outside)
         + change_lines(rules, written)
         + notes
     )
     text = comment(lines, "#") + "".join(f"{n},{format(v, fmt)}\n" for n, v, fmt in params)
-    values: dict[str, float] = dict(written)
+    values: dict[str, Any] = dict(written)
     values["thrust_max_n"] = fit.thrust_max_n
+    if mv.full_throttle is not None:
+        values["full_throttle_thrust_n"] = mv.full_throttle.value
+    values["map_values"] = mv
     if spin_frac is not None:
         values["spin_up_fraction"] = spin_frac
-    resid = {
-        "rms_pct": r_box[0],
-        "max_pct": r_box[1],
-        "ref_rms_pct": r_ref[0],
-        "nocomp_rms_pct": r_nc[0],
-    }
     return ExportResult("ardupilot", text, values, resid, ".param")
+
+
+def _ardupilot_hover(
+    hover: MapValue, scale: ThrottleScale, p: ArduPilotParams, opts: ExportOptions
+) -> tuple[float, str]:
+    """MOT_THST_HOVER: the map's hover throttle in ArduPilot's units, the throttle demand
+    ArduPilot's curve (with its voltage scaling at the hover's voltage) turns into that output:
+    demand = thrust / full lift at that output (and its interval the same way)."""
+
+    def demand(pct: float) -> float:
+        act = float(throttle_fraction(np.array([pct]), scale)[0])
+        return float(ardupilot_thrust(act, hover.voltage_v, p)[()]) / p.thrust_max_n
+
+    frac = demand(hover.value)
+    iv = (
+        "" if hover.lo is None or hover.hi is None
+        else f" (95 % interval {demand(hover.lo):.4f}..{demand(hover.hi):.4f})"
+    )  # fmt: skip
+    return round(frac, 4), (
+        f"hover: {opts.mass_kg:g} kg on {opts.rotors or 4} rotors = {hover.thrust_n:.4g} N per "
+        f"rotor, throttle {hover.value:.2f} % at {hover.voltage_v:g} V -> MOT_THST_HOVER "
+        f"{frac:.4f}{iv}, the demand ArduPilot's curve turns into that output (ArduPilot learns "
+        "it with MOT_HOVER_LEARN)"
+    )
+
+
+def _ardupilot_residual(
+    t: FloatArray, b: FloatArray, act: FloatArray, shown: ArduPilotParams, scale: ThrottleScale
+) -> tuple[list[str], dict[str, float]]:
+    """The residual lines of ArduPilot's curve against the map above MOT_SPIN_MIN, with and
+    without its voltage scaling, and the figures."""
+    above = act >= shown.spin_min  # the region the firmware's curve covers
+    err_box = 100 * (ardupilot_actuator(t, b, shown) - act)[above]
+    at_ref = (b == np.max(b))[above]
+    no_comp = ArduPilotParams(
+        shown.thst_expo, shown.spin_min, shown.spin_max, 0.0, 0.0, shown.thrust_max_n
+    )
+    err_nocomp = 100 * (ardupilot_actuator(t, b, no_comp) - act)[above]
+    r_box, r_ref, r_nc = rms_max(err_box), rms_max(err_box[at_ref]), rms_max(err_nocomp)
+    lines = [
+        "ArduPilot curve vs map over the supported region above MOT_SPIN_MIN (with its "
+        f"voltage scaling): RMS {r_box[0]:.3f} %, max {r_box[1]:.3f} % of the "
+        f"{scale.lo:g}..{scale.hi:g} {scale.unit} range ({int(above.sum())} points)",
+        f"at {float(np.max(b)):g} V only: RMS {r_ref[0]:.3f} %, max {r_ref[1]:.3f} %; without "
+        f"voltage scaling (MOT_BAT_VOLT_MAX=0): RMS {r_nc[0]:.3f} %, max {r_nc[1]:.3f} %",
+    ]
+    figures = {
+        "rms_pct": r_box[0], "max_pct": r_box[1], "ref_rms_pct": r_ref[0],
+        "nocomp_rms_pct": r_nc[0],
+    }  # fmt: skip
+    return lines, figures
+
+
+def _ardupilot_notes(
+    tmap: ThrustMap,
+    shown: ArduPilotParams,
+    spin: tuple[float | None, str, float],
+    scale: ThrottleScale,
+    bat_why: str,
+) -> list[str]:
+    """The header's notes: where MOT_SPIN_MIN, MOT_SPIN_MAX and the battery range come from."""
+    spin_frac, spin_why, arm = spin
+    v_max = shown.bat_volt_max
+    if spin_frac is None:
+        spin_note = (
+            f"MOT_SPIN_MIN kept at the firmware default {shown.spin_min:g}: {spin_why}; check on "
+            "the vehicle that every motor spins reliably at MOT_SPIN_MIN"
+        )
+    else:
+        spin_note = (
+            f"MOT_SPIN_MIN {shown.spin_min:g} = max(measured spin-up {spin_frac:.4f}, default "
+            f"MOT_SPIN_ARM {arm:g} + {ARDUPILOT_SPIN_MARGIN:g}); {spin_why}"
+        )
+    pct_min = float(SCALES[scale.name].to_pct(scale.lo + shown.spin_min * scale.span))
+    t_at_min = thrust_at(tmap, pct_min, min(v_max, tmap.validity.voltage_v.hi))
+    notes = [
+        pack_line(tmap),
+        spin_note,
+        f"the map gives {t_at_min:.4g} N per rotor at MOT_SPIN_MIN; ArduPilot's curve starts "
+        "from zero there (the residual above covers this)",
+        f"MOT_SPIN_ARM is not written: this file assumes its default {arm:g}; keep MOT_SPIN_ARM "
+        f"at least {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN (pre-arm refuses ARM > MIN)",
+        f"MOT_SPIN_MAX {shown.spin_max:g} is a convention (headroom) and fixes the scale of "
+        "MOT_THST_EXPO, fitted above MOT_SPIN_MIN with ArduPilot's full lift (u = 1, "
+        f"MOT_SPIN_MAX at {v_max:g} V) held at the map's {shown.thrust_max_n:.4g} N",
+        bat_why,
+        "ArduPilot compensates on its resting-voltage estimate (sag removed) unless MOT_OPTIONS "
+        "bit 0 (raw voltage) is set, which matches the stand's loaded voltages",
+        "MOT_PWM_TYPE must match the ESC protocol",
+    ]
+    if spin_frac is not None and spin_frac > arm:
+        notes.append(
+            f"the stand saw no reliable spin below {spin_frac:.4f}: at MOT_SPIN_ARM {arm:g} the "
+            "motors may not turn when armed on the ground; raise MOT_SPIN_ARM to where they do, "
+            f"still {ARDUPILOT_SPIN_MARGIN:g} below MOT_SPIN_MIN"
+        )
+    if 0.6 * v_max > shown.bat_volt_min:
+        notes.append(
+            f"ArduPilot raises MOT_BAT_VOLT_MIN to 0.6 x MOT_BAT_VOLT_MAX = {0.6 * v_max:.2f} V"
+        )
+    if scale.name != "pwm":
+        notes.append(f"MOT_PWM_MIN/MAX are in {scale.name} units here ({scale.unit})")
+    return notes

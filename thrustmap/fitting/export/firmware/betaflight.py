@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -16,6 +17,7 @@ from thrustmap.fitting.export.encodings import (
     ExportResult,
     Samples,
     comment,
+    export_values,
     header_lines,
     reference_voltage,
     rms_max,
@@ -24,6 +26,7 @@ from thrustmap.fitting.export.encodings import (
 from thrustmap.fitting.export.firmware.common import (
     FloatArray,
     change_lines,
+    pack_line,
     spin_up_fraction,
     spin_up_native,
     supported_samples,
@@ -83,12 +86,18 @@ class BetaflightFit:
     thrust_max_n: float
 
 
-def fit_betaflight(thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str) -> BetaflightFit:
-    """thrust_linear minimising output error; the thrust scale T_max is fitted with it."""
+def fit_betaflight(
+    thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str, thrust_max_n: float | None = None
+) -> BetaflightFit:
+    """thrust_linear minimising output error; the thrust scale T_max is fitted with it, or held
+    at ``thrust_max_n`` (the map's full-throttle thrust, ``fitting.mapvalues``): m = 1 is then
+    where the map says full output is."""
     t = np.asarray(thrust_n, float)
     y = np.asarray(out, float)
     if t.size < 3:
         raise FitError("thrust_linear fit needs at least three points")
+    if thrust_max_n is not None:
+        return _fit_betaflight_expo(t, y, generation, thrust_max_n)
 
     def resid(x: FloatArray) -> FloatArray:
         pred = betaflight_out(np.clip(t / x[1], 0.0, 1.0), float(x[0]), generation)
@@ -115,6 +124,23 @@ def fit_betaflight(thrust_n: npt.ArrayLike, out: npt.ArrayLike, generation: str)
     )
     e = float(sol.x[0])
     return BetaflightFit(int(round(100 * e)), e, float(sol.x[1]))
+
+
+def _fit_betaflight_expo(
+    t: FloatArray, y: FloatArray, generation: str, thrust_max_n: float
+) -> BetaflightFit:
+    """e alone (T_max held), least squares in output: a scan, then refined."""
+    m = np.clip(t / thrust_max_n, 0.0, 1.0)
+
+    def resid(x: FloatArray) -> FloatArray:
+        return np.asarray(betaflight_out(m, float(x[0]), generation) - y, dtype=float)
+
+    e_max = betaflight_max_expo(generation)
+    grid = np.linspace(0.0, e_max, 31)
+    e0 = grid[int(np.argmin([np.sum(resid(np.array([e])) ** 2) for e in grid]))]
+    sol = opt.least_squares(resid, np.array([e0]), bounds=([0.0], [e_max]), xtol=1e-12, ftol=1e-12)
+    e = float(sol.x[0])
+    return BetaflightFit(int(round(100 * e)), e, float(thrust_max_n))
 
 
 def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
@@ -164,12 +190,14 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )
     scale = target_scale(enc, (lo, hi))
     b_ref = reference_voltage(tmap, opts.voltage_v)
+    mv = export_values(tmap, scale, opts, b_ref)
     ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     out = throttle_fraction(ref.throttle_pct, scale)
     keep = out >= 0.0  # above idle
     ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
     out = out[keep]
-    fit = fit_betaflight(ref.thrust_n, out, generation)
+    full = mv.full_throttle
+    fit = fit_betaflight(ref.thrust_n, out, generation, None if full is None else full.value)
     e = fit.thrust_linear / 100.0
     pred = betaflight_out(np.clip(ref.thrust_n / fit.thrust_max_n, 0, 1), e, generation)
     r_ref = rms_max(100 * (pred - out))
@@ -195,7 +223,14 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     )  # fmt: skip
     notes = [
         f"firmware {opts.firmware} -> {formula}, e = thrust_linear/100, m = T/T_max; fitted "
-        f"e = {fit.expo:.4f}, T_max {fit.thrust_max_n:.4g} N per rotor at {b_ref:g} V",
+        f"e = {fit.expo:.4f}, "
+        + (
+            f"T_max held at the map's full-throttle thrust {fit.thrust_max_n:.4g} N per rotor "
+            f"at {b_ref:g} V ({full.interval_text()})"
+            if full is not None
+            else f"T_max {fit.thrust_max_n:.4g} N fitted (the map cannot say its full-throttle "
+            "thrust)"
+        ),
         f"motor output range {lo:.6g}..{hi:.6g} ({enc}) set by the lines below"
         + (
             " (the PWM low end is min_command + motor_idle/10 us: min_command must stay at "
@@ -210,17 +245,21 @@ def export_betaflight(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
             "the map is more curved than this firmware's curve can follow"
         )
     notes.append(idle_note)
+    notes.append(pack_line(tmap))
     written = {"thrust_linear": float(fit.thrust_linear), **{k: float(v) for k, v in settings}}
     rules.require(written)
     lines = (
-        header_lines(tmap, f"Betaflight CLI ({generation} thrust_linear)", residual)
+        header_lines(tmap, f"Betaflight CLI ({generation} thrust_linear)", residual, mv)
         + change_lines(rules, written)
         + notes
     )
     text = comment(lines, "#")
     text += f"set thrust_linear = {fit.thrust_linear}\n"
     text += "".join(f"set {k} = {v}\n" for k, v in settings) + "save\n"
-    values: dict[str, float] = {"thrust_linear": fit.thrust_linear, "expo": fit.expo}
+    values: dict[str, Any] = {"thrust_linear": fit.thrust_linear, "expo": fit.expo}
+    values["full_throttle_thrust_n"] = fit.thrust_max_n
+    values["thrust_max_n"] = fit.thrust_max_n
+    values["map_values"] = mv
     values.update({k: float(v) for k, v in settings})
     resid = {"rms_pct": r_ref[0], "max_pct": r_ref[1], "box_rms_pct": r_box[0]}
     return ExportResult("betaflight", text, values, resid, ".txt")

@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.core.physical import cells_from_voltage
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.export.encodings import ExportOptions, Samples, map_samples, target_scale
 from thrustmap.fitting.export.rules import Firmware
@@ -103,3 +104,45 @@ def change_lines(rules: Firmware, written: dict[str, float]) -> list[str]:
     return [f"firmware: {rules.header()}", "written vs the firmware defaults:"] + [
         f"  {line}" for line in rules.changes(written)
     ]
+
+
+def voltage_outside_line(tmap: ThrustMap, what: str, voltage_v: float) -> str | None:
+    """The header line for a written voltage outside the voltages the map was measured at (None
+    inside them): how far, and the map's interval there against inside (its κ term)."""
+    region = tmap.supported_region()
+    lo_v, hi_v = region.voltage_lo_v, region.voltage_hi_v
+    if lo_v <= voltage_v <= hi_v:
+        return None
+    edge = min(max(voltage_v, lo_v), hi_v)
+    t_lo, t_hi = (float(x) for x in region.thrust_range(edge))
+    t_mid = 0.5 * (t_lo + t_hi)
+    inside = tmap.interval_pct(t_mid, edge)
+    there = tmap.interval_pct(t_mid, voltage_v)
+    side = "below" if voltage_v < lo_v else "above"
+    iv = (
+        ""
+        if inside is None or there is None
+        else f"; the map's 95 % interval at {t_mid:.3g} N grows from ±{float(inside):.2f} % "
+        f"throttle at {edge:.2f} V to ±{float(there):.2f} % there"
+    )
+    return (
+        f"{what} = {voltage_v:.4g} V: {side} the voltages measured ({lo_v:.2f}..{hi_v:.2f} V), "
+        f"|ln(B/B_edge)| = {abs(math.log(voltage_v / edge)):.3f}{iv}"
+    )
+
+
+def pack_line(tmap: ThrustMap) -> str:
+    """The header line naming the pack the map was measured on (its cell count, read from its
+    voltages): the vehicle this export is loaded on must fly the same pack."""
+    box = tmap.validity.voltage_v
+    cells = cells_from_voltage(box.lo, box.hi)
+    if cells is None:
+        return (
+            f"pack: the map's voltages {box.lo:.2f}..{box.hi:.2f} V do not tell the cell count; "
+            "load this only on a vehicle flying the pack the stand used"
+        )
+    return (
+        f"pack: {cells}S, read from the map's {box.lo:.2f}..{box.hi:.2f} V "
+        f"({box.lo / cells:.2f}..{box.hi / cells:.2f} V a cell): load this only on a {cells}S "
+        "vehicle"
+    )

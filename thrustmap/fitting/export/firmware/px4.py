@@ -5,17 +5,20 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import FitError
+from thrustmap.core.physical import CELL_V_RANGE, cells_from_voltage
+from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.export.encodings import (
-    G0_MPS2,
     ExportOptions,
     ExportResult,
     Samples,
     comment,
+    export_values,
     header_lines,
     reference_voltage,
     rms_max,
@@ -27,9 +30,11 @@ from thrustmap.fitting.export.firmware.common import (
     pwm_scale,
     supported_samples,
     throttle_fraction,
+    voltage_outside_line,
 )
-from thrustmap.fitting.export.rules import px4_rules
+from thrustmap.fitting.export.rules import PX4_BATTERY_SCALE_MAX, px4_rules
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.mapvalues import MapValue
 
 log = logging.getLogger(__name__)
 
@@ -54,15 +59,21 @@ def px4_throttle(rel_thrust: npt.ArrayLike, f: float) -> FloatArray:
     return np.asarray(s, dtype=float)
 
 
-def fit_px4(thrust_n: npt.ArrayLike, throttle_frac: npt.ArrayLike) -> Px4Fit:
+def fit_px4(
+    thrust_n: npt.ArrayLike, throttle_frac: npt.ArrayLike, thrust_max_n: float | None = None
+) -> Px4Fit:
     """THR_MDL_FAC as PX4's docs fit it: T = Tmax·(f·s² + (1 − f)·s), least squares in thrust.
 
     Linear in (A, C) = (Tmax·f, Tmax·(1 − f)), so Tmax need not be measured at full throttle.
+    With ``thrust_max_n`` given (the map's full-throttle thrust, ``fitting.mapvalues``) Tmax is
+    held there and only f is fitted: the curve then ends where the map says full throttle is.
     """
     t = np.asarray(thrust_n, float)
     s = np.asarray(throttle_frac, float)
     if t.size < 2:
         raise FitError("THR_MDL_FAC needs at least two (thrust, throttle) points")
+    if thrust_max_n is not None:
+        return _fit_px4_fixed(t, s, thrust_max_n)
     (a, c), *_ = np.linalg.lstsq(np.stack([s * s, s], axis=1), t, rcond=None)
     tmax = float(a + c)
     if not tmax > 0:
@@ -76,17 +87,57 @@ def fit_px4(thrust_n: npt.ArrayLike, throttle_frac: npt.ArrayLike) -> Px4Fit:
     return Px4Fit(f, tmax)
 
 
-#: a LiPo/LiHV cell on the stand, under load to full charge (V per cell): reads a cell count
-CELL_V_RANGE = (3.0, 4.35)
+def _fit_px4_fixed(t: FloatArray, s: FloatArray, thrust_max_n: float) -> Px4Fit:
+    """f minimising Σ (T − Tmax·(f·s² + (1 − f)·s))² with Tmax held: linear in f."""
+    x = s * s - s
+    den = float(np.dot(x, x))
+    f = float(np.dot(t / thrust_max_n - s, x) / den) if den > 0 else 0.0
+    if not 0.0 <= f <= 1.0:
+        log.warning("THR_MDL_FAC %.3f outside PX4's 0..1; clamped", f)
+        f = min(max(f, 0.0), 1.0)
+    return Px4Fit(f, float(thrust_max_n))
 
 
-def cells_from_voltage(lo_v: float, hi_v: float) -> int | None:
-    """The fewest cells whose per-cell voltage holds ``lo_v..hi_v`` within :data:`CELL_V_RANGE`
-    (a stand's pack is near charged, so the fewest cells is the likely count); None if none."""
-    for cells in range(1, 15):
-        if hi_v / cells <= CELL_V_RANGE[1] and lo_v / cells >= CELL_V_RANGE[0]:
-            return cells
-    return None
+def _px4_hover(
+    hover: MapValue, scale: ThrottleScale, f: float, opts: ExportOptions
+) -> tuple[float, str]:
+    """MPC_THR_HOVER: the map's hover throttle in PX4's units, the thrust setpoint whose output
+    through THR_MDL_FAC is that throttle (and its interval the same way), and its line."""
+
+    def rel(pct: float) -> float:
+        s_h = float(throttle_fraction(np.array([pct]), scale)[0])
+        return float(px4_rel_thrust(min(max(s_h, 0.0), 1.0), f))
+
+    frac = rel(hover.value)
+    iv = (
+        "" if hover.lo is None or hover.hi is None
+        else f" (95 % interval {rel(hover.lo):.3f}..{rel(hover.hi):.3f})"
+    )  # fmt: skip
+    return round(frac, 3), (
+        f"hover: {opts.mass_kg:g} kg on {opts.rotors or 4} rotors = {hover.thrust_n:.4g} N per "
+        f"rotor, throttle {hover.value:.2f} % at {hover.voltage_v:g} V; MPC_THR_HOVER "
+        f"{frac:.3f}{iv}: the setpoint PX4's curve (THR_MDL_FAC {f:g}) turns into that throttle"
+    )
+
+
+def _px4_outside(tmap: ThrustMap, b_ref: float) -> list[str]:
+    """The header's written values outside the supported region beyond the map's own values:
+    the battery scaling's low end."""
+    return [x for x in [_bat_outside(tmap, b_ref)] if x]
+
+
+def _bat_outside(tmap: ThrustMap, b_ref: float) -> str | None:
+    """PX4 scales thrust by BAT1_V_CHARGED / V_cell up to 1.3 (``rules.PX4_BATTERY_SCALE_MAX``):
+    it compensates down to V_charged / 1.3, below the stand's voltages when they are narrower."""
+    low = b_ref / PX4_BATTERY_SCALE_MAX
+    line = voltage_outside_line(tmap, "MC_BAT_SCALE_EN compensates down to V_charged/1.3", low)
+    if line is None or not tmap.model_def.uses_voltage:
+        return line
+    return line + (
+        " (the map's voltage term is motor physics, checked across 2S/3S: docs/howto/export.md)"
+        if tmap.model == "motor"
+        else " (the map's voltage term is a polynomial: no evidence it holds there)"
+    )
 
 
 def _bat_v_charged_note(tmap: ThrustMap, b_ref: float) -> str:
@@ -122,12 +173,14 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
                 pwm_params += [(f"PWM_MAIN_MIN{n}", scale.lo, 6), (f"PWM_MAIN_MAX{n}", scale.hi, 6)]
         rules.require({k: v for k, v, _ in pwm_params})
     b_ref = reference_voltage(tmap, opts.voltage_v)
+    mv = export_values(tmap, scale, opts, b_ref)
+    full = mv.full_throttle
     ref = supported_samples(tmap, voltage_v=b_ref, n_thrust=81)
     s_ref = throttle_fraction(ref.throttle_pct, scale)
     keep = s_ref >= 0.0  # the curve is fitted above the output range's low end (the idle)
     ref = Samples(ref.thrust_n[keep], ref.voltage_v[keep], ref.throttle_pct[keep])
     s_ref = s_ref[keep]
-    fit = fit_px4(ref.thrust_n, s_ref)
+    fit = fit_px4(ref.thrust_n, s_ref, thrust_max_n=None if full is None else full.value)
     f = round(fit.thr_mdl_fac, 3)
     err_ref = 100 * (px4_throttle(ref.thrust_n / fit.thrust_max_n, f) - s_ref)
     box = supported_samples(tmap)
@@ -154,12 +207,21 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         ]
     else:
         residual.append("map has no voltage dependence: battery effect not assessed")
-    values: dict[str, float] = {"THR_MDL_FAC": f, "thrust_max_n": fit.thrust_max_n}
+    values: dict[str, float] = {
+        "THR_MDL_FAC": f,
+        "thrust_max_n": fit.thrust_max_n,
+        "full_throttle_thrust_n": fit.thrust_max_n,
+    }
     params: list[tuple[str, float, int]] = [("THR_MDL_FAC", f, 9)]
     notes = [
         f"fitted at {b_ref:g} V over thrust {tmap.validity.thrust_n.lo:g}.."
-        f"{tmap.validity.thrust_n.hi:g} N; full-throttle thrust of the fitted curve "
-        f"{fit.thrust_max_n:.4g} N per rotor",
+        f"{tmap.validity.thrust_n.hi:g} N, "
+        + (
+            f"its full-throttle end held at the map's full-throttle thrust {full.value:.4g} N "
+            f"per rotor ({full.interval_text()})"
+            if full is not None
+            else f"the map cannot say its full-throttle thrust: the curve's own {fit.thrust_max_n:.4g} N"
+        ),
         f"ESC output range {scale.lo:g}..{scale.hi:g} {scale.unit}: THR_MDL_FAC is normalised "
         "over it"
         + (
@@ -177,21 +239,12 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         )
     params.append(("MC_BAT_SCALE_EN", bat_en, 6))
     values["MC_BAT_SCALE_EN"] = bat_en
-    if opts.mass_kg is not None:
-        rotors = opts.rotors or 4
-        hover_n = opts.mass_kg * G0_MPS2 / rotors
-        s_h = float(
-            throttle_fraction(tmap.throttle_pct(np.array([hover_n]), np.array([b_ref])), scale)[0]
-        )
-        hover = float(px4_rel_thrust(s_h, f))
-        notes.append(
-            f"hover: {opts.mass_kg:g} kg on {rotors} rotors = {hover_n:.4g} N per rotor, throttle "
-            f"{100 * s_h:.2f} % at {b_ref:g} V -> MPC_THR_HOVER {hover:.3f}"
-        )
-        if not tmap.validity.thrust_n.lo <= hover_n <= tmap.validity.thrust_n.hi:
-            notes.append("WARNING: hover thrust is outside the map's thrust box (extrapolated)")
-        params.append(("MPC_THR_HOVER", round(hover, 3), 9))
-        values["MPC_THR_HOVER"] = round(hover, 3)
+    hover_line = ""
+    if mv.hover is not None:
+        hover, hover_line = _px4_hover(mv.hover, scale, f, opts)
+        notes.append(hover_line)
+        params.append(("MPC_THR_HOVER", hover, 9))
+        values["MPC_THR_HOVER"] = hover
     if idle_note:
         notes.append(idle_note)
     if pwm_params and len(pwm_params) > 2:
@@ -203,8 +256,9 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     written = {n: float(v) for n, v, _ in params}
     rules.require(written)
     values.update(written)
+    outside = _px4_outside(tmap, b_ref)
     lines = (
-        header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual)
+        header_lines(tmap, "PX4 parameters (QGroundControl .params)", residual, mv, outside)
         + change_lines(rules, written)
         + notes
     )
@@ -218,4 +272,6 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         "box_rms_pct": r_box[0], "box_max_pct": r_box[1],
         "bat_rms_pct": r_bat[0], "bat_max_pct": r_bat[1],
     }  # fmt: skip
-    return ExportResult("px4", text, dict(values), resid, ".params")
+    out: dict[str, Any] = dict(values)
+    out["map_values"] = mv
+    return ExportResult("px4", text, out, resid, ".params")
