@@ -218,8 +218,14 @@ def _record_sequence(
     except ThrustmapError as exc:
         reason = str(exc)
     finally:
-        verified = outcome == "completed" or stand.resets > 0
-        how = "its end line" if outcome == "completed" else "a DTR reset" if stand.resets else ""
+        verified = outcome == "completed" or stand.reset_verified
+        how = (
+            "its end line"
+            if outcome == "completed"
+            else "a DTR reset, then silence"
+            if stand.reset_verified
+            else ""
+        )
         writer.finish("completed" if outcome == "completed" else "aborted", reason,
                       {"stop_verified": verified, "stop": how or "NOT verified"})  # fmt: skip
     stop = f"stop verified ({how})" if verified else "stop NOT verified: cut the motor's power"
