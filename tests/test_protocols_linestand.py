@@ -44,7 +44,6 @@ STM32_HX711 = LineStandSpec(
 )
 
 
-
 def test_reference_stream_values() -> None:
     decoder = LineStandDecoder(REFERENCE)
     events = decoder.feed_events(REF_STREAM)

@@ -42,7 +42,6 @@ STM32_HX711 = LineStandSpec(
 )
 
 
-
 class ScriptPeer:
     """Sends scripted bytes at scripted times and records what the host writes."""
 
