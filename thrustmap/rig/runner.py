@@ -622,6 +622,10 @@ class Runner:
         if self.writer is None:
             return
         for s in samples:
+            if s.voltage_v is None:
+                # a stand that reads no voltage (the FC's telemetry stops with the motor): a
+                # row without one cannot be loaded, and its spin-down thrust is no rest zero
+                continue
             self.writer.write(
                 s.time_s,
                 float(self.scale.lo),

@@ -81,15 +81,22 @@ def summarize_samples(samples: Sequence[StandSample], duration_s: float) -> Stan
     return StandSummary(len(samples), duration_s, rate, means)
 
 
+@dataclass(frozen=True)
+class StandOptions:
+    """How to read a stand: its calibration file, a line-stand preset or spec file."""
+
+    calibration: str | None = None
+    line_preset: str | None = None
+    line_spec_file: str | None = None
+
+
 def probe_device(
     url: str,
     clock: Clock,
     *,
     kind: str | None = None,
     baudrate: int | None = None,
-    calibration: str | None = None,
-    line_preset: str | None = None,
-    line_spec_file: str | None = None,
+    stand: StandOptions | None = None,
     seconds: float = 1.0,
     signing_key: Any = None,
 ) -> ProbeReport:
@@ -98,12 +105,15 @@ def probe_device(
     found = resolve(url, clock, kind, baudrate)
     report = ProbeReport(url, found)
     try:
-        return _probe(report, url, clock, kind, baudrate, calibration, line_preset,
-                      line_spec_file, seconds, signing_key)  # fmt: skip
+        return _probe(report, url, clock, kind, baudrate, stand or StandOptions(), seconds,
+                      signing_key)  # fmt: skip
     finally:  # say how this kind's protocol was checked (a real device, an official client...)
         checked = driver(found.kind).verified
+        spec_checked = report.identity.details.get("verified") if report.identity else None
+        checked = spec_checked or checked
         if report.identity is not None and checked:
             details = {**report.identity.details, "protocol_checked": checked}
+            details.pop("verified", None)
             report.identity = replace(report.identity, details=details)
 
 
@@ -113,9 +123,7 @@ def _probe(
     clock: Clock,
     kind: str | None,
     baudrate: int | None,
-    calibration: str | None,
-    line_preset: str | None,
-    line_spec_file: str | None,
+    options: StandOptions,
     seconds: float,
     signing_key: Any,
 ) -> ProbeReport:
@@ -155,13 +163,23 @@ def _probe(
                 except ThrustmapError as exc:
                     report.warnings.append(f"no motor values: {exc}")
         return report
+    if (
+        found.kind == "line-stand"
+        and found.line_preset is None
+        and options.line_preset is None
+        and options.line_spec_file is None
+    ):
+        raise ConfigError(
+            f"{url} prints text lines no line-stand preset knows ({found.evidence}); "
+            "pass --line-preset or describe it with --line-spec"
+        )
     stand = open_stand(
         url,
         clock,
         kind=found.kind,
-        calibration=calibration,
-        line_preset=line_preset,
-        line_spec_file=line_spec_file,
+        calibration=options.calibration,
+        line_preset=options.line_preset or found.line_preset,  # what the port's lines matched
+        line_spec_file=options.line_spec_file,
         baudrate=baudrate,
     )
     with stand:
@@ -177,4 +195,10 @@ def _probe(
         if isinstance(stand, LineStand):
             report.stand.bad_lines = stand.error_count
             report.identity = stand.identify()
+            if stand.spec.sequence_start is not None:
+                report.warnings.append(
+                    f"{stand.spec.name} prints only during its own sweep, started by "
+                    f"{stand.spec.sequence_start.strip()!r} (probe never sends it): "
+                    "thrustmap stand run"
+                )
     return report

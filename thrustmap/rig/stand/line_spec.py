@@ -15,7 +15,8 @@ from typing import Any
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.jsonfile import load_json
 from thrustmap.core.units import scale as lookup_scale
-from thrustmap.protocols.stands.line import FIELDS, Column, LineStandSpec, preset
+from thrustmap.protocols.stands.line import FIELDS, Column, LineStandSpec
+from thrustmap.protocols.stands.line_presets import preset
 
 SPEC_KEYS = {
     "format",
@@ -36,9 +37,23 @@ SPEC_KEYS = {
     "baudrate",
     "command_vars",
     "load_cell",
+    "source",
+    "verified",
+    "drives_esc",
+    "sequence_start",
+    "sequence_end",
+    "reset_stops",
+    "line_patterns",
+    "raw_counts",
+    "row_separator",
+    "sequence_levels",
+    "sequence_settle_s",
+    "sequence_rows",
+    "sequence_row_period_s",
+    "boot_s",
 }
 SPEC_FORMAT = "thrustmap-line-stand"
-COLUMN_KEYS = {"index", "name", "scale", "offset"}
+COLUMN_KEYS = {"index", "name", "scale", "offset", "modulo"}
 LOAD_CELL_KEYS = {"field", "tare", "si_per_count"}
 
 
@@ -110,7 +125,53 @@ class _SpecReader:
         if scale == 0:
             raise self.error(path + ".scale", "expected a non-zero number")
         offset = 0.0 if "offset" not in data else self.number(data, "offset", path + ".offset")
-        return Column(index=index, name=name, scale=scale, offset=offset)
+        modulo = data.get("modulo")
+        if modulo is not None and (
+            isinstance(modulo, bool) or not isinstance(modulo, int) or modulo < 2
+        ):
+            raise self.error(path + ".modulo", f"expected an integer >= 2, got {modulo!r}")
+        return Column(index=index, name=name, scale=scale, offset=offset, modulo=modulo)
+
+
+def _firmware_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys that describe a stand's firmware: its source, how it was checked, whether it
+    drives the ESC, its own sequence, its reset, the lines probe knows it by, raw columns."""
+    out: dict[str, Any] = {}
+    for key in ("source", "verified"):
+        if key in data:
+            out[key] = r.string(data, key, key)
+    for key in ("sequence_start", "sequence_end", "row_separator"):
+        if key in data:
+            out[key] = r.string(data, key, key, null=True)
+    for key in ("drives_esc", "reset_stops"):
+        if key in data:
+            if not isinstance(data[key], bool):
+                raise r.error(key, f"expected true or false, got {data[key]!r}")
+            out[key] = data[key]
+    for key in ("line_patterns", "raw_counts"):
+        if key in data:
+            items = data[key]
+            if not isinstance(items, list) or not all(isinstance(n, str) for n in items):
+                raise r.error(key, "expected a list of strings")
+            out[key] = tuple(items)
+    for key in ("sequence_settle_s", "sequence_row_period_s", "boot_s"):
+        if key in data:
+            out[key] = r.number(data, key, key)
+            if out[key] < 0:
+                raise r.error(key, "expected seconds >= 0")
+    if "sequence_rows" in data:
+        rows = data["sequence_rows"]
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:
+            raise r.error("sequence_rows", f"expected a count >= 0, got {rows!r}")
+        out["sequence_rows"] = rows
+    if "sequence_levels" in data:
+        levels = data["sequence_levels"]
+        if not isinstance(levels, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in levels
+        ):
+            raise r.error("sequence_levels", "expected a list of throttle values")
+        out["sequence_levels"] = tuple(float(v) for v in levels)
+    return out
 
 
 def line_spec_from_dict(
@@ -154,6 +215,7 @@ def line_spec_from_dict(
     for key in ("delimiter", "header_prefix", "throttle_command", "stop_command", "keepalive"):
         if key in data:
             kwargs[key] = r.string(data, key, key, null=True)
+    kwargs.update(_firmware_keys(r, data))
     if kwargs.get("delimiter") == "":
         raise r.error("delimiter", "expected a non-empty string, or null for whitespace")
     if "keepalive_interval_s" in data:
@@ -244,6 +306,8 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
             entry["name"] = col.name
         entry["scale"] = col.scale
         entry["offset"] = col.offset
+        if col.modulo is not None:
+            entry["modulo"] = col.modulo
         columns[key] = entry
     return {
         "format": SPEC_FORMAT,
@@ -262,4 +326,18 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "watchdog_s": spec.watchdog_s,
         "baudrate": spec.baudrate,
         "command_vars": dict(spec.command_vars),
+        "source": spec.source,
+        "verified": spec.verified,
+        "drives_esc": spec.drives_esc,
+        "sequence_start": spec.sequence_start,
+        "sequence_end": spec.sequence_end,
+        "reset_stops": spec.reset_stops,
+        "line_patterns": list(spec.line_patterns),
+        "raw_counts": list(spec.raw_counts),
+        "row_separator": spec.row_separator,
+        "sequence_levels": list(spec.sequence_levels),
+        "sequence_settle_s": spec.sequence_settle_s,
+        "sequence_rows": spec.sequence_rows,
+        "sequence_row_period_s": spec.sequence_row_period_s,
+        "boot_s": spec.boot_s,
     }
