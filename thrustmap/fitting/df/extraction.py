@@ -474,7 +474,14 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "columns": sources,
         "flights": per_flight,
         "options": asdict(opts),
-        "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
+        # the map T_c was computed with: `gamma fit` refuses another (fitting.df.pool)
+        "map": None
+        if tmap is None
+        else {
+            "model": tmap.model,
+            "sha256": tmap.file_sha256,
+            "bench_sha256": tmap.bench_sha256,
+        },
         "reports": [r.to_dict() for r in reports],
     }
     if refused:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thrustmap.core.errors import DataFormatError
+from thrustmap.core.identity import Identity, refuse_repeats
 from thrustmap.core.physical import (  # the physical ranges live in one place
     check_header_unit,
 )
@@ -118,6 +119,10 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
 def load_datasets(
     paths: Sequence[str | Path], column_map: ColumnMap | None = None
 ) -> list[Dataset]:
+    """Every stand log of a pool (a fit, a comparison, a report): the same content given twice
+    is refused naming both (``core.identity``), so no log counts twice."""
     if not paths:
         raise DataFormatError("no input files given; expected one or more stand logs")
-    return [load_dataset(p, column_map) for p in paths]
+    datasets = [load_dataset(p, column_map) for p in paths]
+    refuse_repeats((Identity(ds.path, ds.sha256) for ds in datasets), "stand log")
+    return datasets
