@@ -106,7 +106,7 @@ def extract_flight_columns(
     # every reader's acceleration is questioned here, not only the CSV readers': in g it is
     # converted and said, one that cannot be a specific force is refused (issue 31 item 8),
     # after the ground-rest calibration below: only what that cannot explain (issue 34)
-    acc, unit_notes = specific_force_unit(acc)
+    acc, unit_notes = specific_force_unit(acc, landed=flight.landed)
     time_warnings = [*time_warnings, *unit_notes]
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
@@ -191,7 +191,9 @@ def extract_flight_columns(
     if cmd_for_steady is not None:
         a_up = rest_calibration(a_up, rs(acc), cmd_for_steady, tilt, opts, apply, warnings)
     calibrated = any(w.startswith("accelerometer calibrated at rest") for w in warnings)
-    refuse_unphysical_specific_force(a_up, acc.origin, flight.path,
+    # judged in flight (where it is g), as its unit was: a ground stretch logged as zeros
+    flying = airborne if airborne.sum() >= max(10, 0.1 * nbins) else np.ones(nbins, bool)
+    refuse_unphysical_specific_force(a_up[flying], acc.origin, flight.path,
                                      calibrated="its calibration at rest" if calibrated else "")  # fmt: skip
     in_air_evidence(
         flight, centres, rs, opts, apply, warnings,
