@@ -12,10 +12,12 @@ from thrustmap.core.errors import DataFormatError
 from thrustmap.core.identity import Identity, refuse_repeats
 from thrustmap.core.physical import (  # the physical ranges live in one place
     check_header_unit,
+    header_thrust_unit,
 )
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.loaders.assemble import assemble
+from thrustmap.fitting.loaders.checks import check_unnamed_thrust_unit
 from thrustmap.fitting.loaders.formats import FORMATS
 from thrustmap.fitting.loaders.table import (
     THRUST_UNITS,
@@ -99,7 +101,7 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
     if current is None:  # a current column the map did not name still checks the thrust unit
         hit = find_column(table, r"current \((a|amps?)\)")
         current = None if hit is None else hit[0]
-    return assemble(
+    ds = assemble(
         table,
         "column-map",
         cm.throttle_scale,
@@ -114,6 +116,9 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
         factor,
         rotors_on_esc=cm.rotors_on_esc,
     )
+    if header_thrust_unit(table.header[fi]) is None:  # the unit is the user's word alone
+        check_unnamed_thrust_unit(ds, cm.thrust_unit)
+    return ds
 
 
 def load_datasets(
