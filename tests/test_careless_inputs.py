@@ -20,6 +20,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from thrustmap.cli import main
@@ -549,3 +550,201 @@ def test_grams_as_newtons_on_real_stand_logs(shared_data: Path, tmp_path: Path) 
             bad.write_text("\n".join([head, *lines[1 : rows + 1]]) + "\n", encoding="utf-8")
             with pytest.raises(DataFormatError, match="gf/W"):
                 load_dataset(bad, as_newtons)
+
+
+# --- issue 44 (branch careless): inputs counted twice, another map, units by physics ----------
+# (rows for items 1, 6 and 12's spin/probe are the coordinator's, in a block of their own)
+
+
+def _stand_summary(
+    path: Path, voltage_v: float, *, header: str, thrust_div: float = 1.0,
+    cells: int = 1, current: bool = True,
+) -> None:  # fmt: skip
+    """A step summary as `_step_summary` writes it, with the thrust divided by ``thrust_div``
+    (1000: kgf in a column that says nothing), the voltage column divided by ``cells`` (a
+    per-cell column) and the current column optional."""
+    head = f"Time (s),ESC signal (µs),{header},Voltage (V)" + (",Current (A)" if current else "")
+    lines = [head]
+    for k in range(11):
+        us = 1050 + 95 * k
+        x = (us - 1000) / 1000.0
+        thrust_gf = 15.0 + 900.0 * x**2 * voltage_v / 11.1
+        sag_v = voltage_v - 0.01 * k
+        row = f"{2.0 * k:.1f},{us},{thrust_gf / thrust_div:.5f},{sag_v / cells:.4f}"
+        lines.append(row + (f",{thrust_gf / 4.0 / sag_v:.3f}" if current else ""))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def work44(work: dict[str, str]) -> dict[str, str]:
+    tmp = Path(work["tmp"]) / "i44"
+    tmp.mkdir()
+    doc = json.loads((FL / "sim_map.json").read_text())
+    other = dict(doc, coefficients=[doc["coefficients"][0], doc["coefficients"][1] * 1.1,
+                                    *doc["coefficients"][2:]])  # fmt: skip
+    (tmp / "other.json").write_text(json.dumps(other))
+    shutil.copy(work["run"], tmp / "copy.csv")
+    for kg in ("1.5", "1.4"):  # the same flight extracted twice, at two masses
+        code, _, err = _run(["flightlog", "extract", work["ulg"], "--mass-kg", kg, "--map",
+                             work["map"], "-o", str(tmp / f"d{kg}.csv")])  # fmt: skip
+        assert code == 0, err
+    _stand_summary(tmp / "kgf_current.csv", 16.0, header="Thrust", thrust_div=1000.0)
+    _stand_summary(tmp / "kgf_alone.csv", 16.0, header="Thrust", thrust_div=1000.0, current=False)
+    _stand_summary(tmp / "cell_current.csv", 24.6, header="Thrust (gf)", cells=6)
+    _stand_summary(tmp / "cell_alone.csv", 24.6, header="Thrust (gf)", cells=6, current=False)
+    _stand_summary(tmp / "one_cell.csv", 4.1, header="Thrust (gf)", current=False)
+    return {**work, "i44": str(tmp)}
+
+
+_COLS = "--col-throttle ESC~signal~(µs) --col-thrust Thrust --col-voltage Voltage~(V)"
+
+ROWS_44 = [
+    Row("44.2 a stand log twice", "fit {run} {run} -o {i44}/m.json", 2, "are the same file"),
+    Row(
+        "44.2 a stand log and its copy",
+        "compare {run} {i44}/copy.csv",
+        2,
+        "are the same content",
+    ),
+    Row(
+        "44.2 a report over a log twice",
+        "report {map} {run} {run} -o {i44}/r.html",
+        2,
+        "are the same file",
+    ),
+    Row(
+        "44.2 a Df twice",
+        "gamma fit {i44}/d1.5.csv {i44}/d1.5.csv --map {map} -o {i44}/g.json",
+        2,
+        "are the same file",
+    ),  # fmt: skip
+    Row(
+        "44.2 one flight extracted at two masses",
+        "gamma fit {i44}/d1.5.csv {i44}/d1.4.csv --map {map} -o {i44}/g.json",
+        2,
+        "are the same flight",
+        absent="different masses",
+    ),
+    Row(
+        "44.2 a flight log twice",
+        "flightlog extract {ulg} {ulg} --mass-kg 1 -o {i44}/x.csv",
+        2,
+        "are the same file",
+    ),
+    Row(
+        "44.3 gamma against another map",
+        "gamma fit {i44}/d1.5.csv --map {i44}/other.json -o {i44}/g.json",
+        2,
+        "not with",
+    ),
+    Row(
+        "44.4 kgf in a unitless column, current beside it",
+        "fit {i44}/kgf_current.csv " + _COLS + " -o {i44}/m.json",
+        2,
+        "--thrust-unit kgf",
+    ),
+    Row(
+        "44.4 kgf in a unitless column, no current",
+        "fit {i44}/kgf_alone.csv " + _COLS + " -o {i44}/m.json",
+        2,
+        "--thrust-unit kgf",
+    ),
+    Row(
+        "44.5 a per-cell voltage beside a current",
+        "fit {i44}/cell_current.csv -o {i44}/m.json",
+        2,
+        "per cell of a bigger pack",
+    ),
+    Row(
+        "44.5 a per-cell voltage, no current",
+        "fit {i44}/cell_alone.csv -o {i44}/m.json",
+        2,
+        "per cell of a bigger pack",
+    ),
+    Row(
+        "44.5 a 1S pack is said",
+        "fit {i44}/one_cell.csv -o {i44}/m.json",
+        0,
+        "the pack is taken as 1S",
+    ),
+    Row(
+        "44.12 a Df sidecar for the Df",
+        "gamma fit {i44}/d1.5.json --map {map} -o {i44}/g.json",
+        2,
+        "a JSON file",
+        absent="tokeniz",
+    ),
+    Row(
+        "44.12 a gamma with a falling slope",
+        "gamma fit {i44}/d1.5.csv --map {map} -o {i44}/g.json",
+        0,
+        "γ(B) = ",
+        absent="+ -",
+    ),
+]
+
+
+@pytest.mark.parametrize("row", ROWS_44, ids=[r.name for r in ROWS_44])
+def test_careless_input_44(row: Row, work44: dict[str, str]) -> None:
+    test_careless_input(row, work44)
+
+
+def test_44_gamma_on_the_map_with_its_own_gamma(work44: dict[str, str]) -> None:
+    """A Df extracted with a bench map matches that map once a γ block is attached (the bench
+    part is what T_c came through); a Df from before the map was recorded is said unchecked."""
+    tmp = Path(work44["i44"])
+    first = tmp / "first.json"
+    assert _run(["gamma", "fit", str(tmp / "d1.5.csv"), "--map", work44["map"],
+                 "-o", str(first)])[0] == 0  # fmt: skip
+    code, _, err = _run(["gamma", "fit", str(tmp / "d1.5.csv"), "--map", str(first),
+                         "-o", str(tmp / "again.json")])  # fmt: skip
+    assert code == 0, err
+    old = tmp / "old.csv"
+    shutil.copy(tmp / "d1.5.csv", old)
+    side = json.loads((tmp / "d1.5.json").read_text())
+    del side["map"]
+    old.with_suffix(".json").write_text(json.dumps(side))
+    code, _, err = _run(["gamma", "fit", str(old), "--map", str(tmp / "other.json"),
+                         "-o", str(tmp / "o.json")])  # fmt: skip
+    assert code == 0 and "cannot be checked" in err, err
+
+
+def test_44_paper_csv_in_g_with_a_ground_stretch(tmp_path: Path) -> None:
+    """Item 9: a seed-paper flight CSV whose acceleration is in g (≈ 1 in hover) and whose
+    long ground stretch is logged as zeros (the log's mean 0.43) is g: converted and said,
+    the Df's force the same as the m/s² file's, never g0 added to it."""
+    import pandas as pd
+
+    d = pd.read_csv(FL / "sim_hover_paper.csv")
+    ground = pd.concat([d.iloc[:1]] * 800, ignore_index=True)
+    ground["Time (s)"] = -40.0 + 0.05 * np.arange(800)
+    for col in ("Acc (m/s²)", "Position_z (m)", "Throttle (%)", "Thrust sended (N)"):
+        ground[col] = 0.0
+    in_ms2 = pd.concat([ground, d], ignore_index=True)
+    in_ms2.loc[len(ground) :, "Acc (m/s²)"] = d["Acc (m/s²)"].to_numpy()
+    in_g = in_ms2.copy()
+    in_g["Acc (m/s²)"] = in_g["Acc (m/s²)"] / 9.80665
+    assert in_g["Acc (m/s²)"].mean() < 0.5  # what once read as gravity-compensated
+    forces = []
+    for name, table in (("ms2", in_ms2), ("g", in_g)):
+        table.to_csv(tmp_path / f"{name}.csv", index=False)
+        code, out, err = _run(["flightlog", "extract", str(tmp_path / f"{name}.csv"),
+                               "--mass-kg", "1", "-o", str(tmp_path / f"df_{name}.csv")])  # fmt: skip
+        assert code == 0, err
+        forces.append(float(pd.read_csv(tmp_path / f"df_{name}.csv")["force_n"].median()))
+    assert "taken as g" in out and "g0 added" not in out + err
+    assert forces[1] == pytest.approx(forces[0], rel=1e-6)
+    assert 9.0 < forces[1] < 10.6
+
+
+def test_44_inspect_names_a_normalised_scale(tmp_path: Path) -> None:
+    """Item 12: inspect on a 0..1 throttle scale says "normalised", not "0..1 1"."""
+    path = tmp_path / "norm.csv"
+    rows = ["thr,Thrust (N),Voltage (V)"]
+    rows += [f"{k / 10:.1f},{0.1 + 8 * (k / 10) ** 2:.3f},16.0" for k in range(1, 11)]
+    path.write_text("\n".join(rows) + "\n")
+    code, out, err = _run(["inspect", str(path), "--col-throttle", "thr", "--col-thrust",
+                           "Thrust (N)", "--col-voltage", "Voltage (V)", "--throttle-scale",
+                           "norm"])  # fmt: skip
+    assert code == 0, err
+    assert "norm 0..1 (normalised)" in out and "0..1 1" not in out
