@@ -593,7 +593,16 @@ def work44(work: dict[str, str]) -> dict[str, str]:
     _stand_summary(tmp / "cell_current.csv", 24.6, header="Thrust (gf)", cells=6)
     _stand_summary(tmp / "cell_alone.csv", 24.6, header="Thrust (gf)", cells=6, current=False)
     _stand_summary(tmp / "one_cell.csv", 4.1, header="Thrust (gf)", current=False)
-    return {**work, "i44": str(tmp)}
+    # item 7: a map fitted on two voltages, and a log of another rig
+    assert _run(["fit", work["tmp"] + "/s_7.csv", work["tmp"] + "/s_11.csv",
+                 "-o", str(tmp / "m711.json")])[0] == 0  # fmt: skip
+    _step_summary(tmp / "other_rig.csv", 8.4)
+    # item 10: a data folder as the demo leaves it: Ds logs with their sidecars
+    (tmp / "sr").mkdir()
+    for name in ("msp_run.csv", "msp_run.meta.json"):
+        shutil.copy(FIXTURES / "sweeps" / name, tmp / "sr" / name)
+    (tmp / "empty").mkdir()
+    return {**work, "i44": str(tmp), "fl": str(FL)}
 
 
 _COLS = "--col-throttle ESC~signal~(µs) --col-thrust Thrust --col-voltage Voltage~(V)"
@@ -668,6 +677,38 @@ ROWS_44 = [
         "the pack is taken as 1S",
     ),
     Row(
+        "44.7 a report on another rig's data",
+        "report {i44}/m711.json {i44}/other_rig.csv -o {i44}/r.html",
+        0,
+        "not the map's sources",
+    ),
+    Row(
+        "44.10 a data folder's logs and sidecars (fit sr/*)",
+        "fit {i44}/sr/msp_run.csv {i44}/sr/msp_run.meta.json -o {i44}/m.json",
+        0,
+        "wrote",
+    ),
+    Row(
+        "44.10 a sidecar alone as a stand log",
+        "fit {i44}/sr/msp_run.meta.json -o {i44}/m.json",
+        2,
+        "a JSON file",
+        absent="single column",
+    ),
+    Row(
+        "44.11 a fleet without a mass",
+        "fleet extract {fl} -o {i44}/fleet1 --workers 0 --quiet",
+        2,
+        "take-off mass",
+        absent="refused",
+    ),
+    Row(
+        "44.11 a fleet of an empty folder",
+        "fleet extract {i44}/empty --mass-kg 1 -o {i44}/fleet2 --workers 0 --quiet",
+        2,
+        "no flight log found",
+    ),
+    Row(
         "44.12 a Df sidecar for the Df",
         "gamma fit {i44}/d1.5.json --map {map} -o {i44}/g.json",
         2,
@@ -735,6 +776,13 @@ def test_44_paper_csv_in_g_with_a_ground_stretch(tmp_path: Path) -> None:
     assert "taken as g" in out and "g0 added" not in out + err
     assert forces[1] == pytest.approx(forces[0], rel=1e-6)
     assert 9.0 < forces[1] < 10.6
+
+
+def test_44_no_empty_fleet_table(work44: dict[str, str]) -> None:
+    """Item 11: the empty folder's refusal writes nothing (no empty Parquet)."""
+    code, _, _ = _run(["fleet", "extract", work44["i44"] + "/empty", "--mass-kg", "1", "-o",
+                       work44["i44"] + "/fleet3", "--workers", "0", "--quiet"])  # fmt: skip
+    assert code == 2 and not Path(work44["i44"], "fleet3").exists()
 
 
 def test_44_inspect_names_a_normalised_scale(tmp_path: Path) -> None:

@@ -47,6 +47,7 @@ class ColumnMap:
 
 def load_dataset(path: str | Path, column_map: ColumnMap | None = None) -> Dataset:
     """Load one stand log; detect its format from the header unless a column map is given."""
+    _refuse_json(Path(path))
     table = read_table(path)
     if column_map is not None:
         return _with_column_map(table, column_map)
@@ -121,6 +122,38 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
     return ds
 
 
+def _refuse_json(path: Path) -> None:
+    """A JSON file (a Ds log's sidecar, a map, a manifest) given as a stand log is named as
+    such, not parsed as a one-column CSV."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64).lstrip(b"\xef\xbb\xbf \t\r\n")
+    except OSError:
+        return  # read_table names what is wrong with the path
+    if head[:1] in (b"{", b"["):
+        raise DataFormatError(
+            "a JSON file (a stand log's sidecar, a map?), not a stand log; expected the CSV "
+            "(a thrustmap Ds log's sidecar is read with its .csv)",
+            file=str(path),
+        )
+
+
+def _without_sidecars(paths: Sequence[str | Path]) -> list[str | Path]:
+    """The paths less the Ds sidecars (``run.meta.json``) whose log (``run.csv``) is given too:
+    a glob such as ``thrustmap-demo/sr/*`` names both, and the log reads its own sidecar."""
+    given = {Path(p).resolve() for p in paths}
+    out = []
+    for p in paths:
+        name = Path(p).name
+        if name.endswith(".meta.json"):
+            log_csv = Path(p).with_name(name[: -len(".meta.json")] + ".csv").resolve()
+            if log_csv in given:
+                log.info("%s: the sidecar of %s, read with it", p, log_csv.name)
+                continue
+        out.append(p)
+    return out
+
+
 def load_datasets(
     paths: Sequence[str | Path], column_map: ColumnMap | None = None
 ) -> list[Dataset]:
@@ -128,6 +161,6 @@ def load_datasets(
     is refused naming both (``core.identity``), so no log counts twice."""
     if not paths:
         raise DataFormatError("no input files given; expected one or more stand logs")
-    datasets = [load_dataset(p, column_map) for p in paths]
+    datasets = [load_dataset(p, column_map) for p in _without_sidecars(paths)]
     refuse_repeats((Identity(ds.path, ds.sha256) for ds in datasets), "stand log")
     return datasets
