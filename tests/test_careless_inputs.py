@@ -893,3 +893,22 @@ def test_44_long_solving_says_so(monkeypatch: pytest.MonkeyPatch, tmp_path: Path
                          "-o", str(tmp_path / "m.json")])  # fmt: skip
     assert code == 0, err
     assert "solving the exact L1 fit" in err and "Ctrl-C stops it" in err
+
+
+def test_44_a_fleet_names_a_log_copied_under_two_names(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Item 2 in the fleet: a log copied under two names is one Df (named by content), pooled
+    once, and the identity check's words name both copies."""
+    from thrustmap.fleet.groups import group_logs
+    from thrustmap.fleet.task import Outcome
+
+    def row(path: str) -> Outcome:
+        return Outcome(path, sha256="ab" * 32, status="ok", df_path="df/x.csv", samples=100,
+                       airframe='{"rotors": 4}', airframe_key="k", voltage_min_v=21.0,
+                       voltage_max_v=24.0)  # fmt: skip
+
+    (group,) = group_logs([row("a/flight.ulg"), row("b/flight-copy.ulg")], tmp_path)
+    assert len(group.df_paths) == 1 and group.samples == 100
+    assert "a/flight.ulg and b/flight-copy.ulg are the same content" in caplog.text
+    assert "counted once" in caplog.text

@@ -54,22 +54,23 @@ def refuse_repeats(items: Iterable[Identity], what: str) -> None:
     for item in items:
         for first in seen:
             if item.same_as(first):
-                raise DataFormatError(_repeat_text(first, item, what))
+                raise DataFormatError(
+                    describe_repeat(first, item, what) + ": pooled, its data would count "
+                    "twice" + (" (and two masses for one flight cannot both be right)"
+                               if first.span_s is not None else "") + "; give it once"
+                )  # fmt: skip
         seen.append(item)
 
 
-def _repeat_text(first: Identity, second: Identity, what: str) -> str:
+def describe_repeat(first: Identity, second: Identity, what: str) -> str:
+    """``a and b are the same <what> (sha256 …)``: what a refusal, or a pool that keeps one of
+    them (the fleet names its Df files by content), says."""
     short = first.sha256[:12]
     if first.span_s is not None and second.span_s is not None:
         a, b = first.span_s, second.span_s
         return (
             f"{first.name} and {second.name} are the same {what} (log sha256 {short}…, "
-            f"{a[0]:.1f}..{a[1]:.1f} s and {b[0]:.1f}..{b[1]:.1f} s): it was extracted twice; "
-            "pooled, its samples would count twice (and two masses for one flight cannot both "
-            "be right): give it once"
+            f"{a[0]:.1f}..{a[1]:.1f} s and {b[0]:.1f}..{b[1]:.1f} s), extracted twice"
         )
     same = "the same file" if first.name == second.name else "the same content"
-    return (
-        f"{first.name} and {second.name} are {same} (sha256 {short}…): each {what} counts "
-        "once; pooled twice its data would count twice: give it once"
-    )
+    return f"{first.name} and {second.name} are {same} (sha256 {short}…): each {what} counts once"

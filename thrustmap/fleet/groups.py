@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from thrustmap.core.errors import ThrustmapError
+from thrustmap.core.identity import Identity, describe_repeat
 from thrustmap.fleet.task import Outcome, one_line
 
 if TYPE_CHECKING:
@@ -89,12 +90,18 @@ def group_logs(outcomes: list[Outcome], out_dir: Path) -> list[Group]:
     for key in sorted(by_key):
         members = sorted(by_key[key], key=lambda o: o.path)
         dfs: list[Path] = []
-        seen: set[str] = set()
+        seen: dict[str, Outcome] = {}
         samples = 0
         for o in members:
-            if o.df_path in seen:  # the same content under two names is one flight, once
+            first = seen.get(o.df_path)
+            if first is not None:  # the same content under two names is one flight, once
+                log.warning(
+                    "%s", describe_repeat(Identity(first.path, first.sha256),
+                                          Identity(o.path, o.sha256), "flight log")
+                    + ": counted once",
+                )  # fmt: skip
                 continue
-            seen.add(o.df_path)
+            seen[o.df_path] = o
             dfs.append(out_dir / o.df_path)
             samples += o.samples
         lo = [o.voltage_min_v for o in members if math.isfinite(o.voltage_min_v)]

@@ -139,7 +139,7 @@ def specific_force_unit(
     v = sig.values[flying]
     if not len(v):
         return sig, []
-    level = float(np.median(v))
+    level = float(nanmedian(v))  # (np.median imports numpy.ma: see nanmedian)
     if 0.7 <= level <= 1.3:
         return Signal(sig.time_s, sig.values * G0_MPS2, "m/s^2", f"{sig.origin} (g → m/s²)"), [
             f"{sig.origin}: upward specific force {level:.3g} {where} (median), expected ≈ 9.81 "
