@@ -52,7 +52,11 @@ def check_map(side: dict[str, Any], tmap: ThrustMap, df_path: Path, map_path: st
     """Refuse a Df whose thrust command came through another stand map than ``tmap``: the γ
     of one map attached to another is wrong by their difference. A Df extracted with the
     same bench map (with or without a γ block) passes; one from before the map was recorded
-    is said to be unchecked."""
+    is said to be unchecked. A Df whose T_c did not come through a map (the log's own newtons,
+    or no T_c column: ``gamma fit`` computes it through the map given) has nothing to check."""
+    source = str((side.get("columns") or {}).get("thrust_cmd_n") or "")
+    if "stand map" not in source:
+        return
     if "map" not in side:
         log.warning(
             "%s: its sidecar does not record the map it was extracted with (an older Df): "

@@ -171,7 +171,9 @@ def check_unnamed_thrust_unit(ds: Dataset, given: str) -> None:
                 f"thrust column (no unit in its header) read in {given} gives {gf_per_w:.3g} "
                 f"gf/W at load; propellers make {TYPICAL_THRUST_PER_WATT_GF[0]:g}.."
                 f"{TYPICAL_THRUST_PER_WATT_GF[1]:g} gf/W, which it gives in {unit}: "
-                f"--thrust-unit {unit}? (a column truly in {given}: name it 'Thrust ({given})')",
+                f"--thrust-unit {unit}? (a column truly in {given}, or a current that feeds "
+                f"several motors of which one is on the load cell: name its unit in the header, "
+                f"'Thrust ({given})')",
                 file=ds.path,
             )
         return
