@@ -882,6 +882,7 @@ def test_44_long_solving_says_so(monkeypatch: pytest.MonkeyPatch, tmp_path: Path
     from thrustmap.fitting import solve
 
     monkeypatch.setattr(solve, "PROGRESS_EVERY_S", 0.2)
+    monkeypatch.setattr(solve, "PROGRESS_MIN_POINTS", 1)
     monkeypatch.setattr(solve, "_heartbeat", solve._Heartbeat())
     real = solve.interruptible
 

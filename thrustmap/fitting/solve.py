@@ -27,6 +27,9 @@ progress_log = logging.getLogger("thrustmap.progress")  # (cli.PROGRESS_LOGGER)
 PROGRESS_EVERY_S = 5.0
 #: how often the waiting thread wakes: Ctrl-C is acted on within this
 WAKE_S = 0.1
+#: LPs this large count towards the progress lines (a γ fit's few hundred samples, refitted
+#: again and again by `gamma live`, never print one)
+PROGRESS_MIN_POINTS = 2000
 
 
 class _Heartbeat:
@@ -56,8 +59,8 @@ def interruptible(work: Callable[[], T], what: str) -> T:
     stops the command within a fraction of a second (HiGHS releases the GIL but never checks
     for signals: run in place, an LP of a few thousand points took half a minute to react),
     and solving that runs past ``PROGRESS_EVERY_S`` says what it is doing, every as long
-    (``_Heartbeat``). The worker is a daemon: an interrupted computation ends with the
-    process."""
+    (``_Heartbeat``; ``what`` empty: never said). The worker is a daemon: an interrupted
+    computation ends with the process."""
     box: dict[str, object] = {}
 
     def run() -> None:
@@ -72,7 +75,8 @@ def interruptible(work: Callable[[], T], what: str) -> T:
     while worker.is_alive():
         worker.join(WAKE_S)
         now = time.monotonic()
-        _heartbeat.tick(now - last, what)
+        if what:
+            _heartbeat.tick(now - last, what)
         last = now
     if "error" in box:
         raise box["error"]  # type: ignore[misc]
@@ -142,7 +146,7 @@ def _lad(
     ] + [(0.0, None)] * (2 * n)
     res = interruptible(
         lambda: opt.linprog(cost, A_eq=a_eq, b_eq=y, bounds=bounds, method="highs"),
-        f"solving the exact L1 fit (an LP) over {n} points",
+        f"solving the exact L1 fit (an LP) over {n} points" if n >= PROGRESS_MIN_POINTS else "",
     )
     if res.status != 0:
         raise FitError(f"least-absolute-deviations LP did not solve: {res.message}")
