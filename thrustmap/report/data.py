@@ -396,7 +396,7 @@ def _validations(
     """Every model's validation (in-sample, by-file, k-fold) on the map's own sources, and the
     map's error on each stand log that is not one of them."""
     validation = _foreign_rows(tmap, datasets, foreign, sel, notes) if foreign else {}
-    own = [ds for ds in datasets if ds.name not in foreign]
+    own = [ds for ds in datasets if ds.path not in foreign]
     if not own:
         notes.append(
             "no data given are the map's sources: the validation of its fit (in-sample, "
@@ -418,7 +418,7 @@ def _validations(
 
 
 def not_its_sources(tmap: ThrustMap, datasets: list[Dataset], notes: list[str]) -> list[str]:
-    """The names of the stand logs that are not the map's sources: their sha256 is not among
+    """The paths of the stand logs that are not the map's sources: their sha256 is not among
     those the map records (a source whose file changed since the fit is said as such)."""
     shas = {str(s.get("sha256")) for s in tmap.sources if s.get("sha256")}
     by_name = {Path(str(s.get("path", ""))).name: s.get("sha256") for s in tmap.sources}
@@ -432,7 +432,7 @@ def not_its_sources(tmap: ThrustMap, datasets: list[Dataset], notes: list[str]) 
     for ds in datasets:
         if ds.sha256 in shas:
             continue
-        foreign.append(ds.name)
+        foreign.append(ds.path)
         if by_name.get(ds.name):
             notes.append(
                 f"{ds.name}: sha256 differs from the one the map recorded (the file changed "
@@ -452,7 +452,7 @@ def _foreign_rows(
     rows: dict[str, list[Row]] = {}
     said = []
     for ds in datasets:
-        if ds.name not in foreign:
+        if ds.path not in foreign:
             continue
         try:
             (row,) = evaluate(tmap, [ds], sel)
@@ -484,7 +484,7 @@ def source_files(rd: ReportData) -> list[dict[str, Any]]:
         stand = devices.get("stand", {}) if isinstance(devices, dict) else {}
         rows.append(
             {
-                "role": "stand log" + (" (not the map's source)" if ds.name in rd.foreign else ""),
+                "role": "stand log" + (" (not the map's source)" if ds.path in rd.foreign else ""),
                 "path": ds.path,
                 "sha256": ds.sha256 or file_sha256(ds.path),
                 "format": ds.format,
