@@ -50,16 +50,16 @@ def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
 def refuse_repeats(items: Iterable[Identity], what: str) -> None:
     """Refuse when two of ``items`` are the same input (content, and span for flights), naming
     both: pooled, the repeat would count its data twice."""
-    seen: list[Identity] = []
+    seen: dict[str, list[Identity]] = {}  # by hash: a fleet's thousands of flights, in time
     for item in items:
-        for first in seen:
+        for first in seen.get(item.sha256, []):
             if item.same_as(first):
                 raise DataFormatError(
                     describe_repeat(first, item, what) + ": pooled, its data would count "
                     "twice" + (" (and two masses for one flight cannot both be right)"
                                if first.span_s is not None else "") + "; give it once"
                 )  # fmt: skip
-        seen.append(item)
+        seen.setdefault(item.sha256, []).append(item)
 
 
 def describe_repeat(first: Identity, second: Identity, what: str) -> str:

@@ -96,7 +96,6 @@ def pool_dfs(
     for p in paths:
         table, s = read_df(p)  # (names a file that is missing or not a Df first)
         files.append(Identity(str(p), file_sha256(p)))
-        refuse_repeats(files, "Df file")
         if not len(table):
             raise DataFormatError(f"no samples in {p.name}: " + _empty_reason(s), file=str(p))
         if tmap is not None:
@@ -105,6 +104,7 @@ def pool_dfs(
         tables.append(table)
         for k in ("columns", "flights"):
             side.setdefault(k, {}).update(s.get(k, {}))
+    refuse_repeats(files, "Df file")
     refuse_repeats(flights, "flight")
     return pd.concat(tables, ignore_index=True), side
 
