@@ -106,7 +106,7 @@ def test_motor_validation_fast_path_matches_per_fold_fits() -> None:
     errs = []
     for f in range(3):
         tr, te = fi != f, fi == f
-        coef = fit_coefficients(m, t[tr], b[tr], th[tr], "l2")
+        coef = fit_coefficients(m, t[tr], b[tr], th[tr], "l2", groups=fi[tr])  # weighs by file
         errs.append(np.abs(m.evaluate(coef, t[te], b[te]) - th[te]))
     assert row.all.mean_pct == pytest.approx(float(np.concatenate(errs).mean()), rel=1e-6)
 

@@ -122,7 +122,8 @@ def test_held_out_folds_use_the_same_bounds() -> None:
         t = np.concatenate([s.thrust_n for s in tr])
         b = np.concatenate([s.voltage_v for s in tr])
         th = np.concatenate([s.throttle_scale.to_pct(s.throttle_native) for s in tr])
-        coef = fit_coefficients(MODELS["motor"], t, b, th, "l2")
+        files = np.concatenate([np.full(len(s), j) for j, s in enumerate(tr)])
+        coef = fit_coefficients(MODELS["motor"], t, b, th, "l2", groups=files)  # weighs by file
         assert OFFSET_RANGE_PCT[0] <= coef[0]
         te = sets[i]
         pred = MODELS["motor"].evaluate(coef, te.thrust_n, te.voltage_v)

@@ -157,11 +157,13 @@ def _fake_demo_output(out_dir: Path) -> list[Path]:
 
 
 def test_the_demo_replaces_its_own_recordings(tmp_path: Path) -> None:
-    from thrustmap.demo import MANIFEST, _remember, clear_previous_run
+    from thrustmap.demo import _remember, clear_previous_run, manifest_path
 
     paths = _fake_demo_output(tmp_path)
     _remember(tmp_path, paths)
-    assert (tmp_path / "sr" / MANIFEST).exists() and (tmp_path / "mr" / MANIFEST).exists()
+    assert manifest_path(tmp_path, "sr").exists() and manifest_path(tmp_path, "mr").exists()
+    # (kept out of the data folders: `thrustmap fit thrustmap-demo/sr/*` finds logs only)
+    assert not list(tmp_path.glob("*/thrustmap-demo.json"))
     assert clear_previous_run(tmp_path) == len(paths)
     assert not any(p.exists() for p in paths)
 
@@ -179,7 +181,7 @@ def test_the_demo_never_replaces_a_users_recording(tmp_path: Path) -> None:
     assert all(p.exists() for p in paths)  # refused before anything was removed
     for p in paths:  # no manifest at all: nothing is the demo's
         p.write_text("x\n")
-    for manifest in tmp_path.glob("*/thrustmap-demo.json"):
+    for manifest in tmp_path.glob(".thrustmap-demo/*/thrustmap-demo.json"):
         manifest.unlink()
     with pytest.raises(ConfigError):
         clear_previous_run(tmp_path)

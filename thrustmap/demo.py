@@ -42,8 +42,16 @@ log = logging.getLogger(__name__)
 MODELS = ("poly2", "poly2-trunc", "poly3", "poly3-trunc", "motor")
 STRATEGIES = {"SR": 1, "MR": 4}
 #: the demo's list of the recordings it wrote (path relative to the output folder -> sha256), one
-#: in each strategy's folder
+#: per strategy, kept out of the data folders (``MANIFEST_DIR``) so that ``thrustmap fit
+#: thrustmap-demo/sr/*`` finds stand logs and their sidecars only
 MANIFEST = "thrustmap-demo.json"
+MANIFEST_DIR = ".thrustmap-demo"
+
+
+def manifest_path(out_dir: Path, folder: str) -> Path:
+    """Where the manifest of one strategy's folder (``sr``, ``mr``) lives: beside the data
+    folders, never in them."""
+    return out_dir / MANIFEST_DIR / folder / MANIFEST
 
 
 def recording_paths(out_dir: Path) -> list[Path]:
@@ -72,8 +80,9 @@ def _owned(out_dir: Path) -> dict[str, str]:
     """Every recording the demo's manifests list (one manifest per strategy folder, so the
     strategies' workers never write the same file)."""
     owned: dict[str, str] = {}
-    for strategy in STRATEGIES:
+    for strategy in STRATEGIES:  # (the data folder held it before issue 44: still read)
         owned.update(_manifest_files(out_dir / strategy.lower() / MANIFEST))
+        owned.update(_manifest_files(manifest_path(out_dir, strategy.lower())))
     return owned
 
 
@@ -96,17 +105,22 @@ def clear_previous_run(out_dir: Path) -> int:
             )
     for p in present:
         p.unlink()
+    for strategy in STRATEGIES:  # a manifest in the data folder (before issue 44) moves out
+        old = out_dir / strategy.lower() / MANIFEST
+        if old.is_file() and _manifest_files(old):
+            old.unlink()
     return len(present)
 
 
 def _remember(out_dir: Path, written: list[Path]) -> None:
     """Add ``written`` (with their content hashes) to the manifest of the strategy folder each
-    lies in (``out_dir/sr/thrustmap-demo.json``)."""
+    lies in (``manifest_path``: ``out_dir/.thrustmap-demo/sr/thrustmap-demo.json``)."""
     by_folder: dict[str, list[Path]] = {}
     for p in written:
         by_folder.setdefault(p.relative_to(out_dir).parts[0], []).append(p)
     for folder, paths in by_folder.items():
-        manifest = out_dir / folder / MANIFEST
+        manifest = manifest_path(out_dir, folder)
+        manifest.parent.mkdir(parents=True, exist_ok=True)
         files = _manifest_files(manifest)
         for p in paths:
             if p.exists():

@@ -144,6 +144,8 @@ def cli(ctx: click.Context, verbose: int, debug: bool) -> None:
     """Calibrate multirotor thrust maps on a thrust stand and correct them from flight logs."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.getLogger().setLevel(level)
+    # a long computation's progress is shown at any verbosity (fitting.solve.interruptible)
+    logging.getLogger(PROGRESS_LOGGER).setLevel(min(level, logging.INFO))
     handler = _CliLogHandler.current
     if handler is not None:
         handler.verbose = verbose
@@ -181,6 +183,10 @@ class CliFormatter(logging.Formatter):
         return prefix + message
 
 
+#: the logger of a long computation's progress lines (``fitting.solve.progress_log``: the
+#: library logs, it does not print; named here so the CLI does not import numpy to show them)
+PROGRESS_LOGGER = "thrustmap.progress"
+
 #: commands that drive hardware or run for minutes: their warnings are shown as they happen
 LIVE_COMMANDS = frozenset({"sweep", "spin", "probe", "demo", "ports", "live"})
 
@@ -212,6 +218,9 @@ class _CliLogHandler(logging.Handler):
             line = " ".join(self.format(record).splitlines())
         except Exception:  # pragma: no cover - a broken record must not take the command down
             self.handleError(record)
+            return
+        if record.name == PROGRESS_LOGGER:  # progress now, on its own line, never held
+            self._write(line)
             return
         if record.levelno <= logging.WARNING:
             if line in self.shown or line in self.held:

@@ -611,11 +611,12 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         p = select(ds, sel)
         sc = ds.throttle_scale
         echo(
-            f"{ds.path}\n  format {ds.format}, {len(ds)} samples, throttle scale {sc.name} "
-            f"{sc.lo:g}..{sc.hi:g} {sc.unit_label}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
+            f"{ds.path}\n  format {ds.format}, {len(ds)} samples, throttle scale "
+            f"{sc.describe()}, rotors on ESC: {ds.rotors_on_esc or 'unknown'}"
         )
         echo(
-            f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g} {sc.unit_label}, "
+            f"  throttle {np.min(ds.throttle_native):g}..{np.max(ds.throttle_native):g}"
+            f"{'' if sc.unit_label == '1' else ' ' + sc.unit_label}, "
             f"thrust {np.min(ds.thrust_n):.3f}..{np.max(ds.thrust_n):.3f} N, "
             f"voltage {np.min(ds.voltage_v):.2f}..{np.max(ds.voltage_v):.2f} V"
         )

@@ -216,6 +216,7 @@ def extract_cmd(
     dash = None if dashboard is None else run.dashboard_address(dashboard)
     if max_log_mb <= 0:
         raise ConfigError(f"--max-log-mb must be positive, got {max_log_mb:g}")
+
     mem = _parse_size(memory_per_worker)
     if map_path is not None and not map_path.is_file():
         raise ConfigError("map file not found", file=str(map_path))

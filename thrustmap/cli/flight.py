@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from thrustmap.cli.textwidth import echo
-from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.core.errors import ConfigError
 
 if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
     from thrustmap.fitting.flightlogs.series import FlightLog, Signal
@@ -208,6 +208,7 @@ def extract_cmd(
     With --map, a mass whose hover thrust the map puts outside its reach (0..100 % throttle)
     is refused (exit 2) unless --force."""
     from thrustmap.core.files import check_output_path
+    from thrustmap.core.identity import Identity, file_sha256, refuse_repeats
     from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
     from thrustmap.fitting.flightlogs.detect import read_log
 
@@ -238,6 +239,8 @@ def extract_cmd(
         tmap = ThrustMap.load(map_path)
     from thrustmap.fitting.df.extraction import NoUsableLog, refusal_lines
 
+    hashes = [(p, file_sha256(p)) for p in logs if p.is_file()]
+    refuse_repeats((Identity(str(p), h) for p, h in hashes), "flight log")
     flights: list[FlightLog] = []
     for path in logs:
         flights.extend(read_log(path, format=fmt))
@@ -249,7 +252,9 @@ def extract_cmd(
         raise
     if tmap is not None:
         _check_hover(df.sources, tmap, force)
-    df.sources["logs"] = [{"path": str(p), "sha256": _sha256(p)} for p in logs if p.is_file()]
+    df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
+    if isinstance(df.sources.get("map"), dict):
+        df.sources["map"]["path"] = str(map_path)
     side = write_df(df, output)
     refused = df.sources.get("refused", [])
     for line in refusal_lines(refused):  # the logs of a flash dump that could not be used
@@ -307,31 +312,9 @@ def _check_hover(side: dict[str, Any], tmap: Any, force: bool) -> None:
         side["forced"] = forced
 
 
-def _sha256(path: Path) -> str:
-    """The file's SHA-256 (as mapfile.file_sha256, without importing the map module)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _summary(r: Any) -> str:
     parts = [f"{s.name} −{s.dropped_s:.1f} s ({s.reason})" for s in r.steps if s.dropped_s > 0]
     return f"{r.flight}: kept {r.kept_s:.1f} of {r.duration_s:.1f} s" + (
-        ": " + ", ".join(parts) if parts else ""
-    )
-
-
-def _summary_dict(r: dict[str, Any]) -> str:
-    """One flight's filter accounting, from a Df sidecar's report."""
-    steps = [s for s in r.get("steps", []) if isinstance(s, dict) and s.get("dropped_s", 0) > 0]
-    parts = [
-        f"{s.get('name')} −{float(s.get('dropped_s', 0)):.1f} s ({s.get('reason')})" for s in steps
-    ]
-    return f"{r.get('flight')}: kept {float(r.get('kept_s', 0)):.1f} s" + (
         ": " + ", ".join(parts) if parts else ""
     )
 
@@ -381,36 +364,20 @@ def gamma_fit_cmd(
 
     A γ outside 0.5..2 anywhere over the flown voltages, or a Df too short for a γ fit, is
     refused (exit 2) unless --force, which says so and records it in the map."""
-    import pandas as pd
-
     from thrustmap.core.files import atomic_write_text, check_output_path
-    from thrustmap.fitting.df import read_df, sidecar_path
+    from thrustmap.fitting.df import sidecar_path
+    from thrustmap.fitting.df.pool import pool_dfs
     from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
-    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256, gamma_text
 
     if rotors is not None and not 1 <= rotors <= 64:
         raise ConfigError(f"--rotors {rotors}: expected 1..64 rotors")
     inputs = [*dfs, *(sidecar_path(p) for p in dfs), map_path]
     plan = check_output_path(output, inputs=inputs, what="map output")
     tmap = ThrustMap.load(map_path)
-    tables: list[pd.DataFrame] = []
-    side: dict[str, Any] = {}
-    for p in dfs:
-        table, s = read_df(p)
-        if not len(table):
-            raise DataFormatError(
-                f"no samples in {p.name}: "
-                + (
-                    "; ".join(_summary_dict(r) for r in s.get("reports", []))
-                    or "the Df is empty (no steady flight in its log)"
-                ),
-                file=str(p),
-            )
-        tables.append(table)
-        for k in ("columns", "flights"):
-            side.setdefault(k, {}).update(s.get(k, {}))
+    table, side = pool_dfs(dfs, tmap, str(map_path))  # repeats and another map refused
     fit = fit_gamma(
-        pd.concat(tables, ignore_index=True),
+        table,
         side,
         tmap,
         loss="l1" if loss == "l1" else "l2",
@@ -426,7 +393,7 @@ def gamma_fit_cmd(
         click.echo(json.dumps(fit.to_dict(), indent=2, default=float))
         return
     c = fit.correction
-    terms = " + ".join(f"{v:.6g}·B^{k}" if k else f"{v:.6g}" for k, v in enumerate(c.coefficients))
+    terms = gamma_text(c.coefficients)
     echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
     flown = (
         "unknown (no battery voltage in the Df)"

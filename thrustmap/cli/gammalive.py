@@ -100,6 +100,8 @@ def panel_lines(
     url: str, tel: Telemetry, st: LiveState, t_s: float, refused: dict[str, str]
 ) -> list[str]:
     """The live panel: every line at most 80 columns."""
+    from thrustmap.fitting.mapfile import gamma_text
+
     v = tel.vehicle
     who = "no vehicle yet"
     if v is not None:
@@ -123,9 +125,7 @@ def panel_lines(
     fit = st.gamma_fit
     if fit is not None:
         c = fit.correction
-        terms = " + ".join(
-            f"{x:.4g}·B^{k}" if k else f"{x:.4g}" for k, x in enumerate(c.coefficients)
-        )
+        terms = gamma_text(c.coefficients, 4)
         err = fit.heldout.get(fit.degree)
         lines.append(f"  γ(B) = {terms}")
         lines.append(
@@ -420,6 +420,7 @@ def _finish(
     from thrustmap.fitting.df import read_df, write_df
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import file_sha256
+    from thrustmap.fitting.mapfile import gamma_text as formula
 
     wrote: list[str] = []
     if record is not None and record.exists():
@@ -443,9 +444,7 @@ def _finish(
             gamma_text = f"γ not determined ({exc}): no corrected map written"
     if fit is not None and fit.corrected:
         c = fit.correction
-        terms = " + ".join(
-            f"{x:.6g}·B^{k}" if k else f"{x:.6g}" for k, x in enumerate(c.coefficients)
-        )
+        terms = formula(c.coefficients, 6)
         gamma_text = f"γ(B) = {terms} (degree {fit.degree}, {fit.samples} samples)"
         if output is not None:
             from thrustmap.core.files import atomic_write_text

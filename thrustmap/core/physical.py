@@ -220,3 +220,98 @@ def pack_assumed(lo_v: float, hi_v: float) -> str | None:
         f"the map's voltages {lo_v:.2f}..{hi_v:.2f} V are one lithium cell: read as a 1S pack "
         "(or the per-cell voltage of a larger pack); --voltage-v is per cell here"
     )
+
+
+# -- a thrust or voltage column whose unit the file does not name -------------------------------
+
+#: Thrust per electrical watt a multirotor propeller makes at load (the rows above a fifth of
+#: the top power), per rotor: 5-inch racers 2-6 gf/W, hover-optimised props up to ~20. A thrust
+#: whose unit the header does not name is judged against this: kgf read as newtons gives a
+#: tenth of it, grams read as newtons a hundred times it.
+TYPICAL_THRUST_PER_WATT_GF = (1.0, 30.0)
+#: Thrust units (to N) a unitless column may be in, in the order they are suggested.
+THRUST_UNIT_N = {"N": 1.0, "kgf": G0, "gf": G0 / 1000.0, "lbf": 4.4482216152605}
+#: Without a current column: the thrust per volt of battery a motor on a pack of 3S or more
+#: makes at full throttle (scaled from the top of the log by the square of the throttle) is at
+#: least this (2-inch props on 3S ~0.2 N/V, 5-inch ~0.7, 6S 5-inch ~0.5); kgf read as newtons
+#: gives a tenth of that (a 5-inch on 3S-6S: 0.05..0.09). A column truly in newtons this weak
+#: (a 1.6-inch prop on 3S) names its unit in the header ("Thrust (N)") and is not judged.
+MIN_FULL_THRUST_PER_VOLT_N = 0.12
+#: ... judged from this pack voltage up (below it, micro motors on 1-2S overlap kgf-as-N) and
+#: when the log reaches at least this share of the throttle scale.
+JUDGED_FROM_V = 10.0
+JUDGED_FROM_PCT = 50.0
+#: A voltage column reading one lithium cell (CELL_V) beside a current column: a 1S motor at
+#: load makes at most this thrust per watt; a per-cell column of an nS pack makes n times the
+#: true figure (a 6S 5-inch reads ~20).
+MAX_ONE_CELL_THRUST_PER_WATT_GF = 12.0
+#: ... and without a current column, at most this thrust per rotor (1S micro motors ~0.2..2 N).
+MAX_ONE_CELL_THRUST_N = 5.0
+
+
+def thrust_unit_by_power(gf_per_w: float, given: str) -> str | None:
+    """The unit a thrust column is in, judged by its thrust per electrical watt (``gf_per_w``,
+    computed with the ``given`` unit): None when the given unit gives a typical figure (or no
+    unit does), else the unit that does."""
+    lo, hi = TYPICAL_THRUST_PER_WATT_GF
+    if lo <= gf_per_w <= hi:
+        return None
+    given_n = THRUST_UNIT_N.get(given, THRUST_UNIT_N.get(given.upper(), 1.0))
+    for unit, to_n in THRUST_UNIT_N.items():
+        if lo <= gf_per_w * to_n / given_n <= hi:
+            return unit
+    return None
+
+
+def thrust_too_small_for_pack(
+    top_thrust_n: float, voltage_v: float, top_pct: float, given: str
+) -> str | None:
+    """Why a thrust column (no current beside it, unit not in its header) is too small for the
+    pack and the throttle it reached, naming the likely unit; None when it is not judged or
+    fits. ``top_thrust_n``: per rotor, with the ``given`` unit, at ``top_pct`` of throttle."""
+    if voltage_v < JUDGED_FROM_V or top_pct < JUDGED_FROM_PCT or top_thrust_n <= 0:
+        return None
+    full_per_v = top_thrust_n / voltage_v / (top_pct / 100.0) ** 2
+    if full_per_v >= MIN_FULL_THRUST_PER_VOLT_N:
+        return None
+    given_n = THRUST_UNIT_N.get(given, 1.0)
+    likely = next(
+        (u for u, n in THRUST_UNIT_N.items() if full_per_v * n / given_n >= 0.2 and n > given_n),
+        "kgf",
+    )
+    return (
+        f"thrust reaches only {top_thrust_n:.3g} N at {top_pct:.0f} % throttle on a "
+        f"{voltage_v:.1f} V pack: {full_per_v:.3f} N per volt at full throttle, where a motor on "
+        f"3S or more makes {MIN_FULL_THRUST_PER_VOLT_N:g} N/V or more; is the column in "
+        f"{likely} (--thrust-unit {likely})? (a column truly in N: name it 'Thrust (N)')"
+    )
+
+
+def one_cell_voltage(
+    voltage_v: float, gf_per_w: float | None, top_thrust_n: float
+) -> tuple[bool, str]:
+    """A voltage column reading one lithium cell: (refused, why). Beside a current column its
+    thrust per watt tells a 1S motor from one cell of a bigger pack; without one, a thrust no
+    1S motor makes is refused, and otherwise the pack is taken as 1S, said."""
+    lo, hi = CELL_V
+    if not lo <= voltage_v <= hi:
+        return False, ""
+    fix = "give the pack voltage (the per-cell column × the cell count)"
+    if gf_per_w is not None and gf_per_w > MAX_ONE_CELL_THRUST_PER_WATT_GF:
+        return True, (
+            f"voltage reads {voltage_v:.2f} V, one lithium cell, and the thrust per electrical "
+            f"watt with it is {gf_per_w:.3g} gf/W at load, more than a 1S motor makes "
+            f"({MAX_ONE_CELL_THRUST_PER_WATT_GF:g}): the voltage is per cell of a bigger pack "
+            f"(×{gf_per_w / 4.0:.0f} would give 4 gf/W); {fix}"
+        )
+    if gf_per_w is None and top_thrust_n > MAX_ONE_CELL_THRUST_N:
+        return True, (
+            f"voltage reads {voltage_v:.2f} V, one lithium cell, but thrust reaches "
+            f"{top_thrust_n:.3g} N per rotor, more than a 1S motor makes "
+            f"({MAX_ONE_CELL_THRUST_N:g} N): the voltage is per cell of a bigger pack; {fix}"
+        )
+    return False, (
+        f"voltage reads {voltage_v:.2f} V (median), one lithium cell: the pack is taken as 1S "
+        "(a per-cell column of a bigger pack would give a map for the wrong voltage: give the "
+        "pack voltage)"
+    )

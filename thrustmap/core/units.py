@@ -43,6 +43,13 @@ class ThrottleScale:
         """The unit as a person reads it ("µs"); ``unit`` stays the ASCII name in files."""
         return unit_label(self.unit)
 
+    def describe(self) -> str:
+        """The scale as a person reads it: ``pwm 1000..2000 µs``, ``norm 0..1 (normalised)``
+        (a dimensionless scale is not followed by a bare "1")."""
+        unit = self.unit_label
+        tail = " (normalised)" if unit in ("1", "") else f" {unit}"
+        return f"{self.name} {self.lo:g}..{self.hi:g}{tail}"
+
     def to_pct(self, native: npt.ArrayLike) -> FloatArray:
         import numpy as np
 

@@ -353,8 +353,10 @@ class Interval:
         )
 
 
+#: fit(t, b, th, file of each point) -> predictor(t, b)
 Fitter = Callable[
-    [FloatArray, FloatArray, FloatArray], Callable[[FloatArray, FloatArray], FloatArray]
+    [FloatArray, FloatArray, FloatArray, npt.NDArray[np.int64]],
+    Callable[[FloatArray, FloatArray], FloatArray],
 ]
 
 
@@ -371,7 +373,7 @@ def learn_interval(
     systematic: Sequence[tuple[float, str]] = (),
     voltage_pct_per_log: float = VOLTAGE_EXTRAPOLATION_PCT,
 ) -> Interval | None:
-    """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor;
+    """Learn the interval from held-out residuals. ``fit(t, b, th, files)`` returns a predictor;
     ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term);
     ``file_fit(f)``, when given, is the predictor fitted without file f (by-file folds of a
     map identified from more than the points, e.g. the stand's rpm and current). None when the
@@ -412,7 +414,7 @@ def learn_interval(
             if file_fit is not None and held is not None:
                 predict = file_fit(held)
             else:
-                predict = fit(t[train], b[train], th[train])
+                predict = fit(t[train], b[train], th[train], fi[train])
         except (ThrustmapError, np.linalg.LinAlgError, ValueError):
             continue  # a fold the model cannot be fitted on contributes nothing
         resid.append(np.abs(predict(t[test], b[test]) - th[test]))

@@ -13,6 +13,7 @@ import hashlib
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -70,6 +71,18 @@ class ValidityBox:
             "voltage_v": self.voltage_v.to_list(),
             "throttle_pct": self.throttle_pct.to_list(),
         }
+
+
+def gamma_text(coefficients: Sequence[float], digits: int = 6) -> str:
+    """γ(B) as a person writes it: ``1.3374 − 0.0277582·B`` (never ``+ -``)."""
+    text = ""
+    for k, c in enumerate(coefficients):
+        term = f"{abs(c):.{digits}g}" + ("" if k == 0 else "·B" if k == 1 else f"·B^{k}")
+        if k == 0:
+            text = f"{c:.{digits}g}"
+        else:
+            text += f" {'−' if c < 0 else '+'} {term}"
+    return text
 
 
 @dataclass(frozen=True)
@@ -250,6 +263,19 @@ class ThrustMap:
 
     def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
         return replace(self, correction=correction)
+
+    @property
+    def bench_sha256(self) -> str:
+        """sha256 of what evaluates the bench map (model, coefficients, throttle scale, rotors
+        on the ESC): the same for the map with or without a γ correction block, so a Df
+        extracted with a map still matches that map once γ is attached."""
+        bench = {
+            "model": self.model,
+            "coefficients": [float(c) for c in self.coefficients],
+            "throttle_scale": self.throttle_scale.to_dict(),
+            "rotors_on_esc": self.rotors_on_esc,
+        }
+        return hashlib.sha256(json.dumps(bench, sort_keys=True).encode()).hexdigest()
 
     # -- file ---------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from thrustmap.fitting.names import MODEL_NAMES, Loss
 from thrustmap.fitting.solve import solve
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 Features = Callable[[FloatArray, FloatArray], FloatArray]
 
 
@@ -103,8 +104,10 @@ class Model:
     def upper(self) -> FloatArray | None:
         return np.array(self.upper_bounds, float) if self.upper_bounds else None
 
-    def fit_weights(self, throttle_pct: FloatArray) -> FloatArray | None:
-        """Each point's weight in the fit (None: all equal)."""
+    def fit_weights(
+        self, throttle_pct: FloatArray, groups: IntArray | None = None
+    ) -> FloatArray | None:
+        """Each point's weight in the fit (None: all equal); ``groups``: each point's file."""
         return None
 
     def fit(
@@ -113,9 +116,15 @@ class Model:
         return self.identify(thrust_n, voltage_v, throttle_pct, loss)[0]
 
     def identify(
-        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+        self,
+        thrust_n: FloatArray,
+        voltage_v: FloatArray,
+        throttle_pct: FloatArray,
+        loss: Loss,
+        groups: IntArray | None = None,
     ) -> tuple[FloatArray, Identification | None]:
-        """Coefficients, and how the data identified them (None: every coefficient fitted)."""
+        """Coefficients, and how the data identified them (None: every coefficient fitted);
+        ``groups``: each point's file, for a model that weighs its points by file."""
         design, to_raw = self.conditioned(thrust_n, voltage_v)
         return to_raw(solve(design, throttle_pct, loss=loss, lower=self.lower())), None
 
@@ -263,7 +272,30 @@ MAX_CELL_SHARE = 0.1
 COMMAND_RESOLUTION_PCT = 1e-3
 
 
-def command_weights(throttle_pct: FloatArray) -> FloatArray:
+#: a file whose points stand at one command counts for this span (% throttle) when files are
+#: weighed by the range each covers
+MIN_FILE_SPAN_PCT = 1.0
+
+
+def command_weights(throttle_pct: FloatArray, groups: IntArray | None = None) -> FloatArray:
+    """Each point's share of the command range it stands for (mean 1; see
+    ``range_weights``). With ``groups`` (each point's file), every file covers its own range:
+    its points share its span, and a file counts for the span it covers, so a slow ramp's
+    thousand samples in one file cannot shrink a staircase's plateaus in another to one
+    sample's worth each (issue 44: "44 plateaus carry 0 %"; held out by file the map is as
+    good or better, see benchmarks/bench_weighting.py)."""
+    th = np.asarray(throttle_pct, float)
+    if groups is None or len(groups) != len(th) or len(np.unique(groups)) < 2:
+        return range_weights(th)
+    w = np.zeros(len(th))
+    for g in np.unique(groups):
+        sel = groups == g
+        span = max(float(np.ptp(th[sel])), MIN_FILE_SPAN_PCT)
+        w[sel] = range_weights(th[sel]) * span / int(sel.sum())
+    return np.asarray(w / float(np.mean(w)), dtype=float)
+
+
+def range_weights(throttle_pct: FloatArray) -> FloatArray:
     """Each point's share of the command range it stands for (mean 1), so that the fit meets
     the map over the range a user commands rather than where the sweep lingered: a slow ramp
     leaves a hundred samples over a few percent of throttle, a staircase one plateau per step,
@@ -322,6 +354,7 @@ class MotorModel(FeatureModel):
         full: bool,
         *,
         free_offset: bool = False,
+        groups: IntArray | None = None,
     ) -> FloatArray:
         """The bounded fit in the raw basis (the solver scales columns itself): k0 fitted
         (``full``) or held at 0; ``free_offset`` frees the offset c of its band."""
@@ -339,18 +372,22 @@ class MotorModel(FeatureModel):
             loss=loss,
             lower=lower[keep],
             upper=upper[keep],
-            weights=self.fit_weights(th),
+            weights=self.fit_weights(th, groups),
         )
         return coef
 
-    def _free_fit(self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss) -> FloatArray:
+    def _free_fit(
+        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, groups: IntArray | None
+    ) -> FloatArray:
         """What the data alone say: c and k0 unconstrained (k1, k2 ≥ 0), for the report."""
         design = self.design(t, b)
         lower = np.array([-np.inf, -np.inf, 0.0, 0.0])
-        return solve(design, th, loss=loss, lower=lower, weights=self.fit_weights(th))
+        return solve(design, th, loss=loss, lower=lower, weights=self.fit_weights(th, groups))
 
-    def fit_weights(self, throttle_pct: FloatArray) -> FloatArray | None:
-        return command_weights(throttle_pct)
+    def fit_weights(
+        self, throttle_pct: FloatArray, groups: IntArray | None = None
+    ) -> FloatArray | None:
+        return command_weights(throttle_pct, groups)
 
     def _physics_reason(self, b: FloatArray) -> tuple[str, str] | None:
         """What the data lacks to identify k0 and the one-line reason (None: k0 is fitted)."""
@@ -389,11 +426,17 @@ class MotorModel(FeatureModel):
         return ""
 
     def released_fit(
-        self, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, coef: FloatArray
+        self,
+        t: FloatArray,
+        b: FloatArray,
+        th: FloatArray,
+        loss: Loss,
+        coef: FloatArray,
+        groups: IntArray | None = None,
     ) -> FloatArray:
         """``coef``'s form refitted with the offset c free of its band (k0 stays 0 if it was):
         what the data would say without the bound, for the interval's bound term."""
-        return self._fit_form(t, b, th, loss, coef[1] != 0.0, free_offset=True)
+        return self._fit_form(t, b, th, loss, coef[1] != 0.0, free_offset=True, groups=groups)
 
     def physics_fit(
         self,
@@ -404,9 +447,10 @@ class MotorModel(FeatureModel):
         reason: str,
         limit: str,
         evidence: dict[str, float] | None = None,
+        groups: IntArray | None = None,
     ) -> tuple[FloatArray, Identification]:
         """The physics prior: k0 = 0 (1/B scaling), c, k1, k2 fitted within their bounds."""
-        coef = self._fit_form(t, b, th, loss, False)
+        coef = self._fit_form(t, b, th, loss, False, groups=groups)
         span = float(np.ptp(b)) if len(b) else 0.0
         return coef, Identification(
             "k0 fixed (physics)",
@@ -422,19 +466,24 @@ class MotorModel(FeatureModel):
         return [0, 2, 3] if self._physics_reason(voltage_v) is not None else [0, 1, 2, 3]
 
     def identify(
-        self, thrust_n: FloatArray, voltage_v: FloatArray, throttle_pct: FloatArray, loss: Loss
+        self,
+        thrust_n: FloatArray,
+        voltage_v: FloatArray,
+        throttle_pct: FloatArray,
+        loss: Loss,
+        groups: IntArray | None = None,
     ) -> tuple[FloatArray, Identification | None]:
-        t, b, th = thrust_n, voltage_v, throttle_pct
+        t, b, th, g = thrust_n, voltage_v, throttle_pct, groups
         span = float(np.ptp(b)) if len(b) else 0.0
         lacking = self._physics_reason(b)
         if lacking is not None:
             limit, reason = lacking
             evidence = {"points": float(len(b)), "relative_voltage_span": span / float(np.mean(b))}
-            return self.physics_fit(t, b, th, loss, reason, limit, evidence)
+            return self.physics_fit(t, b, th, loss, reason, limit, evidence, g)
         mean_b = float(np.mean(b))
-        free = self._free_fit(t, b, th, loss)
+        free = self._free_fit(t, b, th, loss, g)
         unphysical = _unphysical(free, t)
-        coef = self._fit_form(t, b, th, loss, True)
+        coef = self._fit_form(t, b, th, loss, True, groups=g)
         on_bound = self.on_bound(coef, skip=(1, 2, 3))  # c trades off with k0/B
         if on_bound:
             why = f"fitting k0 freely gave {unphysical}; " if unphysical else ""
@@ -451,6 +500,7 @@ class MotorModel(FeatureModel):
                 reason,
                 "physical sense" if unphysical else "bound",
                 {"bounded_c_pct": float(coef[0]), "bounded_k0": float(coef[1])},
+                g,
             )
         if unphysical:
             k0_zero = coef[1] <= 0.0

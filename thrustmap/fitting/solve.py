@@ -6,6 +6,12 @@ is the seed paper's eq. (8) solved exactly as a linear program (HiGHS), not appr
 
 from __future__ import annotations
 
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
 import numpy as np
 import numpy.typing as npt
 
@@ -13,6 +19,68 @@ from thrustmap.core.errors import FitError
 from thrustmap.fitting.names import LOSSES, Loss
 
 FloatArray = npt.NDArray[np.float64]
+T = TypeVar("T")
+
+#: progress of a long computation: the CLI shows these records at once, on stderr
+progress_log = logging.getLogger("thrustmap.progress")  # (cli.PROGRESS_LOGGER)
+#: a computation still running after this long says so, and again every as long
+PROGRESS_EVERY_S = 5.0
+#: how often the waiting thread wakes: Ctrl-C is acted on within this
+WAKE_S = 0.1
+#: LPs this large count towards the progress lines (a γ fit's few hundred samples, refitted
+#: again and again by `gamma live`, never print one)
+PROGRESS_MIN_POINTS = 2000
+
+
+class _Heartbeat:
+    """The time spent in long computations in this process, and when that was last said: a
+    command of many solves (a fit, then each fold of its interval) says where it is every
+    ``PROGRESS_EVERY_S`` of solving, however short each solve is."""
+
+    def __init__(self) -> None:
+        self.solving_s = 0.0
+        self.unsaid_s = 0.0
+
+    def tick(self, dt_s: float, what: str) -> None:
+        self.solving_s += dt_s
+        self.unsaid_s += dt_s
+        if self.unsaid_s >= PROGRESS_EVERY_S:
+            self.unsaid_s = 0.0
+            progress_log.info(
+                "%s; %.0f s of solving so far (Ctrl-C stops it)", what, self.solving_s
+            )
+
+
+_heartbeat = _Heartbeat()
+
+
+def interruptible(work: Callable[[], T], what: str) -> T:
+    """``work()`` on a worker thread while this thread waits, waking every ``WAKE_S``: a Ctrl-C
+    stops the command within a fraction of a second (HiGHS releases the GIL but never checks
+    for signals: run in place, an LP of a few thousand points took half a minute to react),
+    and solving that runs past ``PROGRESS_EVERY_S`` says what it is doing, every as long
+    (``_Heartbeat``; ``what`` empty: never said). The worker is a daemon: an interrupted
+    computation ends with the process."""
+    box: dict[str, object] = {}
+
+    def run() -> None:
+        try:
+            box["value"] = work()
+        except BaseException as exc:  # handed to the waiting thread, raised there
+            box["error"] = exc
+
+    worker = threading.Thread(target=run, name="thrustmap-solve", daemon=True)
+    last = time.monotonic()
+    worker.start()
+    while worker.is_alive():
+        worker.join(WAKE_S)
+        now = time.monotonic()
+        if what:
+            _heartbeat.tick(now - last, what)
+        last = now
+    if "error" in box:
+        raise box["error"]  # type: ignore[misc]
+    return box["value"]  # type: ignore[return-value]
 
 
 def solve(
@@ -76,7 +144,10 @@ def _lad(
         (None if not np.isfinite(b) else float(b), None if not np.isfinite(u) else float(u))
         for b, u in zip(lo, hi, strict=True)
     ] + [(0.0, None)] * (2 * n)
-    res = opt.linprog(cost, A_eq=a_eq, b_eq=y, bounds=bounds, method="highs")
+    res = interruptible(
+        lambda: opt.linprog(cost, A_eq=a_eq, b_eq=y, bounds=bounds, method="highs"),
+        f"solving the exact L1 fit (an LP) over {n} points" if n >= PROGRESS_MIN_POINTS else "",
+    )
     if res.status != 0:
         raise FitError(f"least-absolute-deviations LP did not solve: {res.message}")
     return np.asarray(res.x[:k], dtype=float)

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from thrustmap.core.errors import DataFormatError, ThrustmapError
+from thrustmap.core.errors import ThrustmapError
+from thrustmap.core.identity import Identity, describe_repeat
 from thrustmap.fleet.task import Outcome, one_line
 
 if TYPE_CHECKING:
@@ -89,12 +90,18 @@ def group_logs(outcomes: list[Outcome], out_dir: Path) -> list[Group]:
     for key in sorted(by_key):
         members = sorted(by_key[key], key=lambda o: o.path)
         dfs: list[Path] = []
-        seen: set[str] = set()
+        seen: dict[str, Outcome] = {}
         samples = 0
         for o in members:
-            if o.df_path in seen:  # the same content under two names is one flight, once
+            first = seen.get(o.df_path)
+            if first is not None:  # the same content under two names is one flight, once
+                log.warning(
+                    "%s", describe_repeat(Identity(first.path, first.sha256),
+                                          Identity(o.path, o.sha256), "flight log")
+                    + ": counted once",
+                )  # fmt: skip
                 continue
-            seen.add(o.df_path)
+            seen[o.df_path] = o
             dfs.append(out_dir / o.df_path)
             samples += o.samples
         lo = [o.voltage_min_v for o in members if math.isfinite(o.voltage_min_v)]
@@ -112,23 +119,14 @@ def group_logs(outcomes: list[Outcome], out_dir: Path) -> list[Group]:
     return groups
 
 
-def read_pooled(df_paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """The Df files pooled as ``gamma fit DF...`` pools them: read each, concatenate in order,
-    merge the sidecars' columns and flights."""
-    import pandas as pd
+def read_pooled(
+    df_paths: list[Path], tmap: ThrustMap | None = None
+) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The Df files pooled as ``gamma fit DF...`` pools them (``fitting.df.pool``): repeats
+    and a Df of another map refused, the tables concatenated in order."""
+    from thrustmap.fitting.df.pool import pool_dfs
 
-    from thrustmap.fitting.df import read_df
-
-    tables = []
-    side: dict[str, Any] = {}
-    for p in df_paths:
-        table, s = read_df(p)
-        if not len(table):
-            raise DataFormatError("no samples in the Df", file=str(p))
-        tables.append(table)
-        for k in ("columns", "flights"):
-            side.setdefault(k, {}).update(s.get(k, {}))
-    return pd.concat(tables, ignore_index=True), side
+    return pool_dfs(df_paths, tmap, "the fleet's map")
 
 
 def fit_pooled(
@@ -139,7 +137,7 @@ def fit_pooled(
 
     from thrustmap.fitting.gamma import fit_gamma, thrust_command_n
 
-    table, side = read_pooled(df_paths)
+    table, side = read_pooled(df_paths, tmap)
     fit = fit_gamma(table, side, tmap, loss="l1" if loss == "l1" else "l2", degree=None)
     volt = table["voltage_v"].to_numpy(float)
     known = np.isfinite(volt) & (volt > 0)

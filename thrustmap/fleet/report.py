@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from thrustmap.core.files import atomic_write_text
+from thrustmap.fitting.mapfile import gamma_text
 from thrustmap.fleet.groups import Group
 from thrustmap.fleet.task import Outcome
 from thrustmap.report.html import CSS
@@ -36,15 +37,8 @@ def _td(text: Any, left: bool = False, value: float | None = None) -> str:
 
 
 def gamma_formula(coefficients: Sequence[float]) -> str:
-    """γ(B) as text: ``1.6091 − 0.020368·B``."""
-    text = ""
-    for k, c in enumerate(coefficients):
-        term = f"{abs(c):.6g}" + ("" if k == 0 else "·B" if k == 1 else f"·B^{k}")
-        if k == 0:
-            text = f"{c:.6g}"
-        else:
-            text += f" {'−' if c < 0 else '+'} {term}"
-    return text
+    """γ(B) as text: ``1.6091 − 0.020368·B`` (``mapfile.gamma_text``)."""
+    return gamma_text(coefficients)
 
 
 def _svg(g: Group, width: int = 420, height: int = 220) -> str:

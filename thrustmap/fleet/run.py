@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from thrustmap.core.errors import ConfigError, DataFormatError
-from thrustmap.fleet.discover import discover
+from thrustmap.fleet.discover import LOG_SUFFIXES, discover
 from thrustmap.fleet.table import TABLE_NAME, read_table, write_table
 from thrustmap.fleet.task import LogTask, Outcome, file_sha256, one_line, process_log
 
@@ -348,8 +348,21 @@ def fleet_extract(
     interrupted (KeyboardInterrupt is re-raised after the table of what finished is written).
     """
     out_dir = config.out_dir
-    (out_dir / "df").mkdir(parents=True, exist_ok=True)
+    sources = list(sources)
     paths = discover(sources, exclude=out_dir)
+    if not paths:  # refused before anything is written: never an empty table
+        raise ConfigError(
+            "no flight log found in "
+            + ", ".join(os.fspath(s) for s in sources)
+            + f" (a folder is searched for {', '.join(sorted(LOG_SUFFIXES))}); nothing written"
+        )
+    if config.df_options.get("mass_kg") is None and not config.masses:  # not once per log
+        raise ConfigError(
+            "give the vehicles' take-off mass: --mass-kg KG (every vehicle) or --masses CSV "
+            f"(pattern,mass_kg per log); F_m = m·a_up needs it: none of the {len(paths)} logs "
+            "was read"
+        )
+    (out_dir / "df").mkdir(parents=True, exist_ok=True)
     table_path = out_dir / TABLE_NAME
     previous: dict[str, Outcome] = {}
     if table_path.exists():

@@ -94,6 +94,8 @@ class ReportData:
     tool_version: str = __version__
     #: the map's values every export writes (``fitting.mapvalues``), None: not computed
     map_values: MapValues | None = None
+    #: the stand logs given that are not the map's sources (by sha256): scored, not fitted on
+    foreign: list[str] = field(default_factory=list)
 
     @property
     def map_label(self) -> str:
@@ -340,16 +342,9 @@ def build(
     paths = list(data_paths) if data_paths else resolve_sources(tmap, map_path)
     datasets = load_datasets(paths)
     notes: list[str] = []
-    recorded = {Path(str(s.get("path", ""))).name: s.get("sha256") for s in tmap.sources}
-    for ds in datasets:
-        want = recorded.get(ds.name)
-        if want and ds.sha256 and want != ds.sha256:
-            notes.append(
-                f"{ds.name}: sha256 differs from the one the map recorded (the file changed "
-                "since the fit)"
-            )
-    sidecars = [_sidecar(p) for p in paths]
     sel = selection_of(tmap)
+    foreign = not_its_sources(tmap, datasets, notes)
+    sidecars = [_sidecar(p) for p in paths]
     data = pool(datasets, sel)
     pred = tmap.throttle_pct(data.thrust_n, data.voltage_v, corrected=False)
     residual = np.asarray(pred - data.throttle_pct, dtype=float)
@@ -373,16 +368,7 @@ def build(
     suggestion = where_to_test(tmap, gt, gb, gth, pi)
     validation: dict[str, list[Row]] = {}
     if with_validation:
-        for mode in ("in-sample", "by-file", "kfold"):
-            if mode == "by-file" and len(datasets) < 2:
-                notes.append("by-file validation needs two or more files: column left out")
-                continue
-            try:
-                # compare() is pool() + validate() per model: the pool is selected once here.
-                loss: Loss = "l1" if tmap.loss == "l1" else "l2"  # the map's loss, as fitted
-                validation[mode] = [validate(data, m, mode, loss) for m in TABLE_MODELS]
-            except ThrustmapError as exc:
-                notes.append(f"{mode} validation not computed: {exc}")
+        validation = _validations(tmap, datasets, foreign, sel, notes)
     return ReportData(
         map_path=map_path,
         tmap=tmap,
@@ -403,7 +389,88 @@ def build(
         exports=_exports(tmap, _betaflight_firmware(sidecars)) if with_exports else [],
         map_values=map_values(tmap) if with_exports else None,
         notes=notes,
+        foreign=foreign,
     )
+
+
+def _validations(
+    tmap: ThrustMap, datasets: list[Dataset], foreign: list[str], sel: Selection,
+    notes: list[str],
+) -> dict[str, list[Row]]:  # fmt: skip
+    """Every model's validation (in-sample, by-file, k-fold) on the map's own sources, and the
+    map's error on each stand log that is not one of them."""
+    validation = _foreign_rows(tmap, datasets, foreign, sel, notes) if foreign else {}
+    own = [ds for ds in datasets if ds.path not in foreign]
+    if not own:
+        notes.append(
+            "no data given are the map's sources: the validation of its fit (in-sample, "
+            "by-file, k-fold) needs them, and was left out"
+        )
+        return validation
+    data = pool(own, sel)
+    loss: Loss = "l1" if tmap.loss == "l1" else "l2"  # the map's loss, as fitted
+    for mode in ("in-sample", "by-file", "kfold"):
+        if mode == "by-file" and len(own) < 2:
+            notes.append("by-file validation needs two or more files: column left out")
+            continue
+        try:
+            # compare() is pool() + validate() per model: the pool is selected once here.
+            validation[mode] = [validate(data, m, mode, loss) for m in TABLE_MODELS]
+        except ThrustmapError as exc:
+            notes.append(f"{mode} validation not computed: {exc}")
+    return validation
+
+
+def not_its_sources(tmap: ThrustMap, datasets: list[Dataset], notes: list[str]) -> list[str]:
+    """The paths of the stand logs that are not the map's sources: their sha256 is not among
+    those the map records (a source whose file changed since the fit is said as such)."""
+    shas = {str(s.get("sha256")) for s in tmap.sources if s.get("sha256")}
+    by_name = {Path(str(s.get("path", ""))).name: s.get("sha256") for s in tmap.sources}
+    if not shas:
+        notes.append(
+            "the map records no sha256 of its sources: whether these data are the ones it "
+            "was fitted on cannot be checked"
+        )
+        return []
+    foreign = []
+    for ds in datasets:
+        if ds.sha256 in shas:
+            continue
+        foreign.append(ds.path)
+        if by_name.get(ds.name):
+            notes.append(
+                f"{ds.name}: sha256 differs from the one the map recorded (the file changed "
+                "since the fit): taken as data that are not its sources"
+            )
+    return foreign
+
+
+def _foreign_rows(
+    tmap: ThrustMap, datasets: list[Dataset], foreign: list[str], sel: Selection,
+    notes: list[str],
+) -> dict[str, list[Row]]:  # fmt: skip
+    """The map's own error on each stand log that is not one of its sources (every point;
+    inside and outside its supported region beside it), said in a note as well."""
+    from thrustmap.fitting.fit import evaluate
+
+    rows: dict[str, list[Row]] = {}
+    said = []
+    for ds in datasets:
+        if ds.path not in foreign:
+            continue
+        try:
+            (row,) = evaluate(tmap, [ds], sel)
+        except ThrustmapError as exc:
+            said.append(f"{ds.name} (not scored: {exc})")
+            continue
+        rows[f"the map on {ds.name} (not its source)"] = [row]
+        said.append(f"{ds.name}: mean {row.all.mean_pct:.3f} % (n={row.all.n})")
+    notes.append(
+        f"{len(foreign)} of the {len(datasets)} stand logs are not the map's sources (their "
+        "sha256 is not among those it records): they are shown as new data, scored by the "
+        "map, never as its fit; the map's error on them (e_Th, every point): " + "; ".join(said)
+    )
+    return rows
 
 
 def source_files(rd: ReportData) -> list[dict[str, Any]]:
@@ -421,7 +488,7 @@ def source_files(rd: ReportData) -> list[dict[str, Any]]:
         stand = devices.get("stand", {}) if isinstance(devices, dict) else {}
         rows.append(
             {
-                "role": "stand log",
+                "role": "stand log" + (" (not the map's source)" if ds.path in rd.foreign else ""),
                 "path": ds.path,
                 "sha256": ds.sha256 or file_sha256(ds.path),
                 "format": ds.format,

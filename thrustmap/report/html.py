@@ -138,7 +138,7 @@ def _provenance(rd: ReportData) -> str:
         ("model", f"{t.model}: {t.model_def.formula}"),
         ("loss", t.loss),
         ("strategy / rotors on ESC", f"{t.strategy} / {t.rotors_on_esc or 'not recorded'}"),
-        ("throttle scale", f"{sc.name} {sc.lo:g}..{sc.hi:g} {sc.unit_label}"),
+        ("throttle scale", sc.describe()),
         (
             "validity box",
             f"T {t.validity.thrust_n.lo:.3f}..{t.validity.thrust_n.hi:.3f} N, "

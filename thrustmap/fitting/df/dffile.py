@@ -87,11 +87,29 @@ def _check_sidecar(side: dict[str, Any], path: str) -> None:
         )
 
 
+def _refuse_json(p: Path) -> None:
+    """A JSON file given as a Df (its sidecar, a map) is named as such, not parsed as CSV."""
+    try:
+        with open(p, "rb") as f:
+            head = f.read(64).lstrip(b"\xef\xbb\xbf \t\r\n")
+    except OSError:
+        return  # read_csv names what is wrong with the path
+    if head[:1] in (b"{", b"["):
+        csv = p.with_suffix(".csv")
+        hint = f"; the Df is {csv.name} beside it" if csv.is_file() and csv != p else ""
+        raise DataFormatError(
+            "a JSON file (a Df sidecar or a map?), not a Df CSV; expected the .csv that "
+            f"flightlog extract wrote{hint}",
+            file=str(p),
+        )
+
+
 def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A Df CSV and its sidecar (empty dict when the sidecar is absent)."""
     import pandas as pd
 
     p = Path(path)
+    _refuse_json(p)
     try:
         table = pd.read_csv(p, dtype=str, keep_default_na=False, engine="c")
     except FileNotFoundError:

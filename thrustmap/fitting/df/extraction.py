@@ -140,7 +140,7 @@ def _start(flight: FlightLog, opts: DfOptions, tmap: ThrustMap | None) -> Flight
     # every reader's acceleration is questioned here, not only the CSV readers': in g it is
     # converted and said, one that cannot be a specific force is refused (issue 31 item 8),
     # after the ground-rest calibration below: only what that cannot explain (issue 34)
-    acc, unit_notes = specific_force_unit(acc)
+    acc, unit_notes = specific_force_unit(acc, landed=flight.landed)
     t0 = float(acc.time_s[0])
     nbins = max(1, int(np.ceil((float(acc.time_s[-1]) - t0) * opts.rate_hz)) + 1)
     warnings = [w for w in flight.warnings if voltage_unknown is None or w not in voltage_unknown]
@@ -237,7 +237,10 @@ def _command(run: FlightRun) -> None:
             run.a_up, run.rs(run.acc), cmd, run.tilt, run.opts, run.apply, run.warnings
         )
     calibrated = any(w.startswith("accelerometer calibrated at rest") for w in run.warnings)
-    refuse_unphysical_specific_force(run.a_up, run.acc.origin, flight.path,
+    # judged in flight (where it is g), as its unit was: a ground stretch logged as zeros
+    air = run.airborne
+    flying = air if air.sum() >= max(10, 0.1 * run.nbins) else np.ones(run.nbins, bool)
+    refuse_unphysical_specific_force(run.a_up[flying], run.acc.origin, flight.path,
                                      calibrated="its calibration at rest" if calibrated else "")  # fmt: skip
 
 
@@ -588,7 +591,14 @@ def extract(flights: list[FlightLog], opts: DfOptions, tmap: ThrustMap | None = 
         "columns": sources,
         "flights": per_flight,
         "options": asdict(opts),
-        "map": None if tmap is None else {"model": tmap.model, "sha256": tmap.file_sha256},
+        # the map T_c was computed with: `gamma fit` refuses another (fitting.df.pool)
+        "map": None
+        if tmap is None
+        else {
+            "model": tmap.model,
+            "sha256": tmap.file_sha256,
+            "bench_sha256": tmap.bench_sha256,
+        },
         "reports": [r.to_dict() for r in reports],
     }
     if refused:

@@ -83,7 +83,7 @@ def try_backemf(
         if cb is None or len(t) < m.n_coefficients:
             return coef, ident, None
         try:
-            ct = fit_coefficients(m, t, b, th, loss)
+            ct = fit_coefficients(m, t, b, th, loss, groups=data.file_index[~test])
         except FitError:
             return coef, ident, None
         err_t.append(np.abs(m.evaluate(ct, tt, bt) - tht))

@@ -12,7 +12,7 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError, FitError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.dataset import Dataset, FloatArray, IntArray
 from thrustmap.fitting.models import Identification, Model
 from thrustmap.fitting.names import Loss
 from thrustmap.fitting.selection import Points, Selection, select
@@ -79,17 +79,30 @@ def check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> No
 
 
 def fit_coefficients(
-    model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
+    model: Model,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    loss: Loss,
+    where: str = "<data>",
+    groups: IntArray | None = None,
 ) -> FloatArray:
-    return identify_coefficients(model, t, b, th, loss, where)[0]
+    return identify_coefficients(model, t, b, th, loss, where, groups)[0]
 
 
 def identify_coefficients(
-    model: Model, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss, where: str = "<data>"
+    model: Model,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    loss: Loss,
+    where: str = "<data>",
+    groups: IntArray | None = None,
 ) -> tuple[FloatArray, Identification | None]:
-    """Coefficients and how they were identified (which were set by physics, and why)."""
+    """Coefficients and how they were identified (which were set by physics, and why);
+    ``groups``: each point's file (a model that weighs its points weighs each file's own)."""
     check_fit_data(model, t, b, where)
-    coef, ident = model.identify(t, b, th, loss)
+    coef, ident = model.identify(t, b, th, loss, groups)
     if not np.all(np.isfinite(coef)):
         raise FitError(
             f"fit of '{model.name}' gave non-finite coefficients; the data cannot determine "
@@ -106,6 +119,7 @@ def parameter_covariance(
     b: FloatArray,
     th: FloatArray,
     ident: Identification | None,
+    groups: IntArray | None = None,
 ) -> FloatArray | None:
     """Covariance of the raw coefficients (least-squares, linearised at the fit): residual
     variance × (XᵀX)⁻¹ over the coefficients the data determined; a coefficient held by
@@ -145,7 +159,7 @@ def parameter_covariance(
     if dof <= 0:
         return None
     x = design[:, free]
-    weights = model.fit_weights(th)
+    weights = model.fit_weights(th, groups)
     try:
         if weights is None:
             inner = np.linalg.pinv(x.T @ x) * float(np.sum(resid**2) / dof)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from thrustmap.core.errors import FitError
-from thrustmap.fitting.dataset import Dataset, FloatArray
+from thrustmap.fitting.dataset import Dataset, FloatArray, IntArray
 from thrustmap.fitting.fit.backemf import try_backemf
 from thrustmap.fitting.fit.coefficients import (
     Pool,
@@ -61,7 +61,7 @@ REPORT_WEIGHT_RATIO = 2.0
 def weighting_line(model: Model, data: Pool) -> str:
     """One line on how a weighted model shared the fit among the kinds of points ('' when the
     model does not weigh, or every point counts about the same)."""
-    w = model.fit_weights(data.throttle_pct)
+    w = model.fit_weights(data.throttle_pct, data.file_index)
     if w is None or not len(w) or float(np.max(w)) <= REPORT_WEIGHT_RATIO * float(np.min(w)):
         return ""
     kinds = np.concatenate([np.asarray(p.kind) for p in data.points])  # pooled in this order
@@ -73,8 +73,9 @@ def weighting_line(model: Model, data: Pool) -> str:
             f"{int(sel.sum())} {KIND_NAMES.get(k, k)} carry {100 * float(np.sum(w[sel])) / total:.0f} %"
         )
     return (
-        "fit weights: each point counts for the command range it covers, not one each: "
-        + ", ".join(parts)
+        "fit weights: each file counts for the command range it covers, and each of its points "
+        "for its share of that range, not one each (a ramp's thousand samples do not outvote "
+        "a staircase's plateaus over the same range): " + ", ".join(parts)
     )
 
 
@@ -92,7 +93,13 @@ def systematic_terms(points: Sequence[Points]) -> list[tuple[float, str]]:
 
 
 def bound_term(
-    m: Model, coef: FloatArray, t: FloatArray, b: FloatArray, th: FloatArray, loss: Loss
+    m: Model,
+    coef: FloatArray,
+    t: FloatArray,
+    b: FloatArray,
+    th: FloatArray,
+    loss: Loss,
+    groups: IntArray | None = None,
 ) -> list[tuple[float, str]]:
     """A coefficient resting on its bound is set by the bound, not the data: the interval
     carries what freeing it would change (95th percentile over the points)."""
@@ -102,7 +109,7 @@ def bound_term(
     if not which:
         return []
     try:
-        free = m.released_fit(t, b, th, loss, coef)
+        free = m.released_fit(t, b, th, loss, coef, groups)
     except FitError:
         return []
     delta = np.abs(m.evaluate(free, t, b) - m.evaluate(coef, t, b))
@@ -128,9 +135,9 @@ def model_interval(
     each fold's map with."""
 
     def predictor(
-        tt: FloatArray, bb: FloatArray, tth: FloatArray
+        tt: FloatArray, bb: FloatArray, tth: FloatArray, files: IntArray
     ) -> Callable[[FloatArray, FloatArray], FloatArray]:
-        c = fit_coefficients(m, tt, bb, tth, loss)
+        c = fit_coefficients(m, tt, bb, tth, loss, groups=files)
         return lambda tq, bq: m.evaluate(c, tq, bq)
 
     pred = m.evaluate(coef, t, b)
@@ -142,9 +149,9 @@ def model_interval(
         predictor,
         np.abs(pred - th),
         Region.from_points(t, b),
-        parameter_covariance(m, coef, t, b, th, ident),
+        parameter_covariance(m, coef, t, b, th, ident, file_index),
         file_fit,
-        [*systematic, *bound_term(m, coef, t, b, th, loss)],
+        [*systematic, *bound_term(m, coef, t, b, th, loss, file_index)],
     )
 
 
@@ -161,7 +168,7 @@ def fit_map(
     data = pool(datasets, selection)
     where = ", ".join(d.path for d in datasets)
     coef, ident = identify_coefficients(
-        m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where
+        m, data.thrust_n, data.voltage_v, data.throttle_pct, loss, where, data.file_index
     )
     file_fit = None
     if isinstance(m, MotorModel):
@@ -257,8 +264,9 @@ def _voltage_term_by_file(
         t, b, th = data.take(~test)
         tt, bt, tht = data.take(test)
         try:
-            c_fit = identify_coefficients(m, t, b, th, loss)[0]
-            c_prior = m.physics_fit(t, b, th, loss, "", "")[0]
+            groups = data.file_index[~test]
+            c_fit = identify_coefficients(m, t, b, th, loss, groups=groups)[0]
+            c_prior = m.physics_fit(t, b, th, loss, "", "", groups=groups)[0]
         except FitError:
             c_fit = c_prior = np.full(m.n_coefficients, np.nan)
         if not (np.all(np.isfinite(c_fit)) and np.all(np.isfinite(c_prior))):

@@ -178,7 +178,7 @@ def validate(
             dt = design[test]
             if weighted:
                 w = np.zeros(n)
-                w[train] = m.fit_weights(th)
+                w[train] = m.fit_weights(th, data.file_index[train])
                 wd = design * w[:, None]
                 gram, rhs = wd.T @ design, wd.T @ data.throttle_pct
             elif validation == "in-sample":
@@ -196,7 +196,9 @@ def validate(
             pred = dt @ coef_c
             coef = to_raw(coef_c)
         else:
-            coef = fit_coefficients(m, t, b, th, loss, where=f"{model} {validation} fold")
+            coef = fit_coefficients(
+                m, t, b, th, loss, f"{model} {validation} fold", data.file_index[train]
+            )
             pred = m.evaluate(coef, tt, bt)
         halves.append(
             _fold_half_width(m, coef, data, train, tt, bt, loss)

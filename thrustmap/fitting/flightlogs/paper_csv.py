@@ -194,9 +194,16 @@ def read(path: Path, **options: Any) -> list[FlightLog]:
     def sig(col: str, unit: str) -> Signal:
         return Signal(time_s, _column(df, col, path)[idx], unit, col)
 
-    # in g (mean ≈ 1): converted; gravity removed (mean ≈ 0): g0 put back; else refused
+    landed = None
+    if "Position_z (m)" in df.columns:
+        z = _column(df, "Position_z (m)", path)[idx]
+        landed = Signal(
+            time_s, (z < AIRBORNE_Z_M).astype(float), "bool", f"Position_z (m) < {AIRBORNE_Z_M}"
+        )
+    # judged in flight, where it is g: in g (≈ 1): converted; gravity removed (≈ 0): g0 put
+    # back; else refused
     accel, why = question_specific_force(
-        sig("Acc (m/s²)", "m/s^2"), str(path), gravity_removed=True
+        sig("Acc (m/s²)", "m/s^2"), str(path), gravity_removed=True, landed=landed
     )
     warnings.extend(why)
     flight = FlightLog(
@@ -221,9 +228,7 @@ def read(path: Path, **options: Any) -> list[FlightLog]:
     if "Position_z (m)" in df.columns:
         z = _column(df, "Position_z (m)", path)[idx]
         flight.extras["position_z_m"] = Signal(time_s, z, "m", "Position_z (m)")
-        flight.landed = Signal(
-            time_s, (z < AIRBORNE_Z_M).astype(float), "bool", f"Position_z (m) < {AIRBORNE_Z_M}"
-        )
+        flight.landed = landed
     return [flight]
 
 
@@ -263,7 +268,7 @@ def read_generic(
 
     accel = sig("accel_up_mps2", "m/s^2", accel_scale)
     assert accel is not None
-    accel, why = question_specific_force(accel, str(path))
+    accel, why = question_specific_force(accel, str(path), landed=sig("landed", "bool"))
     warnings.extend(why)
     flight = FlightLog(
         path=str(path),

@@ -22,6 +22,7 @@ import numpy.typing as npt
 from thrustmap.core.units import ThrottleScale
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True)
@@ -99,34 +100,55 @@ G0_MPS2 = 9.80665
 
 
 def question_specific_force(
-    sig: Signal, path: str, *, gravity_removed: bool = False
+    sig: Signal, path: str, *, gravity_removed: bool = False, landed: Signal | None = None
 ) -> tuple[Signal, list[str]]:
-    """Check that an upward specific force is in m/s²: over a log (ground and flight alike)
-    its mean must be near g. A column in g (mean ≈ 1) is converted with a warning; one with
-    gravity removed (mean ≈ 0) gets g back when ``gravity_removed`` is allowed; anything else
-    (a downward axis, another unit) is refused: a force that cannot be physical is not used."""
-    sig, notes = specific_force_unit(sig, gravity_removed=gravity_removed)
-    refuse_unphysical_specific_force(sig.values, sig.origin, path)
+    """Check that an upward specific force is in m/s²: in hover it is g. A column in g (≈ 1
+    in hover) is converted with a warning; one with gravity removed (≈ 0 in hover) gets g back
+    when ``gravity_removed`` is allowed; anything else (a downward axis, another unit) is
+    refused: a force that cannot be physical is not used. ``landed``: the log's landed state,
+    so the unit is judged in flight (see ``specific_force_unit``)."""
+    sig, notes = specific_force_unit(sig, gravity_removed=gravity_removed, landed=landed)
+    flying, _ = _in_flight(sig, landed)
+    refuse_unphysical_specific_force(sig.values[flying], sig.origin, path)
     return sig, notes
 
 
-def specific_force_unit(sig: Signal, *, gravity_removed: bool = False) -> tuple[Signal, list[str]]:
-    """The unit half of ``question_specific_force``: a column whose mean is ≈ 1 is in g
-    (converted, said); with ``gravity_removed`` allowed one whose mean is ≈ 0 gets g0 back.
-    Refuses nothing: a reader with a ground rest to calibrate on questions what is left after
-    the calibration (``refuse_unphysical_specific_force``)."""
-    v = sig.values[np.isfinite(sig.values)]
+def _in_flight(sig: Signal, landed: Signal | None) -> tuple[BoolArray, str]:
+    """The finite samples ``landed`` calls airborne (every finite sample without it, or when
+    fewer than a tenth are), and where that is, as a note says it."""
+    finite = np.isfinite(sig.values)
+    if landed is not None and len(landed):
+        flying = finite & (landed.hold(sig.time_s) < 0.5)
+        if flying.sum() >= max(10, 0.1 * finite.sum()):
+            return flying, "in flight"
+    return finite, "over the log"
+
+
+def specific_force_unit(
+    sig: Signal, *, gravity_removed: bool = False, landed: Signal | None = None
+) -> tuple[Signal, list[str]]:
+    """The unit half of ``question_specific_force``, judged where the vehicle flies: the
+    median over the samples ``landed`` calls airborne (every sample without it, or when fewer
+    than a tenth are airborne). In hover the specific force is g whatever else the log holds
+    (a ground stretch logged as zeros before the estimator starts pulls a log's mean of a
+    column in g below 0.5, which read as gravity-compensated m/s² once had g0 added). A median
+    ≈ 1 is g (converted, said); with ``gravity_removed`` allowed one ≈ 0 gets g0 back. Refuses
+    nothing: a reader with a ground rest to calibrate on questions what is left after the
+    calibration (``refuse_unphysical_specific_force``)."""
+    flying, where = _in_flight(sig, landed)
+    v = sig.values[flying]
     if not len(v):
         return sig, []
-    mean = float(np.mean(v))
-    if 0.7 <= mean <= 1.3:
+    level = float(nanmedian(v))  # (np.median imports numpy.ma: see nanmedian)
+    if 0.7 <= level <= 1.3:
         return Signal(sig.time_s, sig.values * G0_MPS2, "m/s^2", f"{sig.origin} (g → m/s²)"), [
-            f"{sig.origin}: mean upward specific force {mean:.3g}, expected ≈ 9.81 m/s²: "
-            "taken as g and converted to m/s²"
+            f"{sig.origin}: upward specific force {level:.3g} {where} (median), expected ≈ 9.81 "
+            "m/s² in hover: taken as g and converted to m/s²"
         ]
-    if gravity_removed and abs(mean) < 0.5:
+    if gravity_removed and abs(level) < 0.5:
         return Signal(sig.time_s, sig.values + G0_MPS2, "m/s^2", f"{sig.origin} + g0"), [
-            f"{sig.origin} looks gravity-compensated (mean {mean:.2g} m/s²); added g0"
+            f"{sig.origin} reads {level:.2g} m/s² {where} (median), ≈ 0 where hover gives g: "
+            "taken as gravity-compensated, g0 added"
         ]
     return sig, []
 

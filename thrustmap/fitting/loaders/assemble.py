@@ -15,6 +15,7 @@ from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import STEP_SUMMARY, BoolArray, Dataset, FloatArray, IntArray
 from thrustmap.fitting.loaders.checks import (
+    check_one_cell,
     check_pulse_us,
     check_thrust,
     check_voltage,
@@ -52,6 +53,8 @@ def finish_dataset(
         meta["read_notes"] = list(table.notes)
     thrust_n = normalise_sign(thrust_n, throttle, meta, table.path)
     check_thrust(table, thrust_n, voltage_v, current_a, rotors_on_esc)
+    if fmt != "crazyflie":  # (a Crazyflie is 1S by design)
+        check_one_cell(table, thrust_n / max(rotors_on_esc or 1, 1), voltage_v, current_a, meta)
     if step is None and "layout" not in meta and is_step_summary(throttle, time_s, scale):
         meta["layout"] = STEP_SUMMARY
         log.info(

@@ -17,6 +17,10 @@ from thrustmap.core.physical import (  # the physical ranges live in one place
     MAX_ROTOR_THRUST_N,
     MAX_THRUST_PER_VOLT_N,
     THRUST_PER_WATT_GF,
+    TYPICAL_THRUST_PER_WATT_GF,
+    one_cell_voltage,
+    thrust_too_small_for_pack,
+    thrust_unit_by_power,
 )
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import Dataset, FloatArray
@@ -109,16 +113,25 @@ def check_thrust(
         )
 
 
+def thrust_per_watt_gf(
+    thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray, rotors: int = 1
+) -> float | None:
+    """Median thrust per electrical watt at load, gf/W per rotor (None: too few rows at load):
+    the rows above 1 W (a resting rotor's ESC draws a fraction of a watt) and a fifth of the
+    top power, so a 2S motor's first steps count too."""
+    power_w = np.abs(voltage_v * current_a) / max(rotors, 1)  # some stands log it negative
+    ok = np.isfinite(power_w) & (power_w > max(1.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
+    if ok.sum() < 3:
+        return None
+    return float(np.median(np.abs(thrust_n[ok]) / G0 * 1000.0 / power_w[ok]))
+
+
 def check_thrust_per_watt(
     table: Table, thrust_n: FloatArray, voltage_v: FloatArray, current_a: FloatArray
 ) -> None:
-    power_w = np.abs(voltage_v * current_a)  # some stands log the current negative
-    # rows at load: above 1 W (a resting rotor's ESC draws a fraction of a watt) and a fifth of
-    # the top power, so a 2S motor's first steps count too (grams read as newtons at any throttle)
-    ok = np.isfinite(power_w) & (power_w > max(1.0, 0.2 * float(np.nanmax(power_w, initial=0.0))))
-    if ok.sum() < 3:
+    gf_per_w = thrust_per_watt_gf(thrust_n, voltage_v, current_a)
+    if gf_per_w is None:
         return
-    gf_per_w = float(np.median(np.abs(thrust_n[ok]) / G0 * 1000.0 / power_w[ok]))
     lo, hi = THRUST_PER_WATT_GF
     if not lo <= gf_per_w <= hi:
         raise DataFormatError(
@@ -126,6 +139,56 @@ def check_thrust_per_watt(
             f"make {lo:g}..{hi:g} gf/W: is the thrust (or current) unit right?",
             file=table.path,
         )
+
+
+def check_one_cell(table: Table, ds_thrust_n: FloatArray, voltage_v: FloatArray,
+                   current_a: FloatArray | None, meta: dict[str, Any]) -> None:  # fmt: skip
+    """A voltage column reading one lithium cell (``physical.one_cell_voltage``): a per-cell
+    column of a bigger pack is refused; a 1S pack is said (``meta["voltage_note"]``)."""
+    if not voltage_v.size:
+        return
+    gf_per_w = None if current_a is None else thrust_per_watt_gf(ds_thrust_n, voltage_v,
+                                                                  current_a)  # fmt: skip
+    top = float(np.nanmax(np.abs(ds_thrust_n), initial=0.0))
+    refused, why = one_cell_voltage(float(np.median(voltage_v)), gf_per_w, top)
+    if refused:
+        raise DataFormatError(why, file=table.path)
+    if why:
+        meta["voltage_note"] = why
+        log.warning("%s: %s", table.path, why)
+
+
+def check_unnamed_thrust_unit(ds: Dataset, given: str) -> None:
+    """A thrust column whose header names no unit, read in the ``given`` unit: beside a current
+    column its thrust per watt names the unit (``physical.thrust_unit_by_power``); without
+    one, a thrust too small for the pack and the throttle is questioned."""
+    rotors = ds.rotors_on_esc or 1
+    if ds.current_a is not None:
+        gf_per_w = thrust_per_watt_gf(ds.thrust_n, ds.voltage_v, ds.current_a, rotors)
+        unit = None if gf_per_w is None else thrust_unit_by_power(gf_per_w, given)
+        if gf_per_w is not None and unit is not None and unit.lower() != given.lower():
+            raise DataFormatError(
+                f"thrust column (no unit in its header) read in {given} gives {gf_per_w:.3g} "
+                f"gf/W at load; propellers make {TYPICAL_THRUST_PER_WATT_GF[0]:g}.."
+                f"{TYPICAL_THRUST_PER_WATT_GF[1]:g} gf/W, which it gives in {unit}: "
+                f"--thrust-unit {unit}? (a column truly in {given}, or a current that feeds "
+                f"several motors of which one is on the load cell: name its unit in the header, "
+                f"'Thrust ({given})')",
+                file=ds.path,
+            )
+        return
+    pct = ds.throttle_pct
+    if not pct.size:
+        return
+    top = pct >= np.quantile(pct, 0.9)
+    why = thrust_too_small_for_pack(
+        float(np.median(np.abs(ds.thrust_n[top]))) / rotors,
+        float(np.median(ds.voltage_v[top])),
+        float(np.median(pct[top])),
+        given,
+    )
+    if why is not None:
+        raise DataFormatError(why, file=ds.path)
 
 
 def normalise_sign(

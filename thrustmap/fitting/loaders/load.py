@@ -9,12 +9,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thrustmap.core.errors import DataFormatError
+from thrustmap.core.identity import Identity, refuse_repeats
 from thrustmap.core.physical import (  # the physical ranges live in one place
     check_header_unit,
+    header_thrust_unit,
 )
 from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.loaders.assemble import assemble
+from thrustmap.fitting.loaders.checks import check_unnamed_thrust_unit
 from thrustmap.fitting.loaders.formats import FORMATS
 from thrustmap.fitting.loaders.table import (
     THRUST_UNITS,
@@ -44,6 +47,7 @@ class ColumnMap:
 
 def load_dataset(path: str | Path, column_map: ColumnMap | None = None) -> Dataset:
     """Load one stand log; detect its format from the header unless a column map is given."""
+    _refuse_json(Path(path))
     table = read_table(path)
     if column_map is not None:
         return _with_column_map(table, column_map)
@@ -98,7 +102,7 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
     if current is None:  # a current column the map did not name still checks the thrust unit
         hit = find_column(table, r"current \((a|amps?)\)")
         current = None if hit is None else hit[0]
-    return assemble(
+    ds = assemble(
         table,
         "column-map",
         cm.throttle_scale,
@@ -113,11 +117,50 @@ def _with_column_map(table: Table, cm: ColumnMap) -> Dataset:
         factor,
         rotors_on_esc=cm.rotors_on_esc,
     )
+    if header_thrust_unit(table.header[fi]) is None:  # the unit is the user's word alone
+        check_unnamed_thrust_unit(ds, cm.thrust_unit)
+    return ds
+
+
+def _refuse_json(path: Path) -> None:
+    """A JSON file (a Ds log's sidecar, a map, a manifest) given as a stand log is named as
+    such, not parsed as a one-column CSV."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64).lstrip(b"\xef\xbb\xbf \t\r\n")
+    except OSError:
+        return  # read_table names what is wrong with the path
+    if head[:1] in (b"{", b"["):
+        raise DataFormatError(
+            "a JSON file (a stand log's sidecar, a map?), not a stand log; expected the CSV "
+            "(a thrustmap Ds log's sidecar is read with its .csv)",
+            file=str(path),
+        )
+
+
+def _without_sidecars(paths: Sequence[str | Path]) -> list[str | Path]:
+    """The paths less the Ds sidecars (``run.meta.json``) whose log (``run.csv``) is given too:
+    a glob such as ``thrustmap-demo/sr/*`` names both, and the log reads its own sidecar."""
+    given = {Path(p).resolve() for p in paths}
+    out = []
+    for p in paths:
+        name = Path(p).name
+        if name.endswith(".meta.json"):
+            log_csv = Path(p).with_name(name[: -len(".meta.json")] + ".csv").resolve()
+            if log_csv in given:
+                log.info("%s: the sidecar of %s, read with it", p, log_csv.name)
+                continue
+        out.append(p)
+    return out
 
 
 def load_datasets(
     paths: Sequence[str | Path], column_map: ColumnMap | None = None
 ) -> list[Dataset]:
+    """Every stand log of a pool (a fit, a comparison, a report): the same content given twice
+    is refused naming both (``core.identity``), so no log counts twice."""
     if not paths:
         raise DataFormatError("no input files given; expected one or more stand logs")
-    return [load_dataset(p, column_map) for p in paths]
+    datasets = [load_dataset(p, column_map) for p in _without_sidecars(paths)]
+    refuse_repeats((Identity(ds.path, ds.sha256) for ds in datasets), "stand log")
+    return datasets
