@@ -43,6 +43,13 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import ThrustmapError
+from thrustmap.fitting.extrapolation import (
+    EVIDENCE_LIMIT_THRUST_RATIO,
+    EVIDENCE_LIMIT_VOLTAGE_LOG,
+    EXTRAPOLATION_GROWTH,
+    RECORDING_FACTOR,
+    RECORDING_WHAT,
+)
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -58,11 +65,14 @@ THRUST_MARGIN = 0.03  # of the top thrust reached
 VOLTAGE_MARGIN = 0.01  # of the mean voltage
 REGION_KNOTS = 24  # voltages at which the reached thrust range is stored
 #: κ: % throttle of error per unit of |ln(B / nearest measured voltage)| that a map carried
-#: across voltage by motor physics still makes. Calibrated by ``benchmarks/bench_cross_voltage.py
-#: --calibrate`` on the Strawson 5-inch motors a1-c8 (24 pairs fitted on 2S, scored on 3S and
-#: back: the smallest κ that covers 95 % of their points); motors d1-f8 were held out and are
-#: scored by the benchmark.
-VOLTAGE_EXTRAPOLATION_PCT = 12.5
+#: across voltage by motor physics still makes. ``benchmarks/bench_cross_voltage.py
+#: --calibrate`` found 12.5 on the Strawson 5-inch motors a1-c8 (24 pairs fitted on 2S, scored
+#: on 3S and back: the smallest κ that covers 95 % of their points, pooled); per distance bin
+#: that held 87-88 % at |ln(B/B_measured)| 0.2-0.4, so ``benchmarks/bench_extrapolation.py
+#: --calibrate`` raised it to the smallest κ holding 90 % in every voltage bin of every tuning
+#: rig (Strawson a-c, xNova SR, the simulator). Motors d1-f8 were held out and are scored by
+#: both benchmarks.
+VOLTAGE_EXTRAPOLATION_PCT = 14.5
 
 
 @dataclass(frozen=True)
@@ -127,6 +137,21 @@ class Region:
         dt = np.maximum(np.maximum(lo - t, t - hi), 0.0) / t_unit
         db = np.maximum(np.maximum(self.voltage_lo_v - b, b - self.voltage_hi_v), 0.0) / b_unit
         return np.asarray(np.hypot(dt, db), dtype=float)
+
+    def reach_ratio(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
+        """T / the thrust the data reached at B (margin included): <= 1 within reach. At a
+        voltage outside the data, the reach at the nearest measured voltage."""
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        _, hi = self.thrust_range(b)
+        return np.asarray(t / np.maximum(hi, 1e-9), dtype=float)
+
+    def reach_excess(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
+        """How far T lies beyond the thrust range at B, in units of the reach there: T / reach
+        - 1 above it, (lowest thrust - T) / reach below it, 0 inside."""
+        t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
+        lo, hi = self.thrust_range(b)
+        out = np.maximum(np.maximum(t - hi, lo - t), 0.0) / np.maximum(hi, 1e-9)
+        return np.asarray(out, dtype=float)
 
     def thrust_distance(
         self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, t_unit: float
@@ -237,6 +262,39 @@ class VoltageSupport:
         return cls(t, lo, hi) if ok else None
 
 
+@dataclass(frozen=True)
+class Standing:
+    """Where (T, B) stands: inside the data, extrapolated within the benchmark's evidence, or
+    beyond it (``beyond_evidence`` says how far, and where the evidence ends)."""
+
+    inside: bool
+    thrust_reach_ratio: float  # T / the thrust the data reached at B (<= 1 within reach)
+    voltage_log_distance: float  # |ln(B / voltage measured near T)|, 0 inside
+    half_width_pct: float | None  # the map's interval there (growth included; None: none)
+    beyond_evidence: str | None  # None: within the limit
+    limit_thrust_ratio: float = EVIDENCE_LIMIT_THRUST_RATIO
+    limit_voltage_log: float = EVIDENCE_LIMIT_VOLTAGE_LOG
+
+    @property
+    def extrapolated(self) -> bool:
+        return not self.inside
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "inside_supported_region": self.inside,
+            "extrapolated": self.extrapolated,
+            "thrust_reach_ratio": self.thrust_reach_ratio,
+            "voltage_log_distance": self.voltage_log_distance,
+            "interval_pct": self.half_width_pct,
+            "beyond_evidence": self.beyond_evidence is not None,
+            "beyond_evidence_reason": self.beyond_evidence,
+            "evidence_limit": {
+                "thrust_reach_ratio": self.limit_thrust_ratio,
+                "voltage_log_distance": self.limit_voltage_log,
+            },
+        }
+
+
 def _voltage_unit(lo: float, hi: float) -> float:
     return max(hi - lo, MIN_VOLTAGE_UNIT * 0.5 * (lo + hi), 1e-6)
 
@@ -260,6 +318,12 @@ class Interval:
     voltage_pct_per_log: float = 0.0
     #: the voltages measured near each thrust (None: the region's voltage span is used)
     support: VoltageSupport | None = None
+    #: relative widening per unit of (T / thrust reached at B - 1) beyond the reach (0: a map
+    #: written before it, which widens by growth_per_span per thrust span)
+    growth_per_reach: float = 0.0
+    #: where the benchmark's evidence ends (T / reach, |ln(B/B_measured)|): predict refuses past
+    limit_thrust_ratio: float = EVIDENCE_LIMIT_THRUST_RATIO
+    limit_voltage_log: float = EVIDENCE_LIMIT_VOLTAGE_LOG
 
     def voltage_log_distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
         """ρ: |ln(B / nearest voltage measured near T)|."""
@@ -293,15 +357,45 @@ class Interval:
             self.half_width_pct**2 + (self.z * sig) ** 2 + self.systematic_pct**2 + volt**2
         )
         d = self.distance(t, b)
-        if self.voltage_pct_per_log:
+        if self.growth_per_reach:
+            factor = 1.0 + self.growth_per_reach * np.sqrt(self.region.reach_excess(t, b))
+        elif self.voltage_pct_per_log:
             # voltage extrapolation is κ's; the growth factor widens for thrust outside only
-            d_grow = self.region.thrust_distance(t, b, self.thrust_unit_n)
+            factor = 1.0 + self.growth_per_span * self.region.thrust_distance(
+                t, b, self.thrust_unit_n
+            )
         else:
-            d_grow = d
-        return (
-            np.asarray(base, float),
-            np.asarray(1.0 + self.growth_per_span * d_grow, float),
-            np.asarray(d, float),
+            factor = 1.0 + self.growth_per_span * d
+        return np.asarray(base, float), np.asarray(factor, float), np.asarray(d, float)
+
+    def standing(
+        self, thrust_n: float, voltage_v: float, design: FloatArray | None = None
+    ) -> Standing:
+        """Where (T, B) stands against the data and the benchmark's evidence, with the
+        interval there."""
+        base, factor, d = (float(x) for x in self.parts(thrust_n, voltage_v, design))
+        ratio = float(self.region.reach_ratio(thrust_n, voltage_v))
+        rho = float(self.voltage_log_distance(thrust_n, voltage_v))
+        beyond = []
+        if ratio > self.limit_thrust_ratio:
+            beyond.append(
+                f"thrust {ratio:.2f}x the reach at {voltage_v:.2f} V (the evidence ends at "
+                f"{self.limit_thrust_ratio:.2f}x)"
+            )
+        if rho > self.limit_voltage_log:
+            beyond.append(
+                f"{voltage_v:.2f} V is {100 * math.expm1(rho):.0f} % from the voltages measured "
+                f"near that thrust, |ln(B/B_measured)| {rho:.2f} (the evidence ends at "
+                f"{self.limit_voltage_log:.2f}, {100 * math.expm1(self.limit_voltage_log):.0f} %)"
+            )
+        return Standing(
+            inside=d <= 0.0,
+            thrust_reach_ratio=ratio,
+            voltage_log_distance=rho,
+            half_width_pct=base * factor,
+            beyond_evidence="; ".join(beyond) or None,
+            limit_thrust_ratio=self.limit_thrust_ratio,
+            limit_voltage_log=self.limit_voltage_log,
         )
 
     def half_width(
@@ -322,19 +416,36 @@ class Interval:
             "systematic_pct": self.systematic_pct,
             "voltage_pct_per_log": self.voltage_pct_per_log,
             **({"voltage_support": self.support.to_dict()} if self.support else {}),
+            **(
+                {
+                    "growth_per_reach": self.growth_per_reach,
+                    "evidence_limit": {
+                        "thrust_reach_ratio": self.limit_thrust_ratio,
+                        "voltage_log_distance": self.limit_voltage_log,
+                        "meaning": "past these distances outside the supported region no "
+                        "benchmark shows the interval holds: predict refuses without "
+                        "--extrapolate (T / thrust reached at B; |ln(B / B_measured)|)",
+                    },
+                }
+                if self.growth_per_reach
+                else {}
+            ),
             "formula": "half_width = sqrt(half_width_pct^2 + (z * sqrt(x' C x))^2 + "
             "systematic_pct^2 + (voltage_pct_per_log * |ln(B / B_edge)|)^2) * "
-            "(1 + growth_per_span * d); x = the model's terms at (T, B), C = "
+            "(1 + growth_per_reach * e); x = the model's terms at (T, B), C = "
             "parameter_covariance, B_edge = B clipped to the voltages measured near T "
-            "(voltage_support, interpolated in thrust), d = "
-            "distance outside the supported region's thrust range at B in units of "
-            "thrust_unit_n",
+            "(voltage_support, interpolated in thrust), e = how far T lies outside the "
+            "supported region's thrust range at B in units of the thrust reached there "
+            "(T / reach - 1 above it); growth_per_span: the same per thrust_unit_n, what this "
+            "map's own folds showed, used by readers without growth_per_reach",
             "basis": self.basis,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], region: Region) -> Interval:
         cov = d.get("parameter_covariance") or []
+        raw_lim = d.get("evidence_limit")
+        lim: dict[str, Any] = raw_lim if isinstance(raw_lim, dict) else {}
         return cls(
             half_width_pct=float(d["half_width_pct"]),
             growth_per_span=float(d["growth_per_span"]),
@@ -350,6 +461,9 @@ class Interval:
             support=VoltageSupport.from_dict(d["voltage_support"])
             if isinstance(d.get("voltage_support"), dict)
             else None,
+            growth_per_reach=float(d.get("growth_per_reach") or 0.0),
+            limit_thrust_ratio=float(lim.get("thrust_reach_ratio", EVIDENCE_LIMIT_THRUST_RATIO)),
+            limit_voltage_log=float(lim.get("voltage_log_distance", EVIDENCE_LIMIT_VOLTAGE_LOG)),
         )
 
 
@@ -403,6 +517,7 @@ def learn_interval(
         how = f"{k}-fold"
     resid: list[FloatArray] = []
     dist: list[FloatArray] = []
+    excess: list[FloatArray] = []
     rhos: list[FloatArray] = []
     for test, held in zip(splits, fold_files, strict=True):
         train = ~test
@@ -419,6 +534,7 @@ def learn_interval(
         fold_region = Region.from_points(t[train], b[train])
         # the thrust distance only: voltage extrapolation is κ's (calibrated apart)
         dist.append(fold_region.thrust_distance(t[test], b[test], fold_region.thrust_span_n))
+        excess.append(fold_region.reach_excess(t[test], b[test]))
         rhos.append(VoltageSupport.from_points(t[train], b[train]).log_distance(t[test], b[test]))
     if not resid:
         return None
@@ -436,20 +552,15 @@ def learn_interval(
     )
     q = max(q, 1e-3)
     out = ~inside
-    if out.sum() >= 3:
-        growth = float(np.median(np.maximum(r[out] / q - 1.0, 0.0) / d[out]))
-        g_note = f"growth from {int(out.sum())} held-out points outside their training region"
-        if growth < MIN_GROWTH:
-            growth = MIN_GROWTH
-            g_note += f" (raised to the assumed minimum {MIN_GROWTH:g})"
-    else:
-        growth = DEFAULT_GROWTH
-        g_note = "growth assumed (no held-out point lay outside its training region)"
+    growth, growth_reach, g_note = _growth(r / q, d, np.concatenate(excess), out)
     cov: tuple[tuple[float, ...], ...] = ()
     p_note = "; no parameter term"
     if covariance is not None and np.all(np.isfinite(covariance)):
         cov = tuple(tuple(float(x) for x in row) for row in np.asarray(covariance, float))
         p_note = "; combined with the coefficients' uncertainty at each point"
+    if how != "by-file":
+        # one recording's scatter understates a second recording's (bench_extrapolation.py)
+        systematic = [*systematic, (q * math.sqrt(RECORDING_FACTOR**2 - 1.0), RECORDING_WHAT)]
     terms = [(float(v), w) for v, w in systematic if v > 0 and np.isfinite(v)]
     sys_pct = float(np.sqrt(sum(v * v for v, _ in terms)))
     s_note = "; with " + ", ".join(f"±{v:.2f} % {w}" for v, w in terms) if terms else ""
@@ -479,7 +590,32 @@ def learn_interval(
         sys_pct,
         voltage_pct_per_log,
         support,
+        growth_reach,
     )
+
+
+def _growth(
+    rel: FloatArray, d_span: FloatArray, d_reach: FloatArray, out: BoolArray
+) -> tuple[float, float, str]:
+    """(growth per thrust span as main had it, growth per reach, the basis's words): the
+    median relative excess error per unit distance of the held-out points outside their fold's
+    region; per reach never below the benchmark's ``EXTRAPOLATION_GROWTH``."""
+    excess = np.maximum(rel - 1.0, 0.0)
+    if out.sum() >= 3:
+        per_span = max(float(np.median(excess[out] / d_span[out])), MIN_GROWTH)
+        ok = out & (d_reach > 0)
+        own = float(np.median(excess[ok] / np.sqrt(d_reach[ok]))) if ok.sum() >= 3 else 0.0
+        where = f"{int(out.sum())} held-out points outside their training region showed {own:.2f}"
+    else:
+        per_span, own = DEFAULT_GROWTH, 0.0
+        where = "no held-out point lay outside its training region"
+    per_reach = max(own, EXTRAPOLATION_GROWTH)
+    note = (
+        f"beyond the thrust reached, ×(1 + {per_reach:.2f}·√(T/reach - 1)) ({where}; "
+        f"benchmarks/bench_extrapolation.py: {EXTRAPOLATION_GROWTH:g} holds 90 % of other "
+        f"rigs' points up to {EVIDENCE_LIMIT_THRUST_RATIO:g}x the reach)"
+    )
+    return per_span, per_reach, note
 
 
 def interval_range(
@@ -511,7 +647,17 @@ def advice(
     else:
         lo, hi = over_region
         g = interval.growth_per_span
-        if interval.voltage_pct_per_log:
+        if interval.growth_per_reach:
+            gr = interval.growth_per_reach
+            widen = (
+                f"; beyond the thrust reached it widens by ×(1 + {gr:.2f}·√(T/reach - 1)) "
+                f"(×{1 + gr * math.sqrt(0.25):.1f} at 1.25× the reach, evidence up to "
+                f"{interval.limit_thrust_ratio:g}×), and away from the voltages measured near a "
+                f"thrust by ±{interval.voltage_pct_per_log:g} % per unit |ln(B/B_measured)| "
+                f"(±{interval.voltage_pct_per_log * math.log(1.1):.1f} % at 10 % off; evidence up "
+                f"to {interval.limit_voltage_log:g})"
+            )
+        elif interval.voltage_pct_per_log:
             widen = (
                 f"; beyond the thrust reached it widens by ×{1 + g:.2f} per "
                 f"{interval.thrust_unit_n:.3f} N, and away from the voltages measured near a "
