@@ -494,15 +494,17 @@ def calibrate(runs: list[Scored]) -> tuple[float, float, float]:
     return factor, kappa, growth
 
 
-def evidence_rows(runs: list[Scored], growth: float) -> list[str]:
+def evidence_rows(runs: list[Scored], growth: float, rigs: str) -> list[str]:
     table = cells(runs, growth)
     rows = []
     for k in sorted(table, key=lambda k: (ORDER[k.axis], k.lo)):
         if k.axis not in ("thrust", "voltage") or len(table[k].err) < MIN_BIN_POINTS:
             continue
+        if not within_limit(k):
+            continue
         c = table[k]
         rows.append(
-            f'    Bin("tuning rigs", "{k.axis}", {k.lo:.2f}, {k.hi:.2f}, {len(c.err)}, '
+            f'    Bin("{rigs}", "{k.axis}", {k.lo:.2f}, {k.hi:.2f}, {len(c.err)}, '
             f"{np.median(c.err):.2f}, {c.coverage:.1f}, {c.coverage_main:.1f}),"
         )
     return rows
@@ -553,21 +555,25 @@ def main() -> int:
         f"growth per thrust span); {table.failed} fits failed or had too few points"
     )
     print(f"  {'bin':<24} {'n':>5} {'med err':>8} {'cover':>7} {'main cov':>9}")
-    met = True
-    for title, runs in (("TUNING RIGS", tune), ("SET-ASIDE RIGS", aside)):
-        print(f"== {title} ==")
-        for rig in dict.fromkeys(s.rig for s in runs):
-            ok = print_rig(rig, [s for s in runs if s.rig == rig], growth)
-            met &= ok
+    verdicts = []
+    for title, runs in (("tuning rigs", tune), ("set-aside rigs", aside)):
+        print(f"== {title.upper()} ==")
+        failed = [
+            rig
+            for rig in dict.fromkeys(s.rig for s in runs)
+            if not print_rig(rig, [s for s in runs if s.rig == rig], growth)
+        ]
         if runs:
-            met &= print_rig(f"all {title.lower()}", runs, growth)
+            print_rig(f"all {title}", runs, growth)
+        verdicts.append(f"{title}: " + (f"NOT met ({', '.join(failed)})" if failed else "met"))
     print(
         f"goal (>= {COVERAGE_GOAL_PCT:g} % in every bin within the limit with >= "
-        f"{MIN_BIN_POINTS} points, every rig): {'met' if met else 'NOT met'}"
+        f"{MIN_BIN_POINTS} points, every rig): {'; '.join(verdicts)}"
     )
     if args.table:
         print("EVIDENCE = (")
-        print("\n".join(evidence_rows(tune, growth)))
+        print("\n".join(evidence_rows(tune, growth, "tuning rigs")))
+        print("\n".join(evidence_rows(aside, growth, "set-aside rigs")))
         print(")")
     return 0
 
