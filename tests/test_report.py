@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA
 from support import simulate_flight as sim
 
 from thrustmap.cli import COMMANDS, main
@@ -136,9 +137,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def xnova(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    root = (
-        Path(__file__).resolve().parents[1].parent / "shared/data/xnova-thrust-stand/single_rotor"
-    )
+    root = SHARED_DATA / "xnova-thrust-stand" / "single_rotor"
     files = [root / f for f in XNOVA_SR]
     if not all(f.is_file() for f in files):
         pytest.skip(f"xNova SR files not found in {root} (../shared is absent)")
