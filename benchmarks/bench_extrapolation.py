@@ -52,7 +52,6 @@ from thrustmap.fitting.extrapolation import (
     EVIDENCE_LIMIT_VOLTAGE_LOG,
     EXTRAPOLATION_GROWTH,
     RECORDING_FACTOR,
-    RECORDING_WHAT,
     THRUST_BIN,
     VOLTAGE_BIN,
 )
@@ -168,9 +167,7 @@ def score(rec: Recording, tmap: ThrustMap, g_own: float, test: Points, kind: str
     pred = tmap.throttle_pct(t, b, corrected=False)
     base, _, _ = iv.parts(t, b, tmap.model_def.design(t, b))
     region = iv.region
-    rec_pct = (
-        iv.half_width_pct * np.sqrt(RECORDING_FACTOR**2 - 1) if RECORDING_WHAT in iv.basis else 0
-    )
+    rec_pct = iv.recording_pct
     return Scored(
         rig=rec.rig,
         aside=rec.aside,
@@ -186,7 +183,7 @@ def score(rec: Recording, tmap: ThrustMap, g_own: float, test: Points, kind: str
         growth_main=iv.growth_per_span,
         growth_own=g_own,
         q_pct=iv.half_width_pct,
-        one_file=RECORDING_WHAT in iv.basis,
+        one_file=iv.recording_pct > 0,
     )
 
 

@@ -4,7 +4,6 @@ the extrapolation benchmark, predict's refusal past it, --extrapolate, and zero 
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
@@ -138,7 +137,6 @@ def test_the_growth_holds_a_recorded_staircase_beyond_its_reach(shared_data: Pat
     from thrustmap.fitting.loaders import load_datasets
     from thrustmap.fitting.selection import Selection, select
 
-    logging.getLogger("thrustmap").setLevel(logging.ERROR)
     path = shared_data / "xnova-thrust-stand" / "single_rotor" / "xNova-SR-steps-up.csv"
     (ds,) = load_datasets([str(path)])
     p = select(ds, Selection())

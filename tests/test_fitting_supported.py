@@ -175,6 +175,7 @@ def test_one_interval_in_fit_predict_map_and_report(
             iv["half_width_pct"] ** 2
             + iv["z"] ** 2 * (x @ cov @ x)
             + iv["systematic_pct"] ** 2
+            + iv.get("recording_pct", 0.0) ** 2
             + (iv["voltage_pct_per_log"] * rho) ** 2
         )
         t_lo, t_hi = region.thrust_range(b)

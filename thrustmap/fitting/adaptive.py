@@ -109,8 +109,10 @@ def fit_interval(
 
     def half_width(t: FloatArray, b: FloatArray) -> FloatArray:
         # the map's own interval, exactly as predict and fit evaluate it (with the
-        # coefficients' term; issue 31: the bench once asked it without, and stopped early)
-        half = tmap.interval_pct(t, b, corrected=False)
+        # coefficients' term; issue 31: the bench once asked it without, and stopped early),
+        # but without the second-recording term: what a second recording of the rotor would
+        # add is not what more points of this run can measure (the map it writes carries it)
+        half = tmap.interval_pct(t, b, corrected=False, within_recording=True)
         if half is None:
             return np.full(np.broadcast(t, b).shape, np.inf)
         return np.asarray(half, dtype=np.float64)
@@ -118,7 +120,7 @@ def fit_interval(
     def throttle(t: FloatArray, b: FloatArray) -> FloatArray:
         return np.asarray(tmap.throttle_pct(t, b, corrected=False), dtype=np.float64)
 
-    over = tmap.interval_over_region()
+    over = tmap.interval_over_region(within_recording=True)
     return Fitted(throttle, half_width, None if over is None else float(over[1]))
 
 

@@ -324,6 +324,9 @@ class Interval:
     #: where the benchmark's evidence ends (T / reach, |ln(B/B_measured)|): predict refuses past
     limit_thrust_ratio: float = EVIDENCE_LIMIT_THRUST_RATIO
     limit_voltage_log: float = EVIDENCE_LIMIT_VOLTAGE_LOG
+    #: a map fitted on one recording: what a second recording of the rotor adds (% throttle,
+    #: in quadrature; ``RECORDING_FACTOR``), 0 for a map fitted on several files
+    recording_pct: float = 0.0
 
     def voltage_log_distance(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> FloatArray:
         """ρ: |ln(B / nearest voltage measured near T)|."""
@@ -345,16 +348,24 @@ class Interval:
         return np.asarray(np.sqrt(np.clip(var, 0.0, None)), dtype=float)
 
     def parts(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, design: FloatArray | None = None
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        design: FloatArray | None = None,
+        *,
+        within_recording: bool = False,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(half-width at the data's distance 0, widening factor, distance outside the region),
-        each shaped like the broadcast query. ``design``: the model's rows at the query, flat."""
+        each shaped like the broadcast query. ``design``: the model's rows at the query, flat.
+        ``within_recording``: without the second-recording term (what more points of the same
+        run can narrow: the adaptive bench's stop rule)."""
         t, b = np.broadcast_arrays(np.asarray(thrust_n, float), np.asarray(voltage_v, float))
         sig = np.reshape(np.broadcast_to(self.parameter_sigma(design), t.size), t.shape)
         rho = self.voltage_log_distance(t, b)
         volt = self.voltage_pct_per_log * rho if self.voltage_pct_per_log else 0.0 * rho
+        rec = 0.0 if within_recording else self.recording_pct
         base = np.sqrt(
-            self.half_width_pct**2 + (self.z * sig) ** 2 + self.systematic_pct**2 + volt**2
+            self.half_width_pct**2 + (self.z * sig) ** 2 + self.systematic_pct**2 + rec**2 + volt**2
         )
         d = self.distance(t, b)
         if self.growth_per_reach:
@@ -399,9 +410,14 @@ class Interval:
         )
 
     def half_width(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, design: FloatArray | None = None
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        design: FloatArray | None = None,
+        *,
+        within_recording: bool = False,
     ) -> FloatArray:
-        base, factor, _ = self.parts(thrust_n, voltage_v, design)
+        base, factor, _ = self.parts(thrust_n, voltage_v, design, within_recording=within_recording)
         return np.asarray(base * factor, dtype=float)
 
     def to_dict(self) -> dict[str, Any]:
@@ -414,6 +430,7 @@ class Interval:
             "z": self.z,
             "parameter_covariance": [list(r) for r in self.covariance],
             "systematic_pct": self.systematic_pct,
+            **({"recording_pct": self.recording_pct} if self.recording_pct else {}),
             "voltage_pct_per_log": self.voltage_pct_per_log,
             **({"voltage_support": self.support.to_dict()} if self.support else {}),
             **(
@@ -431,7 +448,7 @@ class Interval:
                 else {}
             ),
             "formula": "half_width = sqrt(half_width_pct^2 + (z * sqrt(x' C x))^2 + "
-            "systematic_pct^2 + (voltage_pct_per_log * |ln(B / B_edge)|)^2) * "
+            "systematic_pct^2 + recording_pct^2 + (voltage_pct_per_log * |ln(B / B_edge)|)^2) * "
             "(1 + growth_per_reach * e); x = the model's terms at (T, B), C = "
             "parameter_covariance, B_edge = B clipped to the voltages measured near T "
             "(voltage_support, interpolated in thrust), e = how far T lies outside the "
@@ -457,6 +474,7 @@ class Interval:
             covariance=tuple(tuple(float(x) for x in row) for row in cov),
             z=float(d.get("z", Z_LEVEL)),
             systematic_pct=float(d.get("systematic_pct") or 0.0),
+            recording_pct=float(d.get("recording_pct") or 0.0),
             voltage_pct_per_log=float(d.get("voltage_pct_per_log") or 0.0),
             support=VoltageSupport.from_dict(d["voltage_support"])
             if isinstance(d.get("voltage_support"), dict)
@@ -472,6 +490,77 @@ Fitter = Callable[
 ]
 
 
+@dataclass(frozen=True)
+class IntervalTerms:
+    """What ``learn_interval`` adds to the held-out residuals: ``region`` (default: the
+    points'), the raw coefficients' ``covariance`` (the parameter term), ``file_fit(f)`` the
+    predictor fitted without file f (by-file folds of a map identified from more than the
+    points), ``systematic`` (% throttle, what) terms the stand showed beyond the residuals,
+    and κ (``voltage_pct_per_log``)."""
+
+    region: Region | None = None
+    covariance: FloatArray | None = None
+    file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None
+    systematic: Sequence[tuple[float, str]] = ()
+    voltage_pct_per_log: float = VOLTAGE_EXTRAPOLATION_PCT
+
+
+@dataclass
+class _HeldOut:
+    """Every fold's held-out points: |error|, thrust distance (spans), reach excess, ρ."""
+
+    how: str
+    resid: list[FloatArray]
+    dist: list[FloatArray]
+    excess: list[FloatArray]
+    rhos: list[FloatArray]
+
+
+def _folds(
+    fi: npt.NDArray[np.int64], n: int
+) -> tuple[list[BoolArray], list[int | None], str] | None:
+    """The test masks, the file each holds out (None: k-fold), and how (None: too few)."""
+    files = np.unique(fi)
+    if len(files) >= 2:
+        return [fi == f for f in files], [int(f) for f in files], "by-file"
+    k = min(KFOLDS, n // 2)
+    if k < 2:
+        return None
+    fold = np.random.default_rng(0).permutation(n) % k
+    return [fold == i for i in range(k)], [None] * k, f"{k}-fold"
+
+
+def _held_out(
+    t: FloatArray, b: FloatArray, th: FloatArray, fi: npt.NDArray[np.int64], fit: Fitter,
+    terms: IntervalTerms,
+) -> _HeldOut | None:  # fmt: skip
+    folds = _folds(fi, len(t))
+    if folds is None:
+        return None
+    splits, fold_files, how = folds
+    out = _HeldOut(how, [], [], [], [])
+    for test, held in zip(splits, fold_files, strict=True):
+        train = ~test
+        if train.sum() < 4 or test.sum() == 0:
+            continue
+        try:
+            if terms.file_fit is not None and held is not None:
+                predict = terms.file_fit(held)
+            else:
+                predict = fit(t[train], b[train], th[train])
+        except (ThrustmapError, np.linalg.LinAlgError, ValueError):
+            continue  # a fold the model cannot be fitted on contributes nothing
+        out.resid.append(np.abs(predict(t[test], b[test]) - th[test]))
+        fold_region = Region.from_points(t[train], b[train])
+        # the thrust distance only: voltage extrapolation is κ's (calibrated apart)
+        out.dist.append(fold_region.thrust_distance(t[test], b[test], fold_region.thrust_span_n))
+        out.excess.append(fold_region.reach_excess(t[test], b[test]))
+        out.rhos.append(
+            VoltageSupport.from_points(t[train], b[train]).log_distance(t[test], b[test])
+        )
+    return out if out.resid else None
+
+
 def learn_interval(
     thrust_n: FloatArray,
     voltage_v: FloatArray,
@@ -479,118 +568,77 @@ def learn_interval(
     file_index: npt.NDArray[np.int64],
     fit: Fitter,
     in_sample_abs_err: FloatArray,
-    region: Region | None = None,
-    covariance: FloatArray | None = None,
-    file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
-    systematic: Sequence[tuple[float, str]] = (),
-    voltage_pct_per_log: float = VOLTAGE_EXTRAPOLATION_PCT,
+    terms: IntervalTerms | None = None,
 ) -> Interval | None:
     """Learn the interval from held-out residuals. ``fit(t, b, th)`` returns a predictor;
-    ``covariance`` is the raw coefficients' covariance of the full fit (the parameter term);
-    ``file_fit(f)``, when given, is the predictor fitted without file f (by-file folds of a
-    map identified from more than the points, e.g. the stand's rpm and current). None when the
-    data is too small to hold anything out. ``systematic``: (% throttle, what) terms the stand
-    showed beyond the residuals, added in quadrature; ``voltage_pct_per_log``: κ."""
+    ``terms``: what is added to them (:class:`IntervalTerms`). None when the data is too
+    small to hold anything out."""
+    terms = terms or IntervalTerms()
+    kappa = terms.voltage_pct_per_log
     n = len(thrust_n)
-    region = region or Region.from_points(thrust_n, voltage_v)
-    t_unit = region.thrust_span_n
-    b_unit = region.voltage_unit_v
+    region = terms.region or Region.from_points(thrust_n, voltage_v)
     idx = np.arange(n)
     note = ""
     if n > MAX_POINTS:
         idx = idx[:: int(np.ceil(n / MAX_POINTS))]
         note = f", estimated on every {int(np.ceil(n / MAX_POINTS))}th point"
-    t, b, th, fi = thrust_n[idx], voltage_v[idx], throttle_pct[idx], file_index[idx]
-    files = np.unique(fi)
-    fold_files: list[int | None] = []
-    if len(files) >= 2:
-        splits = [fi == f for f in files]
-        fold_files = [int(f) for f in files]
-        how = "by-file"
-    else:
-        k = min(KFOLDS, len(t) // 2)
-        if k < 2:
-            return None
-        fold = np.random.default_rng(0).permutation(len(t)) % k
-        splits = [fold == i for i in range(k)]
-        fold_files = [None] * k
-        how = f"{k}-fold"
-    resid: list[FloatArray] = []
-    dist: list[FloatArray] = []
-    excess: list[FloatArray] = []
-    rhos: list[FloatArray] = []
-    for test, held in zip(splits, fold_files, strict=True):
-        train = ~test
-        if train.sum() < 4 or test.sum() == 0:
-            continue
-        try:
-            if file_fit is not None and held is not None:
-                predict = file_fit(held)
-            else:
-                predict = fit(t[train], b[train], th[train])
-        except (ThrustmapError, np.linalg.LinAlgError, ValueError):
-            continue  # a fold the model cannot be fitted on contributes nothing
-        resid.append(np.abs(predict(t[test], b[test]) - th[test]))
-        fold_region = Region.from_points(t[train], b[train])
-        # the thrust distance only: voltage extrapolation is κ's (calibrated apart)
-        dist.append(fold_region.thrust_distance(t[test], b[test], fold_region.thrust_span_n))
-        excess.append(fold_region.reach_excess(t[test], b[test]))
-        rhos.append(VoltageSupport.from_points(t[train], b[train]).log_distance(t[test], b[test]))
-    if not resid:
+    held = _held_out(thrust_n[idx], voltage_v[idx], throttle_pct[idx], file_index[idx], fit, terms)
+    if held is None:
         return None
     # a held-out point outside its fold's voltages carries κ's share of error: the rest of it
     # (in quadrature) is what q and the thrust growth must hold
-    rho = np.concatenate(rhos)
-    r = np.sqrt(np.maximum(np.concatenate(resid) ** 2 - (voltage_pct_per_log * rho) ** 2, 0.0))
-    d = np.concatenate(dist)
+    rho = np.concatenate(held.rhos)
+    r = np.sqrt(np.maximum(np.concatenate(held.resid) ** 2 - (kappa * rho) ** 2, 0.0))
+    d = np.concatenate(held.dist)
     inside = d == 0
-    q_base = r[inside] if inside.any() else r
-    q = float(np.percentile(q_base, 100 * LEVEL))
+    q = float(np.percentile(r[inside] if inside.any() else r, 100 * LEVEL))
     # never narrower than what the map misses on its own data
-    q = max(
-        q, float(np.percentile(in_sample_abs_err, 100 * LEVEL)) if len(in_sample_abs_err) else q
-    )
+    if len(in_sample_abs_err):
+        q = max(q, float(np.percentile(in_sample_abs_err, 100 * LEVEL)))
     q = max(q, 1e-3)
-    out = ~inside
-    growth, growth_reach, g_note = _growth(r / q, d, np.concatenate(excess), out)
+    growth, growth_reach, g_note = _growth(r / q, d, np.concatenate(held.excess), ~inside)
     cov: tuple[tuple[float, ...], ...] = ()
     p_note = "; no parameter term"
-    if covariance is not None and np.all(np.isfinite(covariance)):
-        cov = tuple(tuple(float(x) for x in row) for row in np.asarray(covariance, float))
+    if terms.covariance is not None and np.all(np.isfinite(terms.covariance)):
+        cov = tuple(tuple(float(x) for x in row) for row in np.asarray(terms.covariance, float))
         p_note = "; combined with the coefficients' uncertainty at each point"
-    if how != "by-file":
+    kept = [(float(v), w) for v, w in terms.systematic if v > 0 and np.isfinite(v)]
+    sys_pct = float(np.sqrt(sum(v * v for v, _ in kept)))
+    s_note = "; with " + ", ".join(f"±{v:.2f} % {w}" for v, w in kept) if kept else ""
+    rec_pct = 0.0
+    if held.how != "by-file":
         # one recording's scatter understates a second recording's (bench_extrapolation.py)
-        systematic = [*systematic, (q * math.sqrt(RECORDING_FACTOR**2 - 1.0), RECORDING_WHAT)]
-    terms = [(float(v), w) for v, w in systematic if v > 0 and np.isfinite(v)]
-    sys_pct = float(np.sqrt(sum(v * v for v, _ in terms)))
-    s_note = "; with " + ", ".join(f"±{v:.2f} % {w}" for v, w in terms) if terms else ""
-    if how != "by-file":
-        s_note += "; one file: the scatter between files recorded on different days is not measured"
+        rec_pct = q * math.sqrt(RECORDING_FACTOR**2 - 1.0)
+        s_note += (
+            "; one file: the scatter between files recorded on different days is not measured: "
+            f"±{rec_pct:.2f} % for {RECORDING_WHAT} (×{RECORDING_FACTOR:g} on the held-out "
+            "scatter, benchmarks/bench_extrapolation.py)"
+        )
     v_note = (
-        f"; away from the voltages measured at that thrust, ±{voltage_pct_per_log:g} % per "
+        f"; away from the voltages measured at that thrust, ±{kappa:g} % per "
         "unit of |ln(B/B_edge)| (calibrated on third-party cross-voltage stand data)"
-        if voltage_pct_per_log
+        if kappa
         else ""
     )
     basis = (
-        f"{how} held-out residuals, {int(inside.sum())} inside and {int(out.sum())} outside "
-        f"the training region{note}; {g_note}{p_note}{s_note}{v_note}"
+        f"{held.how} held-out residuals, {int(inside.sum())} inside and {int((~inside).sum())} "
+        f"outside the training region{note}; {g_note}{p_note}{s_note}{v_note}"
     )
-    support = VoltageSupport.from_points(thrust_n, voltage_v)
     return Interval(
         q,
         growth,
-        t_unit,
-        b_unit,
+        region.thrust_span_n,
+        region.voltage_unit_v,
         region,
         basis,
         LEVEL,
         cov,
         Z_LEVEL,
         sys_pct,
-        voltage_pct_per_log,
-        support,
+        kappa,
+        VoltageSupport.from_points(thrust_n, voltage_v),
         growth_reach,
+        recording_pct=rec_pct,
     )
 
 
@@ -619,82 +667,14 @@ def _growth(
 
 
 def interval_range(
-    interval: Interval, design: Callable[[FloatArray, FloatArray], FloatArray]
+    interval: Interval,
+    design: Callable[[FloatArray, FloatArray], FloatArray],
+    *,
+    within_recording: bool = False,
 ) -> tuple[float, float]:
     """The interval's smallest and largest half-width over its supported region (a grid)."""
     tt, bb = interval.region.grid()
-    half = interval.half_width(tt, bb, design(tt.ravel(), bb.ravel()))
+    half = interval.half_width(
+        tt, bb, design(tt.ravel(), bb.ravel()), within_recording=within_recording
+    )
     return float(np.min(half)), float(np.max(half))
-
-
-def advice(
-    interval: Interval | None,
-    region: Region,
-    over_region: tuple[float, float] | None,
-    thrust_n: FloatArray,
-    voltage_v: FloatArray,
-    physics_voltage: bool,
-    few_points: bool = False,
-) -> tuple[str, str]:
-    """Two lines for ``fit``: where the map can be trusted, and where data would help most."""
-    t_lo, t_hi = float(thrust_n.min()), float(thrust_n.max())
-    b_lo, b_hi = float(voltage_v.min()), float(voltage_v.max())
-    if interval is None or over_region is None:
-        trust = (
-            f"trustworthy only at the data ({region.describe()}); too few points to learn a "
-            "prediction interval"
-        )
-    else:
-        lo, hi = over_region
-        g = interval.growth_per_span
-        if interval.growth_per_reach:
-            gr = interval.growth_per_reach
-            widen = (
-                f"; beyond the thrust reached it widens by ×(1 + {gr:.2f}·√(T/reach - 1)) "
-                f"(×{1 + gr * math.sqrt(0.25):.1f} at 1.25× the reach, evidence up to "
-                f"{interval.limit_thrust_ratio:g}×), and away from the voltages measured near a "
-                f"thrust by ±{interval.voltage_pct_per_log:g} % per unit |ln(B/B_measured)| "
-                f"(±{interval.voltage_pct_per_log * math.log(1.1):.1f} % at 10 % off; evidence up "
-                f"to {interval.limit_voltage_log:g})"
-            )
-        elif interval.voltage_pct_per_log:
-            widen = (
-                f"; beyond the thrust reached it widens by ×{1 + g:.2f} per "
-                f"{interval.thrust_unit_n:.3f} N, and away from the voltages measured near a "
-                f"thrust by ±{interval.voltage_pct_per_log:g} % per unit |ln(B/B_measured)| "
-                f"(±{interval.voltage_pct_per_log * math.log(1.1):.1f} % at 10 % off)"
-            )
-        else:
-            widen = (
-                f"; outside it, it widens by ×{1 + g:.2f} per region-size (thrust "
-                f"{interval.thrust_unit_n:.3f} N, voltage {interval.voltage_unit_v:.2f} V)"
-            )
-        trust = (
-            f"trustworthy to ±{lo:.2f}..{hi:.2f} % ({100 * interval.level:.0f} % prediction "
-            f"interval) over the supported region{widen}"
-        )
-    if physics_voltage and few_points:
-        more = (
-            f"more data would help most as more throttle levels at several voltages across "
-            f"B {b_lo:.2f}..{b_hi:.2f} V: with them the voltage term is fitted, not assumed"
-        )
-    elif physics_voltage:
-        more = (
-            f"more data would help most at another battery voltage (e.g. below {0.9 * b_lo:.1f} V "
-            "or over a discharge): the voltage scaling now rests on motor physics"
-        )
-    else:
-        ts = np.sort(np.unique(thrust_n))
-        gaps = np.diff(ts)
-        if len(gaps) and gaps.max() > 0.25 * max(t_hi - t_lo, 1e-9):
-            i = int(np.argmax(gaps))
-            more = (
-                f"more data would help most between T {ts[i]:.3f} and {ts[i + 1]:.3f} N "
-                "(the largest gap in thrust)"
-            )
-        else:
-            more = (
-                f"more data would help most where the data stop: higher thrust at the lower "
-                f"voltages, or outside B {b_lo:.2f}..{b_hi:.2f} V, where the map extrapolates"
-            )
-    return trust, more

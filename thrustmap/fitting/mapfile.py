@@ -204,10 +204,16 @@ class ThrustMap:
         return np.asarray(t, dtype=float)
 
     def interval_parts(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        *,
+        corrected: bool = True,
+        within_recording: bool = False,
     ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
         """The prediction interval at (T, B) in parts: (half-width before widening, widening
-        factor, distance outside the supported region). None: the map has no interval."""
+        factor, distance outside the supported region). None: the map has no interval.
+        ``within_recording``: without the second-recording term (``Interval.parts``)."""
         iv = self.prediction_interval()
         if iv is None:
             return None
@@ -216,7 +222,7 @@ class ThrustMap:
             np.asarray(voltage_v, float),
         )
         design = self.model_def.design(t.ravel(), b.ravel())
-        return iv.parts(t, b, design)
+        return iv.parts(t, b, design, within_recording=within_recording)
 
     def standing(self, thrust_n: float, voltage_v: float, *, corrected: bool = True) -> Standing:
         """Where (T, B) stands: inside the supported region, extrapolated within the
@@ -233,21 +239,30 @@ class ThrustMap:
         return replace(st, half_width_pct=None) if bare else st
 
     def interval_pct(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        *,
+        corrected: bool = True,
+        within_recording: bool = False,
     ) -> FloatArray | None:
         """Half-width of the map's prediction interval, % throttle: the one interval every
-        command and the report use. None: the map has no interval."""
-        parts = self.interval_parts(thrust_n, voltage_v, corrected=corrected)
+        command and the report use. None: the map has no interval. ``within_recording``:
+        without the second-recording term (the adaptive bench's stop rule)."""
+        parts = self.interval_parts(
+            thrust_n, voltage_v, corrected=corrected, within_recording=within_recording
+        )
         if parts is None:
             return None
         return np.asarray(parts[0] * parts[1], dtype=float)
 
-    def interval_over_region(self) -> tuple[float, float] | None:
-        """Smallest and largest half-width over the supported region (None: no interval)."""
+    def interval_over_region(self, *, within_recording: bool = False) -> tuple[float, float] | None:
+        """Smallest and largest half-width over the supported region (None: no interval);
+        ``within_recording``: without the second-recording term (``Interval.parts``)."""
         iv = self.prediction_interval()
         if iv is None:
             return None
-        return interval_range(iv, self.model_def.design)
+        return interval_range(iv, self.model_def.design, within_recording=within_recording)
 
     def in_box(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """Inside the map's supported region (where its data are; the box for older maps)."""
