@@ -14,7 +14,7 @@ data at all (a motor fitted on 2S and 3S does not reach its 3S thrust on 2S).
 **The interval** (one computation, :meth:`Interval.half_width`, used by fit, predict, the map
 file, the report, ``compare``/``evaluate`` coverage and the adaptive bench's stop rule):
 
-    half_width(T, B) = √(q² + (z·σ_p(T, B))² + s² + (κ·ρ(B))²) · (1 + growth · d(T, B))
+    half_width(T, B) = √(q² + (z·σ_p(T, B))² + s² + r² + (κ·ρ(B))²) · (1 + growth · √e(T, B))
 
 ``q`` is the 95th percentile of |held-out error| of points inside their training region (by
 file when there are several files, so it carries the scatter between files recorded on
@@ -25,11 +25,14 @@ showed that residuals hide (``systematic_pct``: half the up/down legs' disagreem
 thrust, and what a coefficient resting on its bound would change if freed); ``ρ(B)`` is how far
 B lies outside the voltages measured, |ln(B / nearest measured voltage)|, and ``κ``
 (``VOLTAGE_EXTRAPOLATION_PCT``) the error per unit of it that the motor physics leaves
-(calibrated on third-party cross-voltage stand data, see the constant); ``d`` is the distance
-outside the supported region's thrust range in units of its thrust span, and ``growth`` the
-median relative excess error per unit distance of held-out points that lay outside their
-training region (1 when none did, never below ``MIN_GROWTH``); the interval's ``basis`` says
-which.
+(calibrated on third-party cross-voltage stand data, see the constant); ``r``
+(``recording_pct``, a map fitted on one recording only) what a second recording of the rotor
+adds; ``e`` how far T lies outside the thrust the data reached at B, in units of that reach
+(T / reach - 1 above it), and ``growth`` (``growth_per_reach``) the extrapolation benchmark's
+``EXTRAPOLATION_GROWTH``, or what the map's own folds showed when that is more. Past
+``evidence_limit`` (``fitting.extrapolation``) no benchmark shows the interval holds:
+:meth:`Interval.standing` says so. A map written before kept ``growth_per_span`` (×(1 + growth
+· d), d in thrust spans), which is still read. The interval's ``basis`` says which.
 """
 
 from __future__ import annotations
