@@ -14,9 +14,11 @@ over the envelope is within the target.
 Everything the map is asked goes through one function, :func:`fit_interval` (fit the points,
 return the prediction and its interval at (T, B)), so a change of the interval's definition
 changes the choice without touching the rest. The interval is the map's own
-(``ThrustMap.interval_pct``, what ``predict`` and ``fit`` report), and the target must hold over
-the envelope and over the map's supported region, the range ``fit`` states: a bench that says
-"target met" is a bench whose log ``fit`` calls trustworthy to within the target.
+(``ThrustMap.interval_pct``, what ``predict`` and ``fit`` report) within its recording (without
+the term a second recording of the rotor adds, which more points of this run cannot measure),
+and the target must hold over the envelope and over the map's supported region, the range
+``fit`` states "within this recording": a bench that says "target met" is a bench whose log
+``fit`` calls trustworthy to within the target there.
 
 Across voltage (``voltage_range_v``, ``sweep adaptive --across-voltage --voltage-range LO:HI``)
 the target must hold over the asked voltage range, not the voltages seen; the map's interval
