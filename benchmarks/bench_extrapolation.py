@@ -71,6 +71,9 @@ TUNE_STRAWSON = ("a", "b", "c")
 TUNE_SEEDS = (1, 2, 3)
 ASIDE_SEEDS = (4, 5, 6)
 MIN_BIN_POINTS = 10  # a bin with fewer points is printed but is not evidence
+#: main 19a0a12's κ: the baseline column is main's interval (its growth per thrust span, this
+#: κ, no second-recording term) on this branch's fit (q as learned here)
+MAIN_KAPPA_PCT = 12.5
 
 
 @dataclass
@@ -174,7 +177,15 @@ def score(rec: Recording, tmap: ThrustMap, g_own: float, test: Points, kind: str
         kind=kind,
         err=np.abs(pred - test.throttle_pct),
         base=np.asarray(base),
-        base_main=np.sqrt(np.maximum(np.asarray(base) ** 2 - rec_pct**2, 0.0)),
+        base_main=np.sqrt(
+            np.maximum(
+                np.asarray(base) ** 2
+                - rec_pct**2
+                - (iv.voltage_pct_per_log**2 - MAIN_KAPPA_PCT**2)
+                * iv.voltage_log_distance(t, b) ** 2,
+                0.0,
+            )
+        ),
         d_span=region.thrust_distance(t, b, iv.thrust_unit_n),
         excess=region.reach_excess(t, b),
         ratio=region.reach_ratio(t, b),
@@ -548,8 +559,9 @@ def main() -> int:
         f"held-out points by distance outside the map's supported region (thrust bins "
         f"{THRUST_BIN:g} of T/reach at B; voltage bins {VOLTAGE_BIN:g} of |ln(B/B_measured)|; "
         f"limit {EVIDENCE_LIMIT_THRUST_RATIO:g}x the reach, |ln B/Bm| "
-        f"{EVIDENCE_LIMIT_VOLTAGE_LOG:g}); growth {growth:g} per reach (main: its per-map "
-        f"growth per thrust span); {table.failed} fits failed or had too few points"
+        f"{EVIDENCE_LIMIT_VOLTAGE_LOG:g}); growth {growth:g} per √reach; main cov: main "
+        f"19a0a12's interval (its per-map growth per thrust span, κ {MAIN_KAPPA_PCT:g}, no "
+        f"second-recording term); {table.failed} fits failed or had too few points"
     )
     print(f"  {'bin':<24} {'n':>5} {'med err':>8} {'cover':>7} {'main cov':>9}")
     verdicts = []
