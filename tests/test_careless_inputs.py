@@ -292,6 +292,13 @@ ROWS = [
         "exactly one",
     ),
     Row("predict 150 %", "predict {map} --throttle-pct 150 --voltage-v 24", 2, "0..100 %"),
+    Row(  # issue 44 item 12: zero thrust is the spin-up, not "unreachable"
+        "predict zero thrust",
+        "predict {map} --thrust-n 0 --voltage-v 24",
+        0,
+        "zero thrust at 24.00 V",
+        absent="unreachable",
+    ),
     Row(
         "predict more than the motor makes",
         "predict {map} --thrust-n 100 --voltage-v 24",

@@ -98,7 +98,9 @@ def test_predict_outside_the_scale_is_unreachable_not_an_answer(
     assert float(tmap.throttle_pct(nearest, 7.19)) == pytest.approx(100.0, abs=1e-6)
     # the nearest reachable thrust is itself an answer within the scale
     code, out, _ = run(
-        ["predict", m, "--thrust-n", f"{nearest - 1e-5:.6f}", "--voltage-v", "7.19"], capsys
+        ["predict", m, "--thrust-n", f"{nearest - 1e-5:.6f}", "--voltage-v", "7.19"]
+        + ["--extrapolate"],
+        capsys,
     )
     assert code == 0 and re.search(r"throttle (99\.99\d|100\.000) ±", out), out
 
@@ -159,7 +161,9 @@ def test_one_interval_in_fit_predict_map_and_report(
     assert cov.shape == (4, 4)
     for t, b in ((1.0, 7.3), (8.0, 10.9), (4.4, 7.2), (1.0, 14.0)):
         code, out, _ = run(
-            ["predict", str(m), "--thrust-n", str(t), "--voltage-v", str(b), "--json"], capsys
+            ["predict", str(m), "--thrust-n", str(t), "--voltage-v", str(b), "--json"]
+            + ["--extrapolate"],
+            capsys,
         )
         got = json.loads(out)["interval_pct"]
         x = np.array([1.0, 1.0 / b, np.sqrt(t) / b, t / b])
@@ -171,11 +175,12 @@ def test_one_interval_in_fit_predict_map_and_report(
             iv["half_width_pct"] ** 2
             + iv["z"] ** 2 * (x @ cov @ x)
             + iv["systematic_pct"] ** 2
+            + iv.get("recording_pct", 0.0) ** 2
             + (iv["voltage_pct_per_log"] * rho) ** 2
         )
         t_lo, t_hi = region.thrust_range(b)
-        d = max(float(t_lo) - t, t - float(t_hi), 0.0) / iv["thrust_unit_n"]
-        assert got == pytest.approx(base * (1 + iv["growth_per_span"] * d), rel=1e-9)
+        e = max(float(t_lo) - t, t - float(t_hi), 0.0) / float(t_hi)
+        assert got == pytest.approx(base * (1 + iv["growth_per_reach"] * np.sqrt(e)), rel=1e-9)
     # and the range over the region is the minimum and maximum of that same function
     tmap = ThrustMap.load(m)
     tt, bb = tmap.supported_region().grid()

@@ -407,6 +407,12 @@ def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any
 @click.option("--throttle-pct", type=float, help="Throttle in % (forward: gives thrust).")
 @click.option("--voltage-v", type=float, required=True, help="Battery voltage, V.")
 @click.option("--no-correction", is_flag=True, help="Ignore the map's γ(B) flight correction.")
+@click.option(
+    "--extrapolate",
+    is_flag=True,
+    help="Answer beyond the evidence too (past the distance outside the map's data where the "
+    "extrapolation benchmark shows its interval holds; without it: exit 1).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def predict_cmd(
     map_file: str,
@@ -415,10 +421,11 @@ def predict_cmd(
     throttle_pct: float | None,
     voltage_v: float,
     no_correction: bool,
+    extrapolate: bool,
     as_json: bool,
 ) -> None:
     """Throttle for a thrust (the map), or thrust for a throttle (forward)."""
-    from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.cli.predict import Query, run_predict
 
     given = [x is not None for x in (thrust_n, throttle_native, throttle_pct)]
     if sum(given) != 1:
@@ -431,167 +438,10 @@ def predict_cmd(
     physical.battery_voltage_v(voltage_v, "--voltage-v")
     if throttle_pct is not None and throttle_pct < 0:
         raise ConfigError(f"--throttle-pct: expected a value >= 0, got {throttle_pct:g}")
-    tmap = ThrustMap.load(map_file)
-    _check_pack(tmap, voltage_v)
-    sc = tmap.throttle_scale
-    corrected = not no_correction
-    if thrust_n is None:
-        pct_in = float(throttle_pct if throttle_pct is not None else sc.to_pct(throttle_native))  # type: ignore[arg-type]
-        if not -1e-9 <= pct_in <= 100.0 + 1e-9:
-            given_as = (
-                f"--throttle-pct {throttle_pct:g}"
-                if throttle_pct is not None
-                else f"--throttle {throttle_native:g} ({pct_in:.1f} %)"
-            )
-            raise ConfigError(
-                f"{given_as}: expected 0..100 % of the map's throttle scale "
-                f"({sc.lo:g}..{sc.hi:g} {sc.unit_label})"
-            )
-    if thrust_n is not None:
-        pct = float(tmap.throttle_pct(thrust_n, voltage_v, corrected=corrected))
-        t = thrust_n
-    else:
-        pct = pct_in
-        t = float(tmap.thrust_n(pct, voltage_v, corrected=corrected))
-    if not (math.isfinite(pct) and math.isfinite(t)):
-        raise ConfigError(f"the map gives no finite answer at T={t:g} N, B={voltage_v:g} V")
-    # the region is where the bench map's data are: a γ-corrected map evaluates it at γ(B)·T
-    inside = bool(tmap.in_box(tmap.model_thrust(t, voltage_v, corrected=corrected), voltage_v))
-    interval = tmap.prediction_interval()
-    parts = tmap.interval_parts(t, voltage_v, corrected=corrected)
-    half = base = factor = dist = None
-    if parts is not None:
-        base, factor, dist = (float(x) for x in parts)
-        half = base * factor
-    region = tmap.supported_region()
-    g = float(tmap.model_thrust(1.0, voltage_v, corrected=corrected))  # γ(B), 1 uncorrected
-    r_lo, r_hi = (float(x) / g for x in region.thrust_range(voltage_v))
-    common = {
-        "thrust_n": t,
-        "voltage_v": voltage_v,
-        "throttle_unit": sc.unit,
-        # inside the supported region (where the map's data are); the historical key is kept
-        "inside_supported_region": inside,
-        "inside_validity_box": inside,
-        "supported_thrust_n": [r_lo, r_hi]
-        if region.voltage_lo_v <= voltage_v <= region.voltage_hi_v
-        else None,
-        "corrected": corrected and tmap.correction is not None,
-        # γ(B) applied at this voltage (None: no correction applied)
-        "gamma": g if corrected and tmap.correction is not None else None,
-    }
-    applied = _gamma_line(tmap, g, voltage_v) if common["gamma"] is not None else None
-    if thrust_n is not None and not 0.0 <= pct <= 100.0:
-        # not an answer: the motor cannot make this thrust at this voltage (per the map)
-        edge = 100.0 if pct > 100.0 else 0.0
-        nearest = float(tmap.thrust_n(edge, voltage_v, corrected=corrected))
-        result = {
-            **common,
-            "reachable": False,
-            "throttle_pct": None,
-            "throttle_native": None,
-            "required_throttle_pct": pct,
-            "nearest_reachable_thrust_n": nearest,
-            "nearest_reachable_throttle_pct": edge,
-        }
-        if as_json:
-            click.echo(_json(result))
-        else:
-            echo(
-                f"unreachable: T={t:.4f} N at {voltage_v:.2f} V would need "
-                f"{'more than 100' if edge else 'less than 0'} % of the throttle scale "
-                f"({pct:.1f} % by the map); the nearest reachable thrust at {voltage_v:.2f} V is "
-                f"{nearest:.4f} N (throttle {edge:.0f} %)"
-            )
-            if applied:
-                click.echo(applied)
-        sys.exit(1)  # exit 1: no answer (as spin and sweep exit 1 when a limit stops them)
-    native = float(sc.from_pct(pct))
-    result = {
-        **common,
-        "reachable": True,
-        "throttle_pct": pct,
-        "throttle_native": native,
-        # half-width of the map's prediction interval in throttle % (None: the map has none)
-        "interval_pct": half,
-        "interval_native": None if half is None else half * sc.span / 100.0,
-        "interval_level": None if interval is None else interval.level,
-        # how much the interval widened for the distance outside the supported region
-        "interval_widening": factor,
-        "interval_at_region_pct": base,
-    }
-    thrust_line = None
-    if thrust_n is None:
-        thrust_line = _forward_thrust(tmap if corrected else tmap.with_correction(None), pct,
-                                      voltage_v, result)  # fmt: skip
-    if not inside:
-        where = (
-            f"at {voltage_v:.2f} V the data reach T {r_lo:.3f}..{r_hi:.3f} N"
-            if region.voltage_lo_v <= voltage_v <= region.voltage_hi_v
-            else f"the data span B {region.voltage_lo_v:.2f}..{region.voltage_hi_v:.2f} V"
-        )
-        widened = (
-            ""
-            if half is None or base is None or factor is None
-            else f"; interval widened ×{factor:.2f}, from ±{base:.2f} % to ±{half:.2f} %"
-        )
-        echo(
-            f"warning: T={t:.3f} N, B={voltage_v:.2f} V is outside the map's supported region "
-            f"({where}): extrapolated{widened}",
-            err=True,
-        )
-    if as_json:
-        click.echo(_json(result))
-    else:
-        pm = "" if half is None else f" ± {half:.2f}"
-        pm_native = "" if half is None else f" ± {half * sc.span / 100.0:.2f}"
-        level = "" if interval is None else f" ({100 * interval.level:.0f} % prediction interval)"
-        echo(
-            f"thrust {t:.4f} N at {voltage_v:.2f} V  <->  throttle {pct:.3f}{pm} % = "
-            f"{native:.2f}{pm_native} {sc.unit_label}{level}"
-        )
-        if thrust_line:
-            click.echo(thrust_line)
-        if applied:
-            click.echo(applied)
-
-
-def _check_pack(tmap: Any, voltage_v: float) -> None:
-    """Refuse a voltage that is one cell of the map's pack (or a whole pack given to a
-    per-cell map); say which pack a one-cell map's voltages were read as."""
-    box = tmap.validity.voltage_v
-    problem = physical.voltage_against_pack(voltage_v, box.lo, box.hi)
-    if problem is not None:
-        raise ConfigError(problem)
-    assumed = physical.pack_assumed(box.lo, box.hi)
-    if assumed is not None:
-        echo(f"note: {assumed}", err=True)
-
-
-def _forward_thrust(tmap: Any, pct: float, voltage_v: float, result: dict[str, Any]) -> str:
-    """The thrust at a throttle as every export writes it (``fitting.mapvalues``): its 95 %
-    interval in N and whether it is extrapolated, added to ``result``; the line to print."""
-    from thrustmap.core.errors import FitError
-    from thrustmap.fitting.mapvalues import thrust_value
-
-    try:
-        v = thrust_value(tmap, pct, voltage_v, key="thrust_n", name="thrust")
-    except FitError as exc:
-        result["thrust_interval_n"] = None
-        return f"  thrust interval: {exc}"
-    result["thrust_interval_n"] = None if v.lo is None else [v.lo, v.hi]
-    result["thrust_extrapolated"] = v.extrapolated
-    return f"  {v.line()}"
-
-
-def _gamma_line(tmap: Any, gamma: float, voltage_v: float) -> str:
-    """The line that says the map's flight correction was applied (and whether forced)."""
-    forced = tmap.correction.metrics.get("forced") if tmap.correction is not None else None
-    return (
-        f"flight correction applied: γ(B) = {gamma:.4g} at {voltage_v:.2f} V (the bench map at "
-        f"γ·T; --no-correction for the bench map alone)"
-        + (f"; γ was written with --force: {'; '.join(map(str, forced))}" if forced else "")
-    )
+    query = Query(thrust_n, throttle_native, throttle_pct, voltage_v, not no_correction)
+    code = run_predict(map_file, query, extrapolate=extrapolate, as_json=as_json)
+    if code:
+        sys.exit(code)  # exit 1: no answer (as spin and sweep exit 1 when a limit stops them)
 
 
 @click.command("inspect")

@@ -14,9 +14,11 @@ over the envelope is within the target.
 Everything the map is asked goes through one function, :func:`fit_interval` (fit the points,
 return the prediction and its interval at (T, B)), so a change of the interval's definition
 changes the choice without touching the rest. The interval is the map's own
-(``ThrustMap.interval_pct``, what ``predict`` and ``fit`` report), and the target must hold over
-the envelope and over the map's supported region, the range ``fit`` states: a bench that says
-"target met" is a bench whose log ``fit`` calls trustworthy to within the target.
+(``ThrustMap.interval_pct``, what ``predict`` and ``fit`` report) within its recording (without
+the term a second recording of the rotor adds, which more points of this run cannot measure),
+and the target must hold over the envelope and over the map's supported region, the range
+``fit`` states "within this recording": a bench that says "target met" is a bench whose log
+``fit`` calls trustworthy to within the target there.
 
 Across voltage (``voltage_range_v``, ``sweep adaptive --across-voltage --voltage-range LO:HI``)
 the target must hold over the asked voltage range, not the voltages seen; the map's interval
@@ -109,8 +111,10 @@ def fit_interval(
 
     def half_width(t: FloatArray, b: FloatArray) -> FloatArray:
         # the map's own interval, exactly as predict and fit evaluate it (with the
-        # coefficients' term; issue 31: the bench once asked it without, and stopped early)
-        half = tmap.interval_pct(t, b, corrected=False)
+        # coefficients' term; issue 31: the bench once asked it without, and stopped early),
+        # but without the second-recording term: what a second recording of the rotor would
+        # add is not what more points of this run can measure (the map it writes carries it)
+        half = tmap.interval_pct(t, b, corrected=False, within_recording=True)
         if half is None:
             return np.full(np.broadcast(t, b).shape, np.inf)
         return np.asarray(half, dtype=np.float64)
@@ -118,7 +122,7 @@ def fit_interval(
     def throttle(t: FloatArray, b: FloatArray) -> FloatArray:
         return np.asarray(tmap.throttle_pct(t, b, corrected=False), dtype=np.float64)
 
-    over = tmap.interval_over_region()
+    over = tmap.interval_over_region(within_recording=True)
     return Fitted(throttle, half_width, None if over is None else float(over[1]))
 
 

@@ -28,7 +28,7 @@ from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
 from thrustmap.core.physical import gamma_outside_band, hover_outside_map
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.interval import Interval, Region, interval_range
+from thrustmap.fitting.interval import Interval, Region, Standing, interval_range
 from thrustmap.fitting.models import Model, get_model, motor_forward
 
 log = logging.getLogger(__name__)
@@ -217,10 +217,16 @@ class ThrustMap:
         return np.asarray(t, dtype=float)
 
     def interval_parts(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        *,
+        corrected: bool = True,
+        within_recording: bool = False,
     ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
         """The prediction interval at (T, B) in parts: (half-width before widening, widening
-        factor, distance outside the supported region). None: the map has no interval."""
+        factor, distance outside the supported region). None: the map has no interval.
+        ``within_recording``: without the second-recording term (``Interval.parts``)."""
         iv = self.prediction_interval()
         if iv is None:
             return None
@@ -229,24 +235,47 @@ class ThrustMap:
             np.asarray(voltage_v, float),
         )
         design = self.model_def.design(t.ravel(), b.ravel())
-        return iv.parts(t, b, design)
+        return iv.parts(t, b, design, within_recording=within_recording)
+
+    def standing(self, thrust_n: float, voltage_v: float, *, corrected: bool = True) -> Standing:
+        """Where (T, B) stands: inside the supported region, extrapolated within the
+        benchmark's evidence, or beyond it; with the interval there (``half_width_pct`` None:
+        the map has no interval; its region and the benchmark's limits still answer)."""
+        iv = self.prediction_interval()
+        region = self.supported_region()
+        bare = iv is None
+        if iv is None:
+            iv = Interval(0.0, 0.0, region.thrust_span_n, region.voltage_unit_v, region, "")
+        t = float(self.model_thrust(thrust_n, voltage_v, corrected=corrected))
+        design = self.model_def.design(np.array([t]), np.array([float(voltage_v)]))
+        st = iv.standing(t, float(voltage_v), design)
+        return replace(st, half_width_pct=None) if bare else st
 
     def interval_pct(
-        self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike, *, corrected: bool = True
+        self,
+        thrust_n: npt.ArrayLike,
+        voltage_v: npt.ArrayLike,
+        *,
+        corrected: bool = True,
+        within_recording: bool = False,
     ) -> FloatArray | None:
         """Half-width of the map's prediction interval, % throttle: the one interval every
-        command and the report use. None: the map has no interval."""
-        parts = self.interval_parts(thrust_n, voltage_v, corrected=corrected)
+        command and the report use. None: the map has no interval. ``within_recording``:
+        without the second-recording term (the adaptive bench's stop rule)."""
+        parts = self.interval_parts(
+            thrust_n, voltage_v, corrected=corrected, within_recording=within_recording
+        )
         if parts is None:
             return None
         return np.asarray(parts[0] * parts[1], dtype=float)
 
-    def interval_over_region(self) -> tuple[float, float] | None:
-        """Smallest and largest half-width over the supported region (None: no interval)."""
+    def interval_over_region(self, *, within_recording: bool = False) -> tuple[float, float] | None:
+        """Smallest and largest half-width over the supported region (None: no interval);
+        ``within_recording``: without the second-recording term (``Interval.parts``)."""
         iv = self.prediction_interval()
         if iv is None:
             return None
-        return interval_range(iv, self.model_def.design)
+        return interval_range(iv, self.model_def.design, within_recording=within_recording)
 
     def in_box(self, thrust_n: npt.ArrayLike, voltage_v: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """Inside the map's supported region (where its data are; the box for older maps)."""
@@ -528,6 +557,15 @@ def _interval(f: Fields) -> dict[str, Any]:
     out = dict(sub.obj)
     for key in ("half_width_pct", "growth_per_span"):
         out[key] = sub.number(key, minimum=0.0)
+    if sub.has("growth_per_reach"):
+        out["growth_per_reach"] = sub.number("growth_per_reach", minimum=0.0)
+    if sub.has("evidence_limit"):
+        lim = sub.sub("evidence_limit")
+        out["evidence_limit"] = {
+            **lim.obj,
+            "thrust_reach_ratio": lim.number("thrust_reach_ratio", minimum=1.0),
+            "voltage_log_distance": lim.number("voltage_log_distance", minimum=0.0),
+        }
     if sub.has("z"):
         out["z"] = sub.number("z", minimum=0.0)
     cov = sub.obj.get("parameter_covariance") or []

@@ -57,6 +57,9 @@ class MapValue:
     reach_n: tuple[float, float] | None = None
     note: str = ""
     level: float = 0.95
+    #: why the value lies beyond what the extrapolation benchmark has evidence for (None:
+    #: within it); its interval there rests on the growth's extrapolation (docs/intervals.md)
+    beyond_evidence: str | None = None
 
     def interval_text(self, convert: Callable[[float], float] | None = None, unit: str = "") -> str:
         """'95 % interval 17.9..22.3 N' (in ``convert``'s units when given)."""
@@ -82,6 +85,11 @@ class MapValue:
                 f"EXTRAPOLATED: outside the supported region ({self.distance:.2f} region "
                 f"spans beyond{reach})"
             )
+            if self.beyond_evidence:
+                where += (
+                    f"; BEYOND THE EVIDENCE ({self.beyond_evidence}): the interval there is the "
+                    "growth extrapolated, not measured"
+                )
         return (
             f"{self.name} at {self.voltage_v:.4g} V: {c(self.value):.4g} {u}, "
             f"{self.interval_text(convert, unit)}; {where}"
@@ -120,17 +128,26 @@ class MapValues:
         return {v.key: v.to_dict() for v in self.all()}
 
 
-def _where(
-    tmap: ThrustMap, thrust_n: float, voltage_v: float
-) -> tuple[bool, float, tuple[float, float]]:
-    """(outside the supported region, distance in thrust spans, reach at B in N)."""
+@dataclass(frozen=True)
+class _Place:
+    """Where a value's (T, B) stands: outside the supported region, how far (thrust spans),
+    the reach at B (N), and why it is beyond the benchmark's evidence (None: within it)."""
+
+    outside: bool
+    distance: float
+    reach_n: tuple[float, float]
+    beyond_evidence: str | None
+
+
+def _where(tmap: ThrustMap, thrust_n: float, voltage_v: float) -> _Place:
+    """Where (T, B) stands, as ``predict`` says it (``ThrustMap.standing``)."""
     t_model = float(tmap.model_thrust(thrust_n, voltage_v))
     region = tmap.supported_region()
-    outside = not bool(tmap.in_box(t_model, voltage_v))
+    st = tmap.standing(thrust_n, voltage_v)
     dist = float(region.distance(t_model, voltage_v, region.thrust_span_n, region.voltage_unit_v))
     g = t_model / thrust_n if thrust_n > 0 else 1.0  # γ(B): the region is in bench thrust
     lo, hi = (float(x) / g for x in region.thrust_range(voltage_v))
-    return outside, dist, (lo, hi)
+    return _Place(st.extrapolated, dist, (lo, hi), st.beyond_evidence)
 
 
 def _solve_thrust(fn: Callable[[float], float], lo: float, hi: float) -> float:
@@ -196,10 +213,11 @@ def thrust_value(
 
         lo = 0.0 if upper(0.0) >= 0.0 else _solve_thrust(upper, 0.0, t)
         hi = _first_crossing(lower, t, max(t, 1e-6) * _SEARCH_FACTOR)
-    outside, dist, reach = _where(tmap, t, voltage_v)
+    at = _where(tmap, t, voltage_v)
     return MapValue(
-        key, name, t, "N", lo, hi, voltage_v, t, throttle_pct, outside, dist, reach,
-        note=f"the map's thrust at {throttle_pct:.4g} % throttle",
+        key, name, t, "N", lo, hi, voltage_v, t, throttle_pct, at.outside, at.distance,
+        at.reach_n, note=f"the map's thrust at {throttle_pct:.4g} % throttle",
+        beyond_evidence=at.beyond_evidence,
     )  # fmt: skip
 
 
@@ -209,11 +227,11 @@ def throttle_value(
     """The throttle (% of the map's scale) for a thrust, ± the map's interval there."""
     p = _pct(tmap, thrust_n, voltage_v)
     h = _half(tmap, thrust_n, voltage_v)
-    outside, dist, reach = _where(tmap, thrust_n, voltage_v)
+    at = _where(tmap, thrust_n, voltage_v)
     return MapValue(
         key, name, p, "%", None if h is None else p - h, None if h is None else p + h,
-        voltage_v, thrust_n, p, outside, dist, reach,
-        note=f"the map's throttle for {thrust_n:.4g} N",
+        voltage_v, thrust_n, p, at.outside, at.distance, at.reach_n,
+        note=f"the map's throttle for {thrust_n:.4g} N", beyond_evidence=at.beyond_evidence,
     )  # fmt: skip
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from thrustmap.fitting.extrapolation import EVIDENCE_LIMIT_THRUST_RATIO
 from thrustmap.report.data import ReportData
 
 STYLE: dict[str, Any] = {
@@ -128,30 +129,55 @@ def surface(rd: ReportData) -> Figure:
 
 
 def slices(rd: ReportData, n_voltages: int = 4) -> Figure:
-    """Throttle against thrust at several voltages, with the points near each voltage."""
+    """Throttle against thrust at several voltages, with the points near each voltage: solid
+    with its 95 % band inside the supported region, dashed with its (wider) band where the map
+    extrapolates, up to the benchmark's evidence limit (or full throttle)."""
     fig = _fig(6.5, 4.2)
     ax = fig.subplots()
-    v = rd.tmap.validity
-    volts = np.linspace(v.voltage_v.lo, v.voltage_v.hi, n_voltages)
-    half = (volts[1] - volts[0]) / 2 if n_voltages > 1 else np.inf
-    t = np.linspace(v.thrust_n.lo, v.thrust_n.hi, 200)
+    tmap = rd.tmap
+    region = tmap.supported_region()
+    volts = np.linspace(region.voltage_lo_v, region.voltage_hi_v, n_voltages)
+    half_step = (volts[1] - volts[0]) / 2 if n_voltages > 1 else np.inf
+    iv = tmap.prediction_interval()
+    limit = EVIDENCE_LIMIT_THRUST_RATIO if iv is None else iv.limit_thrust_ratio
     p = rd.points
     cmap = matplotlib.colormaps["plasma"]
     for k, b in enumerate(volts):
         color = cmap(k / max(n_voltages - 1, 1) * 0.85)
-        ax.plot(
-            t,
-            rd.tmap.throttle_pct(t, np.full_like(t, b), corrected=False),
-            color=color,
-            lw=1.5,
-            label=f"map at {b:.2f} V",
-        )
-        near = np.abs(p.voltage_v - b) <= half
+        t_lo, t_hi = (float(x) for x in region.thrust_range(b))
+        t_full = float(tmap.thrust_n(100.0, b, corrected=False))
+        t_end = max(min(limit * t_hi, t_full if np.isfinite(t_full) else limit * t_hi), t_hi)
+        for part, (a, z) in enumerate(((t_lo, t_hi), (t_hi, t_end))):
+            if z <= a:
+                continue
+            t = np.linspace(a, z, 120)
+            bb = np.full_like(t, b)
+            th = tmap.throttle_pct(t, bb, corrected=False)
+            ax.plot(
+                t,
+                th,
+                "-" if part == 0 else "--",
+                color=color,
+                lw=1.5,
+                label=f"map at {b:.2f} V" if part == 0 else None,
+            )
+            half = tmap.interval_pct(t, bb, corrected=False)
+            if half is not None:
+                ax.fill_between(
+                    t, th - half, th + half, color=color, alpha=0.18 if part else 0.3, lw=0
+                )
+        near = np.abs(p.voltage_v - b) <= half_step
         ax.plot(p.thrust_n[near], p.throttle_pct[near], "o", ms=2.5, color=color, alpha=0.6)
+    ax.plot([], [], "--", color="0.4", label=f"extrapolated (to {limit:g}× the reach)")
+    ax.set_ylim(max(ax.get_ylim()[0], -10.0), min(ax.get_ylim()[1], 110.0))
     ax.set_xlabel(T)
     ax.set_ylabel(TH)
-    ax.set_title("bench map (without γ) at several voltages; points within ± half a step")
-    ax.legend()
+    ax.set_title(
+        "bench map (without γ) at several voltages: solid where the data are, dashed where it "
+        "extrapolates; bands: 95 % interval",
+        fontsize=9,
+    )
+    ax.legend(fontsize=8)
     return fig
 
 

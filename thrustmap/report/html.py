@@ -16,6 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from thrustmap.fitting.extrapolation import (
+    COMMAND,
+    EVIDENCE,
+    EVIDENCE_LIMIT_THRUST_RATIO,
+    EVIDENCE_LIMIT_VOLTAGE_LOG,
+    EXTRAPOLATION_GROWTH,
+)
 from thrustmap.fitting.fit import Row
 from thrustmap.report import figures
 from thrustmap.report.data import ReportData, source_files
@@ -413,7 +420,47 @@ def _coverage(rd: ReportData) -> str:
                 "there would help most."
             )
         txt += "</p>"
-    return _img("coverage", rd, "coverage and prediction interval") + txt
+    return _img("coverage", rd, "coverage and prediction interval") + txt + _evidence(rd)
+
+
+def _evidence(rd: ReportData) -> str:
+    """How far outside the supported region the interval is backed: the growth, the limit,
+    and the extrapolation benchmark's coverage table."""
+    iv = rd.tmap.prediction_interval()
+    growth = EXTRAPOLATION_GROWTH if iv is None or not iv.growth_per_reach else iv.growth_per_reach
+    limit_t = EVIDENCE_LIMIT_THRUST_RATIO if iv is None else iv.limit_thrust_ratio
+    limit_v = EVIDENCE_LIMIT_VOLTAGE_LOG if iv is None else iv.limit_voltage_log
+    rows = [
+        [
+            _td(b.rigs),
+            _td(
+                f"T/reach {b.lo:.2f}–{b.hi:.2f}"
+                if b.axis == "thrust"
+                else f"|ln B/B_measured| {b.lo:.2f}–{b.hi:.2f}"
+            ),
+            _num(b.n, "d", f"evidence.{b.rigs}.{b.axis}.{b.lo:g}.n"),
+            _num(b.median_error_pct, ".2f", f"evidence.{b.rigs}.{b.axis}.{b.lo:g}.error"),
+            _num(b.coverage_pct, ".1f", f"evidence.{b.rigs}.{b.axis}.{b.lo:g}.coverage"),
+            _num(b.coverage_main_pct, ".1f", f"evidence.{b.rigs}.{b.axis}.{b.lo:g}.main"),
+        ]
+        for b in EVIDENCE
+    ]
+    table = _table(
+        ["rigs", "distance outside the region", "n", "median |error| %", "coverage %", "main %"],
+        rows,
+    )
+    return (
+        "<h3>How far outside the data the interval is backed</h3>"
+        f"<p>In the figure above the dashed curves are the map outside its supported region, "
+        f"with their band. Beyond the thrust the data reached at a voltage the interval widens "
+        f"by ×(1 + {growth:.2f}·√(T/reach − 1)); {_e(rd.tmap.model)} answers are backed by "
+        f"the extrapolation benchmark up to {limit_t:g}× the reach and |ln(B/B<sub>measured</sub>)| "
+        f"{limit_v:g} ({100 * math.expm1(limit_v):.0f} % off the voltages measured); past that, "
+        "<code>thrustmap predict</code> refuses without <code>--extrapolate</code>. The "
+        "benchmark's held-out points (maps fitted on the lower part of a recording, at one "
+        "voltage, or on one recording; scored on the rest), the coverage with this interval and "
+        f"with the one before (main %): <code>{_e(COMMAND)}</code>.</p>" + table
+    )
 
 
 def _gamma(rd: ReportData) -> str:

@@ -12,6 +12,7 @@ import numpy as np
 
 from thrustmap.core.errors import FitError
 from thrustmap.fitting.dataset import Dataset, FloatArray, IntArray
+from thrustmap.fitting.fit.advice import advice
 from thrustmap.fitting.fit.backemf import try_backemf
 from thrustmap.fitting.fit.coefficients import (
     Pool,
@@ -20,7 +21,13 @@ from thrustmap.fitting.fit.coefficients import (
     parameter_covariance,
     pool,
 )
-from thrustmap.fitting.interval import Interval, Region, advice, interval_range, learn_interval
+from thrustmap.fitting.interval import (
+    Interval,
+    IntervalTerms,
+    Region,
+    interval_range,
+    learn_interval,
+)
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import error_stats
 from thrustmap.fitting.models import Identification, Model, MotorModel, get_model
@@ -141,18 +148,13 @@ def model_interval(
         return lambda tq, bq: m.evaluate(c, tq, bq)
 
     pred = m.evaluate(coef, t, b)
-    return learn_interval(
-        t,
-        b,
-        th,
-        file_index,
-        predictor,
-        np.abs(pred - th),
-        Region.from_points(t, b),
-        parameter_covariance(m, coef, t, b, th, ident, file_index),
-        file_fit,
-        [*systematic, *bound_term(m, coef, t, b, th, loss, file_index)],
+    terms = IntervalTerms(
+        region=Region.from_points(t, b),
+        covariance=parameter_covariance(m, coef, t, b, th, ident, file_index),
+        file_fit=file_fit,
+        systematic=[*systematic, *bound_term(m, coef, t, b, th, loss, file_index)],
     )
+    return learn_interval(t, b, th, file_index, predictor, np.abs(pred - th), terms)
 
 
 def fit_map(
@@ -200,6 +202,9 @@ def fit_map(
         data.voltage_v,
         physics_voltage=ident is not None and bool(ident.fixed),
         few_points=ident is not None and ident.limited_by == "points",
+        within_recording=None
+        if interval is None
+        else interval_range(interval, m.design, within_recording=True),
     )
     box = ValidityBox(
         thrust_n=Box(float(data.thrust_n.min()), float(data.thrust_n.max())),
