@@ -37,8 +37,8 @@ from support import public_data as pd  # noqa: E402
 from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
 from thrustmap.fitting.df.extraction import extract  # noqa: E402
 from thrustmap.fitting.df.options import DfOptions  # noqa: E402
-from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
-from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
+from thrustmap.flightlogs import dataflash  # noqa: E402
+from thrustmap.flightlogs.detect import read_log  # noqa: E402
 
 #: clean Df samples at 716adde (issue 34's "before"), by manifest name (benchmarks/public-data.toml);
 #: reproduced on 2026-11-28 with 716adde's own code: ``git worktree add /tmp/t 716adde`` and, per

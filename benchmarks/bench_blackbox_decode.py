@@ -47,8 +47,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
     sys.path.insert(0, str(a.tree.resolve()))
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
-    from thrustmap.fitting.flightlogs.blackbox import used_field
+    import thrustmap.flightlogs.blackbox_format as blackbox_format
+    from thrustmap.flightlogs import blackbox_decode as bd
+    from thrustmap.flightlogs.blackbox import used_field
 
     print(f"decoder of {a.tree.resolve()} ({bd.__file__}); median CPU of {a.repeat} runs")
     for name, path in files(a.manifest, a.logs):
@@ -58,7 +59,7 @@ def main() -> None:
         try:
             for _ in range(max(a.repeat, 1)):
                 t = time.process_time()
-                for i, (start, end) in enumerate(bd.split_logs(data)):
+                for i, (start, end) in enumerate(blackbox_format.split_logs(data)):
                     bd.decode_log(data[start:end], i, start, keep_field=used_field)
                 runs.append(time.process_time() - t)
         except Exception as exc:  # noqa: BLE001 - an older decoder may fail on a file: say so

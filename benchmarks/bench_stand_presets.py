@@ -43,9 +43,10 @@ SET_COUNTS_PER_GRAM = {"tiny-thrust-stand": -422.0, "victorhook-thruststand": -4
 
 
 def truth_error_pct(csv: Path, plant: str) -> tuple[float, float, int]:
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_dataset
-    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_dataset
+    from thrustmap.fitting.selection.options import Selection
+    from thrustmap.fitting.selection.points import select
     from thrustmap.rig.sim.physics import true_throttle_fraction
     from thrustmap.rig.sim.presets import preset
 

@@ -19,7 +19,7 @@ import numpy as np
 from thrustmap.fitting.fit.coefficients import fit_coefficients, pool
 from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.models import MODELS
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.selection.options import Selection
 
 
 def held_out(files: list[Path], by_file: bool) -> tuple[float, int, list[str]]:

@@ -537,7 +537,7 @@ def test_demo_ctrl_c_stops_with_130_and_no_report(
     demo: exit 130, no map fitted on the partial data, no report; in this process or in the
     forked worker per strategy that the CLI uses on two cores."""
     import thrustmap.demo as demo
-    from thrustmap.rig.runner import RunResult
+    from thrustmap.rig.run_types import RunResult
 
     calls = []
 
@@ -561,9 +561,10 @@ def test_demo_ctrl_c_stops_with_130_and_no_report(
 def test_accelerometer_in_g_is_caught(work: dict[str, str]) -> None:
     """A binary log's acceleration in g (≈ 1 at hover) is converted and said, not used as
     m/s² (which leaves no sample near hover, or a force ten times too small)."""
-    from thrustmap.fitting.df import DfOptions, extract
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.df.extraction import extract
+    from thrustmap.fitting.df.options import DfOptions
     from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.flightlogs.detect import read_log
 
     (flight,) = read_log(Path(work["ulg"]))
     acc = flight.accel_up_mps2
@@ -607,7 +608,7 @@ def test_grams_as_newtons_on_real_stand_logs(shared_data: Path, tmp_path: Path) 
     column map naming no current column — is refused, at any number of its first rows from 4."""
     from thrustmap.core.errors import DataFormatError
     from thrustmap.core.units import SCALES
-    from thrustmap.fitting.loaders import ColumnMap, load_dataset
+    from thrustmap.fitting.loaders.load import ColumnMap, load_dataset
 
     files = sorted((shared_data / "third-party-stands" / "strawson-5inch").glob("*.csv"))
     assert len(files) == 96
@@ -879,10 +880,11 @@ def test_44_plateaus_weigh_for_their_file_and_held_out_error_shows_why(
     each file counts for the command range it covers. Held out by file (every held-out point)
     the map is better than with the cells pooled over files: 0.655 % against 0.703 %
     (benchmarks/bench_weighting.py); the steps + steps-up pair stays at 0.599 %."""
-    from thrustmap.fitting.fit import compare, fit_coefficients, pool
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.fit.coefficients import fit_coefficients, pool
+    from thrustmap.fitting.fit.validation import compare
+    from thrustmap.fitting.loaders.load import load_datasets
     from thrustmap.fitting.models import MODELS
-    from thrustmap.fitting.selection import Selection
+    from thrustmap.fitting.selection.options import Selection
 
     sr = shared_data / "xnova-thrust-stand" / "single_rotor"
     files = [str(sr / f"xNova-SR-{n}.csv") for n in ("ramp", "steps", "steps-up")]

@@ -35,8 +35,10 @@ import numpy as np
 import pytest
 from test_export_encodings import synthetic_map
 
+import thrustmap.fitting.export.firmware.ardupilot as ardupilot
+import thrustmap.fitting.export.firmware.betaflight as betaflight
+import thrustmap.fitting.export.firmware.px4 as px4
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.export import firmware as fw
 from thrustmap.fitting.export import platforms as plat
 from thrustmap.fitting.export.encodings import ExportOptions
 from thrustmap.fitting.export.rules import ARDUCOPTER_4, ARDUPILOT_CELL_V, BETAFLIGHT_46
@@ -70,18 +72,18 @@ PX4_OUTPUT = [
 
 @pytest.mark.parametrize(("fac", "control", "output"), PX4_OUTPUT)
 def test_px4_throttle_is_the_firmware_output(fac: float, control: float, output: float) -> None:
-    assert fw.px4_throttle(control, fac) == pytest.approx(output, abs=FIRMWARE_FLOAT32)
-    assert fw.px4_rel_thrust(output, fac) == pytest.approx(control, abs=FIRMWARE_FLOAT32)
+    assert px4.px4_throttle(control, fac) == pytest.approx(output, abs=FIRMWARE_FLOAT32)
+    assert px4.px4_rel_thrust(output, fac) == pytest.approx(control, abs=FIRMWARE_FLOAT32)
 
 
 @pytest.mark.parametrize("fac", [0.2, 0.35, 0.6])
 def test_px4_thr_mdl_fac_recovered_from_the_firmware_outputs(fac: float) -> None:
     rows = [(c, x) for f, c, x in PX4_OUTPUT if f == fac]
     control, output = (np.array(v) for v in zip(*rows, strict=True))
-    fit = fw.fit_px4(18.0 * control, output)  # a motor whose thrust is what PX4 assumes
+    fit = px4.fit_px4(18.0 * control, output)  # a motor whose thrust is what PX4 assumes
     assert fit.thr_mdl_fac == pytest.approx(fac, abs=1e-5)
     assert fit.thrust_max_n == pytest.approx(18.0, rel=1e-5)
-    held = fw.fit_px4(18.0 * control, output, thrust_max_n=18.0)  # full thrust known
+    held = px4.fit_px4(18.0 * control, output, thrust_max_n=18.0)  # full thrust known
     assert held.thr_mdl_fac == pytest.approx(fac, abs=1e-5)
 
 
@@ -135,12 +137,14 @@ def test_ardupilot_actuator_is_the_firmware_output(
 ) -> None:
     thrust_in, expo, spin_min, spin_max, v_max, v_min, volts = args
     actuator, lift_max = expected
-    p = fw.ArduPilotParams(expo, spin_min, spin_max, v_max, v_min, 1.0)
-    r = float(fw.ardupilot_voltage_ratio(volts, p))
+    p = ardupilot.ArduPilotParams(expo, spin_min, spin_max, v_max, v_min, 1.0)
+    r = float(ardupilot.ardupilot_voltage_ratio(volts, p))
     assert r * (1 - expo) + expo * r * r == pytest.approx(lift_max, abs=FIRMWARE_FLOAT32)
     thrust = thrust_in * lift_max  # T = thrust_in · K · lift_max, K = 1
-    assert float(fw.ardupilot_actuator(thrust, volts, p)) == pytest.approx(actuator, abs=2e-6)
-    assert float(fw.ardupilot_thrust(actuator, volts, p)) == pytest.approx(thrust, abs=1e-5)
+    assert float(ardupilot.ardupilot_actuator(thrust, volts, p)) == pytest.approx(
+        actuator, abs=2e-6
+    )
+    assert float(ardupilot.ardupilot_thrust(actuator, volts, p)) == pytest.approx(thrust, abs=1e-5)
 
 
 def test_ardupilot_expo_recovered_from_the_firmware_outputs() -> None:
@@ -149,9 +153,11 @@ def test_ardupilot_expo_recovered_from_the_firmware_outputs() -> None:
     thrust_in = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
     actuator = np.array([0.3152097463607788, 0.5192307233810425, 0.6685760021209717,
                          0.7922990322113037, 0.9002987146377563])  # fmt: skip
-    p = fw.ArduPilotParams(0.65, 0.15, 0.95, 25.2, 19.8, 1.0)
-    np.testing.assert_allclose(fw.ardupilot_actuator(thrust_in, 25.2, p), actuator, atol=2e-6)
-    fit = fw.fit_ardupilot(
+    p = ardupilot.ArduPilotParams(0.65, 0.15, 0.95, 25.2, 19.8, 1.0)
+    np.testing.assert_allclose(
+        ardupilot.ardupilot_actuator(thrust_in, 25.2, p), actuator, atol=2e-6
+    )
+    fit = ardupilot.fit_ardupilot(
         10.0 * thrust_in, np.full(5, 25.2), actuator, spin_max=0.95, bat_volt_max=25.2,
         bat_volt_min=19.8, spin_min=0.15,
     )  # fmt: skip
@@ -249,12 +255,14 @@ BETAFLIGHT_OUTPUT = [
 def test_betaflight_out_is_the_firmware_output(
     value: int, x: float, legacy: float, new: float
 ) -> None:
-    assert fw.betaflight_out(x, value / 100, "legacy") == pytest.approx(
+    assert betaflight.betaflight_out(x, value / 100, "legacy") == pytest.approx(
         legacy, abs=FIRMWARE_FLOAT32
     )
-    assert fw.betaflight_out(x, value / 100, "2026.6") == pytest.approx(new, abs=FIRMWARE_FLOAT32)
-    assert fw.betaflight_m(legacy, value / 100, "legacy") == pytest.approx(x, abs=1e-5)
-    assert fw.betaflight_m(new, value / 100, "2026.6") == pytest.approx(x, abs=1e-5)
+    assert betaflight.betaflight_out(x, value / 100, "2026.6") == pytest.approx(
+        new, abs=FIRMWARE_FLOAT32
+    )
+    assert betaflight.betaflight_m(legacy, value / 100, "legacy") == pytest.approx(x, abs=1e-5)
+    assert betaflight.betaflight_m(new, value / 100, "2026.6") == pytest.approx(x, abs=1e-5)
 
 
 @pytest.mark.parametrize("generation", ["legacy", "2026.6"])
@@ -265,9 +273,9 @@ def test_betaflight_thrust_linear_recovered_from_the_firmware_outputs(
     rows = [(x, lg if generation == "legacy" else nw) for v, x, lg, nw in BETAFLIGHT_OUTPUT
             if v == value]  # fmt: skip
     m, out = (np.array(c) for c in zip(*rows, strict=True))
-    fit = fw.fit_betaflight(12.0 * m, out, generation)
+    fit = betaflight.fit_betaflight(12.0 * m, out, generation)
     assert fit.thrust_linear == value
-    held = fw.fit_betaflight(12.0 * m, out, generation, thrust_max_n=12.0)
+    held = betaflight.fit_betaflight(12.0 * m, out, generation, thrust_max_n=12.0)
     assert held.thrust_linear == value and held.thrust_max_n == 12.0
 
 
@@ -278,20 +286,24 @@ def test_betaflight_rules_hold_the_firmware_range() -> None:
 
 def test_betaflight_2026_curve_is_capped_where_it_stops_rising() -> None:
     m = np.linspace(0, 1, 20001)
-    e_max = fw.betaflight_max_expo("2026.6")
-    assert np.all(np.diff(fw.betaflight_out(m, e_max, "2026.6")) > 0)
-    assert np.any(np.diff(fw.betaflight_out(m, e_max + 0.02, "2026.6")) < 0)
-    assert fw.betaflight_max_expo("legacy") == 1.5
+    e_max = betaflight.betaflight_max_expo("2026.6")
+    assert np.all(np.diff(betaflight.betaflight_out(m, e_max, "2026.6")) > 0)
+    assert np.any(np.diff(betaflight.betaflight_out(m, e_max + 0.02, "2026.6")) < 0)
+    assert betaflight.betaflight_max_expo("legacy") == 1.5
 
 
 def test_betaflight_generations_differ_and_version_parsing() -> None:
-    assert fw.betaflight_generation("4.5") == "legacy"
-    assert fw.betaflight_generation("2025.12") == "legacy"
-    assert fw.betaflight_generation("2026.6") == "2026.6"
-    assert fw.betaflight_generation("2026.12.1") == "2026.6"
+    assert betaflight.betaflight_generation("4.5") == "legacy"
+    assert betaflight.betaflight_generation("2025.12") == "legacy"
+    assert betaflight.betaflight_generation("2026.6") == "2026.6"
+    assert betaflight.betaflight_generation("2026.12.1") == "2026.6"
     m = np.array([0.25])
-    assert fw.betaflight_out(m, 0.4, "legacy")[0] == pytest.approx(0.25 * (1 + 0.4 * 0.75**2))
-    assert fw.betaflight_out(m, 0.4, "2026.6")[0] == pytest.approx(0.25 * (1 + 0.4 * 0.75 * 1.2))
+    assert betaflight.betaflight_out(m, 0.4, "legacy")[0] == pytest.approx(
+        0.25 * (1 + 0.4 * 0.75**2)
+    )
+    assert betaflight.betaflight_out(m, 0.4, "2026.6")[0] == pytest.approx(
+        0.25 * (1 + 0.4 * 0.75 * 1.2)
+    )
 
 
 @pytest.mark.parametrize("firmware", ["4.5", "2026.6"])
@@ -443,6 +455,6 @@ def test_px4_clamped_factor_refits_thrust_scale_and_warns() -> None:
     # a dead band: thrust starts at s = 0.2, which PX4's form (no offset) cannot follow
     s = np.linspace(0.25, 0.95, 30)
     t = 20.0 * ((s - 0.2) / 0.8) ** 2
-    fit = fw.fit_px4(t, s)
+    fit = px4.fit_px4(t, s)
     assert fit.thr_mdl_fac == 1.0
     assert fit.thrust_max_n == pytest.approx(float(np.dot(s * s, t) / np.dot(s * s, s * s)))

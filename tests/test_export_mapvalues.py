@@ -22,10 +22,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+import thrustmap.fitting.export.firmware.ardupilot as ardupilot
+import thrustmap.fitting.export.firmware.px4 as firmware_px4
 from thrustmap.cli import cli, main
 from thrustmap.core import physical
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.export import firmware as fw
 from thrustmap.fitting.export.encodings import ExportOptions
 from thrustmap.fitting.export.targets import export_map
 from thrustmap.fitting.interval import Interval, Region
@@ -115,7 +116,7 @@ def test_each_firmware_curve_ends_at_the_one_full_throttle_thrust(tmap: ThrustMa
         bf = export_map(tmap, "betaflight", ExportOptions(firmware=firmware))
         assert bf.values["thrust_max_n"] == pytest.approx(full.value, rel=1e-12)  # m = 1
     ap = export_map(tmap, "ardupilot")
-    p = fw.ArduPilotParams(
+    p = ardupilot.ArduPilotParams(
         ap.values["MOT_THST_EXPO"], ap.values["MOT_SPIN_MIN"], ap.values["MOT_SPIN_MAX"],
         ap.values["MOT_BAT_VOLT_MAX"], ap.values["MOT_BAT_VOLT_MIN"], ap.values["thrust_max_n"],
     )  # fmt: skip
@@ -124,7 +125,7 @@ def test_each_firmware_curve_ends_at_the_one_full_throttle_thrust(tmap: ThrustMa
     assert ap.values["thrust_max_n"] == pytest.approx(at_spin_max, rel=1e-6)
     # ArduPilot never commands past MOT_SPIN_MAX; its curve carried on to MOT_PWM_MAX stays
     # near the map's full-throttle thrust (within 1 % here), the export says the map's own
-    top = float(fw.ardupilot_thrust(1.0, full.voltage_v, p))
+    top = float(ardupilot.ardupilot_thrust(1.0, full.voltage_v, p))
     assert top == pytest.approx(full.value, rel=0.01)
 
 
@@ -171,15 +172,15 @@ def test_hover_is_one_value_in_each_firmware_unit(tmap: ThrustMap) -> None:
     hover_us = 1000.0 + 10.0 * hover.value
     px4 = export_map(tmap, "px4", opts)
     lo_us, f = px4.values["PWM_MAIN_MIN1"], px4.values["THR_MDL_FAC"]
-    s = float(fw.px4_throttle(px4.values["MPC_THR_HOVER"], f))  # PX4's mixer output
+    s = float(firmware_px4.px4_throttle(px4.values["MPC_THR_HOVER"], f))  # PX4's mixer output
     assert lo_us + s * (2000.0 - lo_us) == pytest.approx(hover_us, abs=1.0)  # 3-digit param
     ap = export_map(tmap, "ardupilot", opts)
-    p = fw.ArduPilotParams(
+    p = ardupilot.ArduPilotParams(
         ap.values["MOT_THST_EXPO"], ap.values["MOT_SPIN_MIN"], ap.values["MOT_SPIN_MAX"],
         ap.values["MOT_BAT_VOLT_MAX"], ap.values["MOT_BAT_VOLT_MIN"], ap.values["thrust_max_n"],
     )  # fmt: skip
     demand_n = ap.values["MOT_THST_HOVER"] * p.thrust_max_n  # ArduPilot's throttle x full lift
-    act = float(fw.ardupilot_actuator(demand_n, hover.voltage_v, p))
+    act = float(ardupilot.ardupilot_actuator(demand_n, hover.voltage_v, p))
     assert 1000.0 + 1000.0 * act == pytest.approx(hover_us, abs=0.2)
     for res in (px4, ap):
         assert f"hover throttle at {hover.voltage_v:.4g} V: {hover.value:.4g} %" in res.text

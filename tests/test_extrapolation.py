@@ -133,9 +133,10 @@ def test_the_growth_holds_a_recorded_staircase_beyond_its_reach(shared_data: Pat
     """The seed's xNova stairs-up file, fitted on the part below half the thrust it reached:
     main's growth (x1.5-2 per thrust span) held 8 % of the rest up to twice the reach, the
     benchmark's growth holds them all."""
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_datasets
-    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_datasets
+    from thrustmap.fitting.selection.options import Selection
+    from thrustmap.fitting.selection.points import select
 
     path = shared_data / "xnova-thrust-stand" / "single_rotor" / "xNova-SR-steps-up.csv"
     (ds,) = load_datasets([str(path)])
@@ -157,9 +158,10 @@ def test_a_second_recording_of_the_rotor_is_held_within_the_reach(shared_data: P
     """The seed's three xNova SR recordings, each map fitted on one predicting the other two
     within the thrust it reached: main's one-recording interval held 81 % of those points
     (61-99 % by direction); with the second-recording term, 90 % (82-100 %)."""
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_datasets
-    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_datasets
+    from thrustmap.fitting.selection.options import Selection
+    from thrustmap.fitting.selection.points import select
 
     root = shared_data / "xnova-thrust-stand" / "single_rotor"
     names = ("xNova-SR-steps-up.csv", "xNova-SR-steps.csv", "xNova-SR-ramp.csv")

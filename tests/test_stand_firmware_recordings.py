@@ -315,9 +315,10 @@ def test_victorhook_cannot_be_the_esc_output_the_fc_drives_and_stops_it(tmp_path
 
 def truth_error_pct(csv: Path, plant: str) -> tuple[float, float, int]:
     """Mean and max |map - truth| (% throttle) at the run's steady points, and their count."""
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_dataset
-    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_dataset
+    from thrustmap.fitting.selection.options import Selection
+    from thrustmap.fitting.selection.points import select
     from thrustmap.rig.sim.physics import true_throttle_fraction
 
     ds = load_dataset(csv)

@@ -10,8 +10,8 @@ import functools
 from pathlib import Path
 
 from support.shared import shared_data_dir
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.fitting.mapfile import ThrustMap
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]

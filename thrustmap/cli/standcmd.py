@@ -187,11 +187,11 @@ def _record_sequence(
     stand: LineStand, url: str, output: str, calibration: str | None, timeout_s: float
 ) -> int:
     """Run the sequence into a Ds log; the exit code (``sweep``'s meanings)."""
-    from thrustmap.core.dslog import DsWriter
+    from thrustmap.core.stand_recording import DsWriter
     from thrustmap.core.units import scale
     from thrustmap.rig.interfaces import StandSample
-    from thrustmap.rig.safety import terminate_as_exception
     from thrustmap.rig.session import exit_code
+    from thrustmap.rig.sigterm import terminate_as_exception
     from thrustmap.rig.stand.line_runs import run_sequence
 
     spec = stand.spec

@@ -23,7 +23,7 @@ from thrustmap.fitting.extrapolation import (
     EVIDENCE_LIMIT_VOLTAGE_LOG,
     EXTRAPOLATION_GROWTH,
 )
-from thrustmap.fitting.fit import Row
+from thrustmap.fitting.fit.validation import Row
 from thrustmap.report import figures
 from thrustmap.report.data import ReportData, source_files
 

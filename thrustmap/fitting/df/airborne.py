@@ -16,7 +16,7 @@ from thrustmap.fitting.df.options import (
     DfOptions,
 )
 from thrustmap.fitting.df.resample import long_runs, mask_runs
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, nanmedian
+from thrustmap.flightlogs.series import FlightLog, FloatArray, nanmedian
 
 if TYPE_CHECKING:
     from thrustmap.fitting.df.flight_run import FlightRun

@@ -11,7 +11,7 @@ import numpy as np
 
 from thrustmap.fitting.df.options import BoolArray, DfOptions, FilterStep
 from thrustmap.fitting.df.resample import bin_mean
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal
 
 if TYPE_CHECKING:
     from thrustmap.fitting.mapfile import ThrustMap

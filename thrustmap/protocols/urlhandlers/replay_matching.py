@@ -37,7 +37,7 @@ The rules, all in message terms:
   stream goes on by the clock alone (so a driver that stops can still see the device idle).
 
 Pure: no I/O and no clock of its own (times are passed in, relative to the port's opening).
-How each protocol's bytes become messages is in ``replay_protocols`` (re-exported here).
+How each protocol's bytes become messages is in ``transcript_messages`` (re-exported here).
 """
 
 from __future__ import annotations
@@ -51,23 +51,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thrustmap.protocols.transcript import TranscriptEvent
-from thrustmap.protocols.urlhandlers.replay_protocols import (
-    MavlinkProtocol,
-    Message,
-    MspProtocol,
-    Protocol,
-    detect_protocol,
-)
+from thrustmap.protocols.urlhandlers.transcript_messages import Message, Protocol
 
 __all__ = [
     "Divergence",
-    "MavlinkProtocol",
-    "Message",
     "MessageReplay",
-    "MspProtocol",
-    "Protocol",
     "Unit",
-    "detect_protocol",
 ]
 
 log = logging.getLogger(__name__)

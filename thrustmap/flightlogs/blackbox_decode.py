@@ -27,195 +27,38 @@ from collections.abc import Callable
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs import blackbox_fast
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_NEG_14BIT as ENC_NEG_14BIT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_NULL as ENC_NULL,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_SIGNED_VB as ENC_SIGNED_VB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG2_3S32 as ENC_TAG2_3S32,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG8_4S16 as ENC_TAG8_4S16,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG8_8SVB as ENC_TAG8_8SVB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_UNSIGNED_VB as ENC_UNSIGNED_VB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    END_OF_LOG_TEXT as END_OF_LOG_TEXT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_DISARM as EVENT_DISARM,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_FLIGHT_MODE as EVENT_FLIGHT_MODE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_INFLIGHT_ADJUSTMENT as EVENT_INFLIGHT_ADJUSTMENT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_LOG_END as EVENT_LOG_END,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_LOGGING_RESUME as EVENT_LOGGING_RESUME,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_SYNC_BEEP as EVENT_SYNC_BEEP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FRAME_MARKERS as FRAME_MARKERS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    HANDBACK_FRAMING as HANDBACK_FRAMING,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    HANDBACK_GAP as HANDBACK_GAP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    LOG_START_MARKER as LOG_START_MARKER,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_FIELDS as MAX_FIELDS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_FRAME_BYTES as MAX_FRAME_BYTES,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_INTERVAL as MAX_INTERVAL,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_ITERATION_JUMP as MAX_ITERATION_JUMP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_TIME_JUMP_US as MAX_TIME_JUMP_US,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MIN_HANDBACK_BYTES as MIN_HANDBACK_BYTES,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_1500 as PRED_1500,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_AVERAGE_2 as PRED_AVERAGE_2,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_HOME_COORD as PRED_HOME_COORD,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_HOME_COORD_1 as PRED_HOME_COORD_1,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_INC as PRED_INC,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_LAST_MAIN_FRAME_TIME as PRED_LAST_MAIN_FRAME_TIME,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MINMOTOR as PRED_MINMOTOR,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MINTHROTTLE as PRED_MINTHROTTLE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MOTOR_0 as PRED_MOTOR_0,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_PREVIOUS as PRED_PREVIOUS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_STRAIGHT_LINE as PRED_STRAIGHT_LINE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_VBATREF as PRED_VBATREF,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_ZERO as PRED_ZERO,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    WORK_PER_BYTE as WORK_PER_BYTE,
-)
+from thrustmap.flightlogs import blackbox_fast
 
 # the format and frame parsers, re-exported: `blackbox_decode.X` is where callers find them
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    BlackboxEvent as BlackboxEvent,
+from thrustmap.flightlogs.blackbox_format import (
+    EVENT_LOG_END,
+    EVENT_LOGGING_RESUME,
+    FRAME_MARKERS,
+    HANDBACK_FRAMING,
+    HANDBACK_GAP,
+    MAX_FRAME_BYTES,
+    MAX_INTERVAL,
+    MAX_ITERATION_JUMP,
+    MAX_TIME_JUMP_US,
+    MIN_HANDBACK_BYTES,
+    WORK_PER_BYTE,
+    BlackboxEvent,
+    CorruptFrame,
+    DecodedLog,
+    FrameDef,
+    FrameParser,
+    ResumeState,
+    corruption_summary,
+    header_int,
+    in_32bit_range,
+    kept_fields,
+    p_interval,
+    p_skip_counts,
+    parse_headers,
+    rows_to_table,
+    split_logs,
 )
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    CorruptFrame as CorruptFrame,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    DecodedLog as DecodedLog,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FrameDef as FrameDef,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FrameParser as FrameParser,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ResumeState as ResumeState,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _kept_fields as _kept_fields,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _p_interval as _p_interval,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _skip_table as _skip_table,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _table as _table,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    corruption_summary as corruption_summary,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    header_int as header_int,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    in_32bit_range as in_32bit_range,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    parse_headers as parse_headers,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    split_logs as split_logs,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _POPCOUNT as _POPCOUNT,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _TAG2_3S32_LEN as _TAG2_3S32_LEN,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _TAG8_4S16_V2_LEN as _TAG8_4S16_V2_LEN,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _parse_event as _parse_event,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _prediction as _prediction,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag2_3s32 as _read_tag2_3s32,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag8_4s16_v2 as _read_tag8_4s16_v2,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag8_8svb as _read_tag8_8svb,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    compile_frame as compile_frame,
-)
+from thrustmap.flightlogs.blackbox_frames import compile_frame, parse_event
 
 log = logging.getLogger(__name__)
 
@@ -343,7 +186,7 @@ def _decode_log(
         "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
     }
     version = header_int(headers, "Data version", 2)
-    keep = _kept_fields(names, idef, pdef, motor0, keep_field)
+    keep = kept_fields(names, idef, pdef, motor0, keep_field)
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
@@ -361,8 +204,8 @@ def _decode_log(
         raise CorruptFrame(
             f"header 'I interval: {i_interval}' is out of range; expected 1..{MAX_INTERVAL}"
         )
-    p_num, p_den = _p_interval(headers)
-    skip_table = _skip_table(i_interval, p_num, p_den)
+    p_num, p_den = p_interval(headers)
+    skip_table = p_skip_counts(i_interval, p_num, p_den)
     home_idx = [
         defs["H"].names.index(k) if "H" in defs and k in defs["H"].names else -1
         for k in ("GPS_home[0]", "GPS_home[1]")
@@ -456,7 +299,7 @@ def _decode_log(
             and not garbage_run
             and not rollover
         ):
-            main_now = _table(main_rows, nfields if keep is None else len(keep))
+            main_now = rows_to_table(main_rows, nfields if keep is None else len(keep))
             if resume is not None and main_offset:
                 main_now = np.concatenate((resume.main, main_now))
             return ResumeState(
@@ -493,7 +336,7 @@ def _decode_log(
             elif m == mark_i:
                 vals, p = parsers[m](d, pos + 1, prev or zeros, zeros, 0, last_time, home)
             elif m == mark_e:
-                kind, payload, p = _parse_event(d, pos + 1)
+                kind, payload, p = parse_event(d, pos + 1)
                 vals = []
                 event = (kind, payload)
             else:
@@ -582,7 +425,7 @@ def _decode_log(
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
-    main = _table(main_rows, nfields if keep is None else len(keep))
+    main = rows_to_table(main_rows, nfields if keep is None else len(keep))
     if resume is not None and main_offset:
         main = np.concatenate((resume.main, main)) if len(main) else resume.main
     return DecodedLog(
@@ -591,10 +434,10 @@ def _decode_log(
         main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
         main=main,
         slow_fields=list(sdef.names),
-        slow=_table(slow_rows, len(sdef.names)),
+        slow=rows_to_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=_table(gps_rows, len(gdef.names)),
+        gps=rows_to_table(gps_rows, len(gdef.names)),
         events=events,
         stats=stats,
         warnings=warnings,

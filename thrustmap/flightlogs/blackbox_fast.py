@@ -38,10 +38,10 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap.fitting.flightlogs import blackbox_format as fmt
-from thrustmap.fitting.flightlogs import blackbox_frames as bfr
-from thrustmap.fitting.flightlogs.blackbox_columns import constant_prediction, residuals
-from thrustmap.fitting.flightlogs.blackbox_framing import (
+from thrustmap.flightlogs import blackbox_format as fmt
+from thrustmap.flightlogs import blackbox_frames as bfr
+from thrustmap.flightlogs.blackbox_columns import constant_prediction, residuals
+from thrustmap.flightlogs.blackbox_framing import (
     Unsupported,
     frame_regex,
     frames_pattern,
@@ -181,9 +181,9 @@ def _decode(
     i_interval = max(fmt.header_int(headers, "I interval", 32), 1)
     if i_interval > fmt.MAX_INTERVAL:
         raise Unsupported("I interval")
-    p_num, p_den = fmt._p_interval(headers)
-    skip = np.asarray(fmt._skip_table(i_interval, p_num, p_den), dtype=np.int64)
-    keep = fmt._kept_fields(names, idef, pdef, motor0, keep_field)
+    p_num, p_den = fmt.p_interval(headers)
+    skip = np.asarray(fmt.p_skip_counts(i_interval, p_num, p_den), dtype=np.int64)
+    keep = fmt.kept_fields(names, idef, pdef, motor0, keep_field)
     # slow (S), GPS (G) and GPS-home (H) frames: few, parsed by the reference's own parsers
     aux_defs = {ord(m): defs[m] for m in "SGH" if m in defs and defs[m].names and defs[m].encoding}
     aux_parsers = {m: _aux_parser(fd, constants) for m, fd in aux_defs.items()}
@@ -270,7 +270,7 @@ def _decode(
         strict=True,
     ):
         if kind == ord("E"):
-            ev, payload, p = bfr._parse_event(section, at + 1)
+            ev, payload, p = bfr.parse_event(section, at + 1)
             if ev == fmt.EVENT_LOGGING_RESUME:
                 resumed = (before, int(payload[0]), int(payload[1]))
                 if before < len(main_at):
@@ -349,10 +349,10 @@ def _decode(
         main_fields=[names[k] for k in kept],
         main=main,
         slow_fields=list(sdef.names),
-        slow=fmt._table(slow_rows, len(sdef.names)),
+        slow=fmt.rows_to_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=fmt._table(gps_rows, len(gdef.names)),
+        gps=fmt.rows_to_table(gps_rows, len(gdef.names)),
         events=events,
         stats=stats,
         warnings=warnings,
@@ -371,7 +371,7 @@ def _wrapped_by_reference(
     pred = (list(fd.predictor) + [fmt.PRED_ZERO] * n)[fi]
     if pred == fmt.PRED_INC:
         return True
-    if bfr._prediction(fi, pred, constants, motor0) != "0":
+    if bfr.prediction_code(fi, pred, constants, motor0) != "0":
         return True
     enc = (list(fd.encoding) + [fmt.ENC_NULL] * n)[fi]
     return enc == fmt.ENC_UNSIGNED_VB
