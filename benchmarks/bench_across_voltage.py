@@ -44,17 +44,19 @@ from pathlib import Path
 
 import numpy as np
 
+import thrustmap.rig.segments as segments
 from thrustmap.core.clock import SimClock
 from thrustmap.demo import experiments
 from thrustmap.fitting.adaptive import MapChooser
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.voltages import measured_voltages
 from thrustmap.rig import plans
-from thrustmap.rig.connect import open_stand, open_throttle_output
+from thrustmap.rig.devices.opening import open_stand, open_throttle_output
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, record_sweep
+from thrustmap.rig.run_types import RunConfig
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
 
@@ -113,7 +115,7 @@ def run(seed: int, drop_v: float, out: Path, which: str) -> Run:
         across = which.startswith("across")
         rng = (round((1 - ASKED_BELOW) * v0, 2), round(v0, 2)) if across else None
 
-        def connect(change: plans.PackChange) -> bool:
+        def connect(change: segments.PackChange) -> bool:
             second_pack(plant, change.wanted_v)  # what the prompt asked for
             return True
 

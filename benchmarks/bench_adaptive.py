@@ -40,13 +40,14 @@ import numpy as np
 from thrustmap.core.clock import SimClock
 from thrustmap.demo import experiments
 from thrustmap.fitting.adaptive import MapChooser
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap, ValidityBox
 from thrustmap.rig import plans
-from thrustmap.rig.connect import open_stand, open_throttle_output
+from thrustmap.rig.devices.opening import open_stand, open_throttle_output
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, record_sweep
+from thrustmap.rig.run_types import RunConfig
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
 

@@ -33,9 +33,10 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
-from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
-from thrustmap.fitting.flightlogs import dataflash  # noqa: E402
-from thrustmap.fitting.flightlogs.detect import read_log  # noqa: E402
+from thrustmap.fitting.df.extraction import extract  # noqa: E402
+from thrustmap.fitting.df.options import DfOptions  # noqa: E402
+from thrustmap.flightlogs import dataflash  # noqa: E402
+from thrustmap.flightlogs.detect import read_log  # noqa: E402
 
 #: clean Df samples at 716adde (issue 34's "before"), by the first 12 hex digits of SHA-256
 BASELINE_716ADDE = {

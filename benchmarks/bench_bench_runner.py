@@ -31,12 +31,14 @@ import numpy as np
 
 from thrustmap.core.clock import SimClock
 from thrustmap.demo import experiments, truth_error_pct
-from thrustmap.fitting.fit import fit_map, validate
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import validate
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.rig import plans
-from thrustmap.rig.connect import open_stand, open_throttle_output
+from thrustmap.rig.devices.opening import open_stand, open_throttle_output
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, record_sweep
+from thrustmap.rig.run_types import RunConfig
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 
 # Settle parameters chosen here (runner defaults otherwise: band 0.01 N or 0.3 % of thrust).

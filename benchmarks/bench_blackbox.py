@@ -79,17 +79,24 @@ def log_files(args: list[str]) -> list[Path]:
 
 def describe(path: Path) -> str:
     """Logs, frames and the decoding path of each log (in this process, not timed)."""
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
-    from thrustmap.fitting.flightlogs import blackbox_fast as bf
-    from thrustmap.fitting.flightlogs.blackbox import used_field
+    import thrustmap.flightlogs.blackbox_format as blackbox_format
+    from thrustmap.flightlogs import blackbox_decode as bd
+    from thrustmap.flightlogs import blackbox_fast as bf
+    from thrustmap.flightlogs.blackbox import used_field
 
     data = path.read_bytes()
     paths: dict[str, int] = {}
     totals = {"main": 0, "G": 0, "H": 0, "S": 0}
-    ranges = bd.split_logs(data)
+    ranges = blackbox_format.split_logs(data)
     for i, (a, b) in enumerate(ranges):
         got = bf.decode_log_bulk(data[a:b], i, a, keep_field=used_field)
-        kind = "bulk" if isinstance(got, bd.DecodedLog) else "ref" if got is None else "bulk+ref"
+        kind = (
+            "bulk"
+            if isinstance(got, blackbox_format.DecodedLog)
+            else "ref"
+            if got is None
+            else "bulk+ref"
+        )
         paths[kind] = paths.get(kind, 0) + 1
         dec = bd.decode_log(data[a:b], i, a, keep_field=used_field)
         totals["main"] += len(dec.main)

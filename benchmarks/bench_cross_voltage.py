@@ -28,13 +28,16 @@ import numpy as np
 
 from thrustmap.core.errors import FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import backemf_rows, evaluate, fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.backemf import backemf_rows
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import evaluate
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.metrics import ErrorStats, coverage, error_stats
 from thrustmap.fitting.models import MODELS as MODEL_DEFS
 from thrustmap.fitting.models import backemf_coefficients
 from thrustmap.fitting.names import DEFAULT_MODEL
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 BASELINES = ("la", "linear", "poly2", "poly2-trunc", "poly3")
@@ -238,7 +241,7 @@ def creeping_staircases(seeds: tuple[int, ...] = (1, 2, 3)) -> list[Scored]:
     log scored on the other logs (the same motor recorded again)."""
     import tempfile
 
-    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.fitting.loaders.load import load_dataset
     from thrustmap.rig.sim.physics import LoadCellCreep
     from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
 

@@ -31,10 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import backemf_rows, fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.backemf import backemf_rows
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.models import OFFSET_RANGE_PCT, backemf_coefficients
-from thrustmap.fitting.selection import Points, Selection, select
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import Points, select
 from thrustmap.fitting.solve import solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

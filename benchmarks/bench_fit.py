@@ -15,8 +15,9 @@ from scipy.optimize import curve_fit
 
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import fit_map, validate
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import validate
+from thrustmap.fitting.selection.options import Selection
 
 
 def synthetic(n_total: int, files: int = 10, seed: int = 0) -> list[Dataset]:

@@ -59,9 +59,9 @@ def config_for(root: Path, out: Path) -> run.FleetConfig:
 def warm_up() -> None:
     """Import what a log needs (numpy, pandas, the readers) before the clock starts."""
     import thrustmap.fitting.df  # noqa: F401
-    import thrustmap.fitting.flightlogs.dataflash  # noqa: F401
-    import thrustmap.fitting.flightlogs.ulog  # noqa: F401
     import thrustmap.fitting.mapfile  # noqa: F401
+    import thrustmap.flightlogs.dataflash  # noqa: F401
+    import thrustmap.flightlogs.ulog  # noqa: F401
 
 
 def _warm(_: int) -> None:

@@ -42,13 +42,11 @@ sys.path.insert(0, str(ROOT / "tests"))  # the fixture generators live in tests/
 import numpy as np  # noqa: E402
 from support import simulate_flight as simulate  # noqa: E402
 
-from thrustmap.fitting.df import DfOptions, extract  # noqa: E402
-from thrustmap.fitting.flightlogs import blackbox, dataflash, ulog  # noqa: E402
-from thrustmap.fitting.flightlogs.blackbox_decode import (  # noqa: E402
-    decode_file,
-    decode_log_reference,
-    split_logs,
-)
+from thrustmap.fitting.df.extraction import extract  # noqa: E402
+from thrustmap.fitting.df.options import DfOptions  # noqa: E402
+from thrustmap.flightlogs import blackbox, dataflash, ulog  # noqa: E402
+from thrustmap.flightlogs.blackbox_decode import decode_file, decode_log_reference  # noqa: E402
+from thrustmap.flightlogs.blackbox_format import split_logs  # noqa: E402
 
 SHARED = ROOT.parent / "shared/data/flightlogs"
 DF_MESSAGES = ["IMU", "BAT", "CURR", "RCOU", "CTUN", "ATT", "EV", "PARM", "MSG"]

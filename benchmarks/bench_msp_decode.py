@@ -25,7 +25,8 @@ from thrustmap.protocols.msp.framing import (
     crc8_dvb_s2,
     encode_reply,
 )
-from thrustmap.protocols.msp.messages import Analog, Motor, decode_reply
+from thrustmap.protocols.msp.messages import Analog, decode_reply
+from thrustmap.protocols.msp.motor import Motor
 
 FRAMES = 20_000
 CHUNK = 64

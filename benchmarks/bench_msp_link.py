@@ -26,8 +26,8 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.clock import MonotonicClock
-from thrustmap.protocols.msp.framing import MspDecoder, encode_request
-from thrustmap.protocols.msp.messages import MSP_MOTOR_STOP, MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, encode_request
+from thrustmap.protocols.msp.motor import MSP_MOTOR_STOP, SetMotor
 from thrustmap.protocols.transport import open_transport
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim import peers

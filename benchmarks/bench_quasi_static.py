@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from thrustmap.core.errors import ThrustmapError
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 from thrustmap.rig.sim.physics import true_throttle_fraction
 from thrustmap.rig.sim.presets import preset
 from thrustmap.rig.sim.sysid import SYSID_BATTERY, simulate_staircase, write_csv

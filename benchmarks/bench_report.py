@@ -27,8 +27,8 @@ def main() -> int:
     if missing:
         print(f"xNova SR files not found: {', '.join(missing)}")
         return 1
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_datasets
 
     with tempfile.TemporaryDirectory() as tmp:
         map_path = Path(tmp) / "map.json"

@@ -16,17 +16,18 @@ Run: python benchmarks/bench_stop_latency.py
 
 from __future__ import annotations
 
+from support.latency_proxy import LaggedPeer
+
+import thrustmap.rig.devices.urls as urls
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ThrustmapError
 from thrustmap.protocols.mavlink.link import MavlinkSerialLink
-from thrustmap.protocols.msp.framing import encode_request
-from thrustmap.protocols.msp.messages import MspCommand, SetArmingDisabled
+from thrustmap.protocols.msp.framing import MspCommand, encode_request
+from thrustmap.protocols.msp.messages import SetArmingDisabled
 from thrustmap.protocols.peer import create_peer
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig import connect
 from thrustmap.rig.fc.mavlink import open_mavlink_output
 from thrustmap.rig.fc.msp import MspThrottleOutput
-from thrustmap.rig.latency import LaggedPeer
 from thrustmap.rig.sim import peers
 
 LATENCIES_S = (0.0, 0.05, 0.2, 0.5)
@@ -105,7 +106,7 @@ def fmt(value: float | None) -> str:
 
 
 def main() -> None:
-    connect.load_sim_peers()
+    urls.load_sim_peers()
     print("stop call -> verified stop, simulated clock")  # noqa: T201
     print(  # noqa: T201
         f"{'latency':>9} | {'MSP now':>10} | {'MSP old 100 ms':>14} | {'MAVLink now':>11} | "

@@ -14,7 +14,7 @@ from __future__ import annotations
 from thrustmap.fitting.adaptive import MapChooser
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunResult
+from thrustmap.rig.run_types import RunResult
 from thrustmap.rig.script import run_script, script_exit_code
 
 # The range the plan may command, in % of the ESC's throttle range (PWM 1000..2000 µs).

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunResult
+from thrustmap.rig.run_types import RunResult
 from thrustmap.rig.script import run_script, script_exit_code
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 70 % = 1700 µs).

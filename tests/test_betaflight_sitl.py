@@ -11,7 +11,7 @@ temporary folder and always stopped, whatever the tests do. With ``THRUSTMAP_REQ
 (set by ``.ci/run``) a missing SITL fails instead of skipping.
 
 Slow links (issue 20): every user-facing test also runs through a latency proxy
-(:class:`thrustmap.rig.latency.LatencyProxy`) that delays each reply of the SITL.
+(:class:`support.latency_proxy.LatencyProxy`) that delays each reply of the SITL.
 ``THRUSTMAP_SITL_LATENCY_MS`` lists the delays (default ``500``; the full matrix is
 ``0,50,200,500``); 0 here means through the proxy without delay, and the ``direct`` runs skip it.
 ``THRUSTMAP_SITL_BURN=N`` starts N busy-loop processes for the whole module (a loaded machine:
@@ -39,10 +39,9 @@ from support.betaflight_sitl import (
     port_in_use,
     sitl_binary,
 )
+from support.latency_proxy import LatencyProxy
 
-from thrustmap.protocols.msp.framing import MspDecoder, encode_request
-from thrustmap.protocols.msp.messages import MspCommand
-from thrustmap.rig.latency import LatencyProxy
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, encode_request
 
 PROJECT = Path(__file__).resolve().parents[1]
 STAND = "sim://tyto-1585?drive_esc=0"
@@ -337,7 +336,7 @@ def test_short_sweep_with_a_simulated_stand(
     levels = {round(s.values[0]) for s in sitl.pwm_since(t0)}
     assert {1100, 1200} <= levels, sorted(levels)  # every level reached the output
     assert max(levels) <= 1201
-    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.fitting.loaders.load import load_dataset
 
     ds = load_dataset(tmp_path / "run.csv")
     assert ds.meta["outcome"]["status"] == "completed"

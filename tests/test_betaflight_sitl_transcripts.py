@@ -14,8 +14,11 @@ from pathlib import Path
 
 import pytest
 
+import thrustmap.rig.devices.probe as probe
+import thrustmap.rig.devices.urls as urls
 from thrustmap.core.clock import SimClock
 from thrustmap.protocols.msp.framing import (
+    MspCommand,
     MspDecoder,
     MspDirection,
     MspFrame,
@@ -24,29 +27,29 @@ from thrustmap.protocols.msp.framing import (
 )
 from thrustmap.protocols.msp.messages import (
     REPLY_TYPES,
-    AdvancedConfig,
     ApiVersion,
     BatteryState,
     BoardInfo,
     FcVariant,
     FcVersion,
+    Status,
+)
+from thrustmap.protocols.msp.motor import (
+    AdvancedConfig,
     Motor,
     MotorConfig,
     MotorProtocol,
     MotorTelemetry,
-    MspCommand,
     SetMotor,
-    Status,
 )
 from thrustmap.protocols.transcript import Transcript, read_transcript
 from thrustmap.protocols.transport import open_transport
-from thrustmap.rig import connect
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.spin import SpinRequest, run_spin
 
-connect.load_sim_peers()  # this file opens sim:// ports directly (the rig registers them)
+urls.load_sim_peers()  # this file opens sim:// ports directly (the rig registers them)
 
 TRANSCRIPTS = (
     Path(__file__).resolve().parents[1].parent / "shared" / "data" / "firmware-transcripts"
@@ -186,7 +189,7 @@ def test_replaying_the_real_probe_reports_the_stop_as_unverifiable() -> None:
     if not path.is_file():
         pytest.skip(f"real Betaflight transcripts not available ({path} is absent)")
     clock = SimClock()
-    report = connect.probe_device(f"replay://{path}", clock)
+    report = probe.probe_device(f"replay://{path}", clock)
     assert report.identity is not None
     assert (report.identity.kind, report.identity.firmware_version) == (
         "betaflight",
@@ -275,9 +278,9 @@ def test_cli_sweep_on_a_blind_fc_is_never_reported_verified(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     from thrustmap.cli import main
-    from thrustmap.core.dslog import sidecar_path
     from thrustmap.core.jsonfile import load_json
-    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.core.stand_recording import sidecar_path
+    from thrustmap.fitting.loaders.load import load_dataset
 
     args = ["sweep", "stairs-up", "--stand", "sim://tyto-1585?bench=blind&drive_esc=0"]
     args += ["--throttle", BLIND_FC, "--to", "20", "--step", "10", "--dwell", "1"]

@@ -13,14 +13,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import blackbox_encode as be
 
-from thrustmap.fitting.flightlogs import blackbox_decode as bd
-from thrustmap.fitting.flightlogs import blackbox_fast as bf
-from thrustmap.fitting.flightlogs.blackbox import used_field
+import thrustmap.flightlogs.blackbox_format as blackbox_format
+from thrustmap.flightlogs import blackbox_decode as bd
+from thrustmap.flightlogs import blackbox_fast as bf
+from thrustmap.flightlogs.blackbox import used_field
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 
 
-def assert_same(fast: bd.DecodedLog, ref: bd.DecodedLog) -> None:
+def assert_same(fast: blackbox_format.DecodedLog, ref: blackbox_format.DecodedLog) -> None:
     """Every field of the two results equal; the main frames compared one by one."""
     assert fast.main_fields == ref.main_fields
     assert fast.main.shape == ref.main.shape and fast.main.dtype == ref.main.dtype
@@ -39,7 +40,7 @@ def assert_same(fast: bd.DecodedLog, ref: bd.DecodedLog) -> None:
 
 def logs_in(path: Path) -> list[bytes]:
     data = path.read_bytes()
-    return [data[a:b] for a, b in bd.split_logs(data)]
+    return [data[a:b] for a, b in blackbox_format.split_logs(data)]
 
 
 def compare_fast(section: bytes) -> None:
@@ -84,7 +85,7 @@ def random_log(seed: int, frames: int) -> bytes:
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
                      be.SIM_SLOW)  # fmt: skip
     out = bytearray(enc.header_bytes())
-    out += enc.event(bd.EVENT_SYNC_BEEP, 123456)
+    out += enc.event(blackbox_format.EVENT_SYNC_BEEP, 123456)
     out += enc.s_frame([1, 0, 0, 1])
     resume_at, gap_at = frames // 2, 3 * frames // 4
     pause_us = 0
@@ -96,7 +97,7 @@ def random_log(seed: int, frames: int) -> bytes:
         noise = (rng.uniform(-1, 1, len(values)) * np.array(AMPLITUDE) * scale).astype(int)
         values = values[:2] + [v + int(x) for v, x in zip(values[2:], noise[2:], strict=True)]
         if k == resume_at:  # announced: a resume event, then an intra frame
-            out += enc.event(bd.EVENT_LOGGING_RESUME, values[0], values[1] - 50)
+            out += enc.event(blackbox_format.EVENT_LOGGING_RESUME, values[0], values[1] - 50)
             out += enc.i_frame(values)
         elif k == gap_at or k % 8 == 0:  # the pause at gap_at unannounced: a gap
             out += enc.i_frame(values)
@@ -104,9 +105,9 @@ def random_log(seed: int, frames: int) -> bytes:
             out += enc.p_frame(values)
         if k == frames // 3:
             out += enc.s_frame([int(rng.integers(0, 1 << 20)), 3, 0, 1])
-            out += enc.event(bd.EVENT_FLIGHT_MODE, 5, 1)
-    out += enc.event(bd.EVENT_DISARM, 4)
-    out += enc.event(bd.EVENT_LOG_END)
+            out += enc.event(blackbox_format.EVENT_FLIGHT_MODE, 5, 1)
+    out += enc.event(blackbox_format.EVENT_DISARM, 4)
+    out += enc.event(blackbox_format.EVENT_LOG_END)
     return bytes(out)
 
 
@@ -180,7 +181,7 @@ def test_betaflight_3_throttle_and_motors_below_their_low_end_are_wrapped_in_bul
     2**32 - 70): only the 32-bit wrap brings it back. The motors are averaged in inter frames,
     so they are wrapped at every step; both as the reference decodes them."""
     main = dataclasses.replace(be.SIM_MAIN, predictor=[*be.SIM_MAIN.predictor])
-    main.predictor[5] = bd.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
+    main.predictor[5] = blackbox_format.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
     enc = be.Encoder(be.SIM_HEADERS, main, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
     out = bytearray(enc.header_bytes())
     for k in range(64):
@@ -252,7 +253,7 @@ def gps_log(seed: int, frames: int, start_iteration: int = 4096, start_time_us: 
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
                      be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
     out = bytearray(enc.header_bytes())
-    out += enc.event(bd.EVENT_SYNC_BEEP, start_time_us - 1000)
+    out += enc.event(blackbox_format.EVENT_SYNC_BEEP, start_time_us - 1000)
     out += enc.s_frame([1, 0, 0, 1])
     gps: list[list[int]] = []
     homes: list[list[int]] = []
@@ -270,7 +271,7 @@ def gps_log(seed: int, frames: int, start_iteration: int = 4096, start_time_us: 
             pause_us += 3_000_000
         values = be.sim_frame_values(k, start_iteration, start_time_us + pause_us, 10.0)
         if k == resume_at:  # a resume event, a GPS frame, then the intra frame
-            out += enc.event(bd.EVENT_LOGGING_RESUME, values[0], values[1] - 70)
+            out += enc.event(blackbox_format.EVENT_LOGGING_RESUME, values[0], values[1] - 70)
             row = [values[1] - 70 + 9, 11, home[0] + 5, home[1] - 5, 120, 30, 1800]
             gps.append(row)
             out += enc.g_frame(row)
@@ -289,9 +290,9 @@ def gps_log(seed: int, frames: int, start_iteration: int = 4096, start_time_us: 
             home = [home[0] + 1000, home[1] - 2000]  # a new home (re-armed)
         if k == frames // 4:
             out += enc.s_frame([int(rng.integers(0, 1 << 20)), 3, 0, 1])
-            out += enc.event(bd.EVENT_FLIGHT_MODE, 5, 1)
-    out += enc.event(bd.EVENT_DISARM, 4)
-    out += enc.event(bd.EVENT_LOG_END)
+            out += enc.event(blackbox_format.EVENT_FLIGHT_MODE, 5, 1)
+    out += enc.event(blackbox_format.EVENT_DISARM, 4)
+    out += enc.event(blackbox_format.EVENT_LOG_END)
     return bytes(out), gps, homes
 
 
@@ -316,14 +317,18 @@ def test_a_file_of_several_gps_logs_is_decoded_in_bulk_log_by_log() -> None:
     logs = [gps_log(s, n, 4096 * (s + 1), 5_000_000 * (s + 1)) for s, n in ((1, 200), (2, 40))]
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING,
                      be.SIM_SLOW, be.SIM_GPS, be.SIM_GPS_HOME)  # fmt: skip
-    empty = enc.header_bytes() + enc.event(bd.EVENT_SYNC_BEEP, 99) + enc.event(bd.EVENT_LOG_END)
+    empty = (
+        enc.header_bytes()
+        + enc.event(blackbox_format.EVENT_SYNC_BEEP, 99)
+        + enc.event(blackbox_format.EVENT_LOG_END)
+    )
     data = logs[0][0] + empty + logs[1][0] + b"\xff" * 5000
-    ranges = bd.split_logs(data)
+    ranges = blackbox_format.split_logs(data)
     assert len(ranges) == 3
     for i, (a, b) in enumerate(ranges):
         for keep in (None, used_field):
             got = bf.decode_log_bulk(data[a:b], i, a, keep_field=keep)
-            assert isinstance(got, bd.DecodedLog), f"log {i + 1} left to the reference"
+            assert isinstance(got, blackbox_format.DecodedLog), f"log {i + 1} left to the reference"
             assert_same(got, bd.decode_log_reference(data[a:b], i, a, keep_field=keep))
     decoded = bd.decode_file(data)
     assert [len(d.main) for d in decoded] == [200, 0, 40]
@@ -338,7 +343,7 @@ def test_a_truncated_log_is_decoded_in_bulk_up_to_its_tail(cut: int) -> None:
     section, _, _ = gps_log(5, 300)
     truncated = section[:cut]
     got = bf.decode_log_bulk(truncated)
-    assert isinstance(got, bd.ResumeState)
+    assert isinstance(got, blackbox_format.ResumeState)
     assert len(got.main) >= 290  # all but the last frames in bulk
     for keep in (None, used_field):
         assert_same(bd.decode_log(truncated, keep_field=keep),
@@ -351,7 +356,7 @@ def test_a_corrupt_stretch_is_left_to_the_reference_from_there_on() -> None:
     at = body + (len(section) - body) * 2 // 3
     damaged = section[:at] + b"\x01\x02\x03" + section[at:]  # bytes no frame starts with
     got = bf.decode_log_bulk(damaged)
-    assert isinstance(got, bd.ResumeState) and body < got.pos <= at
+    assert isinstance(got, blackbox_format.ResumeState) and body < got.pos <= at
     decoded = bd.decode_log(damaged)
     assert_same(decoded, bd.decode_log_reference(damaged))
     assert decoded.stats["skipped_bytes"] >= 3 and decoded.ended_cleanly
@@ -407,7 +412,7 @@ def test_more_logs_frame_by_frame() -> None:
     assert paths, folder
     for path in paths:
         data = path.read_bytes()
-        for i, (a, b) in enumerate(bd.split_logs(data)):
+        for i, (a, b) in enumerate(blackbox_format.split_logs(data)):
             for keep in (None, used_field):
                 assert_same(
                     bd.decode_log(data[a:b], i, a, keep_field=keep),
@@ -434,10 +439,10 @@ def test_an_implausible_frame_hands_over_to_the_reference_there(case: str) -> No
         out += enc.i_frame(values) if k % 8 == 0 else enc.p_frame(values)
         if k % 10 == 3:
             out += enc.g_frame([values[1] + 50, 9, 473_000_100, 85_000_000 - k, 50, 3, 90])
-    out += enc.event(bd.EVENT_LOG_END)
+    out += enc.event(blackbox_format.EVENT_LOG_END)
     section = bytes(out)
     got = bf.decode_log_bulk(section)
-    assert isinstance(got, bd.ResumeState)
+    assert isinstance(got, blackbox_format.ResumeState)
     assert len(got.main) >= 480  # the frames before the rollover (~500) or the jump (700)
     for keep in (None, used_field):
         assert_same(bd.decode_log(section, keep_field=keep),
@@ -481,7 +486,7 @@ def test_a_run_of_varints_frames_as_one_varint_at_a_time(data: bytes, count: int
     matches exactly what ``count`` varints read one at a time match, on any bytes."""
     import re
 
-    from thrustmap.fitting.flightlogs import blackbox_framing as framing
+    from thrustmap.flightlogs import blackbox_framing as framing
 
     run = re.compile(framing._varint_run(count), re.DOTALL)
     one_by_one = re.compile(framing._VB * count, re.DOTALL)
@@ -494,7 +499,7 @@ def test_bytes_after_the_log_end_event_are_not_decoded() -> None:
     """A log whose frames end with the log-end event and then hold stray bytes (junk the frames
     do not tile): decoded in bulk up to the event, as the reference decodes it."""
     section = be.simulate_hover_log(2.0)
-    assert section.endswith(b"E\xff" + bd.END_OF_LOG_TEXT)
+    assert section.endswith(b"E\xff" + blackbox_format.END_OF_LOG_TEXT)
     for tail in (b"\x01\x02\x03", b"P\x00", b"\xff" * 7 + b"\x00"):
         compare_fast(section + tail)
 
@@ -507,7 +512,7 @@ def test_a_byte_class_matches_exactly_its_bytes(values: set[int]) -> None:
     import re
     import warnings
 
-    from thrustmap.fitting.flightlogs import blackbox_framing as framing
+    from thrustmap.flightlogs import blackbox_framing as framing
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -521,7 +526,7 @@ def test_a_tagged_group_of_unused_fields_with_none_set_is_skipped() -> None:
     per-frame decoder skipping the unused group read it as "no varints" (it raised on such a
     real INAV log before); both decoders agree, with and without the unused fields."""
     p_encoding = [*be.SIM_P_ENCODING]
-    p_encoding[2:6] = [bd.ENC_TAG8_8SVB] * 3 + [bd.ENC_SIGNED_VB]
+    p_encoding[2:6] = [blackbox_format.ENC_TAG8_8SVB] * 3 + [blackbox_format.ENC_SIGNED_VB]
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, p_encoding)
     out = bytearray(enc.header_bytes())
     for k in range(40):
@@ -544,7 +549,7 @@ def test_a_corrupt_stretch_in_a_log_needing_the_wrap_resumes_in_bulk(
     is not decoded again by the reference from its start (a real 4 MB Betaflight 3.1.7 log went
     from 0.5 s to 2.9 s that way); the result is the reference's."""
     main = dataclasses.replace(be.SIM_MAIN, predictor=[*be.SIM_MAIN.predictor])
-    main.predictor[5] = bd.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
+    main.predictor[5] = blackbox_format.PRED_MINTHROTTLE  # rcCommand[3], unsigned varint
     enc = be.Encoder(be.SIM_HEADERS, main, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
     head = enc.header_bytes()
     out = bytearray(head)
@@ -555,7 +560,7 @@ def test_a_corrupt_stretch_in_a_log_needing_the_wrap_resumes_in_bulk(
             values[14:18] = [0, 0, 0, 0]  # disarmed: below the motor low end 158
         out += enc.i_frame(values) if k % 32 == 0 else enc.p_frame(values)
     section = bytes(out)
-    assert len(section) - len(head) > 2 * bd.MIN_HANDBACK_BYTES
+    assert len(section) - len(head) > 2 * blackbox_format.MIN_HANDBACK_BYTES
     at = len(head) + (len(section) - len(head)) // 8
     damaged = section[:at] + b"\x01\x02\x03" + section[at + 40 :]
     from_start: list[bool] = []

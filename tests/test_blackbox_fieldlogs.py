@@ -18,8 +18,9 @@ from support.blackbox_encode import (
 )
 
 from thrustmap.cli import main
-from thrustmap.fitting.df import DfOptions, extract
-from thrustmap.fitting.flightlogs.blackbox import read
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import DfOptions
+from thrustmap.flightlogs.blackbox import read
 
 
 def _extract(

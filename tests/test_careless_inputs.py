@@ -463,7 +463,7 @@ def test_demo_ctrl_c_stops_with_130_and_no_report(
     demo: exit 130, no map fitted on the partial data, no report; in this process or in the
     forked worker per strategy that the CLI uses on two cores."""
     import thrustmap.demo as demo
-    from thrustmap.rig.runner import RunResult
+    from thrustmap.rig.run_types import RunResult
 
     calls = []
 
@@ -487,9 +487,10 @@ def test_demo_ctrl_c_stops_with_130_and_no_report(
 def test_accelerometer_in_g_is_caught(work: dict[str, str]) -> None:
     """A binary log's acceleration in g (≈ 1 at hover) is converted and said, not used as
     m/s² (which leaves no sample near hover, or a force ten times too small)."""
-    from thrustmap.fitting.df import DfOptions, extract
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.df.extraction import extract
+    from thrustmap.fitting.df.options import DfOptions
     from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.flightlogs.detect import read_log
 
     (flight,) = read_log(Path(work["ulg"]))
     acc = flight.accel_up_mps2
@@ -533,7 +534,7 @@ def test_grams_as_newtons_on_real_stand_logs(shared_data: Path, tmp_path: Path) 
     column map naming no current column — is refused, at any number of its first rows from 4."""
     from thrustmap.core.errors import DataFormatError
     from thrustmap.core.units import SCALES
-    from thrustmap.fitting.loaders import ColumnMap, load_dataset
+    from thrustmap.fitting.loaders.load import ColumnMap, load_dataset
 
     files = sorted((shared_data / "third-party-stands" / "strawson-5inch").glob("*.csv"))
     assert len(files) == 96

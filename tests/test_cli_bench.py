@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.protocols.msp.framing import MspDecoder
-from thrustmap.protocols.msp.messages import MspCommand, SetMotor
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder
+from thrustmap.protocols.msp.motor import SetMotor
 from thrustmap.protocols.transcript import read_transcript
 
 STAND = "sim://tyto-1585?bench=cli&drive_esc=0"

@@ -16,15 +16,17 @@ from typing import Any
 import pytest
 from click.testing import CliRunner, Result
 
+import thrustmap.protocols.peer as protocols_peer
 from thrustmap.cli import cli, hardware
 from thrustmap.core.clock import MonotonicClock, SimClock
 from thrustmap.core.errors import ConfigError, SafetyError
-from thrustmap.protocols.msp.messages import ArmingDisable, MotorProtocol, native_to_external
+from thrustmap.protocols.msp.messages import ArmingDisable
+from thrustmap.protocols.msp.motor import MotorProtocol, native_to_external
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.urlhandlers import protocol_sim
 from thrustmap.rig import session
 from thrustmap.rig.fc.msp import MspThrottleOutput
-from thrustmap.rig.safety import Terminated
+from thrustmap.rig.sigterm import Terminated
 
 # --------------------------------------------------------------------------- harness
 
@@ -79,7 +81,7 @@ def peers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[Spy]]:
     import thrustmap.rig.sim.peers  # noqa: F401 - the bench-plant registrations
 
     created: list[Spy] = []
-    original = protocol_sim.create_peer
+    original = protocols_peer.create_peer
 
     def spy(name: str, options: Any = None) -> BytePeer:
         wrapped = Spy(name.lower(), original(name, options))
@@ -502,7 +504,8 @@ def test_ports_lists_guesses_without_opening(monkeypatch: pytest.MonkeyPatch) ->
 def test_ports_probe_skips_bootloaders(monkeypatch: pytest.MonkeyPatch) -> None:
     from serial.tools import list_ports
 
-    from thrustmap.rig import connect
+    import thrustmap.rig.devices.declaration as declaration
+    import thrustmap.rig.devices.detect as detect
 
     monkeypatch.setattr(list_ports, "comports", lambda: list(FAKE_PORTS))
     probed: list[str] = []
@@ -511,9 +514,9 @@ def test_ports_probe_skips_bootloaders(monkeypatch: pytest.MonkeyPatch) -> None:
         probed.append(url)
         if url == "/dev/ttyUSB0":
             raise ConfigError("could not tell")
-        return connect.Detection("msp", "betaflight", evidence="MSP API 1.46")
+        return declaration.Detection("msp", "betaflight", evidence="MSP API 1.46")
 
-    monkeypatch.setattr(connect, "detect_kind", fake_detect)
+    monkeypatch.setattr(detect, "detect_kind", fake_detect)
     result = run("ports", "--probe", "--json")
     assert result.exit_code == 0, result.output
     data = json.loads(result.output)

@@ -181,8 +181,8 @@ def test_dry_run_shows_each_level_once_and_no_percent_twice(
 
 def test_demo_sr_vs_mr_is_one_short_sentence_with_the_number() -> None:
     from thrustmap.demo import sr_vs_mr
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_datasets
 
     files = [str(p) for p in sorted((FIXTURES / "sweeps").glob("*_run.csv"))]
     sr = fit_map(load_datasets(files[:1]), model="motor").map

@@ -10,17 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thrustmap.core import dslog
+from thrustmap.core import stand_recording
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 
 PROJECT = Path(__file__).resolve().parent.parent
 
 
 def test_misspelt_field_is_an_error_not_an_empty_column(tmp_path: Path) -> None:
-    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
+    w = stand_recording.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
     with pytest.raises(ValueError, match="unknown Ds log field.*thrust_N"):
         w.write(0.0, 1100, {"thrust_N": 1.0, "voltage_v": 16.0})
     with pytest.raises(TypeError, match="'rpm' must be a number"):
@@ -30,21 +31,21 @@ def test_misspelt_field_is_an_error_not_an_empty_column(tmp_path: Path) -> None:
     lines = (tmp_path / "run.csv").read_text().splitlines()
     assert len(lines) == 2  # header + the one good row: nothing of the bad ones
     assert lines[1] == "0.000000,1100,1,16,,,,,,0,hold"
-    assert dslog.DATA_COLUMNS[:2] == ("thrust_n", "voltage_v")
+    assert stand_recording.DATA_COLUMNS[:2] == ("thrust_n", "voltage_v")
 
 
 def test_writer_never_overwrites_a_recording(tmp_path: Path) -> None:
     (tmp_path / "run.csv").write_text("precious\n")
     with pytest.raises(ConfigError, match="refusing to overwrite"):
-        dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
+        stand_recording.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
     assert (tmp_path / "run.csv").read_text() == "precious\n"
     (tmp_path / "b.meta.json").write_text("{}")
     with pytest.raises(ConfigError, match="b.meta.json"):
-        dslog.DsWriter(tmp_path / "b.csv", SCALES["pwm"], {})
+        stand_recording.DsWriter(tmp_path / "b.csv", SCALES["pwm"], {})
 
 
-def _full_disk_writer(tmp_path: Path) -> dslog.DsWriter:
-    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {"rotors_on_esc": 1})
+def _full_disk_writer(tmp_path: Path) -> stand_recording.DsWriter:
+    w = stand_recording.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {"rotors_on_esc": 1})
     for k in range(3):
         w.write(0.1 * k, 1200, {"thrust_n": 1.0 + k, "voltage_v": 16.0, "step": 0})
     w._file.close()  # type: ignore[union-attr]
@@ -71,7 +72,7 @@ def test_completed_status_with_a_lost_row_is_not_claimed(tmp_path: Path) -> None
     with pytest.raises(ConfigError):
         w.write(0.3, 1200, {"thrust_n": 4.0, "voltage_v": 16.0})
     w.finish("completed")
-    side = dslog.read_sidecar(tmp_path / "run.csv")
+    side = stand_recording.read_sidecar(tmp_path / "run.csv")
     assert side is not None and side.status == "aborted"
     assert "could not be written" in side.reason
 
@@ -80,15 +81,17 @@ def test_sidecar_outcome_written_in_place_when_no_new_file_fits(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     plan = {"segments": [{"type": "hold", "label": "x" * 40}] * 30}
-    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["dshot"], {"plan": plan, "rotors_on_esc": 4})
+    w = stand_recording.DsWriter(
+        tmp_path / "run.csv", SCALES["dshot"], {"plan": plan, "rotors_on_esc": 4}
+    )
     w.write(0.0, 100, {"thrust_n": 0.5, "voltage_v": 16.0})
 
     def no_room(path: object, text: str) -> None:
         raise ConfigError("cannot write: the disk is full", file=str(path))
 
-    monkeypatch.setattr(dslog, "atomic_write_text", no_room)
+    monkeypatch.setattr(stand_recording, "atomic_write_text", no_room)
     w.finish("aborted", "limit tripped: current " + "x" * 2000, extra={"stop_verified": True})
-    side = dslog.read_sidecar(tmp_path / "run.csv")
+    side = stand_recording.read_sidecar(tmp_path / "run.csv")
     assert side is not None
     assert (side.status, side.stop_verified, side.samples) == ("aborted", True, 1)
     assert side.reason.startswith("limit tripped: current")
@@ -97,7 +100,7 @@ def test_sidecar_outcome_written_in_place_when_no_new_file_fits(
 
 def _settled_log(tmp_path: Path) -> Path:
     """Two holds; the runner marked each settled part; a spin-down follows the stop."""
-    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {"rotors_on_esc": 1})
+    w = stand_recording.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {"rotors_on_esc": 1})
     t = 0.0
     for step, (us, level) in enumerate(((1300, 2.0), (1500, 4.0))):
         for k in range(60):
@@ -127,7 +130,7 @@ def test_loader_uses_recorded_steps_and_settled_marks(tmp_path: Path) -> None:
 def test_no_private_imports_between_loader_and_format() -> None:
     loaders = sorted((PROJECT / "thrustmap/fitting/loaders").glob("*.py"))
     assert loaders, "the loaders package moved"
-    for path in (*loaders, PROJECT / "thrustmap/core/dslog.py"):
+    for path in (*loaders, PROJECT / "thrustmap/core/stand_recording.py"):
         rel = str(path.relative_to(PROJECT))
         tree = ast.parse(path.read_text())
         for node in ast.walk(tree):
@@ -135,7 +138,9 @@ def test_no_private_imports_between_loader_and_format() -> None:
                 private = [a.name for a in node.names if a.name.startswith("_")]
                 assert not private, (rel, node.module, private)
     runner = (PROJECT / "thrustmap" / "rig" / "runner.py").read_text()
-    assert "from thrustmap.core.dslog import DsWriter" in runner and "fitting" not in runner
+    assert (
+        "from thrustmap.core.stand_recording import DsWriter" in runner and "fitting" not in runner
+    )
 
 
 def test_sidecar_fields_are_typed(tmp_path: Path) -> None:
@@ -153,12 +158,12 @@ def test_sidecar_fields_are_typed(tmp_path: Path) -> None:
         assert "run.meta.json" in str(exc.value)
 
 
-class _DiskFillsUp(dslog.DsWriter):
+class _DiskFillsUp(stand_recording.DsWriter):
     """A Ds writer whose disk fills up after ``rows_left`` rows (every later write: ENOSPC)."""
 
     rows_left = 40
 
-    def write_row(self, row: dslog.DsRow) -> None:
+    def write_row(self, row: stand_recording.DsRow) -> None:
         if self.rows == self.rows_left and self._file is not None and self.write_error is None:
             self._file.close()
             self._file = open("/dev/full", "w", encoding="utf-8")  # noqa: SIM115
@@ -169,15 +174,16 @@ class _DiskFillsUp(dslog.DsWriter):
 def test_sweep_on_a_full_disk_stops_and_records_the_outcome(tmp_path: Path) -> None:
     """The run's Ds log hits a full disk mid-sweep: the motor is stopped and verified, the run
     ends in a one-line error (not an internal one), and the sidecar says how and why."""
+    import thrustmap.rig.devices.opening as opening
     from thrustmap.core.clock import SimClock
-    from thrustmap.rig import connect, plans
+    from thrustmap.rig import plans
     from thrustmap.rig.interlocks import Limits
     from thrustmap.rig.runner import Runner
 
     clock = SimClock()
-    stand = connect.open_stand("sim://tyto-1585?bench=full&drive_esc=0", clock, kind="tyto-1585")
+    stand = opening.open_stand("sim://tyto-1585?bench=full&drive_esc=0", clock, kind="tyto-1585")
     with stand:
-        fc = connect.open_throttle_output(
+        fc = opening.open_throttle_output(
             "sim://betaflight?bench=full&rotors=1&protocol=PWM", clock, kind="msp"
         )
         with fc:
@@ -193,7 +199,7 @@ def test_sweep_on_a_full_disk_stops_and_records_the_outcome(tmp_path: Path) -> N
             with pytest.raises(ConfigError, match="cannot write the Ds log after 40 rows"):
                 runner.run()
             assert fc.verify_stopped()
-    side = dslog.read_sidecar(tmp_path / "run.csv")
+    side = stand_recording.read_sidecar(tmp_path / "run.csv")
     assert side is not None and side.status == "aborted" and side.stop_verified is True
     assert "No space left" in side.reason and side.samples == 40
     ds = load_dataset(tmp_path / "run.csv")
@@ -210,15 +216,18 @@ def test_step_index_must_be_a_plan_index(tmp_path: Path) -> None:
 def test_settled_marks_from_a_real_runner_are_used(tmp_path: Path) -> None:
     """A settling sweep on the simulated bench: the runner marks where each hold settled, and
     selection averages exactly those samples (no second guess)."""
+    import thrustmap.rig.devices.opening as devices_opening
     from thrustmap.core.clock import SimClock
-    from thrustmap.rig import connect, plans
+    from thrustmap.rig import plans
     from thrustmap.rig.interlocks import Limits
     from thrustmap.rig.runner import record_sweep
 
     clock = SimClock()
-    stand = connect.open_stand("sim://tyto-1585?bench=settle&drive_esc=0", clock, kind="tyto-1585")
+    stand = devices_opening.open_stand(
+        "sim://tyto-1585?bench=settle&drive_esc=0", clock, kind="tyto-1585"
+    )
     with stand:
-        fc = connect.open_throttle_output(
+        fc = devices_opening.open_throttle_output(
             "sim://betaflight?bench=settle&rotors=1&protocol=PWM", clock, kind="msp"
         )
         with fc:
@@ -237,7 +246,7 @@ def test_settled_marks_from_a_real_runner_are_used(tmp_path: Path) -> None:
 
 
 def test_ds_log_without_recorded_steps_falls_back_to_throttle_plateaus(tmp_path: Path) -> None:
-    w = dslog.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
+    w = stand_recording.DsWriter(tmp_path / "run.csv", SCALES["pwm"], {})
     for k in range(40):
         w.write(0.05 * k, 1300 + 100 * (k // 20), {"thrust_n": 1.0 + k // 20, "voltage_v": 16.0})
     w.finish("completed")

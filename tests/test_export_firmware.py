@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 from test_export_encodings import synthetic_map
 
+import thrustmap.fitting.export.firmware.ardupilot as ardupilot
+import thrustmap.fitting.export.firmware.betaflight as betaflight
+import thrustmap.fitting.export.firmware.px4 as px4
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.export import firmware as fw
 from thrustmap.fitting.export import platforms as plat
 from thrustmap.fitting.export.encodings import ExportOptions
 from thrustmap.fitting.export.targets import export_map
@@ -30,15 +32,17 @@ def _map_from(
 @pytest.mark.parametrize("f_true", [0.0, 0.25, 0.35, 0.7])
 def test_px4_thr_mdl_fac_recovered_from_px4_curve(f_true: float) -> None:
     s = np.linspace(0.05, 0.95, 40)
-    fit = fw.fit_px4(18.0 * fw.px4_rel_thrust(s, f_true), s)
+    fit = px4.fit_px4(18.0 * px4.px4_rel_thrust(s, f_true), s)
     assert fit.thr_mdl_fac == pytest.approx(f_true, abs=0.01 * max(f_true, 0.01))
     assert fit.thrust_max_n == pytest.approx(18.0, rel=1e-9)
-    np.testing.assert_allclose(fw.px4_throttle(fw.px4_rel_thrust(s, f_true), f_true), s, atol=1e-12)
+    np.testing.assert_allclose(
+        px4.px4_throttle(px4.px4_rel_thrust(s, f_true), f_true), s, atol=1e-12
+    )
 
 
 def test_px4_export_through_a_map() -> None:
     s = np.linspace(0.05, 0.95, 60)
-    t = 20.0 * fw.px4_rel_thrust(s, 0.35)
+    t = 20.0 * px4.px4_rel_thrust(s, 0.35)
     b = np.full_like(s, 24.0)
     tmap = _map_from(
         t, b, 100 * s, "poly4", ValidityBox(Box(t.min(), t.max()), Box(24, 24), Box(5, 95))
@@ -62,19 +66,19 @@ def test_px4_reports_battery_effect_and_bat_scale() -> None:
 
 
 # -- ArduPilot ---------------------------------------------------------------------------------
-def _ardupilot_data(p: fw.ArduPilotParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _ardupilot_data(p: ardupilot.ArduPilotParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a, v = np.meshgrid(np.linspace(0.16, 0.93, 40), np.linspace(21.0, 25.2, 7))
     a, v = a.ravel(), v.ravel()
-    return fw.ardupilot_thrust(a, v, p), v, a
+    return ardupilot.ardupilot_thrust(a, v, p), v, a
 
 
 @pytest.mark.parametrize(("expo", "spin_min"), [(0.55, 0.12), (0.3, 0.08), (0.8, 0.15)])
 def test_ardupilot_expo_and_spin_min_recovered(expo: float, spin_min: float) -> None:
-    truth = fw.ArduPilotParams(expo, spin_min, 0.95, 25.2, 21.0, 18.0)
+    truth = ardupilot.ArduPilotParams(expo, spin_min, 0.95, 25.2, 21.0, 18.0)
     t, v, a = _ardupilot_data(truth)
     # the firmware's own inverse reproduces the actuator values it was generated from
-    np.testing.assert_allclose(fw.ardupilot_actuator(t, v, truth), a, atol=1e-12)
-    fit = fw.fit_ardupilot(t, v, a, spin_max=0.95, bat_volt_max=25.2, bat_volt_min=21.0)
+    np.testing.assert_allclose(ardupilot.ardupilot_actuator(t, v, truth), a, atol=1e-12)
+    fit = ardupilot.fit_ardupilot(t, v, a, spin_max=0.95, bat_volt_max=25.2, bat_volt_min=21.0)
     assert fit.thst_expo == pytest.approx(expo, rel=0.01)
     assert fit.spin_min == pytest.approx(spin_min, rel=0.01)
     assert fit.thrust_max_n == pytest.approx(18.0, rel=0.01)
@@ -82,11 +86,11 @@ def test_ardupilot_expo_and_spin_min_recovered(expo: float, spin_min: float) -> 
 
 def test_ardupilot_export_through_a_map() -> None:
     # MOT_SPIN_MIN comes from the measured spin-up (here 0.16), MOT_THST_EXPO is fitted above it
-    truth = fw.ArduPilotParams(0.55, 0.16, 0.95, 25.2, 21.0, 18.0)
+    truth = ardupilot.ArduPilotParams(0.55, 0.16, 0.95, 25.2, 21.0, 18.0)
     t, v, a = _ardupilot_data(truth)
     # box: thrusts every voltage reaches inside the sampled actuator range
-    t_hi = float(fw.ardupilot_thrust(np.array([0.93]), np.array([21.0]), truth)[0])
-    t_lo = float(fw.ardupilot_thrust(np.array([0.16]), np.array([25.2]), truth)[0])
+    t_hi = float(ardupilot.ardupilot_thrust(np.array([0.93]), np.array([21.0]), truth)[0])
+    t_lo = float(ardupilot.ardupilot_thrust(np.array([0.16]), np.array([25.2]), truth)[0])
     box = ValidityBox(Box(t_lo, t_hi), Box(21.0, 25.2), Box(16, 93))
     tmap = replace(_map_from(t, v, 100 * a, "poly4", box), spin_up={"throttle_pct": 16.0})
     res = export_map(tmap, "ardupilot", ExportOptions(voltage_v=25.2))
@@ -107,37 +111,41 @@ def test_ardupilot_export_through_a_map() -> None:
 @pytest.mark.parametrize("value", [20, 45, 90, 125])
 def test_betaflight_thrust_linear_recovered(generation: str, value: int) -> None:
     m = np.linspace(0.02, 0.98, 50)
-    out = fw.betaflight_out(m, value / 100, generation)
-    fit = fw.fit_betaflight(12.0 * m, out, generation)
+    out = betaflight.betaflight_out(m, value / 100, generation)
+    fit = betaflight.fit_betaflight(12.0 * m, out, generation)
     assert fit.thrust_linear == value
     assert fit.expo == pytest.approx(value / 100, rel=0.01)
-    np.testing.assert_allclose(fw.betaflight_m(out, value / 100, generation), m, atol=1e-12)
+    np.testing.assert_allclose(betaflight.betaflight_m(out, value / 100, generation), m, atol=1e-12)
 
 
 def test_betaflight_2026_curve_is_capped_where_it_stops_rising() -> None:
     m = np.linspace(0, 1, 20001)
-    e_max = fw.betaflight_max_expo("2026.6")
-    assert np.all(np.diff(fw.betaflight_out(m, e_max, "2026.6")) > 0)
-    assert np.any(np.diff(fw.betaflight_out(m, e_max + 0.02, "2026.6")) < 0)
-    assert fw.betaflight_max_expo("legacy") == 1.5
+    e_max = betaflight.betaflight_max_expo("2026.6")
+    assert np.all(np.diff(betaflight.betaflight_out(m, e_max, "2026.6")) > 0)
+    assert np.any(np.diff(betaflight.betaflight_out(m, e_max + 0.02, "2026.6")) < 0)
+    assert betaflight.betaflight_max_expo("legacy") == 1.5
 
 
 def test_betaflight_generations_differ_and_version_parsing() -> None:
-    assert fw.betaflight_generation("4.5") == "legacy"
-    assert fw.betaflight_generation("2025.12") == "legacy"
-    assert fw.betaflight_generation("2026.6") == "2026.6"
-    assert fw.betaflight_generation("2026.12.1") == "2026.6"
+    assert betaflight.betaflight_generation("4.5") == "legacy"
+    assert betaflight.betaflight_generation("2025.12") == "legacy"
+    assert betaflight.betaflight_generation("2026.6") == "2026.6"
+    assert betaflight.betaflight_generation("2026.12.1") == "2026.6"
     m = np.array([0.25])
-    assert fw.betaflight_out(m, 0.4, "legacy")[0] == pytest.approx(0.25 * (1 + 0.4 * 0.75**2))
-    assert fw.betaflight_out(m, 0.4, "2026.6")[0] == pytest.approx(0.25 * (1 + 0.4 * 0.75 * 1.2))
+    assert betaflight.betaflight_out(m, 0.4, "legacy")[0] == pytest.approx(
+        0.25 * (1 + 0.4 * 0.75**2)
+    )
+    assert betaflight.betaflight_out(m, 0.4, "2026.6")[0] == pytest.approx(
+        0.25 * (1 + 0.4 * 0.75 * 1.2)
+    )
 
 
 @pytest.mark.parametrize("firmware", ["4.5", "2026.6"])
 def test_betaflight_export_through_a_map(firmware: str) -> None:
-    gen = fw.betaflight_generation(firmware)
+    gen = betaflight.betaflight_generation(firmware)
     idle_lo = 48 + 0.055 * 1999
     m = np.linspace(0.03, 0.97, 60)
-    out = fw.betaflight_out(m, 0.45, gen)
+    out = betaflight.betaflight_out(m, 0.45, gen)
     dshot = idle_lo + out * (2047 - idle_lo)
     pct = SCALES["dshot"].to_pct(dshot)
     t = 15.0 * m
@@ -268,6 +276,6 @@ def test_px4_clamped_factor_refits_thrust_scale_and_warns() -> None:
     # a dead band: thrust starts at s = 0.2, which PX4's form (no offset) cannot follow
     s = np.linspace(0.25, 0.95, 30)
     t = 20.0 * ((s - 0.2) / 0.8) ** 2
-    fit = fw.fit_px4(t, s)
+    fit = px4.fit_px4(t, s)
     assert fit.thr_mdl_fac == 1.0
     assert fit.thrust_max_n == pytest.approx(float(np.dot(s * s, t) / np.dot(s * s, s * s)))

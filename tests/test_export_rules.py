@@ -18,7 +18,7 @@ from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.export import rules
 from thrustmap.fitting.export.encodings import ExportOptions
-from thrustmap.fitting.export.firmware import ardupilot_spin_min
+from thrustmap.fitting.export.firmware.ardupilot import ardupilot_spin_min
 from thrustmap.fitting.export.targets import export_map
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.spinup import SpinUp, file_spin_up, spin_up

@@ -23,7 +23,7 @@ from support.stand_maps import shared_data, stand_map, stand_sets
 
 from thrustmap.fitting.export.encodings import ExportOptions
 from thrustmap.fitting.export.targets import export_map
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.loaders.load import load_dataset
 
 SPIN_ARM_DEFAULT = 0.10
 SPIN_MARGIN = 0.03

@@ -13,9 +13,9 @@ from test_fitting_identification import bldc_throttle_pct
 from thrustmap.cli import main
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import fit_map
+from thrustmap.fitting.fit.fitmap import fit_map
 from thrustmap.fitting.models import MODELS, OFFSET_RANGE_PCT
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.selection.options import Selection
 
 ALL = Selection(all_samples=True)
 

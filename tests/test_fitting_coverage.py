@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.fitting.fit import compare, evaluate, fit_map
-from thrustmap.fitting.loaders import load_dataset, load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import compare, evaluate
+from thrustmap.fitting.loaders.load import load_dataset, load_datasets
 from thrustmap.fitting.models import MODELS
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 from thrustmap.rig.sim.physics import LoadCellCreep
 from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
 
@@ -94,7 +96,7 @@ def test_compare_coverage_is_the_fitted_maps_interval() -> None:
 
 def test_an_offset_on_its_bound_widens_the_interval() -> None:
     """The bound set c, not the data: the interval carries what freeing it would change."""
-    from thrustmap.fitting.fit import bound_term
+    from thrustmap.fitting.fit.fitmap import bound_term
 
     rng = np.random.default_rng(7)
     t = np.linspace(0.3, 6.0, 20)

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.core.dslog import DsWriter
+from thrustmap.core.stand_recording import DsWriter
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.loaders.load import load_dataset
 
 RCB_HEADER = (
     "Time (s),ESC signal (µs),Servo 1 (µs),Thrust (N),Voltage (V),Current (A),"
@@ -69,7 +69,7 @@ def test_torn_row_that_still_parses_is_not_loaded_truncated(tmp_path: Path) -> N
     header = "t,cmd,load_g,vbus"
     rows = [f"{k},{1100 + 100 * k},{100.25 + k},12.{k}5" for k in range(6)]
     rows[-1] = rows[-1][:-2]  # '12.55' torn to '12.' — all four fields, still a number
-    from thrustmap.fitting.loaders import ColumnMap
+    from thrustmap.fitting.loaders.load import ColumnMap
 
     cm = ColumnMap(throttle="cmd", thrust="load_g", voltage="vbus", thrust_unit="g")
     ds = load_dataset(write(tmp_path / "t.csv", [header, *rows], end=""), cm)

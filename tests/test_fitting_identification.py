@@ -13,9 +13,10 @@ from thrustmap.cli import main
 from thrustmap.core.errors import FitError
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import compare, evaluate, fit_map
-from thrustmap.fitting.loaders import load_datasets
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import compare, evaluate
+from thrustmap.fitting.loaders.load import load_datasets
+from thrustmap.fitting.selection.options import Selection
 
 
 def bldc_throttle_pct(

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import DataFormatError
+from thrustmap.core.stand_recording import DsWriter
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.loaders import ColumnMap, load_dataset
+from thrustmap.fitting.loaders.load import ColumnMap, load_dataset
 
 RCB_HEADER = (
     "Time (s),ESC signal (µs),Servo 1 (µs),Servo 2 (µs),Servo 3 (µs),AccX (g),AccY (g),AccZ (g),"

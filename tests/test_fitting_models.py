@@ -90,7 +90,8 @@ def test_map_forward_bisection_inverts_polynomial(name: str) -> None:
 def test_motor_validation_fast_path_matches_per_fold_fits() -> None:
     """By-file validation reuses one design; with k0 fixed by physics in some folds and fitted
     in others it must give exactly what fitting each fold separately gives."""
-    from thrustmap.fitting.fit import Pool, fit_coefficients, validate
+    from thrustmap.fitting.fit.coefficients import Pool, fit_coefficients
+    from thrustmap.fitting.fit.validation import validate
 
     rng = np.random.default_rng(2)
     parts = []
@@ -166,8 +167,9 @@ def test_motor_fit_is_not_outvoted_by_a_slow_ramps_samples() -> None:
 
 
 def test_fit_says_how_the_weight_was_shared() -> None:
-    from thrustmap.fitting.fit import Pool, weighting_line
-    from thrustmap.fitting.selection import Points
+    from thrustmap.fitting.fit.coefficients import Pool
+    from thrustmap.fitting.fit.fitmap import weighting_line
+    from thrustmap.fitting.selection.points import Points
 
     def points(th: np.ndarray, kind: str) -> Points:
         t = (th / 100.0) ** 2 * 8.0

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.models import MODELS, OFFSET_RANGE_PCT
 
@@ -93,8 +93,9 @@ def test_held_out_folds_use_the_same_bounds() -> None:
     """compare's fast held-out path solves in a conditioned basis: the bounds must hold there."""
     from thrustmap.core.units import SCALES
     from thrustmap.fitting.dataset import Dataset
-    from thrustmap.fitting.fit import compare, fit_coefficients
-    from thrustmap.fitting.selection import Selection
+    from thrustmap.fitting.fit.coefficients import fit_coefficients
+    from thrustmap.fitting.fit.validation import compare
+    from thrustmap.fitting.selection.options import Selection
 
     rng = np.random.default_rng(5)
     sets = []
@@ -164,9 +165,9 @@ def motor_file(voltage_v: float, name: str, *, i0_a: float = 3.0, r_ohm: float =
 
 
 def test_backemf_scaling_is_kept_where_held_out_error_confirms_it() -> None:
-    from thrustmap.fitting.fit import evaluate
+    from thrustmap.fitting.fit.validation import evaluate
     from thrustmap.fitting.models import SCALING_BACKEMF
-    from thrustmap.fitting.selection import Selection
+    from thrustmap.fitting.selection.options import Selection
 
     sel = Selection(all_samples=True)
     train = [motor_file(7.4, "2s.csv"), motor_file(11.1, "3s.csv")]

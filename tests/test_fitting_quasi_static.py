@@ -16,9 +16,11 @@ import pytest
 
 from thrustmap.cli import main
 from thrustmap.core.errors import FitError
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.fitting.selection import Selection, describe, select
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.fitting.selection.describe import describe
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 from thrustmap.rig.sim.physics import LoadCellCreep, true_throttle_fraction
 from thrustmap.rig.sim.presets import preset
 from thrustmap.rig.sim.sysid import SYSID_BATTERY, lag_ratio, simulate_staircase, write_csv

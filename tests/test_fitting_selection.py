@@ -10,8 +10,10 @@ import pytest
 from thrustmap.cli import main
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.fitting.selection import Selection, plateaus, select
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.plateaus import plateaus
+from thrustmap.fitting.selection.points import select
 
 
 def lagged(throttle_us: np.ndarray, dt_s: float, tau_s: float) -> tuple[np.ndarray, np.ndarray]:

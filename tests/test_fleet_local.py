@@ -25,6 +25,7 @@ from test_fleet_dask import (
     timeless_bytes,
 )
 
+import thrustmap.fleet.task as fleet_task
 from thrustmap.cli import main
 from thrustmap.fleet import local, run
 from thrustmap.fleet.task import LogTask, Outcome
@@ -64,7 +65,7 @@ def patch_one_log(
     monkeypatch: pytest.MonkeyPatch, victim: Path, action: Callable[[], None]
 ) -> None:
     """Run ``action`` in the worker that takes ``victim`` (the forked workers inherit the patch)."""
-    real = local.process_log
+    real = fleet_task.process_log
 
     def process_log(task: LogTask) -> dict[str, Any]:
         if task.path == str(victim):
@@ -255,7 +256,7 @@ def test_a_workers_log_records_reach_the_command_bounded(
     command's handlers, copied by the fork, would write over its bar or hold the lines in the
     worker); at most MAX_RECORDS_PER_LOG a log."""
     victim = sorted(fleet.good)[3]
-    noisy = logging.getLogger("thrustmap.fitting.flightlogs.dataflash")
+    noisy = logging.getLogger("thrustmap.flightlogs.dataflash")
     n = local.MAX_RECORDS_PER_LOG + 7
     patch_one_log(
         monkeypatch, victim, lambda: [noisy.warning("odd record %d", k) for k in range(n)]

@@ -10,9 +10,11 @@ import pytest
 from support.copter33 import ACCEL_SCALE, GROUND_RUN_S, PAUSE_S, Copter33, write_copter33
 
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.df import G0, Df, DfOptions, extract
-from thrustmap.fitting.flightlogs.detect import read_log
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.fitting.df.table import Df
+from thrustmap.flightlogs.detect import read_log
+from thrustmap.flightlogs.series import FlightLog, Signal
 
 OPTS = DfOptions(mass_kg=1.0)
 
@@ -183,8 +185,8 @@ def test_the_land_detector_of_each_build_clears_the_flag_its_own_way() -> None:
     """3.2's update_land_detector (8c488ebd87) clears land_complete as soon as the pilot's
     throttle leaves zero; 3.3-dev's (from 11678ba936, 2014-07-17) once the throttle output
     exceeds THR_MID/2. Both set it after 1 s with the output at zero (50 loops at 50 Hz)."""
-    from thrustmap.fitting.flightlogs.copter_era import land_detector_era, landed_from_throttle
-    from thrustmap.fitting.flightlogs.series import Signal
+    from thrustmap.flightlogs.copter_era import land_detector_era, landed_from_throttle
+    from thrustmap.flightlogs.series import Signal
 
     assert land_detector_era("ArduCopter V3.2.1 (36b405fb)") == "3.2"
     assert land_detector_era("APM:Copter V3.1.5 (3c57e771)") == "3.2"

@@ -11,10 +11,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 from support import blackbox_encode as be
 
+import thrustmap.flightlogs.blackbox_format as blackbox_format
+import thrustmap.flightlogs.blackbox_frames as blackbox_frames
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.flightlogs import blackbox, blackbox_csv
-from thrustmap.fitting.flightlogs import blackbox_decode as bd
-from thrustmap.fitting.flightlogs.series import FlightLog
+from thrustmap.flightlogs import blackbox, blackbox_csv
+from thrustmap.flightlogs import blackbox_decode as bd
+from thrustmap.flightlogs.series import FlightLog
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 
@@ -36,29 +38,31 @@ int32 = st.integers(-(2**31), 2**31 - 1)
 @given(st.lists(int32, min_size=3, max_size=3))
 def test_tag2_3s32_round_trip(values: list[int]) -> None:
     data = be.tag2_3s32(values) + b"\x00"
-    out, p = bd._read_tag2_3s32(data, 0)
+    out, p = blackbox_frames._read_tag2_3s32(data, 0)
     assert out == values and p == len(data) - 1
 
 
 @given(st.lists(st.integers(-(2**15), 2**15 - 1), min_size=4, max_size=4))
 def test_tag8_4s16_round_trip(values: list[int]) -> None:
     data = be.tag8_4s16(values)
-    out, p = bd._read_tag8_4s16_v2(data, 0)
+    out, p = blackbox_frames._read_tag8_4s16_v2(data, 0)
     assert out == values and p == len(data)
 
 
 @given(st.lists(int32, min_size=1, max_size=8))
 def test_tag8_8svb_and_varints_round_trip(values: list[int]) -> None:
     data = be.tag8_8svb(values)
-    out, p = bd._read_tag8_8svb(data, 0, len(values))
+    out, p = blackbox_frames._read_tag8_8svb(data, 0, len(values))
     assert out == values and p == len(data)
 
 
 def test_known_encodings_bytes() -> None:
     assert be.uvb(300) == b"\xac\x02" and be.svb(-1) == b"\x01" and be.svb(1) == b"\x02"
-    assert bd._read_tag2_3s32(bytes([0b00_01_11_00]), 0)[0] == [1, -1, 0]
+    assert blackbox_frames._read_tag2_3s32(bytes([0b00_01_11_00]), 0)[0] == [1, -1, 0]
     # tag8_4s16: 4-bit 7, 8-bit -2, zero, 16-bit 1000 packed as nibbles 7|f e|0 3 e 8|0
-    assert bd._read_tag8_4s16_v2(bytes([0b11_00_10_01, 0x7F, 0xE0, 0x3E, 0x80]), 0)[0] == [
+    assert blackbox_frames._read_tag8_4s16_v2(bytes([0b11_00_10_01, 0x7F, 0xE0, 0x3E, 0x80]), 0)[
+        0
+    ] == [
         7,
         -2,
         0,
@@ -67,13 +71,13 @@ def test_known_encodings_bytes() -> None:
 
 
 def test_neg14_and_corrupt_varint() -> None:
-    fd = bd.FrameDef(["a", "b"], [1, 1], [0, 9], [3, 0])
-    parse = bd.compile_frame(fd, constants={"minthrottle": 0, "vbatref": 1650, "motor_low": 0},
+    fd = blackbox_format.FrameDef(["a", "b"], [1, 1], [0, 9], [3, 0])
+    parse = blackbox_frames.compile_frame(fd, constants={"minthrottle": 0, "vbatref": 1650, "motor_low": 0},
                              data_version=2)  # fmt: skip
     data = be.uvb(37) + be.svb(-5)  # neg14 stores -value; b is vbatref 1650 + (-5)
     vals, p = parse(data, 0, [0, 0], [0, 0], 0, 0, [0, 0])
     assert vals == [-37, 1645] and p == 2
-    with pytest.raises(bd.CorruptFrame):
+    with pytest.raises(blackbox_format.CorruptFrame):
         parse(b"\xff\xff\xff\xff\xff\xff", 0, [0, 0], [0, 0], 0, 0, [0, 0])
 
 
@@ -97,9 +101,9 @@ def test_decode_simulated_two_flights_exactly(fixtures_dir: Path) -> None:
         assert lg.ended_cleanly and lg.stats["corrupt"] == 0
         assert lg.stats["I"] == -(-n // 8) and lg.stats["P"] == n - lg.stats["I"]
         assert [e.kind for e in lg.events] == [
-            bd.EVENT_SYNC_BEEP,
-            bd.EVENT_DISARM,
-            bd.EVENT_LOG_END,
+            blackbox_format.EVENT_SYNC_BEEP,
+            blackbox_format.EVENT_DISARM,
+            blackbox_format.EVENT_LOG_END,
         ]
 
 
@@ -168,8 +172,8 @@ def test_sniffers(fixtures_dir: Path) -> None:
 
 def test_corrupt_frames_resync_and_are_reported(fixtures_dir: Path, tmp_path: Path) -> None:
     data = bytearray((fixtures_dir / "flightlogs" / "bb_hover_sim.bbl").read_bytes())
-    first = bd.split_logs(bytes(data))[1][0]
-    hdr_end = bd.parse_headers(bytes(data))[2]
+    first = blackbox_format.split_logs(bytes(data))[1][0]
+    hdr_end = blackbox_format.parse_headers(bytes(data))[2]
     mid = hdr_end + (first - hdr_end) // 2
     data[mid : mid + 40] = b"\xff" * 40  # a burst of garbage inside flight 1
     path = tmp_path / "damaged.bbl"
@@ -190,7 +194,7 @@ def test_corrupt_frames_resync_and_are_reported(fixtures_dir: Path, tmp_path: Pa
 
 def test_truncated_tail_is_reported_and_good_part_used(fixtures_dir: Path, tmp_path: Path) -> None:
     data = (fixtures_dir / "flightlogs" / "bb_hover_sim.bbl").read_bytes()
-    cut = bd.split_logs(data)[1][0] - 3000
+    cut = blackbox_format.split_logs(data)[1][0] - 3000
     path = tmp_path / "cut.bbl"
     path.write_bytes(data[:cut])
     flights = blackbox.read(path)
@@ -205,7 +209,7 @@ def test_truncated_tail_is_reported_and_good_part_used(fixtures_dir: Path, tmp_p
 def test_empty_and_foreign_files_give_clear_errors(fixtures_dir: Path, tmp_path: Path) -> None:
     data = (fixtures_dir / "flightlogs" / "bb_hover_sim.bbl").read_bytes()
     header_only = tmp_path / "empty.bbl"
-    header_only.write_bytes(data[: bd.parse_headers(data)[2]])
+    header_only.write_bytes(data[: blackbox_format.parse_headers(data)[2]])
     with pytest.raises(DataFormatError, match="none with usable data.*empty log"):
         blackbox.read(header_only)
     other = tmp_path / "other.bbl"
@@ -288,9 +292,9 @@ def test_real_bf428_log(shared_data: Path) -> None:
 
 def test_simulated_header_layout_is_betaflight_like() -> None:
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
-    hdr, defs, pos = bd.parse_headers(enc.header_bytes())
+    hdr, defs, pos = blackbox_format.parse_headers(enc.header_bytes())
     assert defs["I"].names[:2] == ["loopIteration", "time"] and pos == len(enc.header_bytes())
-    assert hdr["motorOutput"] == "158,2047" and bd._p_interval(hdr) == (1, 32)
+    assert hdr["motorOutput"] == "158,2047" and blackbox_format._p_interval(hdr) == (1, 32)
 
 
 def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> None:
@@ -298,10 +302,10 @@ def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> 
     exact only while every value stays in range, which decode_log checks (else it re-decodes)."""
     from dataclasses import replace
 
-    fd = bd.FrameDef(["a", "b"], [0, 1], [bd.PRED_PREVIOUS, bd.PRED_PREVIOUS],
-                     [bd.ENC_UNSIGNED_VB, bd.ENC_SIGNED_VB])  # fmt: skip
-    wrapped = bd.compile_frame(fd, constants={}, data_version=2)
-    raw = bd.compile_frame(fd, constants={}, data_version=2, wrap=False)
+    fd = blackbox_format.FrameDef(["a", "b"], [0, 1], [blackbox_format.PRED_PREVIOUS, blackbox_format.PRED_PREVIOUS],
+                     [blackbox_format.ENC_UNSIGNED_VB, blackbox_format.ENC_SIGNED_VB])  # fmt: skip
+    wrapped = blackbox_frames.compile_frame(fd, constants={}, data_version=2)
+    raw = blackbox_frames.compile_frame(fd, constants={}, data_version=2, wrap=False)
     data = bytes([0x05, 0x02])  # a: +5, b: +1 (zig-zag)
     prev = [0xFFFFFFFE, 0x7FFFFFFF]
     assert wrapped(data, 0, prev, prev, 0, 0, [0, 0]) == ([3, -(1 << 31)], 2)
@@ -316,11 +320,12 @@ def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> 
 
 def test_decoding_only_the_used_fields_gives_the_same_values() -> None:
     """blackbox.read decodes only the fields a flight log needs: exactly the full decode's."""
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
-    from thrustmap.fitting.flightlogs.blackbox import used_field
+    import thrustmap.flightlogs.blackbox_format as flightlogs_blackbox_format
+    from thrustmap.flightlogs import blackbox_decode as bd
+    from thrustmap.flightlogs.blackbox import used_field
 
     data = (FIXTURES / "bb_hover_sim.bbl").read_bytes()
-    for a, b in bd.split_logs(data):
+    for a, b in flightlogs_blackbox_format.split_logs(data):
         full = bd.decode_log(data[a:b])
         part = bd.decode_log(data[a:b], keep_field=used_field)
         assert part.main_fields[:2] == ["loopIteration", "time"]
@@ -354,8 +359,9 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
         assert "HEAVY []" in res.stdout, (name, res.stdout[-500:], res.stderr[-500:])
         import pandas as pd
 
-        from thrustmap.fitting.df import DfOptions, extract
-        from thrustmap.fitting.flightlogs.detect import read_log
+        from thrustmap.fitting.df.extraction import extract
+        from thrustmap.fitting.df.options import DfOptions
+        from thrustmap.flightlogs.detect import read_log
 
         # settle 1 s: the blackbox fixture's logs (4 s, 3 s) are otherwise too short to be used
         df = extract(read_log(FIXTURES / name), DfOptions(mass_kg=1.0, settle_s=1.0))
@@ -368,16 +374,16 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
 def test_used_fields_decode_matches_on_damaged_logs(seed: int) -> None:
     """Skipping the unused fields' bytes must resynchronise, flag and cut exactly as decoding
     them does: flipped bytes and a truncated tail give the same kept values and statistics."""
-    from thrustmap.fitting.flightlogs.blackbox import used_field
+    from thrustmap.flightlogs.blackbox import used_field
 
     rng = np.random.default_rng(seed)
     data = bytearray((FIXTURES / "bb_hover_sim.bbl").read_bytes())
-    (a, b), *_ = bd.split_logs(bytes(data))
+    (a, b), *_ = blackbox_format.split_logs(bytes(data))
     body = a + 2000  # past the headers
     for k in rng.integers(body, b, 12):
         data[int(k)] = int(rng.integers(0, 256))
     cut = bytes(data[: int(rng.integers(body + 5000, b))])
-    for lo, hi in bd.split_logs(cut):
+    for lo, hi in blackbox_format.split_logs(cut):
         full = bd.decode_log(cut[lo:hi])
         part = bd.decode_log(cut[lo:hi], keep_field=used_field)
         idx = [full.main_fields.index(n) for n in part.main_fields]
@@ -389,8 +395,8 @@ def test_used_fields_decode_matches_on_damaged_logs(seed: int) -> None:
 def test_median_is_the_nan_median(n: int) -> None:
     """blackbox.median (by partition) gives series.nanmedian's value (by sort), NaN and
     infinities ignored."""
-    from thrustmap.fitting.flightlogs.blackbox import median
-    from thrustmap.fitting.flightlogs.series import nanmedian
+    from thrustmap.flightlogs.blackbox import median
+    from thrustmap.flightlogs.series import nanmedian
 
     rng = np.random.default_rng(n)
     x = np.round(rng.normal(1640.0, 30.0, n), 1)

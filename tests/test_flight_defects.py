@@ -12,9 +12,10 @@ import pandas as pd
 import pytest
 from support import flight_defects as fd
 
-from thrustmap.fitting.df import DfOptions, extract
-from thrustmap.fitting.flightlogs.detect import read_log
-from thrustmap.fitting.flightlogs.series import Signal
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import DfOptions
+from thrustmap.flightlogs.detect import read_log
+from thrustmap.flightlogs.series import Signal
 
 
 def _judge(sim: fd.DefectFlight, t: pd.DataFrame) -> tuple[float, float]:

@@ -10,9 +10,12 @@ import pytest
 from support import simulate_flight as sim
 
 from thrustmap.core.errors import ConfigError
-from thrustmap.fitting.df import G0, DfOptions, extract, hover_throttle, read_df, write_df
-from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.df.dffile import read_df, write_df
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.fitting.df.table import hover_throttle
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.flightlogs.detect import read_log
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 
@@ -130,7 +133,7 @@ def test_a_log_that_never_leaves_the_ground_judges_no_range_sensor() -> None:
     along) there is nothing to judge it on: no "nan%" warning, no numpy RuntimeWarning."""
     import warnings
 
-    from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+    from thrustmap.flightlogs.series import FlightLog, Signal
 
     t = np.arange(0.0, 30.0, 0.02)
     one = np.array([0.0])

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from thrustmap.core.errors import ConfigError, DataFormatError
-from thrustmap.fitting.flightlogs import dataflash
-from thrustmap.fitting.flightlogs.detect import detect, read_log
+from thrustmap.flightlogs import dataflash
+from thrustmap.flightlogs.detect import detect, read_log
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 BINARY = ["sim_hover.bin", "sim_hover.ulg", "sim_hover.tlog"]

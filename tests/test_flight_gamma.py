@@ -13,10 +13,11 @@ from support import simulate_flight as sim
 
 from thrustmap.cli.flight import flightlog_group, gamma_group
 from thrustmap.core.errors import ConfigError, FitError
-from thrustmap.fitting.df import DfOptions, extract
-from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import DfOptions
 from thrustmap.fitting.gamma import corrected_map, fit_gamma
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.flightlogs.detect import read_log
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.fitting.df import G0, DfOptions, extract
-from thrustmap.fitting.flightlogs.detect import read_log
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.flightlogs.detect import read_log
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 
@@ -58,7 +59,7 @@ def test_df_sidecar_rotor_count_not_a_whole_number(
 
 
 def test_df_sidecar_whole_rotor_count_as_float_is_fine(df_csv: Path) -> None:
-    from thrustmap.fitting.df import read_df
+    from thrustmap.fitting.df.dffile import read_df
 
     side = df_csv.with_suffix(".json")
     data = json.loads(side.read_text())

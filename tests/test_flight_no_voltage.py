@@ -20,7 +20,7 @@ import pytest
 from support import simulate_flight as sim
 
 from thrustmap.cli import main
-from thrustmap.fitting.df import read_df
+from thrustmap.fitting.df.dffile import read_df
 from thrustmap.fitting.mapfile import ThrustMap
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from support import simulate_flight as sim
 
-from thrustmap.fitting.flightlogs.detect import detect, read_log
-from thrustmap.fitting.flightlogs.series import FlightLog
+from thrustmap.flightlogs.detect import detect, read_log
+from thrustmap.flightlogs.series import FlightLog
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 
@@ -199,7 +199,7 @@ def test_vectorised_ulog_parse_equals_pyulog(path: Path) -> None:
 
     from pyulog import ULog
 
-    from thrustmap.fitting.flightlogs import ulog, ulog_fast
+    from thrustmap.flightlogs import ulog, ulog_fast
 
     raw = path.read_bytes()
     fast = ulog_fast.parse(raw, ulog.TOPICS)
@@ -222,7 +222,7 @@ def test_vectorised_ulog_parse_equals_pyulog(path: Path) -> None:
 
 
 def test_vectorised_ulog_parse_reports_a_truncated_tail(tmp_path: Path) -> None:
-    from thrustmap.fitting.flightlogs import ulog, ulog_fast
+    from thrustmap.flightlogs import ulog, ulog_fast
 
     raw = (FL / "sim_hover.ulg").read_bytes()
     fast = ulog_fast.parse(raw[: len(raw) - 5], ulog.TOPICS)

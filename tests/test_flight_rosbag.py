@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.flightlogs import rosbag
-from thrustmap.fitting.flightlogs.detect import detect, read_head
+from thrustmap.flightlogs import rosbag
+from thrustmap.flightlogs.detect import detect, read_head
 
 pytest.importorskip("rosbags")
 

@@ -11,11 +11,12 @@ import pytest
 from support import simulate_flight as sim
 
 from thrustmap.core.errors import ConfigError
-from thrustmap.fitting.df import G0, DfOptions, extract
-from thrustmap.fitting.flightlogs import dataflash
-from thrustmap.fitting.flightlogs.detect import read_log
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import G0, DfOptions
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.flightlogs import dataflash
+from thrustmap.flightlogs.detect import read_log
+from thrustmap.flightlogs.series import FlightLog, Signal
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"
 ARDU = "flightlogs/ardupilot"
@@ -235,7 +236,7 @@ def test_ardupilot_scale_names_its_parameters(shared_data: Path) -> None:
 def test_ardupilot_tlog_raw_imu_in_mg_and_a_mid_frame_start(tmp_path: Path) -> None:
     """ArduCopter streams RAW_IMU / SCALED_IMU2 in mG, not HIGHRES_IMU; a recording joined
     mid-frame is still a tlog (found by a chain of valid records, not by its first bytes)."""
-    from thrustmap.fitting.flightlogs.detect import detect
+    from thrustmap.flightlogs.detect import detect
 
     truth = sim.simulate_hover(sim.FIXTURE_SIM)
     full = tmp_path / "ap.tlog"

@@ -120,9 +120,10 @@ def wait_spinning(stub: Any, proc: subprocess.Popen[str], above_us: float = 1200
 
 def truth_error_pct(csv: Path) -> tuple[float, float, int]:
     """Mean and max |map - truth| (% throttle) at the run's steady points, and their count."""
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import load_dataset
-    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.load import load_dataset
+    from thrustmap.fitting.selection.options import Selection
+    from thrustmap.fitting.selection.points import select
     from thrustmap.rig.sim.physics import true_throttle_fraction
     from thrustmap.rig.sim.presets import preset
 

@@ -21,13 +21,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+import support.simulate_flight as simulate_flight
 from support import telemetry_flight as tf
 
 from thrustmap.cli.gammalive import PANEL_WIDTH, panel_lines
-from thrustmap.fitting.df import DfOptions
-from thrustmap.fitting.flightlogs.telemetry import Telemetry
+from thrustmap.fitting.df.options import DfOptions
 from thrustmap.fitting.gamma_live import LiveGamma
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.flightlogs.telemetry import Telemetry
 
 ROOT = Path(__file__).resolve().parent.parent
 FIX = ROOT / "fixtures" / "flightlogs"
@@ -86,7 +87,7 @@ def test_replay_gives_what_extract_and_gamma_fit_give(tmp_path: Path) -> None:
     np.testing.assert_allclose(g_live, g_fit, rtol=1e-9, atol=1e-12)
     assert box_live == box_fit
     # and near the γ(B) the simulation flew with (voltage from the Df)
-    flight = tf.simulate_hover(tf.LIVE_SIM)
+    flight = simulate_flight.simulate_hover(tf.LIVE_SIM)
     b = np.linspace(box_live[0], box_live[1], 5)
     truth = flight.gamma(b)
     ours = np.polynomial.polynomial.polyval(b, g_live)

@@ -14,8 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-
-from thrustmap.rig.latency import LatencyProxy
+from support.latency_proxy import LatencyProxy
 
 PROC_NET = Path("/proc/net")
 pytestmark = pytest.mark.skipif(
@@ -90,7 +89,7 @@ def _proxy_process(*extra: str) -> tuple[subprocess.Popen[bytes], int]:
     port = free_tcp_port()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
     child = subprocess.Popen(
-        [sys.executable, "-m", "thrustmap.rig.latency", "--listen", str(port)]
+        [sys.executable, "-m", "support.latency_proxy", "--listen", str(port)]
         + ["--to", "127.0.0.1:9", "--delay-ms", "10", *extra],
         env=env,
         stdout=subprocess.DEVNULL,

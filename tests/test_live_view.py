@@ -257,10 +257,10 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
     """The output is opened before the view: a view that fails to start still stops it."""
     from click.testing import CliRunner
 
+    import thrustmap.rig.devices.opening as opening
     from thrustmap.cli import cli
     from thrustmap.cli import live as live_mod
     from thrustmap.core.units import SCALES
-    from thrustmap.rig import connect
 
     class Output:
         throttle_scale = SCALES["pwm"]
@@ -286,7 +286,7 @@ def test_spin_closes_the_output_when_the_view_cannot_start(
     def no_view(self: LiveView) -> LiveView:
         raise RuntimeError("no terminal")
 
-    monkeypatch.setattr(connect, "open_throttle_output", lambda *a, **k: Output())
+    monkeypatch.setattr(opening, "open_throttle_output", lambda *a, **k: Output())
     monkeypatch.setattr(live_mod.LiveView, "__enter__", no_view)
     result = CliRunner().invoke(
         cli, ["spin", "sim://betaflight", "--motor", "1", "--throttle", "10", "--yes"]

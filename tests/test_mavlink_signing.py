@@ -36,7 +36,8 @@ from thrustmap.protocols.mavlink.signing import (
 )
 from thrustmap.protocols.transcript import read_transcript
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig.fc.mavlink import SigningRequired, open_mavlink_output
+from thrustmap.rig.fc.mavlink import open_mavlink_output
+from thrustmap.rig.fc.mavlink_session import SigningRequired
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.plant import ConstantPlant
 

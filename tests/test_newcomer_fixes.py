@@ -47,7 +47,7 @@ def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_cells_are_read_from_the_pack_voltage() -> None:
-    from thrustmap.fitting.export.firmware import cells_from_voltage
+    from thrustmap.fitting.export.firmware.px4 import cells_from_voltage
 
     assert cells_from_voltage(20.4, 25.2) == 6  # the paper's xNova pack
     assert cells_from_voltage(22.62, 22.62) == 6

@@ -186,7 +186,7 @@ def test_replay_short_read_advances_the_given_clock_by_the_timeout(tmp_path: Pat
 
 def test_mavlink_session_recorded_from_sim_replays_through_the_same_link(tmp_path: Path) -> None:
     """A MAVLink 'driver' against sim://px4, recorded, then replayed strictly: same values."""
-    from thrustmap.rig.connect import load_sim_peers
+    from thrustmap.rig.devices.urls import load_sim_peers
 
     load_sim_peers()  # the simulator registers sim://px4 (protocols/ does not know it)
 

@@ -382,7 +382,7 @@ def test_every_command_help_says_where_the_pictures_are(
         paths.append([name])
         if isinstance(cmd, click.Group):
             paths += [[name, sub] for sub in cmd.commands]
-    from thrustmap.cli.pictures import NONE
+    from thrustmap.cli.help_pictures import NONE
 
     for path in paths:
         code, out, _ = run_cli([*path, "--help"], capsys)

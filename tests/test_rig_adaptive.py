@@ -22,16 +22,19 @@ import pytest
 from support.msp_tcp import MspTcpServer
 from test_rig_runner import STOP_FRAME, Rig, make_rig, motors_at_rest
 
+import thrustmap.rig.adaptive_plan as adaptive_plan
+import thrustmap.rig.segments as segments
 from thrustmap.cli import main
 from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.demo import truth_error_pct
 from thrustmap.fitting.adaptive import Fitted, MapChooser
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.fitting.voltages import measured_voltages
 from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
+from thrustmap.rig.run_types import RunConfig, RunResult, Status
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.physics import PhysicsPlant, make_plant
@@ -490,7 +493,7 @@ class ScriptedChooser:
 
     def assess(
         self,
-        points: Sequence[plans.SettledPoint],
+        points: Sequence[adaptive_plan.SettledPoint],
         voltage_v: float,
         throttle_range_pct: tuple[float, float] | None = None,
     ) -> Move:
@@ -534,7 +537,7 @@ ACROSS_LIMITS = Limits(max_current_a=120, max_throttle_pct=75, cells=6)
 
 
 def across_plan(
-    chooser: object, connect: Callable[[plans.PackChange], bool] | None, **kw: object
+    chooser: object, connect: Callable[[segments.PackChange], bool] | None, **kw: object
 ) -> plans.Plan:
     return plans.adaptive(
         chooser,  # type: ignore[arg-type]
@@ -577,10 +580,10 @@ def test_across_voltage_discharges_the_pack_to_the_range(tmp_path: Path) -> None
 def test_across_voltage_asks_for_a_pack_when_discharge_cannot_reach(tmp_path: Path) -> None:
     rig, plant = small_pack_rig(capacity_mah=1300.0)
     wanted = 20.7  # below 6 x 3.3 V x 1.1 = 21.78 V: no discharge goes there
-    asked: list[plans.PackChange] = []
+    asked: list[segments.PackChange] = []
     at_rest: list[bool] = []
 
-    def connect(change: plans.PackChange) -> bool:
+    def connect(change: segments.PackChange) -> bool:
         asked.append(change)
         at_rest.append(motors_at_rest(rig) and plant.state(rig.clock.now_s()).rpm[0] < 1.0)
         rig.clock.sleep_s(30.0)  # the user takes half a minute; nothing is commanded
@@ -610,7 +613,7 @@ def test_a_pack_change_is_checked_and_nothing_spins_meanwhile(tmp_path: Path) ->
     rig, _ = small_pack_rig(capacity_mah=1300.0)
     asked_at: list[float] = []
 
-    def connect(change: plans.PackChange) -> bool:
+    def connect(change: segments.PackChange) -> bool:
         asked_at.append(rig.clock.now_s())
         return True  # but nobody changed the pack
 
@@ -632,7 +635,7 @@ def test_no_pack_or_ctrl_c_at_the_question_ends_with_the_motor_stopped(
 ) -> None:
     rig, _ = small_pack_rig(capacity_mah=1300.0)
 
-    def connect(change: plans.PackChange) -> bool:
+    def connect(change: segments.PackChange) -> bool:
         if answer == "ctrl-c":
             raise KeyboardInterrupt
         return False
@@ -814,14 +817,14 @@ def test_sweep_adaptive_across_voltage_command_on_the_simulator(
 
 
 def test_a_pack_near_its_minimum_voltage_lowers_the_top_then_ends_the_run() -> None:
-    driver = plans.AdaptiveDriver(
+    driver = adaptive_plan.AdaptiveDriver(
         ScriptedChooser(10.0),  # type: ignore[arg-type]
         [10.0, 60.0], lo_pct=10.0, hi_pct=60.0, dwell_s=3.0, record_s=1.0,
     )  # fmt: skip
     caps = {"min_voltage_v": 19.8}
 
-    def point(pct: float, volts: float) -> plans.SettledPoint:
-        return plans.SettledPoint(pct, 3.0, volts, 10.0, 10, True, 1.0, 0.1)
+    def point(pct: float, volts: float) -> adaptive_plan.SettledPoint:
+        return adaptive_plan.SettledPoint(pct, 3.0, volts, 10.0, 10, True, 1.0, 0.1)
 
     driver.observe(point(60.0, 22.0), caps)  # 11 % above the limit: nothing changes
     assert driver.hi_pct == 60.0
@@ -834,7 +837,7 @@ def test_a_pack_near_its_minimum_voltage_lowers_the_top_then_ends_the_run() -> N
 def test_across_voltage_ends_when_the_interval_stops_narrowing_after_a_move() -> None:
     """After a voltage move, 25 more points that do not narrow the worst interval end the run
     (no progress), instead of weighing the fit toward one level until the budget."""
-    driver = plans.AdaptiveDriver(
+    driver = adaptive_plan.AdaptiveDriver(
         ScriptedChooser(10.0),  # type: ignore[arg-type]
         [10.0, 60.0], lo_pct=10.0, hi_pct=60.0, dwell_s=3.0, record_s=1.0,
         voltage_range_v=(20.0, 25.0),
@@ -860,7 +863,7 @@ def test_on_a_real_rig_no_answer_at_the_pack_question_is_no_pack(
     from thrustmap.cli.bench import _pack_prompt
 
     connect = _pack_prompt({"stand": "/dev/ttyUSB0", "throttle": "/dev/ttyACM0"}, quiet=True)
-    change = plans.PackChange(21.0, "Connect a pack that reads about 21.00 V at rest.")
+    change = segments.PackChange(21.0, "Connect a pack that reads about 21.00 V at rest.")
     assert connect(change) is False
     err = capsys.readouterr().err
     assert "about 21.00 V at rest" in err and "Other pack connected, propellers on" in err

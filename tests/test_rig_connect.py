@@ -10,22 +10,30 @@ from typing import Any
 
 import pytest
 
+import thrustmap.protocols.peer as protocols_peer
+import thrustmap.rig.devices.builtin as builtin
+import thrustmap.rig.devices.detect as detect
+import thrustmap.rig.devices.opening as opening
+import thrustmap.rig.devices.ports as ports
+import thrustmap.rig.devices.probe as probe
+import thrustmap.rig.devices.registry as registry
+import thrustmap.rig.devices.urls as devices_urls
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
-from thrustmap.protocols.msp.framing import encode_request
-from thrustmap.protocols.msp.messages import ArmingDisable, MspCommand
+from thrustmap.protocols.msp.framing import MspCommand, encode_request
+from thrustmap.protocols.msp.messages import ArmingDisable
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.stands.line import preset
 from thrustmap.protocols.transcript import TranscriptWriter
 from thrustmap.protocols.urlhandlers import protocol_sim
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig import connect
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.msp_peer import MspPeer
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer, TytoStandPeer
-from thrustmap.rig.stand.line import LineStand, LineStandEscOutput, line_spec_to_dict
+from thrustmap.rig.stand.line import LineStand, LineStandEscOutput
+from thrustmap.rig.stand.line_spec import line_spec_to_dict
 from thrustmap.rig.stand.tyto import TytoEscOutput, TytoStand
 
 
@@ -61,7 +69,7 @@ def peers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[tuple[str, Any]]]:
     import thrustmap.rig.sim.peers  # noqa: F401 - the bench-plant registrations
 
     created: list[tuple[str, Any]] = []
-    original = protocol_sim.create_peer
+    original = protocols_peer.create_peer
 
     def spy(name: str, options: Any = None) -> BytePeer:
         peer = original(name, options)
@@ -90,24 +98,24 @@ def peers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[tuple[str, Any]]]:
     ],
 )
 def test_detect_from_sim_urls(url: str, kind: str, firmware: str | None, line: str | None) -> None:
-    found = connect.detect_from_url(url)
+    found = detect.detect_from_url(url)
     assert found is not None
     assert (found.kind, found.firmware, found.line_preset) == (kind, firmware, line)
 
 
 def test_real_urls_are_not_detected_without_io() -> None:
-    assert connect.detect_from_url("/dev/ttyACM0") is None
-    assert connect.detect_from_url("socket://192.168.4.1:23") is None
-    assert connect.detect_from_url("sim://unknown-thing") is None
+    assert detect.detect_from_url("/dev/ttyACM0") is None
+    assert detect.detect_from_url("socket://192.168.4.1:23") is None
+    assert detect.detect_from_url("sim://unknown-thing") is None
 
 
 def test_is_simulated() -> None:
-    assert connect.is_simulated("sim://px4")
-    assert connect.is_simulated("replay://fixtures/a.jsonl")
-    assert connect.is_simulated("record://sim://px4?file=a.jsonl")
-    assert not connect.is_simulated("record:///dev/ttyACM0?file=a.jsonl")
-    assert not connect.is_simulated("COM3")
-    assert not connect.is_simulated("/dev/ttyUSB0")
+    assert devices_urls.is_simulated("sim://px4")
+    assert devices_urls.is_simulated("replay://fixtures/a.jsonl")
+    assert devices_urls.is_simulated("record://sim://px4?file=a.jsonl")
+    assert not devices_urls.is_simulated("record:///dev/ttyACM0?file=a.jsonl")
+    assert not devices_urls.is_simulated("COM3")
+    assert not devices_urls.is_simulated("/dev/ttyUSB0")
 
 
 def _transcript(path: Path, inner: str, events: list[tuple[str, bytes]]) -> str:
@@ -121,20 +129,20 @@ def test_detect_from_a_transcript_of_a_real_port(tmp_path: Path) -> None:
     msp = _transcript(
         tmp_path / "a.jsonl", "/dev/ttyACM0", [("w", encode_request(1)), ("r", b"$M>\x03\x01")]
     )
-    assert connect.detect_kind(msp, SimClock()).kind == "msp"
+    assert detect.detect_kind(msp, SimClock()).kind == "msp"
     line = _transcript(tmp_path / "b.jsonl", "COM7", [("r", b"# hello\n#COLS t_us,thrust_mN\n")])
-    found = connect.detect_kind(line, SimClock())
+    found = detect.detect_kind(line, SimClock())
     assert (found.kind, found.line_preset) == ("line-stand", None)
     tyto = _transcript(tmp_path / "c.jsonl", "COM8", [("r", b"Ready\r\n")])
-    assert connect.detect_kind(tyto, SimClock()).kind == "tyto-1585"
+    assert detect.detect_kind(tyto, SimClock()).kind == "tyto-1585"
     blank = _transcript(tmp_path / "d.jsonl", "COM9", [("r", b"??")])
     with pytest.raises(ConfigError, match="pass --kind"):
-        connect.detect_kind(blank, SimClock())
+        detect.detect_kind(blank, SimClock())
 
 
 def test_detect_from_a_transcript_of_a_sim(tmp_path: Path) -> None:
     url = _transcript(tmp_path / "e.jsonl", "sim://ardupilot?motors=4", [])
-    found = connect.detect_kind(url, SimClock())
+    found = detect.detect_kind(url, SimClock())
     assert (found.kind, found.firmware) == ("mavlink", "ardupilot")
 
 
@@ -159,7 +167,7 @@ def test_sniff_recognises_talkers_without_writing(
 ) -> None:
     clock = SimClock()
     spy = Spy(peer)
-    found = connect.sniff(SimSerial(spy, clock), clock, listen_s=2.0)
+    found = detect.sniff(SimSerial(spy, clock), clock, listen_s=2.0)
     assert found is not None
     assert (found.kind, found.firmware, found.line_preset) == (kind, firmware, line)
     assert bytes(spy.written) == b""  # listening only
@@ -170,7 +178,7 @@ def test_sniff_asks_msp_with_whole_frames_only(firmware: str) -> None:
     clock = SimClock()
     peer = MspPeer(ConstantPlant(4), firmware)
     spy = Spy(peer)
-    found = connect.sniff(SimSerial(spy, clock), clock, listen_s=1.0)
+    found = detect.sniff(SimSerial(spy, clock), clock, listen_s=1.0)
     assert found is not None
     assert found.kind == "msp"
     assert found.firmware == ("inav" if firmware == "inav" else "betaflight")
@@ -185,17 +193,17 @@ def test_sniff_asks_msp_with_whole_frames_only(firmware: str) -> None:
 def test_sniff_of_a_silent_port_gives_up() -> None:
     clock = SimClock()
     peer = Silent()
-    assert connect.sniff(SimSerial(peer, clock), clock, listen_s=1.0, msp_timeout_s=0.3) is None
+    assert detect.sniff(SimSerial(peer, clock), clock, listen_s=1.0, msp_timeout_s=0.3) is None
     assert bytes(peer.written) == encode_request(MspCommand.API_VERSION)
     assert clock.now_s() == pytest.approx(1.3, abs=0.05)
 
 
 def test_classify_bytes_is_strict_about_text() -> None:
-    assert connect.classify_bytes(b"hello world\nthis is text\nmore\nlines\n") is None
-    assert connect.classify_bytes(b"1,2,3\n4,5\n6,7,8\n9,1,2\n") is None  # ragged
-    found = connect.classify_bytes(b"1 2.5 -3e2 4\n" * 4)
+    assert detect.classify_bytes(b"hello world\nthis is text\nmore\nlines\n") is None
+    assert detect.classify_bytes(b"1,2,3\n4,5\n6,7,8\n9,1,2\n") is None  # ragged
+    found = detect.classify_bytes(b"1 2.5 -3e2 4\n" * 4)
     assert found is not None and found.kind == "line-stand" and found.line_preset is None
-    assert connect.classify_bytes(b"Read") is None  # an unfinished line
+    assert detect.classify_bytes(b"Read") is None  # an unfinished line
 
 
 # --------------------------------------------------------------------------- opening
@@ -203,7 +211,7 @@ def test_classify_bytes_is_strict_about_text() -> None:
 
 def test_open_msp_output_by_url(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
-    out = connect.open_throttle_output("sim://betaflight?protocol=PWM", clock)
+    out = opening.open_throttle_output("sim://betaflight?protocol=PWM", clock)
     assert isinstance(out, MspThrottleOutput)
     with out:
         ident = out.identify()
@@ -218,20 +226,20 @@ def test_open_msp_output_by_url(peers: list[tuple[str, Any]]) -> None:
 
 
 def test_open_output_with_kind_alias(peers: list[tuple[str, Any]]) -> None:
-    out = connect.open_throttle_output("sim://inav", SimClock(), kind="INAV")
+    out = opening.open_throttle_output("sim://inav", SimClock(), kind="INAV")
     with out:
         assert out.identify().kind == "inav"
 
 
 def test_kind_for_a_stand_refuses_an_unknown_kind() -> None:
     with pytest.raises(ConfigError, match="unknown device kind 'esc'"):
-        connect.open_throttle_output("sim://betaflight", SimClock(), kind="esc")
+        opening.open_throttle_output("sim://betaflight", SimClock(), kind="esc")
 
 
 def test_open_mavlink_outputs(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
     for url, firmware in (("sim://px4?bench=p", "px4"), ("sim://ardupilot?bench=a", "ardupilot")):
-        out = connect.open_throttle_output(url, clock)
+        out = opening.open_throttle_output(url, clock)
         with out:
             assert out.identify().kind == firmware
     assert [name for name, _ in peers] == ["px4", "ardupilot"]
@@ -239,14 +247,14 @@ def test_open_mavlink_outputs(peers: list[tuple[str, Any]]) -> None:
 
 def test_mavlink_kind_hint_must_match(peers: list[tuple[str, Any]]) -> None:
     with pytest.raises(ConfigError, match="expected a px4 vehicle"):
-        connect.open_throttle_output("sim://ardupilot", SimClock(), kind="px4")
+        opening.open_throttle_output("sim://ardupilot", SimClock(), kind="px4")
     ((_, peer),) = peers
 
 
 def test_line_stand_esc_output_owns_its_stand(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
-    out = connect.open_throttle_output("sim://line-stand", clock)
-    assert isinstance(out, connect.StandEscOutput)
+    out = opening.open_throttle_output("sim://line-stand", clock)
+    assert isinstance(out, opening.StandEscOutput)
     assert isinstance(out.inner, LineStandEscOutput)
     ((_, peer),) = peers
     with out:
@@ -260,8 +268,8 @@ def test_line_stand_esc_output_owns_its_stand(peers: list[tuple[str, Any]]) -> N
 
 def test_tyto_esc_output(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
-    out = connect.open_throttle_output("sim://tyto-1585", clock)
-    assert isinstance(out, connect.StandEscOutput) and isinstance(out.inner, TytoEscOutput)
+    out = opening.open_throttle_output("sim://tyto-1585", clock)
+    assert isinstance(out, opening.StandEscOutput) and isinstance(out.inner, TytoEscOutput)
     ((_, peer),) = peers
     with out:
         out.set_throttle({0: 1400.0})
@@ -272,8 +280,8 @@ def test_tyto_esc_output(peers: list[tuple[str, Any]]) -> None:
 
 def test_stand_esc_output_shares_an_open_stand(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
-    with connect.open_stand("sim://line-stand", clock) as stand:
-        out = connect.stand_esc_output(stand)
+    with opening.open_stand("sim://line-stand", clock) as stand:
+        out = opening.stand_esc_output(stand)
         with out:
             out.set_throttle({0: 1100.0})
         assert stand.port.is_open  # type: ignore[attr-defined]  # the output did not close it
@@ -282,10 +290,10 @@ def test_stand_esc_output_shares_an_open_stand(peers: list[tuple[str, Any]]) -> 
 
 def test_open_stand_kinds(peers: list[tuple[str, Any]]) -> None:
     clock = SimClock()
-    with connect.open_stand("sim://tyto-1585", clock) as stand:
+    with opening.open_stand("sim://tyto-1585", clock) as stand:
         assert isinstance(stand, TytoStand)
         assert stand.calibration.serial == "SIM-1585"
-    with connect.open_stand("sim://line-stand?rate_hz=50", clock) as stand:
+    with opening.open_stand("sim://line-stand?rate_hz=50", clock) as stand:
         assert isinstance(stand, LineStand)
         assert stand.spec.name == "thrustmap-line"
         assert stand.read_samples()  # data arrived (open waited for it)
@@ -296,7 +304,7 @@ def test_open_stand_from_a_spec_file(tmp_path: Path, peers: list[tuple[str, Any]
     path = tmp_path / "stand.json"
     path.write_text(json.dumps(spec), encoding="utf-8")
     clock = SimClock()
-    with connect.open_stand("sim://line-stand", clock, line_spec_file=str(path)) as stand:
+    with opening.open_stand("sim://line-stand", clock, line_spec_file=str(path)) as stand:
         assert isinstance(stand, LineStand)
         assert stand.spec.name == "my-stand"
         clock.advance_s(0.1)
@@ -305,19 +313,19 @@ def test_open_stand_from_a_spec_file(tmp_path: Path, peers: list[tuple[str, Any]
 
 def test_open_stand_refuses_an_fc() -> None:
     with pytest.raises(ConfigError, match="flight controller"):
-        connect.open_stand("sim://betaflight", SimClock())
+        opening.open_stand("sim://betaflight", SimClock())
 
 
 def test_real_tyto_needs_a_calibration() -> None:
     with pytest.raises(ConfigError, match="--calibration"):
-        connect.open_stand("/dev/nonexistent-tyto", SimClock(), kind="tyto-1585")
+        opening.open_stand("/dev/nonexistent-tyto", SimClock(), kind="tyto-1585")
 
 
 def test_real_line_stand_needs_a_preset() -> None:
     with pytest.raises(ConfigError, match="--line-preset"):
-        connect.line_spec_for("/dev/ttyACM0")
+        builtin.line_spec_for("/dev/ttyACM0")
     with pytest.raises(ConfigError, match="not both"):
-        connect.line_spec_for("/dev/ttyACM0", line_preset="x", line_spec_file="y")
+        builtin.line_spec_for("/dev/ttyACM0", line_preset="x", line_spec_file="y")
 
 
 def test_silent_line_stand_fails_to_open(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -328,19 +336,19 @@ def test_silent_line_stand_fails_to_open(monkeypatch: pytest.MonkeyPatch) -> Non
 
     monkeypatch.setattr(urls, "open_transport", lambda url, **kwargs: SimSerial(silent, clock))
     with pytest.raises(ThrustmapError, match="no data from line stand"):
-        connect.open_stand("/dev/fake", clock, line_preset="stm32-hx711", wait_s=0.5)
+        opening.open_stand("/dev/fake", clock, line_preset="stm32-hx711", wait_s=0.5)
     assert b"1000\n" in bytes(silent.written)  # closing sent the stop command
 
 
 def test_record_then_strict_replay_through_the_factory(tmp_path: Path) -> None:
     path = tmp_path / "bf.jsonl"
     clock = SimClock()
-    out = connect.open_throttle_output(f"record://sim://betaflight?file={path}", clock)
+    out = opening.open_throttle_output(f"record://sim://betaflight?file={path}", clock)
     with out:
         ident = out.identify()
         out.set_throttle({0: 300.0})
     replay_clock = SimClock()
-    again = connect.open_throttle_output(f"replay://{path}", replay_clock)
+    again = opening.open_throttle_output(f"replay://{path}", replay_clock)
     assert isinstance(again, MspThrottleOutput)
     with again:
         assert again.identify() == ident
@@ -354,7 +362,7 @@ def test_record_then_strict_replay_through_the_factory(tmp_path: Path) -> None:
 
 
 def test_probe_fc_reports_identity_motors_and_battery(peers: list[tuple[str, Any]]) -> None:
-    report = connect.probe_device("sim://betaflight", SimClock())
+    report = probe.probe_device("sim://betaflight", SimClock())
     assert report.identity is not None
     assert (report.identity.kind, report.identity.motor_protocol) == ("betaflight", "DSHOT600")
     assert report.throttle_scale == "dshot"
@@ -380,12 +388,12 @@ def test_probe_armed_fc_warns(
         self.armed = True
 
     monkeypatch.setattr(msp_peer.MspPeer, "__init__", armed_init)
-    report = connect.probe_device("sim://betaflight", SimClock())
+    report = probe.probe_device("sim://betaflight", SimClock())
     assert any("ARMED" in w for w in report.warnings)
 
 
 def test_probe_stand_summarises_a_second(peers: list[tuple[str, Any]]) -> None:
-    report = connect.probe_device("sim://line-stand?rate_hz=100", SimClock(), seconds=1.0)
+    report = probe.probe_device("sim://line-stand?rate_hz=100", SimClock(), seconds=1.0)
     assert report.stand is not None
     assert 95 <= report.stand.samples <= 110
     assert report.stand.rate_hz == pytest.approx(100.0, rel=0.02)
@@ -452,12 +460,12 @@ class FakePort:
         ),
         (FakePort("/dev/ttyACM5", 0x2E8A, 0x000A, "Pico"), "RP2040", ("line-stand",), True),
         (FakePort("/dev/ttyACM6", 0x16C0, 0x0483, "USB Serial"), "Teensy", ("line-stand",), True),
-        (FakePort("/dev/ttyACM7", 0xABCD, 0x1234, "Widget"), "unknown", connect.kinds(), True),
+        (FakePort("/dev/ttyACM7", 0xABCD, 0x1234, "Widget"), "unknown", registry.kinds(), True),
         (FakePort("/dev/ttyS0"), "no USB IDs", (), True),
     ],
 )
 def test_describe_port(port: FakePort, guess: str, kinds: tuple[str, ...], safe: bool) -> None:
-    desc = connect.describe_port(port)
+    desc = ports.describe_port(port)
     assert guess in desc.guess
     assert desc.kinds == kinds
     assert desc.probe_safe is safe
@@ -473,12 +481,14 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
     them); here the transport is a simulated vehicle on the SimClock (real UDP is tested in
     test_rig_fc_firmware), and ``tcpin:`` too (locked to its first connection: test_link_lock).
     ``udpbcast:`` still goes to stock ``mavutil``, switched to MAVLink 2."""
-    from thrustmap.protocols.mavlink import link as mavlink_link
-    from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
+    from pymavlink import mavutil
 
-    found = connect.detect_from_url("udpin:0.0.0.0:14550")
+    from thrustmap.protocols.mavlink import link as mavlink_link
+    from thrustmap.protocols.mavlink.link import MavlinkSerialLink
+
+    found = detect.detect_from_url("udpin:0.0.0.0:14550")
     assert found is not None and found.kind == "mavlink"
-    assert not connect.is_simulated("tcp:127.0.0.1:5760")
+    assert not devices_urls.is_simulated("tcp:127.0.0.1:5760")
 
     clock = SimClock()
     vehicle = PX4Vehicle(ConstantPlant(4))
@@ -489,14 +499,14 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
         return SimSerial(vehicle, clock)
 
     monkeypatch.setattr(mavlink_link, "open_transport", transport)
-    out = connect.open_throttle_output("udpin:127.0.0.1:14550", clock)
+    out = opening.open_throttle_output("udpin:127.0.0.1:14550", clock)
     with out:
         assert out.identify().kind == "px4"
         out.set_throttle({0: 0.3})
         assert vehicle.running_motors() == {0: pytest.approx(0.3)}
     assert vehicle.running_motors() == {}
     assert asked == ["udpin://127.0.0.1:14550"]
-    with connect.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out1:
+    with opening.open_throttle_output("tcpin:127.0.0.1:5760", clock) as out1:
         assert out1.identify().kind == "px4"
     assert asked[1:] == ["tcpin://127.0.0.1:5760"]
 
@@ -507,7 +517,7 @@ def test_pymavlink_connection_strings_reach_the_mavlink_driver(
         return MavlinkSerialLink(SimSerial(PX4Vehicle(ConstantPlant(4)), clock), clock)
 
     monkeypatch.setattr(mavutil, "mavlink_connection", connection)
-    with connect.open_throttle_output("udpbcast:127.0.0.1:5760", clock) as out2:
+    with opening.open_throttle_output("udpbcast:127.0.0.1:5760", clock) as out2:
         assert out2.identify().kind == "px4"
     assert stock == [
         ("udpbcast:127.0.0.1:5760", {"source_system": 255, "source_component": 190, "retries": 0})

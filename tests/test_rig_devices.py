@@ -7,11 +7,12 @@ from collections.abc import Callable, Iterator, Mapping
 
 import pytest
 
+import thrustmap.rig.devices.detect as detect
+import thrustmap.rig.devices.opening as opening
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
-from thrustmap.rig import connect
 from thrustmap.rig.devices import registry
-from thrustmap.rig.devices.registry import Detection, Driver, OpenRequest
+from thrustmap.rig.devices.declaration import Detection, Driver, OpenRequest
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
 
 
@@ -62,15 +63,15 @@ def acme() -> Iterator[Driver]:
 
 def test_one_declaration_makes_a_stand_known_everywhere(acme: Driver) -> None:
     assert registry.normalize_kind("ACME") == ("acme-stand", None)
-    assert "acme-stand" in connect.kinds("stand") and "acme" in connect.kind_aliases()
-    found = connect.detect_from_url("sim://acme")
+    assert "acme-stand" in registry.kinds("stand") and "acme" in registry.kind_aliases()
+    found = detect.detect_from_url("sim://acme")
     assert found is not None and found.kind == "acme-stand"
-    found = connect.classify_bytes(b"noise\r\nACME v1\r\n")
+    found = detect.classify_bytes(b"noise\r\nACME v1\r\n")
     assert found is not None and found.evidence == "ACME banner"
-    stand = connect.open_stand("/dev/ttyACME", SimClock(), kind="acme")
+    stand = opening.open_stand("/dev/ttyACME", SimClock(), kind="acme")
     assert isinstance(stand, FakeStand) and stand.identify().details["url"] == "/dev/ttyACME"
     with pytest.raises(ConfigError, match="cannot drive an ESC"):
-        connect.stand_esc_output(stand)
+        opening.stand_esc_output(stand)
 
 
 def test_registry_refuses_a_duplicate_and_unknown_kinds(acme: Driver) -> None:
@@ -83,8 +84,8 @@ def test_registry_refuses_a_duplicate_and_unknown_kinds(acme: Driver) -> None:
 
 
 def test_builtin_drivers_in_detection_order() -> None:
-    assert connect.kinds() == ("msp", "mavlink", "tyto-1585", "line-stand", "flightstand")
-    assert connect.kinds("fc") == ("msp", "mavlink")
+    assert registry.kinds() == ("msp", "mavlink", "tyto-1585", "line-stand", "flightstand")
+    assert registry.kinds("fc") == ("msp", "mavlink")
     req = OpenRequest("x", SimClock())
     assert req.wait_s == 3.0 and dict(req.opts) == {}
 

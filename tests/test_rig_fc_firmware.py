@@ -19,8 +19,8 @@ from typing import Any
 import pytest
 
 from thrustmap.core.clock import MonotonicClock, SimClock
-from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import ConfigError, DataFormatError
+from thrustmap.core.stand_recording import DsWriter
 from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink.frames import motor_order, parse_test_letter
 from thrustmap.protocols.mavlink.frames import test_letter as letter_of

@@ -8,19 +8,19 @@ from __future__ import annotations
 import logging
 
 import pytest
+from support.latency_proxy import LaggedPeer
 
+import thrustmap.rig.devices.urls as urls
 from thrustmap.core.clock import SimClock
-from thrustmap.protocols.msp.framing import MspDecoder, encode_reply
-from thrustmap.protocols.msp.messages import MSP_MOTOR_STOP, MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, encode_reply
+from thrustmap.protocols.msp.motor import MSP_MOTOR_STOP, SetMotor
 from thrustmap.protocols.peer import BytePeer, create_peer
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig import connect
 from thrustmap.rig.fc.link_timing import ReplyTimer
 from thrustmap.rig.fc.msp import MspThrottleOutput, MspTimeout
-from thrustmap.rig.latency import LaggedPeer
 from thrustmap.rig.sim import peers
 
-connect.load_sim_peers()
+urls.load_sim_peers()
 
 STOP_PAYLOAD = SetMotor.stop_all(8).encode()
 

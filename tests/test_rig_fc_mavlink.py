@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from support.mavlink_transcripts import (
     SCENARIOS,
@@ -21,28 +22,24 @@ from support.mavlink_transcripts import (
 )
 
 from thrustmap.core.clock import MonotonicClock, SimClock
-from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import ConfigError, SafetyError
+from thrustmap.core.stand_recording import DsWriter
 from thrustmap.core.units import SCALES
 from thrustmap.protocols.mavlink import codec as mav
-from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil
+from thrustmap.protocols.mavlink.codec import decode_flight_sw_version
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink
 from thrustmap.protocols.transcript import read_transcript
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig import plans
-from thrustmap.rig.fc.mavlink import (
-    ArduPilotThrottleOutput,
-    MavlinkLinkLost,
-    MavlinkThrottleOutput,
-    MotorTestRefused,
-    Px4ThrottleOutput,
-    UnsupportedAutopilot,
-    decode_flight_sw_version,
-    open_mavlink_output,
-)
+from thrustmap.rig.fc.ardupilot import ArduPilotThrottleOutput
+from thrustmap.rig.fc.mavlink import open_mavlink_output
+from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
+from thrustmap.rig.fc.mavlink_session import MavlinkLinkLost, MotorTestRefused, UnsupportedAutopilot
+from thrustmap.rig.fc.px4 import Px4ThrottleOutput
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.runner import Runner
-from thrustmap.rig.safety import Terminated, terminate_as_exception
+from thrustmap.rig.sigterm import Terminated, terminate_as_exception
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from support import sweep_recordings as recordings
 
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.protocols.transcript import read_transcript
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "sweeps"

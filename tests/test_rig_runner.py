@@ -19,16 +19,17 @@ import pytest
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import SafetyError
 from thrustmap.demo import truth_error_pct
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
-from thrustmap.protocols.msp.framing import encode_request
-from thrustmap.protocols.msp.messages import MspCommand, SetMotor
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
+from thrustmap.protocols.msp.framing import MspCommand, encode_request
+from thrustmap.protocols.msp.motor import SetMotor
 from thrustmap.protocols.transport import SerialLike, open_transport
 from thrustmap.rig import plans
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.interfaces import Stand, StandSample
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
+from thrustmap.rig.run_types import RunConfig, RunResult, Status
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
 from thrustmap.rig.stand.tyto import TytoStand
@@ -241,7 +242,7 @@ def test_sigint_stops_a_sweep_started_as_a_background_job(tmp_path: Path) -> Non
 def test_work_that_commands_no_motor_keeps_an_ignored_sigint_ignored() -> None:
     """The fleet's use: SIGTERM and SIGHUP still unwind it, but a SIGINT the shell told a
     background job to ignore stays ignored (only a motor path overrides that)."""
-    from thrustmap.rig.safety import Terminated, terminate_as_exception
+    from thrustmap.rig.sigterm import Terminated, terminate_as_exception
 
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:

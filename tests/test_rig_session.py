@@ -15,12 +15,12 @@ from test_rig_runner import make_rig, sweep
 
 from thrustmap.core.clock import MonotonicClock, SimClock
 from thrustmap.core.errors import ConfigError
-from thrustmap.protocols.msp.framing import MspDecoder
-from thrustmap.protocols.msp.messages import MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder
+from thrustmap.protocols.msp.motor import SetMotor
 from thrustmap.rig import plans
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunResult, Status
+from thrustmap.rig.run_types import RunResult, Status
 from thrustmap.rig.session import (
     EXIT_ABORTED,
     EXIT_DONE,

@@ -14,15 +14,8 @@ from thrustmap.protocols.stands.line import REFERENCE, STM32_HX711, Column, Line
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer
-from thrustmap.rig.stand.line import (
-    LineStand,
-    LineStandError,
-    LineStandEscOutput,
-    LineStandTimeout,
-    line_spec_from_dict,
-    line_spec_to_dict,
-    load_line_spec,
-)
+from thrustmap.rig.stand.line import LineStand, LineStandError, LineStandEscOutput, LineStandTimeout
+from thrustmap.rig.stand.line_spec import line_spec_from_dict, line_spec_to_dict, load_line_spec
 
 HEADER = b"#COLS t_us,throttle_us,thrust_mN,torque_mNm,voltage_mV,current_mA,rpm\n"
 

@@ -73,7 +73,7 @@ def test_calibration_errors_name_file_and_field(tmp_path: Path) -> None:
 
 
 def test_the_simulator_registers_its_calibration() -> None:
-    from thrustmap.rig.connect import load_sim_peers
+    from thrustmap.rig.devices.urls import load_sim_peers
     from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
 
     load_sim_peers()

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from thrustmap.cli import main
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.rig.interlocks import RESPONSE_S, Limits, ThrustResponse
 from thrustmap.rig.sim.pairing import pair_sim_urls
 

@@ -29,7 +29,7 @@ CHILD = textwrap.dedent(
     import sys, time
     from thrustmap.core.clock import MonotonicClock
     from thrustmap.rig import connect
-    from thrustmap.rig.safety import terminate_as_exception
+    from thrustmap.rig.sigterm import terminate_as_exception
 
     url, log, mode = sys.argv[1], sys.argv[2], sys.argv[3]
     out = connect.open_throttle_output(url, MonotonicClock(), kind="msp", watchdog_log=log)
@@ -184,13 +184,14 @@ def test_no_watchdog_for_simulated_or_replayed_ports() -> None:
 def test_a_probe_sends_only_stops_and_disarms_its_watchdog(
     server: MspTcpServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    import thrustmap.rig.devices.opening as opening
+    import thrustmap.rig.devices.probe as probe
     from thrustmap.core.clock import MonotonicClock
-    from thrustmap.rig import connect
 
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))  # the default log goes here
 
     log = tmp_path / "watchdog.log"
-    output = connect.open_throttle_output(
+    output = opening.open_throttle_output(
         server.url, MonotonicClock(), kind="msp", watchdog_log=str(log)
     )
     with output:
@@ -199,7 +200,7 @@ def test_a_probe_sends_only_stops_and_disarms_its_watchdog(
         assert watchdog is not None  # running before any motor command
     assert watchdog.process.wait(timeout=5) == 0
     assert "disarmed" in log.read_text(encoding="utf-8")
-    report = connect.probe_device(server.url, MonotonicClock(), kind="msp")
+    report = probe.probe_device(server.url, MonotonicClock(), kind="msp")
     assert report.identity is not None and report.identity.kind == "betaflight"
     assert all(v <= 1000 for _, _, values in server.set_motors for v in values)
     time.sleep(0.3)

@@ -12,7 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.rig.sim import peers
 
 SCRIPTS = Path(__file__).resolve().parent.parent / "scripts"

@@ -8,10 +8,11 @@ import time
 from typing import Any
 
 import pytest
+from pymavlink import mavutil
 
 from thrustmap.core.clock import SimClock
 from thrustmap.protocols.mavlink import codec as mav
-from thrustmap.protocols.mavlink.link import MavlinkSerialLink, mavutil, open_mavlink
+from thrustmap.protocols.mavlink.link import MavlinkSerialLink, open_mavlink
 from thrustmap.protocols.mavlink.params import ParamEncoding, ParamType
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.mavlink_loopback import UdpVehicleLink

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import (
+    MspCommand,
     MspDecoder,
     MspDirection,
     MspFrame,
@@ -23,15 +24,16 @@ from thrustmap.protocols.msp.messages import (
     FcVariant,
     FcVersion,
     InavAnalog,
+    SetArmingDisabled,
+    StatusEx,
+    decode_reply,
+)
+from thrustmap.protocols.msp.motor import (
     Motor,
     MotorConfig,
     MotorProtocol,
     MotorTelemetry,
-    MspCommand,
-    SetArmingDisabled,
     SetMotor,
-    StatusEx,
-    decode_reply,
 )
 from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.transport import open_transport

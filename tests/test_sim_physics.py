@@ -11,7 +11,6 @@ import pytest
 
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.sim.physics import (
-    PRESETS,
     PhysicsPlant,
     cell_ocv_v,
     make_plant,
@@ -20,7 +19,7 @@ from thrustmap.rig.sim.physics import (
     true_thrust_n,
 )
 from thrustmap.rig.sim.plant import Plant, PlantState
-from thrustmap.rig.sim.presets import XNOVA_2207_6S
+from thrustmap.rig.sim.presets import PRESETS, XNOVA_2207_6S
 
 XNOVA = "xnova-2207-6s"
 CF = "crazyflie-2.1"

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from thrustmap.fitting.flightlogs import ulog_fast
-from thrustmap.fitting.flightlogs.ulog import TOPICS
+from thrustmap.flightlogs import ulog_fast
+from thrustmap.flightlogs.ulog import TOPICS
 
 ULOG = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs" / "sim_hover.ulg"
 

@@ -23,15 +23,17 @@ import numpy as np
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.files import atomic_write_text
-from thrustmap.fitting.fit import compare, fit_map
-from thrustmap.fitting.loaders import load_datasets
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.fit.validation import compare
+from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.mapfile import ThrustMap
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.selection.options import Selection
 from thrustmap.protocols.transport import open_transport
 from thrustmap.rig import plans
 from thrustmap.rig.fc.msp import MspThrottleOutput
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, RunResult, record_sweep
+from thrustmap.rig.run_types import RunConfig, RunResult
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.physics import PhysicsPlant
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION

@@ -32,18 +32,21 @@ def _skip_table_reference(i_interval: int, p_num: int, p_den: int) -> list[int]:
 
 
 def test_blackbox_skip_table_matches_the_reference_and_is_linear() -> None:
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
+
+    import thrustmap.flightlogs.blackbox_format as blackbox_format
 
     for i_interval in (1, 2, 3, 7, 32, 33):
         for p_num, p_den in ((1, 1), (1, 2), (1, 16), (2, 3), (3, 7), (1, 40)):
-            assert list(bd._skip_table(i_interval, p_num, p_den)) == _skip_table_reference(
-                i_interval, p_num, p_den
-            )
+            assert list(
+                blackbox_format._skip_table(i_interval, p_num, p_den)
+            ) == _skip_table_reference(i_interval, p_num, p_den)
     # the largest header the decoder accepts: 2·65535 steps, not 65535² (the old loop)
     t0 = time.process_time()
-    table = bd._skip_table(bd.MAX_INTERVAL, 1, bd.MAX_INTERVAL)
+    table = blackbox_format._skip_table(
+        blackbox_format.MAX_INTERVAL, 1, blackbox_format.MAX_INTERVAL
+    )
     assert time.process_time() - t0 < 5.0
-    assert table[0] == bd.MAX_INTERVAL - 1
+    assert table[0] == blackbox_format.MAX_INTERVAL - 1
 
 
 @pytest.mark.parametrize(
@@ -51,32 +54,34 @@ def test_blackbox_skip_table_matches_the_reference_and_is_linear() -> None:
     [{"I interval": "99999999"}, {"P interval": "1/99999999"}, {"P interval": "99999999"}],
 )
 def test_blackbox_out_of_range_intervals_are_refused(header: dict[str, str]) -> None:
+    import thrustmap.flightlogs.blackbox_format as thrustmap_flightlogs_blackbox_format
     from fuzz.cli_cases import bbl_with_header
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
+    from thrustmap.flightlogs import blackbox_decode as bd
 
     data = bbl_with_header(header)
-    a, b = bd.split_logs(data)[0]
-    with pytest.raises(bd.CorruptFrame, match="out of range"):
+    a, b = thrustmap_flightlogs_blackbox_format.split_logs(data)[0]
+    with pytest.raises(thrustmap_flightlogs_blackbox_format.CorruptFrame, match="out of range"):
         bd.decode_log(data[a:b])
 
 
 def test_blackbox_thousands_of_fields_are_refused_before_parsing() -> None:
+    import thrustmap.flightlogs.blackbox_format as thrustmap_flightlogs_blackbox_format
     from fuzz.cli_cases import bbl_many_fields
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
 
     data = bbl_many_fields(20000)
-    with pytest.raises(bd.CorruptFrame, match="at most 256"):
-        bd.parse_headers(data)
+    with pytest.raises(thrustmap_flightlogs_blackbox_format.CorruptFrame, match="at most 256"):
+        thrustmap_flightlogs_blackbox_format.parse_headers(data)
 
 
 def test_blackbox_garbage_decodes_within_a_work_budget() -> None:
     """A log whose body is frame markers and noise: every byte starts a resync attempt."""
-    from thrustmap.fitting.flightlogs import blackbox_decode as bd
+    import thrustmap.flightlogs.blackbox_format as flightlogs_blackbox_format
+    from thrustmap.flightlogs import blackbox_decode as bd
 
     raw = (LOGS / "bb_hover_sim.bbl").read_bytes()
-    a, b = bd.split_logs(raw)[0]
+    a, b = flightlogs_blackbox_format.split_logs(raw)[0]
     section = raw[a:b]
-    _, _, body = bd.parse_headers(section)
+    _, _, body = flightlogs_blackbox_format.parse_headers(section)
     rng = np.random.default_rng(3)
     noise = rng.choice(np.frombuffer(b"IPE\x00\x01\x80", np.uint8), size=400_000).tobytes()
     decoded = bd.decode_log(section[:body] + noise)
@@ -84,7 +89,7 @@ def test_blackbox_garbage_decodes_within_a_work_budget() -> None:
 
 
 def test_dataflash_resync_is_linear_and_warnings_are_summarised(tmp_path: Path) -> None:
-    from thrustmap.fitting.flightlogs import dataflash
+    from thrustmap.flightlogs import dataflash
 
     path = tmp_path / "x.bin"
     path.write_bytes(dataflash_many_breaks())
@@ -96,7 +101,7 @@ def test_dataflash_resync_is_linear_and_warnings_are_summarised(tmp_path: Path) 
 
 
 def test_ulog_walk_stops_pyulog_before_its_endless_loop(tmp_path: Path) -> None:
-    from thrustmap.fitting.flightlogs import ulog
+    from thrustmap.flightlogs import ulog
 
     raw = ulog_hang()
     w = ulog.walk(raw)
@@ -119,7 +124,7 @@ def _ulog_with_formats(formats: list[str], subscribe: str) -> bytes:
 
 
 def test_ulog_walk_refuses_cyclic_and_exploding_formats() -> None:
-    from thrustmap.fitting.flightlogs import ulog
+    from thrustmap.flightlogs import ulog
 
     cyclic = _ulog_with_formats(["a:b x;", "b:a y;"], "a")
     assert "cyclic" in (ulog.walk(cyclic).problem or "")
@@ -133,7 +138,7 @@ def test_ulog_walk_refuses_cyclic_and_exploding_formats() -> None:
 
 def test_pyulog_prints_nothing_on_stdout(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     from fuzz.cli_cases import ulog_flipped
-    from thrustmap.fitting.flightlogs import ulog
+    from thrustmap.flightlogs import ulog
 
     for seed in range(4):
         path = tmp_path / f"x{seed}.ulg"
@@ -147,14 +152,14 @@ def test_pyulog_prints_nothing_on_stdout(tmp_path: Path, capfd: pytest.CaptureFi
 
 
 def _acc(times: list[float]) -> object:
-    from thrustmap.fitting.flightlogs.series import Signal
+    from thrustmap.flightlogs.series import Signal
 
     t = np.asarray(times, float)
     return Signal(t, np.full(len(t), 9.8), "m/s^2", "test")
 
 
 def test_one_mistyped_time_is_dropped_with_a_warning() -> None:
-    from thrustmap.fitting.df import plausible_timeline
+    from thrustmap.fitting.df.resample import plausible_timeline
 
     times = [*np.arange(0, 300, 0.01).tolist(), 3005000.0]
     acc, warnings = plausible_timeline(_acc(times), 10.0, "x.csv")  # type: ignore[arg-type]
@@ -164,7 +169,7 @@ def test_one_mistyped_time_is_dropped_with_a_warning() -> None:
 
 
 def test_a_span_the_samples_cannot_fill_is_refused() -> None:
-    from thrustmap.fitting.df import plausible_timeline
+    from thrustmap.fitting.df.resample import plausible_timeline
 
     # two equal halves a year apart: not an isolated sample, but no flight either
     times = [*np.arange(0, 10, 0.01).tolist(), *np.arange(3.2e7, 3.2e7 + 10, 0.01).tolist()]
@@ -173,7 +178,7 @@ def test_a_span_the_samples_cannot_fill_is_refused() -> None:
 
 
 def test_two_flights_an_hour_apart_are_kept() -> None:
-    from thrustmap.fitting.df import plausible_timeline
+    from thrustmap.fitting.df.resample import plausible_timeline
 
     times = [*np.arange(0, 120, 0.005).tolist(), *np.arange(3720, 3840, 0.005).tolist()]
     acc, warnings = plausible_timeline(_acc(times), 10.0, "x.csv")  # type: ignore[arg-type]
@@ -186,7 +191,8 @@ def test_two_flights_an_hour_apart_are_kept() -> None:
 def test_write_df_refuses_a_sidecar_that_is_the_table(tmp_path: Path) -> None:
     import pandas as pd
 
-    from thrustmap.fitting.df import Df, write_df
+    from thrustmap.fitting.df.dffile import write_df
+    from thrustmap.fitting.df.table import Df
 
     df = Df(pd.DataFrame({"voltage_v": [16.0], "force_n": [10.0]}), {"format": "x"}, [])
     with pytest.raises(ConfigError, match="sidecar"):
@@ -224,8 +230,8 @@ def test_transcript_line_length_is_bounded(tmp_path: Path) -> None:
 def test_transcript_header_url_is_never_opened(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    import thrustmap.rig.devices.detect as detect
     from thrustmap.protocols import transcript as tr
-    from thrustmap.rig import connect
 
     opened: list[str] = []
     real = tr.read_transcript
@@ -239,7 +245,7 @@ def test_transcript_header_url_is_never_opened(
     path.write_text(
         '{"format": "thrustmap.transcript", "version": 1, "inner": "replay:///etc/shadow"}\n'
     )
-    assert connect.detect_from_url(f"replay://{path}") is None
+    assert detect.detect_from_url(f"replay://{path}") is None
     assert opened == [str(path)]
 
 
@@ -257,7 +263,7 @@ def test_unknown_replay_option_is_a_typed_error(tmp_path: Path) -> None:
 
 
 def test_paper_csv_line_numbers_count_blank_lines(tmp_path: Path) -> None:
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.flightlogs.detect import read_log
 
     lines = (LOGS / "sim_hover_paper.csv").read_text().splitlines()
     lines[1:1] = ["", ""]  # two blank lines after the header
@@ -272,8 +278,8 @@ def test_paper_csv_line_numbers_count_blank_lines(tmp_path: Path) -> None:
 
 
 def test_reader_errors_name_the_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from thrustmap.fitting.flightlogs import blackbox
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.flightlogs import blackbox
+    from thrustmap.flightlogs.detect import read_log
 
     def no_file(*args: object, **kwargs: object) -> object:
         raise DataFormatError("acc_1G unknown", column="accSmooth[2]")

@@ -30,7 +30,7 @@ TIMEOUT_S = 10.0
 
 def _flight(fmt: str) -> Callable[[Path], Any]:
     def read(path: Path) -> Any:
-        from thrustmap.fitting.flightlogs.detect import read_log
+        from thrustmap.flightlogs.detect import read_log
 
         return read_log(path, format=fmt)
 
@@ -38,22 +38,23 @@ def _flight(fmt: str) -> Callable[[Path], Any]:
 
 
 def _auto_flight(path: Path) -> Any:
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.flightlogs.detect import read_log
 
     return read_log(path)
 
 
 def _extract(path: Path) -> Any:
     """Flight log all the way to Df: the time-span bound and the resampling."""
-    from thrustmap.fitting.df import DfOptions, extract
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.df.extraction import extract
+    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.flightlogs.detect import read_log
 
     flights = read_log(path)
     return extract(flights, DfOptions(mass_kg=1.0))
 
 
 def _stand(path: Path) -> Any:
-    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.fitting.loaders.load import load_dataset
 
     return load_dataset(path)
 
@@ -66,7 +67,7 @@ def _map(path: Path) -> Any:
 
 
 def _df(path: Path) -> Any:
-    from thrustmap.fitting.df import read_df
+    from thrustmap.fitting.df.dffile import read_df
 
     return read_df(path)
 

@@ -13,7 +13,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from thrustmap.fitting.flightlogs import blackbox_decode as bd
+import thrustmap.flightlogs.blackbox_format as blackbox_format
+from thrustmap.flightlogs import blackbox_decode as bd
 
 
 def uvb(value: int) -> bytes:
@@ -88,23 +89,25 @@ class Encoder:
     """Writes one log: header lines, then frames whose predictions mirror the decoder's."""
 
     headers: list[tuple[str, str]]  # plain header lines (not the field definitions)
-    idef: bd.FrameDef
+    idef: blackbox_format.FrameDef
     p_predictor: list[int]
     p_encoding: list[int]
-    sdef: bd.FrameDef | None = None
-    gdef: bd.FrameDef | None = None  # GPS frames (time from the last main frame, home coords)
-    hdef: bd.FrameDef | None = None  # GPS-home frames
+    sdef: blackbox_format.FrameDef | None = None
+    gdef: blackbox_format.FrameDef | None = (
+        None  # GPS frames (time from the last main frame, home coords)
+    )
+    hdef: blackbox_format.FrameDef | None = None  # GPS-home frames
 
     def __post_init__(self) -> None:
         hd = dict(self.headers)
-        minthrottle = bd.header_int(hd, "minthrottle", 1150)
+        minthrottle = blackbox_format.header_int(hd, "minthrottle", 1150)
         self.constants = {
             "minthrottle": minthrottle,
-            "vbatref": bd.header_int(hd, "vbatref", 4095),
-            "motor_low": bd.header_int(hd, "motorOutput", minthrottle, 0),
+            "vbatref": blackbox_format.header_int(hd, "vbatref", 4095),
+            "motor_low": blackbox_format.header_int(hd, "motorOutput", minthrottle, 0),
         }
-        self.i_interval = max(bd.header_int(hd, "I interval", 32), 1)
-        self.skip = bd._skip_table(self.i_interval, *bd._p_interval(hd))
+        self.i_interval = max(blackbox_format.header_int(hd, "I interval", 32), 1)
+        self.skip = blackbox_format._skip_table(self.i_interval, *blackbox_format._p_interval(hd))
         self.motor0 = self.idef.names.index("motor[0]") if "motor[0]" in self.idef.names else -1
         self.prev: list[int] | None = None
         self.prev2: list[int] | None = None
@@ -138,37 +141,37 @@ class Encoder:
 
     def _predict(self, i: int, pred: int, cur: list[int], prev: list[int], prev2: list[int]) -> int:
         c = self.constants
-        if pred == bd.PRED_ZERO:
+        if pred == blackbox_format.PRED_ZERO:
             return 0
-        if pred == bd.PRED_PREVIOUS:
+        if pred == blackbox_format.PRED_PREVIOUS:
             return prev[i]
-        if pred == bd.PRED_STRAIGHT_LINE:
+        if pred == blackbox_format.PRED_STRAIGHT_LINE:
             return 2 * prev[i] - prev2[i]
-        if pred == bd.PRED_AVERAGE_2:
+        if pred == blackbox_format.PRED_AVERAGE_2:
             s = prev[i] + prev2[i]
             return (s + (s < 0)) >> 1
-        if pred == bd.PRED_MINTHROTTLE:
+        if pred == blackbox_format.PRED_MINTHROTTLE:
             return c["minthrottle"]
-        if pred == bd.PRED_MOTOR_0:
+        if pred == blackbox_format.PRED_MOTOR_0:
             return cur[self.motor0]
-        if pred == bd.PRED_1500:
+        if pred == blackbox_format.PRED_1500:
             return 1500
-        if pred == bd.PRED_VBATREF:
+        if pred == blackbox_format.PRED_VBATREF:
             return c["vbatref"]
-        if pred == bd.PRED_MINMOTOR:
+        if pred == blackbox_format.PRED_MINMOTOR:
             return c["motor_low"]
-        if pred == bd.PRED_HOME_COORD:
+        if pred == blackbox_format.PRED_HOME_COORD:
             return self.home[0]
-        if pred == bd.PRED_HOME_COORD_1:
+        if pred == blackbox_format.PRED_HOME_COORD_1:
             return self.home[1]
-        if pred == bd.PRED_LAST_MAIN_FRAME_TIME:
+        if pred == blackbox_format.PRED_LAST_MAIN_FRAME_TIME:
             return self.last_time
         raise ValueError(f"encoder does not support predictor {pred}")
 
     def _frame(
         self,
         values: Sequence[int],
-        fd: bd.FrameDef,
+        fd: blackbox_format.FrameDef,
         predictor: list[int],
         encoding: list[int],
         prev: list[int],
@@ -179,11 +182,14 @@ class Encoder:
         n = len(fd.names)
         predictor = list(predictor)
         for i in range(1, n):  # home coordinates: (lat, lon) pairs sharing one predictor id
-            if predictor[i - 1] == bd.PRED_HOME_COORD and predictor[i] == bd.PRED_HOME_COORD:
-                predictor[i] = bd.PRED_HOME_COORD_1
+            if (
+                predictor[i - 1] == blackbox_format.PRED_HOME_COORD
+                and predictor[i] == blackbox_format.PRED_HOME_COORD
+            ):
+                predictor[i] = blackbox_format.PRED_HOME_COORD_1
         res: list[int] = []
         for i in range(n):
-            if predictor[i] == bd.PRED_INC:
+            if predictor[i] == blackbox_format.PRED_INC:
                 if cur[i] != prev[i] + skipped + 1:
                     raise ValueError(f"{fd.names[i]} must be {prev[i] + skipped + 1}")
                 res.append(0)
@@ -196,33 +202,33 @@ class Encoder:
         i = 0
         while i < n:
             e = encoding[i]
-            if predictor[i] == bd.PRED_INC:
+            if predictor[i] == blackbox_format.PRED_INC:
                 i += 1
-            elif e == bd.ENC_SIGNED_VB:
+            elif e == blackbox_format.ENC_SIGNED_VB:
                 out += svb(res[i])
                 i += 1
-            elif e == bd.ENC_UNSIGNED_VB:
+            elif e == blackbox_format.ENC_UNSIGNED_VB:
                 out += uvb(res[i])
                 i += 1
-            elif e == bd.ENC_NEG_14BIT:
+            elif e == blackbox_format.ENC_NEG_14BIT:
                 out += uvb((-res[i]) & 0x3FFF)
                 i += 1
-            elif e == bd.ENC_NULL:
+            elif e == blackbox_format.ENC_NULL:
                 if res[i] != 0:
                     raise ValueError(
                         f"{fd.names[i]} has null encoding but differs from its prediction"
                     )
                 i += 1
-            elif e == bd.ENC_TAG8_8SVB:
+            elif e == blackbox_format.ENC_TAG8_8SVB:
                 j = i + 1
-                while j < min(i + 8, n) and encoding[j] == bd.ENC_TAG8_8SVB:
+                while j < min(i + 8, n) and encoding[j] == blackbox_format.ENC_TAG8_8SVB:
                     j += 1
                 out += tag8_8svb(res[i:j])
                 i = j
-            elif e == bd.ENC_TAG2_3S32:
+            elif e == blackbox_format.ENC_TAG2_3S32:
                 out += tag2_3s32((res[i : i + 3] + [0, 0, 0])[:3])
                 i += 3
-            elif e == bd.ENC_TAG8_4S16:
+            elif e == blackbox_format.ENC_TAG8_4S16:
                 out += tag8_4s16((res[i : i + 4] + [0, 0, 0, 0])[:4])
                 i += 4
             else:
@@ -278,16 +284,16 @@ class Encoder:
         return out
 
     def event(self, kind: int, *args: int) -> bytes:
-        if kind == bd.EVENT_LOGGING_RESUME:
+        if kind == blackbox_format.EVENT_LOGGING_RESUME:
             self.last_time = args[1]
-        if kind == bd.EVENT_LOG_END:
-            return b"E\xff" + bd.END_OF_LOG_TEXT
+        if kind == blackbox_format.EVENT_LOG_END:
+            return b"E\xff" + blackbox_format.END_OF_LOG_TEXT
         return b"E" + bytes([kind]) + b"".join(uvb(a) for a in args)
 
 
 # --- a simulated hover flight --------------------------------------------------------------
 
-SIM_MAIN = bd.FrameDef(
+SIM_MAIN = blackbox_format.FrameDef(
     names=[
         "loopIteration",
         "time",
@@ -314,21 +320,21 @@ SIM_MAIN = bd.FrameDef(
 )
 SIM_P_PREDICTOR = [6, 2, 1, 1, 1, 1, 1, 1, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3]
 SIM_P_ENCODING = [9, 0, 8, 8, 8, 8, 6, 6, 7, 7, 7, 0, 0, 0, 0, 0, 0, 0]
-SIM_SLOW = bd.FrameDef(
+SIM_SLOW = blackbox_format.FrameDef(
     names=["flightModeFlags", "stateFlags", "failsafePhase", "rxSignalReceived"],
     signed=[0, 0, 0, 0],
     predictor=[0, 0, 0, 0],
     encoding=[1, 1, 7, 7],
 )
 #: GPS frames as Betaflight 4.2 logs them (time from the last main frame, coordinates from home)
-SIM_GPS = bd.FrameDef(
+SIM_GPS = blackbox_format.FrameDef(
     names=["time", "GPS_numSat", "GPS_coord[0]", "GPS_coord[1]", "GPS_altitude", "GPS_speed",
            "GPS_ground_course"],
     signed=[0, 0, 1, 1, 0, 0, 0],
     predictor=[10, 0, 7, 7, 0, 0, 0],
     encoding=[1, 1, 0, 0, 1, 1, 1],
 )  # fmt: skip
-SIM_GPS_HOME = bd.FrameDef(
+SIM_GPS_HOME = blackbox_format.FrameDef(
     names=["GPS_home[0]", "GPS_home[1]"], signed=[1, 1], predictor=[0, 0], encoding=[0, 0]
 )
 SIM_HEADERS = [
@@ -391,7 +397,7 @@ INAV_HEADERS = [
     ("acc_hardware", "8"),
     ("motor_pwm_protocol", "6"),
 ]
-INAV_MAIN = bd.FrameDef(
+INAV_MAIN = blackbox_format.FrameDef(
     names=["vbat" if n == "vbatLatest" else "amperage" if n == "amperageLatest" else n
            for n in SIM_MAIN.names],
     signed=SIM_MAIN.signed,
@@ -422,7 +428,7 @@ def simulate_hover_log(
     enc = Encoder(hdrs, INAV_MAIN if inav else SIM_MAIN, SIM_P_PREDICTOR, SIM_P_ENCODING,
                   SIM_SLOW)  # fmt: skip
     out = bytearray(enc.header_bytes())
-    out += enc.event(bd.EVENT_SYNC_BEEP, start_time_us - 1000)
+    out += enc.event(blackbox_format.EVENT_SYNC_BEEP, start_time_us - 1000)
     out += enc.s_frame([1, 0, 0, 1])  # ARM box active
     n = round(duration_s * 1e6 / (SIM_P_INTERVAL * SIM_LOOPTIME_US))
     frames_per_i = 256 // SIM_P_INTERVAL
@@ -432,9 +438,9 @@ def simulate_hover_log(
         if inav:  # the mixer's µs-equivalent output, not DShot values
             values[14:18] = [v - 880 + INAV_HOVER_MOTOR for v in values[14:18]]
         out += enc.i_frame(values) if k % frames_per_i == 0 else enc.p_frame(values)
-    out += enc.event(bd.EVENT_DISARM, 4)
+    out += enc.event(blackbox_format.EVENT_DISARM, 4)
     out += enc.s_frame([0, 0, 0, 1])
-    out += enc.event(bd.EVENT_LOG_END)
+    out += enc.event(blackbox_format.EVENT_LOG_END)
     return bytes(out)
 
 
@@ -461,7 +467,7 @@ _MODE_NAMES = [
 ]  # fmt: skip
 
 
-def decode_csv_text(decoded: bd.DecodedLog) -> str:
+def decode_csv_text(decoded: blackbox_format.DecodedLog) -> str:
     """What the official blackbox_decode (default units, firmware < 4.3) writes for a log."""
     names = decoded.main_fields
     unit = {"time": "us", "vbatLatest": "V", "amperageLatest": "A"}
@@ -495,7 +501,7 @@ def decode_csv_text(decoded: bd.DecodedLog) -> str:
     return "\n".join(lines) + "\n"
 
 
-def headers_csv_text(decoded: bd.DecodedLog) -> str:
+def headers_csv_text(decoded: blackbox_format.DecodedLog) -> str:
     """blackbox_decode --save-headers output for a log."""
     rows = ["fieldname, fieldvalue"] + [f'{k},"{v}"' for k, v in decoded.headers.items()]
     return "\n".join(rows) + "\n"

@@ -39,7 +39,7 @@ import numpy as np
 
 from support.flightlog_writers import DataFlashWriter
 from support.simulate_flight import HoverSim, SimFlight, simulate_hover
-from thrustmap.fitting.flightlogs.series import FloatArray
+from thrustmap.flightlogs.series import FloatArray
 
 G0 = 9.80665
 REST_S = 6.0

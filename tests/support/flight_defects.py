@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal
 
 G0 = 9.80665
 

@@ -28,11 +28,9 @@ from thrustmap.protocols.transcript import TranscriptWriter, read_transcript
 from thrustmap.protocols.urlhandlers.protocol_record import RecordingSerial
 from thrustmap.protocols.urlhandlers.protocol_replay import ReplaySerial
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
-from thrustmap.rig.fc.mavlink import (
-    ArduPilotThrottleOutput,
-    MavlinkThrottleOutput,
-    Px4ThrottleOutput,
-)
+from thrustmap.rig.fc.ardupilot import ArduPilotThrottleOutput
+from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
+from thrustmap.rig.fc.px4 import Px4ThrottleOutput
 from thrustmap.rig.sim.mavlink_peers import ArduPilotVehicle, PX4Vehicle
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 from thrustmap.rig.sim.plant import ConstantPlant

@@ -10,8 +10,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from thrustmap.protocols.msp.framing import MspDecoder, MspDirection
-from thrustmap.protocols.msp.messages import MspCommand, SetMotor
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, MspDirection
+from thrustmap.protocols.msp.motor import SetMotor
 from thrustmap.rig.sim.msp_peer import MspPeer
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs.rosbag import as2_typestore
+from thrustmap.flightlogs.rosbag import as2_typestore
 
 T0_NS = 1_700_000_000_000_000_000  # header stamps: wall-clock-like epoch nanoseconds
 DURATION_S = 6.0

@@ -21,8 +21,8 @@ import numpy as np
 from support import flightlog_writers as writers
 from support.flightlog_writers import DataFlashWriter, TlogWriter, ULogTopic
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.flightlogs.series import FloatArray
 from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
+from thrustmap.flightlogs.series import FloatArray
 
 G0 = 9.80665
 

@@ -40,7 +40,8 @@ def _gamma(path: Path) -> tuple[list[float], list[float]] | None:
 
 
 def compare(out: Path, log: Path, mass_kg: float) -> dict[str, Any]:
-    from thrustmap.fitting.df import hover_throttle, read_df
+    from thrustmap.fitting.df.dffile import read_df
+    from thrustmap.fitting.df.table import hover_throttle
 
     res: dict[str, Any] = {}
     ext = _cli("flightlog", "extract", str(log), "--map", "map.json", "--mass-kg", str(mass_kg),

@@ -10,8 +10,8 @@ import functools
 import os
 from pathlib import Path
 
-from thrustmap.fitting.fit import fit_map
-from thrustmap.fitting.loaders import load_dataset
+from thrustmap.fitting.fit.fitmap import fit_map
+from thrustmap.fitting.loaders.load import load_dataset
 from thrustmap.fitting.mapfile import ThrustMap
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]

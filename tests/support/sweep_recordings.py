@@ -17,11 +17,13 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import thrustmap.rig.devices.opening as opening
 from thrustmap.core.clock import SimClock
 from thrustmap.protocols.urlhandlers.protocol_record import record_url
-from thrustmap.rig import connect, plans
+from thrustmap.rig import plans
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.runner import RunConfig, RunResult, record_sweep
+from thrustmap.rig.run_types import RunConfig, RunResult
+from thrustmap.rig.runner import record_sweep
 from thrustmap.rig.sim import peers
 from thrustmap.rig.sim.stand_peers import SIM_TYTO_CALIBRATION
 from thrustmap.rig.stand.tyto import save_calibration
@@ -53,14 +55,14 @@ def _run(
     out_csv: Path,
     calibration: Path | None = None,
 ) -> tuple[RunResult, list[Any]]:
-    stand = connect.open_stand(
+    stand = opening.open_stand(
         stand_url,
         clock,
         kind="tyto-1585",
         calibration=None if calibration is None else str(calibration),
     )
     with stand:
-        fc = connect.open_throttle_output(fc_url, clock, kind=kind)
+        fc = opening.open_throttle_output(fc_url, clock, kind=kind)
         with fc:
             result = record_sweep(
                 plan(),

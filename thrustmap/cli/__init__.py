@@ -127,7 +127,7 @@ class LazyGroup(click.Group):
         command = getattr(module, attr, None)
         if not isinstance(command, click.Command):
             return None
-        from thrustmap.cli.pictures import attach
+        from thrustmap.cli.help_pictures import attach
 
         # every --help says where the pictures are, wrapped between words
         return textwidth.use_formatter(attach(command, cmd_name))

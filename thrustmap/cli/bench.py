@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+import thrustmap.rig.segments as segments
 from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.cli.textwidth import echo, width
 from thrustmap.rig import plans
@@ -198,15 +199,15 @@ def _voltage_range(kw: dict[str, Any]) -> tuple[float, float] | None:
     return lo, hi
 
 
-def _pack_prompt(where: dict[str, str], *, quiet: bool) -> Callable[[plans.PackChange], bool]:
+def _pack_prompt(where: dict[str, str], *, quiet: bool) -> Callable[[segments.PackChange], bool]:
     """The question a pack change asks, with the motor stopped and the stop verified. A
     simulated bench (sim:// stand and FC) connects the asked pack itself; a real one asks on
     stderr/stdin, then the safety question of every spin (``confirm_spin``, asked even with
     --yes: a human has just had a hand at the stand). No answer or a no: no pack, the run ends
     (the motor stays stopped)."""
-    from thrustmap.cli.waysout import Refused, confirm_spin
+    from thrustmap.cli.spin_confirm import Refused, confirm_spin
 
-    def connect(change: plans.PackChange) -> bool:
+    def connect(change: segments.PackChange) -> bool:
         from thrustmap.rig.devices.urls import is_simulated
 
         stand, throttle = where.get("stand", ""), where.get("throttle", "")
@@ -444,7 +445,7 @@ def sweep_cmd(
       2    refused or bad input (nothing spun)
       3    stop NOT verified (disconnect the battery)
       130  interrupted by Ctrl-C/SIGTERM (stop verified)"""
-    from thrustmap.rig.runner import RunConfig
+    from thrustmap.rig.run_types import RunConfig
     from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
 
     where: dict[str, str] = {}  # the rig's URLs, for a pack change's question
@@ -500,7 +501,7 @@ def sweep_cmd(
     clock = choose_clock(
         rig.urls(), "auto" if realtime is None else ("real" if realtime else "sim")
     )
-    from thrustmap.cli.waysout import confirm_spin
+    from thrustmap.cli.spin_confirm import confirm_spin
 
     confirm_spin(
         f"{plan.describe().splitlines()[0]}\nPropellers on, stand secured and the area clear?",

@@ -18,9 +18,9 @@ from thrustmap.core.units import SCALES, ThrottleScale, parse_range, scale
 from thrustmap.fitting.names import DEFAULT_MODEL, LOSSES, MODEL_NAMES, VALIDATIONS
 
 if TYPE_CHECKING:  # the fitting machinery (numpy, scipy) is imported by the command that runs
-    from thrustmap.fitting.fit import Row
-    from thrustmap.fitting.loaders import ColumnMap
-    from thrustmap.fitting.selection import Selection
+    from thrustmap.fitting.fit.validation import Row
+    from thrustmap.fitting.loaders.load import ColumnMap
+    from thrustmap.fitting.selection.options import Selection
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -69,7 +69,7 @@ def selection_options(f: F) -> F:
 
 
 def _selection(kw: dict[str, Any]) -> Selection:
-    from thrustmap.fitting.selection import Selection
+    from thrustmap.fitting.selection.options import Selection
 
     def rng(key: str, what: str) -> tuple[float, float] | None:
         v = kw.get(key)
@@ -84,7 +84,7 @@ def _selection(kw: dict[str, Any]) -> Selection:
 
 
 def _column_map(kw: dict[str, Any]) -> ColumnMap | None:
-    from thrustmap.fitting.loaders import ColumnMap
+    from thrustmap.fitting.loaders.load import ColumnMap
 
     cols = [kw.get("col_throttle"), kw.get("col_thrust"), kw.get("col_voltage")]
     if not any(cols):
@@ -269,9 +269,10 @@ def fit_cmd(
 ) -> None:
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
     from thrustmap.core.files import atomic_write_text, check_output_path
-    from thrustmap.fitting.fit import fit_map
-    from thrustmap.fitting.loaders import check_thrust_leaves_noise, load_datasets
-    from thrustmap.fitting.selection import describe as describe_selection
+    from thrustmap.fitting.fit.fitmap import fit_map
+    from thrustmap.fitting.loaders.checks import check_thrust_leaves_noise
+    from thrustmap.fitting.loaders.load import load_datasets
+    from thrustmap.fitting.selection.describe import describe as describe_selection
 
     # a Ds log's sidecar (run.meta.json) is an input too; run.json is a free name for the map
     sidecars = [s for f in files if (s := Path(f).with_suffix(".meta.json")).exists()]
@@ -364,8 +365,8 @@ def compare_cmd(
     **kw: Any,
 ) -> None:
     """Compare models on stand logs under one validation mode."""
-    from thrustmap.fitting.fit import compare
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.fit.validation import compare
+    from thrustmap.fitting.loaders.load import load_datasets
 
     names = [m.strip() for m in models.split(",") if m.strip()]
     datasets = load_datasets(files, _column_map(kw))
@@ -383,8 +384,8 @@ def compare_cmd(
 @selection_options
 def evaluate_cmd(map_file: str, files: tuple[str, ...], as_json: bool, **kw: Any) -> None:
     """Score an existing map on stand logs: every point, and inside/outside its supported region beside it."""
-    from thrustmap.fitting.fit import evaluate
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.fit.validation import evaluate
+    from thrustmap.fitting.loaders.load import load_datasets
     from thrustmap.fitting.mapfile import ThrustMap
 
     tmap = ThrustMap.load(map_file)
@@ -567,9 +568,9 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
     import numpy as np
 
     from thrustmap.fitting.dataset import LAYOUTS
-    from thrustmap.fitting.loaders import load_datasets
-    from thrustmap.fitting.selection import describe as describe_selection
-    from thrustmap.fitting.selection import select
+    from thrustmap.fitting.loaders.load import load_datasets
+    from thrustmap.fitting.selection.describe import describe as describe_selection
+    from thrustmap.fitting.selection.points import select
 
     sel = _selection(kw)
     for ds in load_datasets(files, _column_map(kw)):

@@ -15,7 +15,7 @@ import click
 from thrustmap.cli import textwidth
 from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
-from thrustmap.rig.safety import terminate_as_exception
+from thrustmap.rig.sigterm import terminate_as_exception
 
 SHOW_REFUSED = 20  # refused logs listed by name; the rest are counted (all are in the table)
 

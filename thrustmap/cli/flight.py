@@ -12,7 +12,7 @@ from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError, DataFormatError
 
 if TYPE_CHECKING:  # numpy, pandas and the readers load only when a command runs
-    from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+    from thrustmap.flightlogs.series import FlightLog, Signal
 
 _FIELDS = (
     "voltage_v",
@@ -48,7 +48,7 @@ def _signal_info(sig: Signal) -> dict[str, Any]:
 
 def inspect_flight(flight: FlightLog) -> dict[str, Any]:
     """What a flight log holds: duration, fields found (origin, rate, range), airborne windows."""
-    from thrustmap.fitting.df import airborne_windows
+    from thrustmap.fitting.df.airborne import airborne_windows
 
     fields = {
         name: _signal_info(sig)
@@ -92,7 +92,7 @@ def flightlog_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
     """What is inside LOG: duration, fields found, airborne windows."""
-    from thrustmap.fitting.flightlogs.detect import detect, read_log
+    from thrustmap.flightlogs.detect import detect, read_log
 
     out = []
     for path in logs:
@@ -139,7 +139,7 @@ def inspect_cmd(logs: tuple[Path, ...], fmt: str | None, as_json: bool) -> None:
 @flightlog_group.command("readers")
 def readers_cmd() -> None:
     """List the flight-log readers and whether they are usable here."""
-    from thrustmap.fitting.flightlogs.detect import available
+    from thrustmap.flightlogs.detect import available
 
     for reader, why in available():
         state = "ok" if why is None else f"unavailable: {why}"
@@ -208,8 +208,10 @@ def extract_cmd(
     With --map, a mass whose hover thrust the map puts outside its reach (0..100 % throttle)
     is refused (exit 2) unless --force."""
     from thrustmap.core.files import check_output_path
-    from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.df.dffile import sidecar_path, write_df
+    from thrustmap.fitting.df.extraction import extract
+    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.flightlogs.detect import read_log
 
     inputs = [*logs, *([map_path] if map_path else [])]
     plan = check_output_path(output, inputs=inputs, what="Df output")
@@ -384,7 +386,7 @@ def gamma_fit_cmd(
     import pandas as pd
 
     from thrustmap.core.files import atomic_write_text, check_output_path
-    from thrustmap.fitting.df import read_df, sidecar_path
+    from thrustmap.fitting.df.dffile import read_df, sidecar_path
     from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 

@@ -24,8 +24,8 @@ from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.core.errors import ConfigError
 
 if TYPE_CHECKING:
-    from thrustmap.fitting.flightlogs.telemetry import Telemetry
     from thrustmap.fitting.gamma_live import LiveState
+    from thrustmap.flightlogs.telemetry import Telemetry
 
 PANEL_WIDTH = 80
 PANEL_PERIOD_S = 1.0
@@ -179,7 +179,7 @@ class _Panel:
 @contextmanager
 def _signals_as_stop() -> Iterator[None]:
     """SIGTERM (and SIGHUP) end the run as Ctrl-C does: the files are written, exit 130."""
-    from thrustmap.rig.safety import terminate_as_exception
+    from thrustmap.rig.sigterm import terminate_as_exception
 
     with terminate_as_exception(stopping="listening (writing what was received)"):
         yield
@@ -293,10 +293,11 @@ def gamma_live_cmd(
     import time
 
     from thrustmap.core.files import check_output_path
-    from thrustmap.fitting.df import DfOptions, sidecar_path
-    from thrustmap.fitting.flightlogs.telemetry import Telemetry
+    from thrustmap.fitting.df.dffile import sidecar_path
+    from thrustmap.fitting.df.options import DfOptions
     from thrustmap.fitting.gamma_live import LiveGamma
     from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.flightlogs.telemetry import Telemetry
     from thrustmap.rig.fc.telemetry_stream import LinkLost, open_stream
 
     if not mass_kg > 0:
@@ -417,7 +418,7 @@ def _finish(
     """Write what there is: the Df, the corrected map when γ is determined. One line back."""
     import json
 
-    from thrustmap.fitting.df import read_df, write_df
+    from thrustmap.fitting.df.dffile import read_df, write_df
     from thrustmap.fitting.gamma import corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import file_sha256
 

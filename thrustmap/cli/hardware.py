@@ -97,9 +97,10 @@ def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
 def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
     """List serial ports with a guess at what each is (from USB IDs; nothing is opened
     unless --probe)."""
-    from thrustmap.rig import connect
 
-    ports = connect.list_ports()
+    import thrustmap.rig.devices.ports as devices_ports
+
+    ports = devices_ports.list_ports()
     rows: list[dict[str, object]] = []
     for port in ports:
         row = port.to_dict()
@@ -124,12 +125,13 @@ def ports_cmd(probe: bool, as_json: bool, listen: float) -> None:
 
 
 def _probe_port(port: PortDescription, listen_s: float) -> str:
-    from thrustmap.rig import connect
+
+    import thrustmap.rig.devices.detect as detect
 
     if not port.probe_safe:
         return "skipped (bootloader)"
     try:
-        found = connect.detect_kind(port.device, MonotonicClock(), listen_s=listen_s)
+        found = detect.detect_kind(port.device, MonotonicClock(), listen_s=listen_s)
     except ConfigError as exc:
         return f"unknown ({exc.message})"
     what = found.kind + (f" ({found.firmware})" if found.firmware else "")
@@ -163,9 +165,10 @@ def probe_cmd(
     if not 0 < seconds <= 60:
         raise ConfigError(f"--seconds must be in (0, 60], got {seconds:g}")
     clock = make_clock(clock_choice, [url])
-    from thrustmap.rig import connect
 
-    report = connect.probe_device(
+    import thrustmap.rig.devices.probe as devices_probe
+
+    report = devices_probe.probe_device(
         url,
         clock,
         kind=kind,
@@ -298,7 +301,7 @@ def spin_cmd(
       3    stop NOT verified (disconnect the battery)
       130  interrupted by Ctrl-C/SIGTERM (stop verified)"""
     from thrustmap.cli.live import LiveView
-    from thrustmap.cli.waysout import confirm_spin
+    from thrustmap.cli.spin_confirm import confirm_spin
     from thrustmap.rig.fc.motor_numbers import parse_motor
     from thrustmap.rig.session import BenchSession, Rig, exit_code, pairing_warnings
     from thrustmap.rig.spin import SpinRequest, check_spin

@@ -92,7 +92,7 @@ def fit_interval(
     """THE adapter to the fitting API: fit a map to settled points (one steady-state point
     each) and return its prediction and prediction interval at (T, B)."""
     from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
-    from thrustmap.fitting.fit import fit_map
+    from thrustmap.fitting.fit.fitmap import fit_map
 
     n = len(thrust_n)
     ds = Dataset(

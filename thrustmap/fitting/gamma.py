@@ -39,8 +39,8 @@ import pandas as pd
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.physical import gamma_outside_band
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.df import (
-    MIN_DF_SAMPLES,
+from thrustmap.fitting.df.options import MIN_DF_SAMPLES
+from thrustmap.fitting.df.thrust import (
     map_extrapolation,
     motor_pct_in_map_scale,
     thrust_from_motors,

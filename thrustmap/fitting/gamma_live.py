@@ -28,8 +28,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from thrustmap.core.errors import ThrustmapError
-from thrustmap.fitting.df import G0, MIN_DF_SAMPLES, Df, DfOptions, extract
-from thrustmap.fitting.flightlogs.telemetry import Telemetry
+from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df.options import G0, MIN_DF_SAMPLES, DfOptions
+from thrustmap.fitting.df.table import Df
+from thrustmap.flightlogs.telemetry import Telemetry
 
 if TYPE_CHECKING:
     from thrustmap.fitting.gamma import GammaFit
@@ -184,7 +186,7 @@ class LiveGamma:
             st.hover_uncorrected_pct = float(self.tmap.throttle_pct(per_rotor, b, corrected=False))
             st.hover_corrected_pct = float(corr.throttle_pct(per_rotor, b))
         if "thrust_cmd_norm" in table.columns and len(table):
-            from thrustmap.fitting.df import hover_throttle
+            from thrustmap.fitting.df.table import hover_throttle
 
             try:
                 st.hover_ours = hover_throttle(table)

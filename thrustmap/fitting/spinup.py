@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.fitting.dataset import Dataset, FloatArray, IntArray
-from thrustmap.fitting.loaders import is_step_summary
+from thrustmap.fitting.loaders.checks import is_step_summary
 
 log = logging.getLogger(__name__)
 

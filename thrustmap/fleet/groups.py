@@ -117,7 +117,7 @@ def read_pooled(df_paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
     merge the sidecars' columns and flights."""
     import pandas as pd
 
-    from thrustmap.fitting.df import read_df
+    from thrustmap.fitting.df.dffile import read_df
 
     tables = []
     side: dict[str, Any] = {}

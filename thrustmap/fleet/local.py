@@ -218,8 +218,8 @@ class ForkPool:
     def start(self) -> None:
         # imported once here, inherited by every worker (fleet_extract has imported the Df
         # rules already); each reader is imported by a worker when it meets its format
-        import thrustmap.fitting.flightlogs.detect  # noqa: F401
         import thrustmap.fitting.mapfile  # noqa: F401
+        import thrustmap.flightlogs.detect  # noqa: F401
 
         while len(self._workers) < self.spec.workers:
             self._workers.append(self._fork())

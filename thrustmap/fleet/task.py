@@ -284,10 +284,11 @@ def _store(task: LogTask, out: Outcome) -> None:
 def _extract(task: LogTask, out: Outcome) -> None:
     import numpy as np
 
-    from thrustmap.fitting.df import MIN_DF_SAMPLES, DfOptions, extract, write_df
-    from thrustmap.fitting.df.extraction import refusal_lines
-    from thrustmap.fitting.flightlogs.detect import read_log
+    from thrustmap.fitting.df.dffile import write_df
+    from thrustmap.fitting.df.extraction import extract, refusal_lines
+    from thrustmap.fitting.df.options import MIN_DF_SAMPLES, DfOptions
     from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.flightlogs.detect import read_log
 
     opts = DfOptions(**task.df_options)
     tmap = ThrustMap.load(task.map_path) if task.map_path else None

@@ -18,16 +18,17 @@ import numpy.typing as npt
 from thrustmap import __version__
 from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset
-from thrustmap.fitting.fit import Pool, Row, pool, validate
+from thrustmap.fitting.fit.coefficients import Pool, pool
+from thrustmap.fitting.fit.validation import Row, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 from thrustmap.fitting.names import DEFAULT_MODEL, Loss
-from thrustmap.fitting.selection import (
+from thrustmap.fitting.selection.options import (
     ROLE_PLATEAU,
     ROLE_SETTLING,
     ROLE_STAIR_PAIR,
     Selection,
-    select,
 )
+from thrustmap.fitting.selection.points import select
 
 log = logging.getLogger(__name__)
 
@@ -248,7 +249,7 @@ def _gamma_data(tmap: ThrustMap, map_path: str) -> GammaData | None:
     try:
         import pandas as pd
 
-        from thrustmap.fitting.df import read_df
+        from thrustmap.fitting.df.dffile import read_df
         from thrustmap.fitting.gamma import thrust_command_n
 
         tables = []
@@ -330,7 +331,7 @@ def build(
     with_validation: bool = True,
 ) -> ReportData:
     """Load the map and its data and compute every number a report or a figure shows."""
-    from thrustmap.fitting.loaders import load_datasets
+    from thrustmap.fitting.loaders.load import load_datasets
 
     map_path = str(map_path)
     tmap = ThrustMap.load(map_path)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from thrustmap.fitting.fit import Row
+from thrustmap.fitting.fit.validation import Row
 from thrustmap.report import figures
 from thrustmap.report.data import ReportData, source_files
 

@@ -138,7 +138,7 @@ class ThrottleOutput(ABC):
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        from thrustmap.rig.safety import interrupts_deferred
+        from thrustmap.rig.sigterm import interrupts_deferred
 
         try:
             with interrupts_deferred():  # a second Ctrl-C must not cut the stop short

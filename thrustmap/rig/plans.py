@@ -23,51 +23,19 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from thrustmap.core.errors import ConfigError
-from thrustmap.rig.adaptive_plan import (
-    DISCHARGE_MARGIN,
-    DISCHARGE_MAX_S,
-    LIMIT_HEADROOM,
-    PACK_LOW_STEP_PCT,
-    RANGE_SLACK_PCT,
-    STALL_POINTS,
-    STALL_REL,
-    AdaptiveDriver,
-    Assessment,
-    Chooser,
-    SettledPoint,
-)
-from thrustmap.rig.segments import (
-    PACK_MOVE_MIN_REL,
-    Discharge,
-    Hold,
-    PackChange,
-    Ramp,
-    RunSegment,
-    Segment,
-    hold_segment,
-)
+from thrustmap.rig.adaptive_plan import AdaptiveDriver, Chooser
+from thrustmap.rig.segments import Hold, PackChange, Ramp, RunSegment, Segment, hold_segment
 
 __all__ = [
-    "DISCHARGE_MARGIN",
-    "DISCHARGE_MAX_S",
-    "LIMIT_HEADROOM",
-    "PACK_LOW_STEP_PCT",
-    "PACK_MOVE_MIN_REL",
     "PLANS",
-    "RANGE_SLACK_PCT",
-    "STALL_POINTS",
-    "STALL_REL",
     "AdaptiveDriver",
-    "Assessment",
     "Chooser",
-    "Discharge",
     "Hold",
     "PackChange",
     "Plan",
     "Ramp",
     "RunSegment",
     "Segment",
-    "SettledPoint",
     "adaptive",
     "explicit",
     "ramp",

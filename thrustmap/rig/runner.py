@@ -24,8 +24,8 @@ from typing import Any, NoReturn
 import numpy as np
 
 from thrustmap.core.clock import Clock
-from thrustmap.core.dslog import DsWriter
 from thrustmap.core.errors import SafetyError
+from thrustmap.core.stand_recording import DsWriter
 from thrustmap.rig.adaptive_plan import SettledPoint
 from thrustmap.rig.interfaces import DeviceAbort, Stand, StandSample, Telemetry, ThrottleOutput
 from thrustmap.rig.interlocks import (
@@ -38,10 +38,7 @@ from thrustmap.rig.interlocks import (
     margins,
 )
 from thrustmap.rig.plans import Plan
-from thrustmap.rig.run_types import RunConfig as RunConfig  # re-exported
-from thrustmap.rig.run_types import RunResult as RunResult
-from thrustmap.rig.run_types import Status as Status
-from thrustmap.rig.safety import Terminated, interrupts_deferred, terminate_as_exception
+from thrustmap.rig.run_types import RunConfig, RunResult, Status
 from thrustmap.rig.segments import (
     PACK_MOVE_MIN_REL,
     Discharge,
@@ -52,6 +49,7 @@ from thrustmap.rig.segments import (
     Segment,
 )
 from thrustmap.rig.settle import RestDetector, SettleDetector
+from thrustmap.rig.sigterm import Terminated, interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
 

@@ -12,8 +12,9 @@ import argparse
 from collections.abc import Callable, Sequence
 
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.plans import Hold, Plan
-from thrustmap.rig.runner import RunConfig, RunResult, Status
+from thrustmap.rig.plans import Plan
+from thrustmap.rig.run_types import RunConfig, RunResult, Status
+from thrustmap.rig.segments import Hold
 from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pairing_warnings
 
 PROMPT = "Propellers on, stand secured, area clear? [y/N] "

@@ -30,14 +30,16 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
+import thrustmap.rig.devices.opening as opening
+import thrustmap.rig.devices.urls as devices_urls
 from thrustmap.core.clock import Clock, MonotonicClock, SimClock
 from thrustmap.core.errors import ConfigError
-from thrustmap.rig import connect
 from thrustmap.rig.interfaces import Stand, ThrottleOutput
 from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT, Limits
 from thrustmap.rig.plans import Plan
-from thrustmap.rig.runner import RunConfig, RunResult, Status, record_sweep
-from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
+from thrustmap.rig.run_types import RunConfig, RunResult, Status
+from thrustmap.rig.runner import record_sweep
+from thrustmap.rig.sigterm import interrupts_deferred, terminate_as_exception
 from thrustmap.rig.spin import SpinReport, SpinRequest, SpinResult, spin_on
 
 log = logging.getLogger(__name__)
@@ -81,7 +83,7 @@ def choose_clock(urls: Sequence[str], choice: str = "auto") -> Clock:
     choice = choice.lower()
     if choice not in CLOCK_CHOICES:
         raise ConfigError(f"clock must be one of {', '.join(CLOCK_CHOICES)}, got {choice!r}")
-    real = [u for u in urls if not connect.is_simulated(u)]
+    real = [u for u in urls if not devices_urls.is_simulated(u)]
     if choice == "sim" and real:
         raise ConfigError(
             f"--clock sim needs simulated devices only; {', '.join(real)} is real "
@@ -131,12 +133,12 @@ def pairing_warnings(rig: Rig) -> list[str]:
     while a REAL motor turns: the recorded thrust would be noise)."""
     out: list[str] = []
     if rig.stand is not None and rig.throttle is not None:
-        if connect.is_simulated(rig.stand) and not connect.is_simulated(rig.throttle):
+        if devices_urls.is_simulated(rig.stand) and not devices_urls.is_simulated(rig.throttle):
             out.append(
                 f"the stand {rig.stand} is simulated but the throttle output {rig.throttle} is "
                 "real: a real motor will spin and the recorded thrust will be noise"
             )
-        elif connect.is_simulated(rig.throttle) and not connect.is_simulated(rig.stand):
+        elif devices_urls.is_simulated(rig.throttle) and not devices_urls.is_simulated(rig.stand):
             out.append(
                 f"the throttle output {rig.throttle} is simulated but the stand {rig.stand} is "
                 "real: nothing will spin on the stand"
@@ -179,7 +181,7 @@ class BenchSession:
             rig = self.rig
             if rig.stand is not None:
                 self._stand = stack.enter_context(
-                    connect.open_stand(
+                    opening.open_stand(
                         rig.stand,
                         self.clock,
                         kind=rig.stand_kind,
@@ -190,7 +192,7 @@ class BenchSession:
                 )
             self._output = self._open_output()
             stack.callback(self._close_output, self._output)
-            if self._stand is None and isinstance(self._output, connect.StandEscOutput):
+            if self._stand is None and isinstance(self._output, opening.StandEscOutput):
                 self._stand = self._output.stand
         except BaseException:
             stack.close()
@@ -204,8 +206,8 @@ class BenchSession:
         rig = self.rig
         if rig.throttle is None:
             assert self._stand is not None
-            return connect.stand_esc_output(self._stand, rig.motor)
-        return connect.open_throttle_output(
+            return opening.stand_esc_output(self._stand, rig.motor)
+        return opening.open_throttle_output(
             rig.throttle,
             self.clock,
             kind=rig.kind,

@@ -27,9 +27,11 @@ from thrustmap.rig.interfaces import Stand, StandSample, Telemetry, ThrottleOutp
 from thrustmap.rig.interlocks import SPIN_MAX_SECONDS as MAX_SECONDS
 from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT as DEFAULT_MAX_THROTTLE_PCT
 from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.plans import Hold, Plan, Ramp, Segment
-from thrustmap.rig.runner import RunConfig, Runner, Status
-from thrustmap.rig.safety import interrupts_deferred, terminate_as_exception
+from thrustmap.rig.plans import Plan
+from thrustmap.rig.run_types import RunConfig, Status
+from thrustmap.rig.runner import Runner
+from thrustmap.rig.segments import Hold, Ramp, Segment
+from thrustmap.rig.sigterm import interrupts_deferred, terminate_as_exception
 
 log = logging.getLogger(__name__)
 

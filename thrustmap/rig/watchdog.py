@@ -38,26 +38,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
 
-from thrustmap.rig.watchdog_handle import (
-    DISARM,
-    GIVE_UP_S,
-    READY,
-    START_TIMEOUT_S,
-    Watchdog,
-    default_log_path,
-    start_watchdog,
-)
+from thrustmap.rig.watchdog_handle import DISARM, GIVE_UP_S, READY
 
 __all__ = [
     "DISARM",
     "GIVE_UP_S",
     "MAX_LOG_BYTES",
     "READY",
-    "START_TIMEOUT_S",
-    "Watchdog",
-    "default_log_path",
     "main",
-    "start_watchdog",
     "stop_motors",
     "wait_for_parent",
 ]

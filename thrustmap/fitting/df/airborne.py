@@ -16,7 +16,7 @@ from thrustmap.fitting.df.options import (
     DfOptions,
 )
 from thrustmap.fitting.df.resample import long_runs, mask_runs
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, nanmedian
+from thrustmap.flightlogs.series import FlightLog, FloatArray, nanmedian
 
 
 def airborne_windows(flight: FlightLog) -> list[tuple[float, float]]:

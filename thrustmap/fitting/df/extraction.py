@@ -37,7 +37,7 @@ from thrustmap.fitting.df.thrust import (
     select_motors,
     thrust_from_motors,
 )
-from thrustmap.fitting.flightlogs.series import (
+from thrustmap.flightlogs.series import (
     FlightLog,
     FloatArray,
     Signal,

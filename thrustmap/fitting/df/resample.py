@@ -9,7 +9,7 @@ import numpy as np
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df.options import BoolArray
-from thrustmap.fitting.flightlogs.series import FloatArray, Signal, nanmedian
+from thrustmap.flightlogs.series import FloatArray, Signal, nanmedian
 
 # -- resampling ----------------------------------------------------------------------------------
 

@@ -12,7 +12,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df.options import G0, FlightReport
-from thrustmap.fitting.flightlogs.series import nanmedian
+from thrustmap.flightlogs.series import nanmedian
 
 if TYPE_CHECKING:  # pandas is imported where a table is asked for: `flightlog extract` runs
     import pandas as pd  # without it (its import alone took 0.3 s of a 0.7 s extraction)

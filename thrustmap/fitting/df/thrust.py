@@ -10,7 +10,7 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal
 
 if TYPE_CHECKING:
     from thrustmap.fitting.mapfile import ThrustMap

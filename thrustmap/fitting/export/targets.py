@@ -8,9 +8,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import thrustmap.fitting.export.firmware.ardupilot as ardupilot
+import thrustmap.fitting.export.firmware.betaflight as betaflight
+import thrustmap.fitting.export.firmware.px4 as px4
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES
-from thrustmap.fitting.export import c_header, firmware, platforms
+from thrustmap.fitting.export import c_header, platforms
 from thrustmap.fitting.export.encoding_yaml import export_encoding
 from thrustmap.fitting.export.encodings import ExportOptions, ExportResult, target_scale
 from thrustmap.fitting.mapfile import ThrustMap
@@ -33,9 +36,9 @@ def export_map(tmap: ThrustMap, target: str, options: ExportOptions | None = Non
     handlers: dict[str, Callable[[ThrustMap, ExportOptions], ExportResult]] = {
         "c-header": c_header.export_c_header,
         "aerostack2": platforms.export_aerostack2,
-        "px4": firmware.export_px4,
-        "ardupilot": firmware.export_ardupilot,
-        "betaflight": firmware.export_betaflight,
+        "px4": px4.export_px4,
+        "ardupilot": ardupilot.export_ardupilot,
+        "betaflight": betaflight.export_betaflight,
     }
     handler = handlers.get(target)
     if handler is None:

@@ -19,7 +19,7 @@ from thrustmap.fitting.models import (
     backemf_coefficients,
 )
 from thrustmap.fitting.names import Loss
-from thrustmap.fitting.selection import Selection
+from thrustmap.fitting.selection.options import Selection
 
 Predictor = Callable[[FloatArray, FloatArray], FloatArray]
 

@@ -15,7 +15,8 @@ from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import Dataset, FloatArray
 from thrustmap.fitting.models import Identification, Model
 from thrustmap.fitting.names import Loss
-from thrustmap.fitting.selection import Points, Selection, select
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import Points, select
 
 log = logging.getLogger(__name__)
 

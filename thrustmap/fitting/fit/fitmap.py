@@ -25,7 +25,8 @@ from thrustmap.fitting.mapfile import Box, ThrustMap, ValidityBox
 from thrustmap.fitting.metrics import error_stats
 from thrustmap.fitting.models import Identification, Model, MotorModel, get_model
 from thrustmap.fitting.names import DEFAULT_MODEL, Loss
-from thrustmap.fitting.selection import Points, Selection
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import Points
 from thrustmap.fitting.solve import condition_number
 from thrustmap.fitting.voltages import measured_voltages
 

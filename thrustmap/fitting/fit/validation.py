@@ -19,7 +19,8 @@ from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.metrics import Coverage, ErrorStats, coverage, error_stats
 from thrustmap.fitting.models import Model, get_model
 from thrustmap.fitting.names import VALIDATIONS, Loss, Validation
-from thrustmap.fitting.selection import Selection, select
+from thrustmap.fitting.selection.options import Selection
+from thrustmap.fitting.selection.points import select
 from thrustmap.fitting.solve import solve_gram
 
 log = logging.getLogger(__name__)

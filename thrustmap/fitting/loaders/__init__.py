@@ -1,7 +1,7 @@
 """Load Ds (bench data) from stand logs, auto-detected by header.
 
 Formats: RCbenchmark (Tyto app) logs and their spreadsheet re-saves, Flight Stand exports,
-Crazyflie system-id logs, the project's own Ds log (:mod:`thrustmap.core.dslog`), and any CSV through an
+Crazyflie system-id logs, the project's own Ds log (:mod:`thrustmap.core.stand_recording`), and any CSV through an
 explicit ``ColumnMap``. Every error names the file, the line or column, and what was expected.
 
 What a loader assumes, it says (``Dataset.meta`` and a logged warning):
@@ -21,53 +21,3 @@ The package, one module per job (``thrustmap.fitting.loaders`` keeps every publi
 sparse logs), ``checks`` (the unit checks against physics). No module imports another's private
 name.
 """
-
-from thrustmap.fitting.loaders.assemble import (
-    CARRY_THROTTLE_ROWS,
-    CARRY_THROTTLE_S,
-    CARRY_VOLTAGE_ROWS,
-    CARRY_VOLTAGE_S,
-    SPARSE_MIN_FRACTION,
-)
-from thrustmap.fitting.loaders.checks import (
-    STEP_SUMMARY_MIN_DT_S,
-    STEP_SUMMARY_MIN_STEP_PCT,
-    THRUST_LEAVES_SHARE,
-    THRUST_NOISE_FLOOR_N,
-    THRUST_NOISE_SIGMAS,
-    check_thrust_leaves_noise,
-    is_step_summary,
-)
-from thrustmap.fitting.loaders.formats import CRAZYFLIE_PERIOD_S, FORMATS, MU
-from thrustmap.fitting.loaders.load import ColumnMap, load_dataset, load_datasets
-from thrustmap.fitting.loaders.table import (
-    MAX_FIELD_CHARS,
-    THRUST_UNITS,
-    normalise_header,
-    read_table,
-)
-
-__all__ = [
-    "CARRY_THROTTLE_ROWS",
-    "CARRY_THROTTLE_S",
-    "CARRY_VOLTAGE_ROWS",
-    "CARRY_VOLTAGE_S",
-    "CRAZYFLIE_PERIOD_S",
-    "FORMATS",
-    "MAX_FIELD_CHARS",
-    "MU",
-    "SPARSE_MIN_FRACTION",
-    "STEP_SUMMARY_MIN_DT_S",
-    "STEP_SUMMARY_MIN_STEP_PCT",
-    "THRUST_LEAVES_SHARE",
-    "THRUST_NOISE_FLOOR_N",
-    "THRUST_NOISE_SIGMAS",
-    "THRUST_UNITS",
-    "ColumnMap",
-    "check_thrust_leaves_noise",
-    "is_step_summary",
-    "load_dataset",
-    "load_datasets",
-    "normalise_header",
-    "read_table",
-]

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from thrustmap.core import dslog
+from thrustmap.core import stand_recording
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.physical import (  # the physical ranges live in one place
     G0,
@@ -143,17 +143,17 @@ def _crazyflie(table: Table) -> Dataset | None:
 
 
 def _thrustmap_ds(table: Table) -> Dataset | None:
-    """thrustmap's own Ds log: decoded by :mod:`thrustmap.core.dslog`, checked against its sidecar."""
-    if not dslog.is_ds_header(table.keys):
+    """thrustmap's own Ds log: decoded by :mod:`thrustmap.core.stand_recording`, checked against its sidecar."""
+    if not stand_recording.is_ds_header(table.keys):
         return None
-    cols = dslog.parse(table.header, table.rows, table.lines, table.path)
-    side = dslog.read_sidecar(table.path)
-    side_name = dslog.sidecar_path(table.path).name
+    cols = stand_recording.parse(table.header, table.rows, table.lines, table.path)
+    side = stand_recording.read_sidecar(table.path)
+    side_name = stand_recording.sidecar_path(table.path).name
     column = f"throttle_{cols.throttle_unit}"
     info: dict[str, Any] = {}
     if side is not None:
         scale = side.throttle_scale
-        if dslog.throttle_column(scale) != column:
+        if stand_recording.throttle_column(scale) != column:
             raise DataFormatError(
                 f"sidecar {side_name} gives throttle scale '{scale.name}' in {scale.unit}, "
                 f"but the log's column is '{column}'; expected them to agree",

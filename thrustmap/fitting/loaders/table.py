@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thrustmap.core import dslog
+from thrustmap.core import stand_recording
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.physical import (  # the physical ranges live in one place
     G0,
@@ -97,7 +97,7 @@ def read_table(path: str | Path) -> Table:
         numbers.append(offset)
     keys = [normalise_header(h) for h in header]
     notes: list[str] = []
-    if rows and not text.endswith(("\n", "\r")) and _torn(rows, dslog.is_ds_header(keys)):
+    if rows and not text.endswith(("\n", "\r")) and _torn(rows, stand_recording.is_ds_header(keys)):
         note = f"last row (line {numbers[-1]}) has no line end and is cut short: dropped"
         notes.append(note + " (a partial write?)")
         log.warning("%s: %s (a partial write?)", name, note)

@@ -34,7 +34,7 @@ import logging
 import time
 from typing import Any
 
-from pymavlink import mavutil as mavutil  # re-exported for callers that need pymavlink helpers
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from thrustmap.core.clock import Clock, MonotonicClock

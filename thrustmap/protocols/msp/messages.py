@@ -21,21 +21,11 @@ from typing import ClassVar
 
 from thrustmap.protocols.msp.framing import MspCommand, MspFrame, MspPayloadError
 from thrustmap.protocols.msp.motor import (
-    DSHOT_MAX,
-    DSHOT_MIN,
-    MSP_MOTOR_SCALE,
-    MSP_MOTOR_STOP,
     AdvancedConfig,
-    EscTelemetry,
     Motor,
     MotorConfig,
-    MotorProtocol,
     MotorTelemetry,
     SetMotor,
-    external_to_fraction,
-    external_to_native,
-    native_to_external,
-    throttle_scale_for,
 )
 
 
@@ -484,17 +474,11 @@ __all__ = [
     "BatteryState",
     "BatteryStateCode",
     "BoardInfo",
-    "DSHOT_MAX",
-    "DSHOT_MIN",
-    "EscTelemetry",
     "FcVariant",
     "FcVersion",
     "InavAnalog",
-    "MSP_MOTOR_SCALE",
-    "MSP_MOTOR_STOP",
     "Motor",
     "MotorConfig",
-    "MotorProtocol",
     "MotorTelemetry",
     "MspCommand",
     "MspMessage",
@@ -507,8 +491,4 @@ __all__ = [
     "StatusEx",
     "decode_reply",
     "decode_request",
-    "external_to_fraction",
-    "external_to_native",
-    "native_to_external",
-    "throttle_scale_for",
 ]

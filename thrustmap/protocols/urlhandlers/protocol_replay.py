@@ -46,11 +46,8 @@ from thrustmap.protocols.transcript import (
     TransportError,
     read_transcript,
 )
-from thrustmap.protocols.urlhandlers.replay_messages import (
-    Divergence,
-    MessageReplay,
-    detect_protocol,
-)
+from thrustmap.protocols.urlhandlers.replay_matching import Divergence, MessageReplay
+from thrustmap.protocols.urlhandlers.transcript_messages import detect_protocol
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,6 @@ from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialException
 
-from thrustmap.protocols.urlhandlers.buffered import MAX_FOREIGN_SENDERS as MAX_FOREIGN_SENDERS
 from thrustmap.protocols.urlhandlers.buffered import BufferedEndpoint
 
 log = logging.getLogger(__name__)

@@ -16,10 +16,11 @@ from urllib.parse import unquote, urlsplit
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, ThrustmapError
-from thrustmap.protocols.msp.framing import MspDecoder, MspDirection, encode_request
-from thrustmap.protocols.msp.messages import ApiVersion, FcVariant, MspCommand
+from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, MspDirection, encode_request
+from thrustmap.protocols.msp.messages import ApiVersion, FcVariant
 from thrustmap.protocols.transport import SerialLike
-from thrustmap.rig.devices.registry import Detection, drivers, normalize_kind
+from thrustmap.rig.devices.declaration import Detection
+from thrustmap.rig.devices.registry import drivers, normalize_kind
 from thrustmap.rig.devices.urls import (
     MAVLINK_CONNECTION,
     innermost_url,

@@ -13,8 +13,9 @@ from typing import Any
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
+from thrustmap.rig.devices.declaration import Detection
 from thrustmap.rig.devices.detect import resolve
-from thrustmap.rig.devices.registry import Detection, driver
+from thrustmap.rig.devices.registry import driver
 from thrustmap.rig.interfaces import DeviceIdentity, StandSample, Telemetry
 
 

@@ -13,13 +13,10 @@ registry costs nothing and a driver's heavy dependencies (pymavlink) load only w
 from __future__ import annotations
 
 from thrustmap.core.errors import ConfigError
-from thrustmap.rig.devices.declaration import Classifier, Detection, Driver, OpenRequest
+from thrustmap.rig.devices.declaration import Driver
 
 __all__ = [
-    "Classifier",
-    "Detection",
     "Driver",
-    "OpenRequest",
     "driver",
     "drivers",
     "kind_aliases",

@@ -18,47 +18,31 @@ from typing import Any
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.mavlink import codec as mav
-from thrustmap.protocols.mavlink.codec import decode_flight_sw_version, request_message
 from thrustmap.protocols.mavlink.link import open_mavlink
 from thrustmap.protocols.mavlink.signing import SigningKey, enable_signing
 from thrustmap.rig.devices.urls import load_sim_peers, sim_peer
-from thrustmap.rig.fc.ardupilot import ARDUPILOT_PARAMS, MOT_PWM_TYPES, ArduPilotThrottleOutput
-from thrustmap.rig.fc.link_lock import LinkIntruder
+from thrustmap.rig.fc.ardupilot import ArduPilotThrottleOutput
 from thrustmap.rig.fc.mavlink_output import MavlinkThrottleOutput
 from thrustmap.rig.fc.mavlink_session import (
-    CommandsLate,
     MavlinkLinkLost,
-    MavlinkSession,
-    MotorTestRefused,
-    SigningRequired,
     UnsupportedAutopilot,
     wait_for_vehicle_heartbeat,
 )
-from thrustmap.rig.fc.px4 import PX4_PARAMS, Px4ThrottleOutput
+from thrustmap.rig.fc.px4 import Px4ThrottleOutput
 
 __all__ = [
-    "ARDUPILOT_PARAMS",
     "AUTOPILOT_NAMES",
     "DRIVERS",
     "KINDS",
-    "MOT_PWM_TYPES",
-    "PX4_PARAMS",
     "ArduPilotThrottleOutput",
-    "CommandsLate",
-    "LinkIntruder",
     "MavlinkLinkLost",
-    "MavlinkSession",
     "MavlinkThrottleOutput",
-    "MotorTestRefused",
     "Px4ThrottleOutput",
     "SigningKey",
-    "SigningRequired",
     "UnsupportedAutopilot",
-    "decode_flight_sw_version",
     "detect",
     "open_mavlink_output",
     "open_output",
-    "request_message",
     "wait_for_vehicle_heartbeat",
 ]
 

@@ -46,23 +46,30 @@ from typing import TYPE_CHECKING, Literal
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
-from thrustmap.protocols.msp.framing import MspDecoder, MspFrame, MspVersion, encode_request
+from thrustmap.protocols.msp.framing import (
+    MspCommand,
+    MspDecoder,
+    MspFrame,
+    MspVersion,
+    encode_request,
+)
 from thrustmap.protocols.msp.messages import (
-    MSP_MOTOR_STOP,
-    AdvancedConfig,
     ApiVersion,
     BatteryState,
     BoardInfo,
     FcVariant,
     FcVersion,
+    SetArmingDisabled,
+    Status,
+)
+from thrustmap.protocols.msp.motor import (
+    MSP_MOTOR_STOP,
+    AdvancedConfig,
     Motor,
     MotorConfig,
     MotorProtocol,
     MotorTelemetry,
-    MspCommand,
-    SetArmingDisabled,
     SetMotor,
-    Status,
     native_to_external,
     throttle_scale_for,
 )

@@ -191,7 +191,7 @@ class LiveStream:
                 self.recorder.close()
 
     def messages(self) -> Iterator[tuple[float, Any]]:
-        from thrustmap.fitting.flightlogs.telemetry import is_vehicle_heartbeat
+        from thrustmap.flightlogs.telemetry import is_vehicle_heartbeat
 
         opened_us = self.clock_us()
         last_heard_us = opened_us

@@ -330,7 +330,7 @@ def serve(
     **core_options: Any,
 ) -> None:
     """Serve a simulated core until Ctrl-C/SIGTERM (or ``duration_s``)."""
-    from thrustmap.rig.safety import terminate_as_exception
+    from thrustmap.rig.sigterm import terminate_as_exception
 
     with terminate_as_exception(), FlightStandServer(FlightStandCore(**core_options),
                                                      host=host, port=port) as server:  # fmt: skip

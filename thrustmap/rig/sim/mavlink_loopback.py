@@ -12,9 +12,10 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from pymavlink import mavutil
+
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError
-from thrustmap.protocols.mavlink.link import mavutil
 from thrustmap.rig.sim.mavlink_vehicle import SimMavlinkVehicle
 
 log = logging.getLogger(__name__)

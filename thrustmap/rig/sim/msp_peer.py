@@ -38,13 +38,14 @@ from dataclasses import dataclass, replace
 from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import (
     MSP_MAX_REQUEST_PAYLOAD,
+    MspCommand,
     MspDecoder,
     MspDirection,
     MspFrame,
+    MspPayloadError,
     encode_frame,
 )
 from thrustmap.protocols.msp.messages import (
-    AdvancedConfig,
     Analog,
     ApiVersion,
     ArmingDisable,
@@ -52,20 +53,21 @@ from thrustmap.protocols.msp.messages import (
     BatteryState,
     BatteryStateCode,
     BoardInfo,
-    EscTelemetry,
     FcVariant,
     FcVersion,
     InavAnalog,
+    SetArmingDisabled,
+    Status,
+    StatusEx,
+)
+from thrustmap.protocols.msp.motor import (
+    AdvancedConfig,
+    EscTelemetry,
     Motor,
     MotorConfig,
     MotorProtocol,
     MotorTelemetry,
-    MspCommand,
-    MspPayloadError,
-    SetArmingDisabled,
     SetMotor,
-    Status,
-    StatusEx,
     external_to_fraction,
 )
 from thrustmap.protocols.peer import BytePeer, register_peer

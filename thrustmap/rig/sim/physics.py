@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from thrustmap.core.errors import ConfigError, SafetyError
 from thrustmap.rig.sim.plant import PlantState
-from thrustmap.rig.sim.presets import LIPO_OCV_CELL_V, LIPO_OCV_SOC, PRESETS, PlantParams
+from thrustmap.rig.sim.presets import LIPO_OCV_CELL_V, LIPO_OCV_SOC, PlantParams
 from thrustmap.rig.sim.presets import preset as get_preset
 
 FloatArray = NDArray[np.float64]
@@ -543,7 +543,6 @@ def make_plant(
 
 
 __all__ = [
-    "PRESETS",
     "LoadCellCreep",
     "OperatingPoint",
     "PhysicsPlant",

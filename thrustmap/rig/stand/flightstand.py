@@ -52,29 +52,18 @@ from thrustmap.rig.interfaces import (
     ThrottleOutput,
 )
 from thrustmap.rig.stand.flightstand_client import (
-    CALL_TIMEOUT_S,
-    DEFAULT_PORT,
-    HEARTBEAT_PERIOD_S,
-    SAMPLE_QUEUE_GROUPS,
-    SCHEME,
     FlightStandClient,
     FlightStandError,
-    FlightStandUrl,
     parse_url,
     seconds_of,
 )
 
 __all__ = [
-    "CALL_TIMEOUT_S",
-    "DEFAULT_PORT",
     "FACTORS",
-    "HEARTBEAT_PERIOD_S",
     "LIMIT_STREAMS",
     "NEGATIVE_THRUST_ESC_FRACTION",
     "NEGATIVE_THRUST_N",
     "NEGATIVE_THRUST_SAMPLES",
-    "SAMPLE_QUEUE_GROUPS",
-    "SCHEME",
     "STREAMS",
     "TARE_TIMEOUT_S",
     "VERIFY_WAIT_S",
@@ -83,7 +72,6 @@ __all__ = [
     "FlightStandError",
     "FlightStandEscOutput",
     "FlightStandStand",
-    "FlightStandUrl",
     "ThrustReadsNegative",
     "describe_cutoff",
     "open_flightstand",

@@ -52,31 +52,15 @@ from thrustmap.protocols.stands.line import (
 )
 from thrustmap.protocols.transport import SerialLike
 from thrustmap.rig.interfaces import DeviceIdentity, Stand, StandSample, Telemetry, ThrottleOutput
-from thrustmap.rig.stand.line_spec import (
-    COLUMN_KEYS,
-    LOAD_CELL_KEYS,
-    SPEC_FORMAT,
-    SPEC_KEYS,
-    line_spec_from_dict,
-    line_spec_to_dict,
-    load_line_spec,
-)
 
 __all__ = [
-    "COLUMN_KEYS",
-    "LOAD_CELL_KEYS",
     "MAX_PENDING_SAMPLES",
-    "SPEC_FORMAT",
-    "SPEC_KEYS",
     "STOP_TOLERANCE_PCT",
     "TARE_MAX_RPM",
     "LineStand",
     "LineStandError",
     "LineStandEscOutput",
     "LineStandTimeout",
-    "line_spec_from_dict",
-    "line_spec_to_dict",
-    "load_line_spec",
 ]
 
 log = logging.getLogger(__name__)

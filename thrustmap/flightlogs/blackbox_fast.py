@@ -38,10 +38,10 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap.fitting.flightlogs import blackbox_format as fmt
-from thrustmap.fitting.flightlogs import blackbox_frames as bfr
-from thrustmap.fitting.flightlogs.blackbox_columns import constant_prediction, residuals
-from thrustmap.fitting.flightlogs.blackbox_framing import (
+from thrustmap.flightlogs import blackbox_format as fmt
+from thrustmap.flightlogs import blackbox_frames as bfr
+from thrustmap.flightlogs.blackbox_columns import constant_prediction, residuals
+from thrustmap.flightlogs.blackbox_framing import (
     Unsupported,
     frame_regex,
     frames_pattern,

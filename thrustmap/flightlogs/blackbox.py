@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+import thrustmap.flightlogs.blackbox_format as blackbox_format
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs import blackbox_decode as bd
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.flightlogs import blackbox_decode as bd
+from thrustmap.flightlogs.series import FlightLog, Signal
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +73,7 @@ def median(x: FloatArray) -> float:
 
 
 def sniff(path: Path, head: bytes) -> bool:
-    return bd.LOG_START_MARKER[:30] in head
+    return blackbox_format.LOG_START_MARKER[:30] in head
 
 
 def read(
@@ -88,7 +89,7 @@ def read(
         data = p.read_bytes()
     except OSError as exc:
         raise DataFormatError(f"cannot read blackbox log: {exc.strerror}", file=str(p)) from None
-    ranges = bd.split_logs(data)
+    ranges = blackbox_format.split_logs(data)
     if not ranges:
         raise DataFormatError(
             "not a blackbox log: no 'H Product:Blackbox flight data recorder' header found",
@@ -102,7 +103,7 @@ def read(
     for i, (a, b) in enumerate(ranges):
         try:
             decoded = bd.decode_log(data[a:b], index=i, offset=a, keep_field=used_field)
-        except bd.CorruptFrame as exc:
+        except blackbox_format.CorruptFrame as exc:
             notes.append(f"log {i + 1} of {len(ranges)} skipped: {exc}")
             refused.append(refusal(i, len(ranges), f"corrupt: {exc}"))
             continue
@@ -156,7 +157,7 @@ def used_field(name: str) -> bool:
     return USED_FIELDS.fullmatch(name) is not None
 
 
-def table_from_decoded(d: bd.DecodedLog) -> BlackboxTable:
+def table_from_decoded(d: blackbox_format.DecodedLog) -> BlackboxTable:
     cols = {name: d.main[:, k].astype(float) for k, name in enumerate(d.main_fields)}
     time_us = cols.pop("time")
     # slow frames and events sit between main frames: time them at the next main frame (one
@@ -170,7 +171,7 @@ def table_from_decoded(d: bd.DecodedLog) -> BlackboxTable:
         k = d.slow_fields.index("flightModeFlags")
         mode_t = frame_time[np.clip(d.slow_frame_index, 0, n)]
         mode_f = d.slow[:, k].astype(np.int64)
-    disarm = [e.frame_index for e in d.events if e.kind == bd.EVENT_DISARM]
+    disarm = [e.frame_index for e in d.events if e.kind == blackbox_format.EVENT_DISARM]
     disarm_t = float(frame_time[min(disarm[0], n)]) if disarm else None
     meta: dict[str, Any] = {
         "frames": dict(d.stats),
@@ -231,7 +232,7 @@ def decide_vbat_scale(
     if len(good) == 0 or med * max(candidates) < 1.0:
         return None, "no battery voltage sensed (vbatLatest ~ 0)"
     plausible = [c for c in candidates if plausible_pack_voltage(med * c)]
-    vbatref = bd.header_int(headers, "vbatref", 0)
+    vbatref = blackbox_format.header_int(headers, "vbatref", 0)
     ref_v = None
     if vbatref > 0:
         ref_v = next(
@@ -287,12 +288,12 @@ def motor_scale(
     e.g. 158 = 5.5 %), not 0 %. PWM-family protocols: 0 % is ``mincommand`` (1000 when the
     headers lack it), 100 % the high end of ``motorOutput`` (maxthrottle); the low end
     (minthrottle) is idle."""
-    protocol = bd.header_int(headers, "motor_pwm_protocol", -1)
-    lo = bd.header_int(headers, "motorOutput", -1, 0)
-    hi = bd.header_int(headers, "motorOutput", -1, 1)
+    protocol = blackbox_format.header_int(headers, "motor_pwm_protocol", -1)
+    lo = blackbox_format.header_int(headers, "motorOutput", -1, 0)
+    hi = blackbox_format.header_int(headers, "motorOutput", -1, 1)
     if lo < 0 or hi <= lo:
-        lo = bd.header_int(headers, "minthrottle", -1)
-        hi = bd.header_int(headers, "maxthrottle", -1)
+        lo = blackbox_format.header_int(headers, "minthrottle", -1)
+        hi = blackbox_format.header_int(headers, "maxthrottle", -1)
     if firmware_version(headers)[0] == "INAV":
         return inav_motor_scale(headers, lo, hi, protocol, warnings)
     digital = protocol >= FIRST_DIGITAL_PROTOCOL
@@ -311,9 +312,9 @@ def motor_scale(
             f"end {idle:g} is the armed idle ({idle_pct:.1f} %)"
         )
         if "dshot_idle_value" in headers:
-            src += f", dshot_idle_value {bd.header_int(headers, 'dshot_idle_value', 0) / 100:g} %"
+            src += f", dshot_idle_value {blackbox_format.header_int(headers, 'dshot_idle_value', 0) / 100:g} %"
         return scale, idle, src
-    zero = bd.header_int(headers, "mincommand", -1)
+    zero = blackbox_format.header_int(headers, "mincommand", -1)
     if lo < 0 or hi <= lo:
         lo, hi = 1000, 2000
         warnings.append(f"motorOutput range unknown; assumed {lo}..{hi}")
@@ -341,7 +342,7 @@ def inav_motor_scale(
     writeMotors scales mincommand..maxthrottle onto DShot 48..2047 when it sends them. So 0 %
     is mincommand and 100 % maxthrottle; the ``motorOutput`` low end is the armed idle (the
     mixer's throttleIdleValue). Betaflight's DShot range never applies to these values."""
-    zero = bd.header_int(headers, "mincommand", -1)
+    zero = blackbox_format.header_int(headers, "mincommand", -1)
     zero_src = "mincommand"
     if not 0 < zero < hi:
         zero, zero_src = INAV_MINCOMMAND_DEFAULT, "INAV's default min_command (not in the headers)"
@@ -377,11 +378,11 @@ def accelerometer_off_reason(headers: dict[str, str]) -> str:
     said = []
     fw = firmware_version(headers)[0]
     if "acc_hardware" in headers:
-        hw = bd.header_int(headers, "acc_hardware", -1)
+        hw = blackbox_format.header_int(headers, "acc_hardware", -1)
         # Betaflight/Cleanflight accelerationSensor_e: 0 default (auto), 1 NONE
         none = hw == 1 and fw != "INAV"
         said.append(f"header acc_hardware:{headers['acc_hardware']}" + (" is NONE" if none else ""))
-    if "acc_1G" in headers and bd.header_int(headers, "acc_1G", -1) == 0:
+    if "acc_1G" in headers and blackbox_format.header_int(headers, "acc_1G", -1) == 0:
         said.append("acc_1G:0")
     return "all zero: accelerometer disabled?" + (f" {', '.join(said)}" if said else "")
 
@@ -489,7 +490,7 @@ def to_flightlog(
         if acc_1g is not None:
             source = "option"
         elif "acc_1G" in headers:
-            acc_1g, source = float(bd.header_int(headers, "acc_1G", 0)), "header"
+            acc_1g, source = float(blackbox_format.header_int(headers, "acc_1G", 0)), "header"
         else:
             acc_1g, source = None, ""
         if (acc_1g is None or acc_1g <= 0) and all(

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs.blackbox_format import (
+from thrustmap.flightlogs.blackbox_format import (
     ENC_NEG_14BIT,
     ENC_NULL,
     ENC_SIGNED_VB,

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap.fitting.flightlogs import blackbox_format as fmt
-from thrustmap.fitting.flightlogs import blackbox_frames as bfr
-from thrustmap.fitting.flightlogs.blackbox_framing import Unsupported, units
+from thrustmap.flightlogs import blackbox_format as fmt
+from thrustmap.flightlogs import blackbox_frames as bfr
+from thrustmap.flightlogs.blackbox_framing import Unsupported, units
 
 I64 = npt.NDArray[np.int64]
 

@@ -27,195 +27,38 @@ from collections.abc import Callable
 
 import numpy as np
 
-from thrustmap.fitting.flightlogs import blackbox_fast
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_NEG_14BIT as ENC_NEG_14BIT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_NULL as ENC_NULL,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_SIGNED_VB as ENC_SIGNED_VB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG2_3S32 as ENC_TAG2_3S32,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG8_4S16 as ENC_TAG8_4S16,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_TAG8_8SVB as ENC_TAG8_8SVB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ENC_UNSIGNED_VB as ENC_UNSIGNED_VB,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    END_OF_LOG_TEXT as END_OF_LOG_TEXT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_DISARM as EVENT_DISARM,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_FLIGHT_MODE as EVENT_FLIGHT_MODE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_INFLIGHT_ADJUSTMENT as EVENT_INFLIGHT_ADJUSTMENT,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_LOG_END as EVENT_LOG_END,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_LOGGING_RESUME as EVENT_LOGGING_RESUME,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    EVENT_SYNC_BEEP as EVENT_SYNC_BEEP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FRAME_MARKERS as FRAME_MARKERS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    HANDBACK_FRAMING as HANDBACK_FRAMING,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    HANDBACK_GAP as HANDBACK_GAP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    LOG_START_MARKER as LOG_START_MARKER,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_FIELDS as MAX_FIELDS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_FRAME_BYTES as MAX_FRAME_BYTES,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_INTERVAL as MAX_INTERVAL,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_ITERATION_JUMP as MAX_ITERATION_JUMP,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MAX_TIME_JUMP_US as MAX_TIME_JUMP_US,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    MIN_HANDBACK_BYTES as MIN_HANDBACK_BYTES,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_1500 as PRED_1500,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_AVERAGE_2 as PRED_AVERAGE_2,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_HOME_COORD as PRED_HOME_COORD,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_HOME_COORD_1 as PRED_HOME_COORD_1,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_INC as PRED_INC,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_LAST_MAIN_FRAME_TIME as PRED_LAST_MAIN_FRAME_TIME,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MINMOTOR as PRED_MINMOTOR,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MINTHROTTLE as PRED_MINTHROTTLE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_MOTOR_0 as PRED_MOTOR_0,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_PREVIOUS as PRED_PREVIOUS,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_STRAIGHT_LINE as PRED_STRAIGHT_LINE,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_VBATREF as PRED_VBATREF,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    PRED_ZERO as PRED_ZERO,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    WORK_PER_BYTE as WORK_PER_BYTE,
-)
+from thrustmap.flightlogs import blackbox_fast
 
 # the format and frame parsers, re-exported: `blackbox_decode.X` is where callers find them
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    BlackboxEvent as BlackboxEvent,
+from thrustmap.flightlogs.blackbox_format import (
+    EVENT_LOG_END,
+    EVENT_LOGGING_RESUME,
+    FRAME_MARKERS,
+    HANDBACK_FRAMING,
+    HANDBACK_GAP,
+    MAX_FRAME_BYTES,
+    MAX_INTERVAL,
+    MAX_ITERATION_JUMP,
+    MAX_TIME_JUMP_US,
+    MIN_HANDBACK_BYTES,
+    WORK_PER_BYTE,
+    BlackboxEvent,
+    CorruptFrame,
+    DecodedLog,
+    FrameDef,
+    FrameParser,
+    ResumeState,
+    _kept_fields,
+    _p_interval,
+    _skip_table,
+    _table,
+    corruption_summary,
+    header_int,
+    in_32bit_range,
+    parse_headers,
+    split_logs,
 )
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    CorruptFrame as CorruptFrame,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    DecodedLog as DecodedLog,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FrameDef as FrameDef,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    FrameParser as FrameParser,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    ResumeState as ResumeState,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _kept_fields as _kept_fields,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _p_interval as _p_interval,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _skip_table as _skip_table,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    _table as _table,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    corruption_summary as corruption_summary,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    header_int as header_int,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    in_32bit_range as in_32bit_range,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    parse_headers as parse_headers,
-)
-from thrustmap.fitting.flightlogs.blackbox_format import (
-    split_logs as split_logs,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _POPCOUNT as _POPCOUNT,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _TAG2_3S32_LEN as _TAG2_3S32_LEN,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _TAG8_4S16_V2_LEN as _TAG8_4S16_V2_LEN,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _parse_event as _parse_event,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _prediction as _prediction,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag2_3s32 as _read_tag2_3s32,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag8_4s16_v2 as _read_tag8_4s16_v2,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    _read_tag8_8svb as _read_tag8_8svb,
-)
-from thrustmap.fitting.flightlogs.blackbox_frames import (
-    compile_frame as compile_frame,
-)
+from thrustmap.flightlogs.blackbox_frames import _parse_event, compile_frame
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.flightlogs.series import FlightLog
-from thrustmap.fitting.flightlogs.telemetry import Telemetry
+from thrustmap.flightlogs.series import FlightLog
+from thrustmap.flightlogs.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 

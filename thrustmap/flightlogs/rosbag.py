@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.flightlogs.series import FlightLog, Signal
+from thrustmap.flightlogs.series import FlightLog, Signal
 
 log = logging.getLogger(__name__)
 

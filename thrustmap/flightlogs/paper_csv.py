@@ -28,7 +28,7 @@ import pandas as pd
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, scale
-from thrustmap.fitting.flightlogs.series import (
+from thrustmap.flightlogs.series import (
     FlightLog,
     FloatArray,
     Signal,

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import (
+from thrustmap.flightlogs.series import (
     FlightLog,
     FloatArray,
     Signal,

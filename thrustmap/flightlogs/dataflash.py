@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.copter_era import (
+from thrustmap.flightlogs.copter_era import (
     EV_ARMED,
     EV_DISARMED,
     climb_from_altitude,
@@ -37,7 +37,7 @@ from thrustmap.fitting.flightlogs.copter_era import (
     land_state_from_events,
     untimed_events,
 )
-from thrustmap.fitting.flightlogs.series import (
+from thrustmap.flightlogs.series import (
     FlightLog,
     FloatArray,
     Signal,

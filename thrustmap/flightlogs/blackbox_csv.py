@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from thrustmap.core.errors import DataFormatError
-from thrustmap.fitting.flightlogs.blackbox import BlackboxTable, FloatArray, to_flightlog
-from thrustmap.fitting.flightlogs.series import FlightLog
+from thrustmap.flightlogs.blackbox import BlackboxTable, FloatArray, to_flightlog
+from thrustmap.flightlogs.series import FlightLog
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ take longer. Two ways to put such a link in front of a device:
   pass at once. When the client goes, the proxy drops the device connection too (a SITL then
   takes the next client). Run it from a shell in front of a real SITL::
 
-      python -m thrustmap.rig.latency --listen 5762 --to 127.0.0.1:5761 --delay-ms 500
+      python -m support.latency_proxy --listen 5762 --to 127.0.0.1:5761 --delay-ms 500
       thrustmap probe tcp://127.0.0.1:5762
 
 The proxy listens on 127.0.0.1 only unless another address is named (``host=``,
@@ -165,7 +165,7 @@ class LatencyProxy:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m thrustmap.rig.latency",
+        prog="python -m support.latency_proxy",
         description="TCP proxy adding a fixed delay to every reply (test a slow MSP link).",
     )
     parser.add_argument("--listen", type=int, required=True, help="local TCP port to serve")

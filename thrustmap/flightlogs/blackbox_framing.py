@@ -15,8 +15,8 @@ import sys
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap.fitting.flightlogs import blackbox_format as fmt
-from thrustmap.fitting.flightlogs import blackbox_frames as bfr
+from thrustmap.flightlogs import blackbox_format as fmt
+from thrustmap.flightlogs import blackbox_frames as bfr
 
 #: a varint; the possessive {0,4}+ matches the same (a continuation byte can never end it) and
 #: saves the regex engine its backtracking bookkeeping (~25 % of the framing time); Python 3.10's

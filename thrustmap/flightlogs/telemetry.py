@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from thrustmap.core.units import ThrottleScale
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal
+from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +260,7 @@ class Telemetry:
         )
         layout = None
         if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
-            from thrustmap.fitting.flightlogs.dataflash import motor_layout
+            from thrustmap.flightlogs.dataflash import motor_layout
 
             layout = motor_layout(params, texts)
         if layout is None and vehicle_type in MAV_TYPE_ROTORS:
@@ -292,7 +292,7 @@ class Telemetry:
             "SERVO_OUTPUT_RAW.servo" + ",".join(map(str, chans)) + "_raw",
         )
         if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA and params:
-            from thrustmap.fitting.flightlogs.dataflash import pwm_scale
+            from thrustmap.flightlogs.dataflash import pwm_scale
 
             scale, src = pwm_scale(params)
         else:

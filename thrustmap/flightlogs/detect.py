@@ -21,7 +21,7 @@ from types import ModuleType
 from typing import Any, cast
 
 from thrustmap.core.errors import DataFormatError, ThrustmapError
-from thrustmap.fitting.flightlogs.series import FlightLog
+from thrustmap.flightlogs.series import FlightLog
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +113,7 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-_PKG = "thrustmap.fitting.flightlogs"
+_PKG = "thrustmap.flightlogs"
 
 #: Ordered: more specific magic first; the generic CSV reader last.
 READERS: list[Reader] = [

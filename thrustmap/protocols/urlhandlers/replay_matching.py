@@ -51,23 +51,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thrustmap.protocols.transcript import TranscriptEvent
-from thrustmap.protocols.urlhandlers.replay_protocols import (
-    MavlinkProtocol,
-    Message,
-    MspProtocol,
-    Protocol,
-    detect_protocol,
-)
+from thrustmap.protocols.urlhandlers.transcript_messages import Message, Protocol
 
 __all__ = [
     "Divergence",
-    "MavlinkProtocol",
     "Message",
     "MessageReplay",
-    "MspProtocol",
     "Protocol",
     "Unit",
-    "detect_protocol",
 ]
 
 log = logging.getLogger(__name__)

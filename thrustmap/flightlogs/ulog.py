@@ -25,8 +25,8 @@ import numpy.typing as npt
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.core.units import SCALES, ThrottleScale
-from thrustmap.fitting.flightlogs import ulog_fast
-from thrustmap.fitting.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
+from thrustmap.flightlogs import ulog_fast
+from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal, nanmedian
 
 log = logging.getLogger(__name__)
 
