@@ -87,7 +87,8 @@ def test_the_latency_proxy_listens_on_loopback_only() -> None:
 
 def _proxy_process(*extra: str) -> tuple[subprocess.Popen[bytes], int]:
     port = free_tcp_port()
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    tests = Path(__file__).resolve().parent  # support.latency_proxy lives in tests/support
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tests.parent), str(tests)]))
     child = subprocess.Popen(
         [sys.executable, "-m", "support.latency_proxy", "--listen", str(port)]
         + ["--to", "127.0.0.1:9", "--delay-ms", "10", *extra],

@@ -1,7 +1,7 @@
 """CLI: ``gamma live URL`` — γ(B) fitted while the vehicle flies, from its MAVLink telemetry.
 
 Thin over ``rig.fc.telemetry_stream`` (the link or a replayed recording),
-``fitting.flightlogs.telemetry`` (messages -> FlightLog) and ``fitting.gamma_live`` (the same
+``flightlogs.telemetry`` (messages -> FlightLog) and ``fitting.gamma_live`` (the same
 Df extraction and γ fit as `flightlog extract` and `gamma fit`). Heavy imports happen inside
 the command, so `thrustmap --help` stays fast.
 """

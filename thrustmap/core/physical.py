@@ -5,7 +5,7 @@ file's coefficients, a γ(B) about to be written — is checked here against phy
 the map it meets), so a careless input is refused in one line (exit 2) instead of producing a
 confident, wrong answer. Commands and loaders call these
 functions; they never carry their own copy of a range. (A flight log's acceleration is
-questioned by ``fitting.flightlogs.series.question_specific_force``, applied to every reader
+questioned by ``flightlogs.series.question_specific_force``, applied to every reader
 where ``fitting.df`` takes it: in g it is converted and said, unphysical it is refused.)
 
 Light on imports (no numpy): the CLI checks options with it before anything heavy is loaded.

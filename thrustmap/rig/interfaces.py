@@ -5,7 +5,7 @@ the peer is real, simulated (``sim://``) or a replayed transcript (``replay://``
 
 Safety contract of ``ThrottleOutput``: used as a context manager, its exit ALWAYS commands
 stop and verifies it where the protocol allows — on normal exit, on any exception, on
-KeyboardInterrupt and on SIGTERM (see ``rig.safety.terminate_as_exception``).
+KeyboardInterrupt and on SIGTERM (see ``rig.sigterm.terminate_as_exception``).
 """
 
 from __future__ import annotations
