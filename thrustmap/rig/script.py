@@ -19,7 +19,12 @@ from thrustmap.rig.session import BenchSession, Rig, choose_clock, exit_code, pa
 
 PROMPT = "Propellers on, stand secured, area clear? [y/N] "
 
-__all__ = ["PROMPT", "SegmentLog", "exit_code", "run_script", "script_exit_code"]
+__all__ = [
+    "PROMPT",
+    "SegmentLog",
+    "run_script",
+    "script_exit_code",
+]
 
 
 class SegmentLog:

@@ -41,10 +41,7 @@ from typing import IO
 from thrustmap.rig.watchdog_handle import DISARM, GIVE_UP_S, READY
 
 __all__ = [
-    "DISARM",
-    "GIVE_UP_S",
     "MAX_LOG_BYTES",
-    "READY",
     "main",
     "stop_motors",
     "wait_for_parent",

@@ -466,7 +466,6 @@ def decode_request(frame: MspFrame) -> MspMessage | None:
 
 
 __all__ = [
-    "AdvancedConfig",
     "Analog",
     "ApiVersion",
     "ArmingDisable",
@@ -477,16 +476,10 @@ __all__ = [
     "FcVariant",
     "FcVersion",
     "InavAnalog",
-    "Motor",
-    "MotorConfig",
-    "MotorTelemetry",
-    "MspCommand",
     "MspMessage",
-    "MspPayloadError",
     "REPLY_TYPES",
     "REQUEST_TYPES",
     "SetArmingDisabled",
-    "SetMotor",
     "Status",
     "StatusEx",
     "decode_reply",

@@ -55,9 +55,7 @@ from thrustmap.protocols.urlhandlers.transcript_messages import Message, Protoco
 
 __all__ = [
     "Divergence",
-    "Message",
     "MessageReplay",
-    "Protocol",
     "Unit",
 ]
 

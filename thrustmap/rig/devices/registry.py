@@ -16,7 +16,6 @@ from thrustmap.core.errors import ConfigError
 from thrustmap.rig.devices.declaration import Driver
 
 __all__ = [
-    "Driver",
     "driver",
     "drivers",
     "kind_aliases",

@@ -34,16 +34,9 @@ __all__ = [
     "AUTOPILOT_NAMES",
     "DRIVERS",
     "KINDS",
-    "ArduPilotThrottleOutput",
-    "MavlinkLinkLost",
-    "MavlinkThrottleOutput",
-    "Px4ThrottleOutput",
-    "SigningKey",
-    "UnsupportedAutopilot",
     "detect",
     "open_mavlink_output",
     "open_output",
-    "wait_for_vehicle_heartbeat",
 ]
 
 DRIVERS: dict[int, type[MavlinkThrottleOutput]] = {

@@ -546,7 +546,6 @@ __all__ = [
     "LoadCellCreep",
     "OperatingPoint",
     "PhysicsPlant",
-    "PlantParams",
     "cell_ocv_v",
     "creeping_reading",
     "duty_from_throttle",

@@ -67,15 +67,12 @@ __all__ = [
     "STREAMS",
     "TARE_TIMEOUT_S",
     "VERIFY_WAIT_S",
-    "FlightStandClient",
     "FlightStandCutoff",
-    "FlightStandError",
     "FlightStandEscOutput",
     "FlightStandStand",
     "ThrustReadsNegative",
     "describe_cutoff",
     "open_flightstand",
-    "parse_url",
 ]
 
 log = logging.getLogger(__name__)
