@@ -5,8 +5,11 @@ The Python API (each imported on first use, so ``import thrustmap`` costs nothin
 - stand data to a map: ``load_stand_logs``, ``fit``, ``compare``, ``load_map``, ``save_map``,
   ``predict`` (a ``Prediction`` with its interval), ``export``;
 - flight logs to γ(B): ``read_flight_log``, ``extract_df``, ``fit_gamma``, ``corrected_map``;
-- the bench: ``open_bench`` (a session on devices given by URL; it chooses its clock) and
-  ``plans`` (the plan builders: ``plans.stairs``, ``plans.steps``, ``plans.ramp``, ...).
+- the bench: ``open_bench`` (a session on devices given by URL; it chooses its clock),
+  ``plans`` (the plan builders: ``plans.stairs``, ``plans.steps``, ``plans.ramp``,
+  ``plans.adaptive`` with a ``MapChooser``), ``Limits`` (the interlocks), ``RunResult``, and
+  ``run_script``/``script_exit_code`` (a standalone bench script: its arguments, the
+  operator's confirmation, the run; ``scripts/``).
 
 See ``help(thrustmap.fit)`` and the API page of the docs (docs/api.md).
 """
@@ -31,9 +34,13 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time each name loads on 
         read_flight_log,
         save_map,
     )
+    from thrustmap.fitting.adaptive import MapChooser
     from thrustmap.rig import plans
+    from thrustmap.rig.interlocks import Limits
+    from thrustmap.rig.run_types import RunResult
+    from thrustmap.rig.script import run_script, script_exit_code
 
-#: the public API: name -> the module that defines it (``thrustmap.api``, the plan builders)
+#: the public API: name -> the module that defines it
 API = {
     **dict.fromkeys(
         (
@@ -54,9 +61,17 @@ API = {
         "thrustmap.api",
     ),
     "plans": "thrustmap.rig.plans",  # the module itself
+    "MapChooser": "thrustmap.fitting.adaptive",
+    "Limits": "thrustmap.rig.interlocks",
+    "RunResult": "thrustmap.rig.run_types",
+    "run_script": "thrustmap.rig.script",
+    "script_exit_code": "thrustmap.rig.script",
 }
 __all__ = [
+    "Limits",
+    "MapChooser",
     "Prediction",
+    "RunResult",
     "__version__",
     "compare",
     "corrected_map",
@@ -70,7 +85,9 @@ __all__ = [
     "plans",
     "predict",
     "read_flight_log",
+    "run_script",
     "save_map",
+    "script_exit_code",
 ]
 
 

@@ -29,7 +29,6 @@ import numpy as np
 
 from thrustmap.flightlogs import blackbox_fast
 
-# the format and frame parsers, re-exported: `blackbox_decode.X` is where callers find them
 from thrustmap.flightlogs.blackbox_format import (
     EVENT_LOG_END,
     EVENT_LOGGING_RESUME,

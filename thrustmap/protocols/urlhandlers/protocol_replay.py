@@ -8,7 +8,7 @@ absolute. Keyword arguments: ``strict=`` (default True), ``match=`` (default ``a
 Semantics:
 - ``match=messages`` (the default for a recording of MAVLink or MSP, recognised from its bytes):
   the recording is replayed message by message, so it outlives the driver that made it — the
-  rules are in ``replay_messages``. A real divergence raises ``ReplayDivergenceError`` in
+  rules are in ``replay_matching``. A real divergence raises ``ReplayDivergenceError`` in
   message terms ("expected PARAM_REQUEST_READ MOT_SPIN_ARM, driver sent COMMAND_LONG 209 ...")
   with the transcript line of the expected message.
 - ``match=bytes`` (the default for anything else, e.g. a stand's protocol): writes are matched

@@ -1,4 +1,4 @@
-"""A transcript read as messages, for message-level replay (``replay_messages``): each
+"""A transcript read as messages, for message-level replay (``replay_matching``): each
 protocol (MAVLink 2/1 on pymavlink, MSP v1/v2) splits a byte stream into frames and decodes a
 frame into a ``Message`` (its name, the fields compared, whether it is a barrier, a motor run or a
 stop, and the keys it asks or answers); ``detect_protocol`` recognises the protocol from the
