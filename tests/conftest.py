@@ -2,6 +2,7 @@
 
 ``shared_data``: the real recordings in ../shared/data (beside the project). Tests that need
 them skip with a clear reason when the folder is absent (a fresh clone elsewhere).
+``demo_run``: ``thrustmap demo`` run once for the whole session (it takes ~30 s).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import os
 from pathlib import Path
 
 import pytest
+from support.terminal import DemoRun
 
 # With pyarrow installed (the fleet extra), pandas keeps strings in Arrow, whose default
 # allocators (mimalloc/jemalloc) reserve large address ranges up front, so the fuzz suite's
@@ -46,3 +48,16 @@ def fresh_simulated_benches() -> None:
     peers = sys.modules.get("thrustmap.rig.sim.peers")
     if peers is not None:
         peers.reset_benches()
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> DemoRun:
+    """The demo, once per session: tests read its files and write theirs beside them (the
+    README's tour writes into ``folder``, the report tests into ``thrustmap-demo``), never
+    over them."""
+    from support.terminal import run_in_terminal
+
+    where = tmp_path_factory.mktemp("demo-run")
+    (where / "fixtures").symlink_to(FIXTURES)
+    code, output = run_in_terminal("thrustmap demo", where, timeout_s=600)
+    return DemoRun(where, code, output)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from support import simulate_flight as sim
+from support.terminal import DemoRun
 
 from thrustmap.cli import COMMANDS, main
 from thrustmap.fitting.mapfile import ThrustMap
@@ -91,14 +92,14 @@ def parse(text: str) -> Cells:
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """`thrustmap demo`, then a simulated flight on its SR map, `flightlog extract`, `gamma fit`."""
-    out = tmp_path_factory.mktemp("demo")
-    proc = subprocess.run(
-        [sys.executable, "-m", "thrustmap", "demo", "-o", str(out), "-q"],
-        capture_output=True, text=True, timeout=600, check=True,
-    )  # fmt: skip
-    reports = re.findall(r"^Report: (\S+)", proc.stdout, re.M)
+def demo(demo_run: DemoRun) -> dict[str, Any]:
+    """`thrustmap demo` (the session's one run), then a simulated flight on its SR map,
+    `flightlog extract`, `gamma fit`."""
+    assert demo_run.code == 0, demo_run.output
+    out = demo_run.folder / "thrustmap-demo"
+    reports = [
+        str(demo_run.folder / p) for p in re.findall(r"^Report: (\S+)", demo_run.output, re.M)
+    ]
     sr_map = out / "sr-map.json"
     tmap = ThrustMap.load(sr_map)
     flight = sim.simulate_hover(
@@ -125,10 +126,10 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     )  # fmt: skip
     return {
         "dir": out,
-        "stdout": proc.stdout,
+        "stdout": demo_run.output,
         "reports": reports,
         "map": out / "sr-gamma-map.json",
-        "logs": [str(s["path"]) for s in tmap.sources],
+        "logs": [str(demo_run.folder / s["path"]) for s in tmap.sources],
         "gamma": json.loads(fit.stdout),
         "html": html,
     }
