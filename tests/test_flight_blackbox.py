@@ -294,7 +294,7 @@ def test_simulated_header_layout_is_betaflight_like() -> None:
     enc = be.Encoder(be.SIM_HEADERS, be.SIM_MAIN, be.SIM_P_PREDICTOR, be.SIM_P_ENCODING)
     hdr, defs, pos = blackbox_format.parse_headers(enc.header_bytes())
     assert defs["I"].names[:2] == ["loopIteration", "time"] and pos == len(enc.header_bytes())
-    assert hdr["motorOutput"] == "158,2047" and blackbox_format._p_interval(hdr) == (1, 32)
+    assert hdr["motorOutput"] == "158,2047" and blackbox_format.p_interval(hdr) == (1, 32)
 
 
 def test_decoder_fast_path_without_wraps_falls_back_when_a_value_overflows() -> None:

@@ -6,10 +6,10 @@ import math
 import struct
 from pathlib import Path
 
-import pymavlink.dialects.v20 as v20
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from pymavlink.generator import mavparse
 
 from thrustmap.core.errors import ConfigError
@@ -52,7 +52,7 @@ def test_sys_status_round_trip_and_sentinels(
 
 
 def test_sys_status_raw_sentinels_decode_to_none() -> None:
-    msg = v20.mavlink2.MAVLink_sys_status_message(0, 0, 0, 0, 65535, -1, -1, 0, 0, 0, 0, 0, 0)
+    msg = mavlink2.MAVLink_sys_status_message(0, 0, 0, 0, 65535, -1, -1, 0, 0, 0, 0, 0, 0)
     assert round_trip(msg) == mav.SysStatus(voltage_v=None, current_a=None, remaining_pct=None)
 
 

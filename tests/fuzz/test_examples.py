@@ -38,11 +38,11 @@ def test_blackbox_skip_table_matches_the_reference_and_is_linear() -> None:
     for i_interval in (1, 2, 3, 7, 32, 33):
         for p_num, p_den in ((1, 1), (1, 2), (1, 16), (2, 3), (3, 7), (1, 40)):
             assert list(
-                blackbox_format._skip_table(i_interval, p_num, p_den)
+                blackbox_format.p_skip_counts(i_interval, p_num, p_den)
             ) == _skip_table_reference(i_interval, p_num, p_den)
     # the largest header the decoder accepts: 2·65535 steps, not 65535² (the old loop)
     t0 = time.process_time()
-    table = blackbox_format._skip_table(
+    table = blackbox_format.p_skip_counts(
         blackbox_format.MAX_INTERVAL, 1, blackbox_format.MAX_INTERVAL
     )
     assert time.process_time() - t0 < 5.0

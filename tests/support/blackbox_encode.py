@@ -107,7 +107,7 @@ class Encoder:
             "motor_low": blackbox_format.header_int(hd, "motorOutput", minthrottle, 0),
         }
         self.i_interval = max(blackbox_format.header_int(hd, "I interval", 32), 1)
-        self.skip = blackbox_format._skip_table(self.i_interval, *blackbox_format._p_interval(hd))
+        self.skip = blackbox_format.p_skip_counts(self.i_interval, *blackbox_format.p_interval(hd))
         self.motor0 = self.idef.names.index("motor[0]") if "motor[0]" in self.idef.names else -1
         self.prev: list[int] | None = None
         self.prev2: list[int] | None = None

@@ -15,8 +15,8 @@ from thrustmap.flightlogs.blackbox_framing import Unsupported, units
 
 I64 = npt.NDArray[np.int64]
 
-_T2LEN = np.asarray(bfr._TAG2_3S32_LEN, dtype=np.int64)
-_T4LEN = np.asarray(bfr._TAG8_4S16_V2_LEN, dtype=np.int64)
+_T2LEN = np.asarray(bfr.TAG2_3S32_LEN, dtype=np.int64)
+_T4LEN = np.asarray(bfr.TAG8_4S16_V2_LEN, dtype=np.int64)
 #: TAG8_4S16 field kinds 0..3: bits, value mask, sign bit (kind 0 reads 0; 1 gives it 0)
 _T4BITS = np.array([0, 4, 8, 16], dtype=np.int64)
 _T4MASK = np.array([0, 0xF, 0xFF, 0xFFFF], dtype=np.int64)

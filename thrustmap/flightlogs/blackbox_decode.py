@@ -28,7 +28,6 @@ from collections.abc import Callable
 import numpy as np
 
 from thrustmap.flightlogs import blackbox_fast
-
 from thrustmap.flightlogs.blackbox_format import (
     EVENT_LOG_END,
     EVENT_LOGGING_RESUME,
@@ -47,17 +46,17 @@ from thrustmap.flightlogs.blackbox_format import (
     FrameDef,
     FrameParser,
     ResumeState,
-    _kept_fields,
-    _p_interval,
-    _skip_table,
-    _table,
     corruption_summary,
     header_int,
     in_32bit_range,
+    kept_fields,
+    p_interval,
+    p_skip_counts,
     parse_headers,
+    rows_to_table,
     split_logs,
 )
-from thrustmap.flightlogs.blackbox_frames import _parse_event, compile_frame
+from thrustmap.flightlogs.blackbox_frames import compile_frame, parse_event
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +184,7 @@ def _decode_log(
         "motor_low": header_int(headers, "motorOutput", minthrottle, 0),
     }
     version = header_int(headers, "Data version", 2)
-    keep = _kept_fields(names, idef, pdef, motor0, keep_field)
+    keep = kept_fields(names, idef, pdef, motor0, keep_field)
     parsers: dict[int, FrameParser] = {}
     for marker, fd in (("I", idef), ("P", pdef)):
         if fd.encoding:
@@ -203,8 +202,8 @@ def _decode_log(
         raise CorruptFrame(
             f"header 'I interval: {i_interval}' is out of range; expected 1..{MAX_INTERVAL}"
         )
-    p_num, p_den = _p_interval(headers)
-    skip_table = _skip_table(i_interval, p_num, p_den)
+    p_num, p_den = p_interval(headers)
+    skip_table = p_skip_counts(i_interval, p_num, p_den)
     home_idx = [
         defs["H"].names.index(k) if "H" in defs and k in defs["H"].names else -1
         for k in ("GPS_home[0]", "GPS_home[1]")
@@ -298,7 +297,7 @@ def _decode_log(
             and not garbage_run
             and not rollover
         ):
-            main_now = _table(main_rows, nfields if keep is None else len(keep))
+            main_now = rows_to_table(main_rows, nfields if keep is None else len(keep))
             if resume is not None and main_offset:
                 main_now = np.concatenate((resume.main, main_now))
             return ResumeState(
@@ -335,7 +334,7 @@ def _decode_log(
             elif m == mark_i:
                 vals, p = parsers[m](d, pos + 1, prev or zeros, zeros, 0, last_time, home)
             elif m == mark_e:
-                kind, payload, p = _parse_event(d, pos + 1)
+                kind, payload, p = parse_event(d, pos + 1)
                 vals = []
                 event = (kind, payload)
             else:
@@ -424,7 +423,7 @@ def _decode_log(
 
     sdef = defs.get("S", FrameDef())
     gdef = defs.get("G", FrameDef())
-    main = _table(main_rows, nfields if keep is None else len(keep))
+    main = rows_to_table(main_rows, nfields if keep is None else len(keep))
     if resume is not None and main_offset:
         main = np.concatenate((resume.main, main)) if len(main) else resume.main
     return DecodedLog(
@@ -433,10 +432,10 @@ def _decode_log(
         main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
         main=main,
         slow_fields=list(sdef.names),
-        slow=_table(slow_rows, len(sdef.names)),
+        slow=rows_to_table(slow_rows, len(sdef.names)),
         slow_frame_index=np.array(slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=_table(gps_rows, len(gdef.names)),
+        gps=rows_to_table(gps_rows, len(gdef.names)),
         events=events,
         stats=stats,
         warnings=warnings,

@@ -196,9 +196,9 @@ def _layout(headers: dict[str, str], defs: dict[str, fmt.FrameDef],
     i_interval = max(fmt.header_int(headers, "I interval", 32), 1)
     if i_interval > fmt.MAX_INTERVAL:
         raise Unsupported("I interval")
-    p_num, p_den = fmt._p_interval(headers)
-    skip = np.asarray(fmt._skip_table(i_interval, p_num, p_den), dtype=np.int64)
-    keep = fmt._kept_fields(names, idef, pdef, motor0, keep_field)
+    p_num, p_den = fmt.p_interval(headers)
+    skip = np.asarray(fmt.p_skip_counts(i_interval, p_num, p_den), dtype=np.int64)
+    keep = fmt.kept_fields(names, idef, pdef, motor0, keep_field)
     kept = list(range(nf)) if keep is None else sorted(keep)
     # slow (S), GPS (G) and GPS-home (H) frames: few, parsed by the reference's own parsers
     aux_defs = {ord(m): defs[m] for m in "SGH" if m in defs and defs[m].names and defs[m].encoding}
@@ -350,10 +350,10 @@ def _decode(
         main_fields=[layout.names[k] for k in layout.kept],
         main=main,
         slow_fields=list(sdef.names),
-        slow=fmt._table(aux.slow_rows, len(sdef.names)),
+        slow=fmt.rows_to_table(aux.slow_rows, len(sdef.names)),
         slow_frame_index=np.array(aux.slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=fmt._table(aux.gps_rows, len(gdef.names)),
+        gps=fmt.rows_to_table(aux.gps_rows, len(gdef.names)),
         events=aux.events,
         stats=aux.stats,
         warnings=aux.warnings,
@@ -383,7 +383,7 @@ def _aux_frames(
         strict=True,
     ):
         if kind == ord("E"):
-            ev, payload, p = bfr._parse_event(section, at + 1)
+            ev, payload, p = bfr.parse_event(section, at + 1)
             if ev == fmt.EVENT_LOGGING_RESUME:
                 aux.resumed = (before, int(payload[0]), int(payload[1]))
                 if before < len(fr.main_at):
@@ -471,7 +471,7 @@ def _wrapped_by_reference(
     pred = (list(fd.predictor) + [fmt.PRED_ZERO] * n)[fi]
     if pred == fmt.PRED_INC:
         return True
-    if bfr._prediction(fi, pred, constants, motor0) != "0":
+    if bfr.prediction_code(fi, pred, constants, motor0) != "0":
         return True
     enc = (list(fd.encoding) + [fmt.ENC_NULL] * n)[fi]
     return enc == fmt.ENC_UNSIGNED_VB

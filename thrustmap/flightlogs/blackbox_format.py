@@ -202,7 +202,7 @@ def header_int(headers: dict[str, str], key: str, default: int, position: int = 
         return default
 
 
-def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
+def p_interval(headers: dict[str, str]) -> tuple[int, int]:
     """(num, denom): log ``num`` of every ``denom`` loop iterations ("1/16" or, newer, "16")."""
     text = headers.get("P interval", "1/1").strip()
     try:
@@ -221,7 +221,7 @@ def _p_interval(headers: dict[str, str]) -> tuple[int, int]:
 
 
 @functools.lru_cache(maxsize=16)
-def _skip_table(i_interval: int, p_num: int, p_den: int) -> tuple[int, ...]:
+def p_skip_counts(i_interval: int, p_num: int, p_den: int) -> tuple[int, ...]:
     """For each iteration (mod I interval): iterations skipped before the next logged one
     (cached: the logs of a file share their intervals)."""
 
@@ -261,7 +261,7 @@ def _main_signed(headers: dict[str, str], n: int) -> list[int]:
     return (signed + [0] * n)[:n]
 
 
-def _kept_fields(
+def kept_fields(
     names: list[str],
     idef: FrameDef,
     pdef: FrameDef,
@@ -286,7 +286,7 @@ def _kept_fields(
     return keep
 
 
-def _table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
+def rows_to_table(rows: list[list[int]], width: int) -> npt.NDArray[np.int64]:
     if not rows:
         return np.zeros((0, width), dtype=np.int64)
     if sum(map(len, rows)) != len(rows) * width:  # ragged: let numpy say so

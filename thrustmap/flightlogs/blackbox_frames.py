@@ -63,16 +63,16 @@ def _read_uvb_tail(d: bytes, p: int, first: int) -> tuple[int, int]:
 
 
 #: bits set in each byte value
-_POPCOUNT = [bin(v).count("1") for v in range(256)]
+POPCOUNT = [bin(v).count("1") for v in range(256)]
 #: bytes a TAG2_3S32 group takes, by its lead byte (the lead included)
-_TAG2_3S32_LEN = [
+TAG2_3S32_LEN = [
     (1, 2, 3)[lead >> 6]
     if lead >> 6 < 3
     else 1 + sum(((lead >> (2 * i)) & 3) + 1 for i in range(3))
     for lead in range(256)
 ]
 #: bytes a TAG8_4S16 group (data version 2) takes after its selector: nibbles 0/1/2/4 per field
-_TAG8_4S16_V2_LEN = [
+TAG8_4S16_V2_LEN = [
     (sum((0, 1, 2, 4)[(sel >> (2 * i)) & 3] for i in range(4)) + 1) // 2 for sel in range(256)
 ]
 
@@ -271,7 +271,7 @@ _UVB = (
 )
 
 
-def _prediction(i: int, predictor: int, constants: dict[str, int], motor0: int) -> str:
+def prediction_code(i: int, predictor: int, constants: dict[str, int], motor0: int) -> str:
     """Python expression for the value predicted for field ``i`` (added to the residual)."""
     if predictor == PRED_ZERO:
         return "0"
@@ -444,7 +444,7 @@ class _FrameLayout:
         for k, fi in enumerate(group):
             if not live[fi]:
                 continue
-            pe = _prediction(fi, self.pred[fi], self.constants, self.motor0)
+            pe = prediction_code(fi, self.pred[fi], self.constants, self.motor0)
             lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
             if pe != "0":
                 lines.append(_wrap(fi, bool(self.signed[fi])))
@@ -485,7 +485,7 @@ class _FrameLayout:
             raise CorruptFrame(f"unsupported field encoding {e} for field '{self.names[i]}'")
         if not self.live[i]:
             return
-        pe = _prediction(i, self.pred[i], self.constants, self.motor0)
+        pe = prediction_code(i, self.pred[i], self.constants, self.motor0)
         if pe == "0":
             lines.append(f"    f[{i}] = v\n")
             if e == ENC_UNSIGNED_VB:
@@ -503,9 +503,9 @@ def _exec_parser(source: str, fd: FrameDef, data_version: int) -> FrameParser:
     namespace: dict[str, Any] = {
         "_uvb_tail": _read_uvb_tail,
         "_skip_vb": _skip_vb,
-        "_popcount": _POPCOUNT,
-        "_t2len": _TAG2_3S32_LEN,
-        "_t4len": _TAG8_4S16_V2_LEN,
+        "_popcount": POPCOUNT,
+        "_t2len": TAG2_3S32_LEN,
+        "_t4len": TAG8_4S16_V2_LEN,
         "_tag8_8svb": _read_tag8_8svb,
         "_tag2_3s32": _read_tag2_3s32,
         "_tag8_4s16_v1": _read_tag8_4s16_v1,
@@ -523,7 +523,7 @@ def _uvb(d: bytes, p: int) -> tuple[int, int]:
     return _read_uvb_tail(d, p + 1, b) if b & 0x80 else (b, p + 1)
 
 
-def _parse_event(d: bytes, p: int) -> tuple[int, tuple[float, ...], int]:
+def parse_event(d: bytes, p: int) -> tuple[int, tuple[float, ...], int]:
     kind = d[p]
     p += 1
     if kind == EVENT_SYNC_BEEP:

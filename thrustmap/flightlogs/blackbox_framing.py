@@ -101,13 +101,13 @@ def _unit_regex(e: int, count: int) -> bytes:
         mask = (1 << count) - 1
         alts = []
         for c in range(count + 1):
-            heads = [h for h in range(256) if bfr._POPCOUNT[h & mask] == c]
+            heads = [h for h in range(256) if bfr.POPCOUNT[h & mask] == c]
             alts.append(_byte_class(heads) + (b"(?:" + _VB + b"){%d}" % c if c else b""))
         return b"(?:" + b"|".join(alts) + b")"
     if e == fmt.ENC_TAG2_3S32:
-        return _by_length(bfr._TAG2_3S32_LEN, 1)
+        return _by_length(bfr.TAG2_3S32_LEN, 1)
     if e == fmt.ENC_TAG8_4S16:
-        return _by_length(bfr._TAG8_4S16_V2_LEN, 0)
+        return _by_length(bfr.TAG8_4S16_V2_LEN, 0)
     if e == fmt.ENC_NULL:
         return b""
     return _VB
@@ -143,7 +143,7 @@ def frame_regex(fd: fmt.FrameDef) -> bytes:
     return b"".join(parts)
 
 
-#: events as :func:`blackbox_frames._parse_event` reads them
+#: events as :func:`blackbox_frames.parse_event` reads them
 _EVENT_REGEX = (
     b"E(?:\\x00" + _VB
     + b"|\\x0d(?:[\\x80-\\xff].{4}|[\\x00-\\x7f]" + _VB + b")"
