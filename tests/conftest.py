@@ -59,5 +59,7 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> DemoRun:
 
     where = tmp_path_factory.mktemp("demo-run")
     (where / "fixtures").symlink_to(FIXTURES)
-    code, output = run_in_terminal("thrustmap demo", where, timeout_s=600)
+    # the README's `thrustmap demo`, its folder named in full: the maps then record their
+    # logs' full paths, so a report of them works from any folder
+    code, output = run_in_terminal('thrustmap demo -o "$PWD/thrustmap-demo"', where, timeout_s=600)
     return DemoRun(where, code, output)

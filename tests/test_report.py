@@ -97,9 +97,8 @@ def demo(demo_run: DemoRun) -> dict[str, Any]:
     `flightlog extract`, `gamma fit`."""
     assert demo_run.code == 0, demo_run.output
     out = demo_run.folder / "thrustmap-demo"
-    reports = [
-        str(demo_run.folder / p) for p in re.findall(r"^Report: (\S+)", demo_run.output, re.M)
-    ]
+    # a long path goes on its own line after "Report:" at 80 columns (wrapped between words)
+    reports = re.findall(r"^Report:\s+(\S+)", demo_run.output, re.M)
     sr_map = out / "sr-map.json"
     tmap = ThrustMap.load(sr_map)
     flight = sim.simulate_hover(

@@ -66,9 +66,9 @@ def run_in_terminal(
 
 @dataclass(frozen=True)
 class DemoRun:
-    """One ``thrustmap demo`` as the README's set-up step runs it: in ``folder`` (its results
-    in ``folder / "thrustmap-demo"``, paths printed relative to ``folder``), on an 80-column
-    terminal; its exit code and every line the terminal received."""
+    """One ``thrustmap demo`` as the README's set-up step runs it: in ``folder``, its results in
+    ``folder / "thrustmap-demo"``, on an 80-column terminal; its exit code and every line the
+    terminal received."""
 
     folder: Path
     code: int
