@@ -31,7 +31,6 @@ FORWARDING_ALLOWED = {
 TO_SPLIT_LONG = {
     "thrustmap.fitting.selection.steady:steady_state",
     "thrustmap.fitting.df.extraction:extract_flight_columns",
-    "thrustmap.flightlogs.blackbox_decode:_decode_log",
     "thrustmap.fitting.gamma:fit_gamma",
     "thrustmap.cli.fleet:extract_cmd",
     "thrustmap.cli.gammalive:gamma_live_cmd",
