@@ -37,7 +37,6 @@ TO_SPLIT_LONG = {
     "thrustmap.cli.flight:gamma_fit_cmd",
     "thrustmap.cli.fitcmd:predict_cmd",
     "thrustmap.fitting.export.firmware.ardupilot:export_ardupilot",
-    "thrustmap.fitting.adaptive:assess",
     "thrustmap.fitting.interval:learn_interval",
 }
 TO_SPLIT_PARAMETERS = {

@@ -258,16 +258,8 @@ class MapChooser:
             # the target holds where fit will say it does: over the supported region too
             worst_all = max(worst_all, fitted.worst_over_region_pct)
         worst = worst_all if math.isfinite(worst_all) else None  # None: no interval yet
-        note = ""
-        span = b_hi - b_lo
         mean_b = float(b.mean())
-        if span < IDENTIFY_SPAN_REL * mean_b and self.voltage_range_v is None:
-            note = (
-                f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V): "
-                "how the map scales with voltage rests on motor physics; for a measured "
-                "scaling, continue on a battery at another charge or a bench supply "
-                f"(at least {IDENTIFY_SPAN_REL * mean_b:.1f} V apart)"
-            )
+        note = "" if self.voltage_range_v is not None else _voltage_span_note(b_lo, b_hi, mean_b)
 
         def pi_at(thrust_n: float, volts: float) -> float | None:
             value = float(fitted.half_width_pct(np.array([thrust_n]), np.array([volts]))[0])
@@ -398,6 +390,19 @@ def _voltage_model(
     c_t = min(float(coef[1]), 0.0)  # more thrust never raises the battery voltage
     predicted_now = float(coef[0] + coef[2] * now_s)
     return np.asarray(predicted_now + c_t * grid_t, dtype=np.float64)
+
+
+def _voltage_span_note(b_lo: float, b_hi: float, mean_b: float) -> str:
+    """What to say when the points' voltages are too close to identify the voltage scaling."""
+    span = b_hi - b_lo
+    if span >= IDENTIFY_SPAN_REL * mean_b:
+        return ""
+    return (
+        f"voltage span {span:.2f} V ({100 * span / mean_b:.1f} % of {mean_b:.2f} V): "
+        "how the map scales with voltage rests on motor physics; for a measured "
+        "scaling, continue on a battery at another charge or a bench supply "
+        f"(at least {IDENTIFY_SPAN_REL * mean_b:.1f} V apart)"
+    )
 
 
 def _keep_going(why: str) -> Verdict:
