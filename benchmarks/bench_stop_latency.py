@@ -16,7 +16,12 @@ Run: python benchmarks/bench_stop_latency.py
 
 from __future__ import annotations
 
-from support.latency_proxy import LaggedPeer
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the proxy: tests/support
+
+from support.latency_proxy import LaggedPeer  # noqa: E402
 
 import thrustmap.rig.devices.urls as urls
 from thrustmap.core.clock import SimClock

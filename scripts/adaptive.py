@@ -11,11 +11,7 @@ marked with the outcome, and its sidecar says why each point was chosen and why 
 
 from __future__ import annotations
 
-from thrustmap.fitting.adaptive import MapChooser
-from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.run_types import RunResult
-from thrustmap.rig.script import run_script, script_exit_code
+import thrustmap
 
 # The range the plan may command, in % of the ESC's throttle range (PWM 1000..2000 µs).
 FROM_PCT, TO_PCT = 10.0, 60.0
@@ -25,28 +21,28 @@ THRUST_RANGE_N = None  # the envelope (LO, HI) in N; None: what the coarse pass 
 MAX_MINUTES, MAX_WH = 10.0, None  # budgets: bench time, battery energy (None: no budget)
 DWELL_S, RECORD_S = 3.0, 1.0  # each hold: until settled (at most DWELL_S), then RECORD_S more
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
-LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
+LIMITS = thrustmap.Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
 # The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
 # and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
 STAND = "sim://tyto-1585?bench=script&drive_esc=0"
 THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
-def plan() -> plans.Plan:
-    return plans.adaptive(
-        MapChooser(TARGET_PI_PCT, thrust_range_n=THRUST_RANGE_N),
+def plan() -> thrustmap.plans.Plan:
+    return thrustmap.plans.adaptive(
+        thrustmap.MapChooser(TARGET_PI_PCT, thrust_range_n=THRUST_RANGE_N),
         FROM_PCT,
         TO_PCT,
         coarse_levels=COARSE_LEVELS,
         dwell_s=DWELL_S,
         record_s=RECORD_S,
-        budget=plans.Budget(max_minutes=MAX_MINUTES, max_wh=MAX_WH),
+        budget=thrustmap.plans.Budget(max_minutes=MAX_MINUTES, max_wh=MAX_WH),
     )
 
 
 # The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
-def main(argv: list[str] | None = None) -> RunResult | None:
-    return run_script(
+def main(argv: list[str] | None = None) -> thrustmap.RunResult | None:
+    return thrustmap.run_script(
         plan(),
         argv,
         limits=LIMITS,
@@ -61,4 +57,4 @@ def main(argv: list[str] | None = None) -> RunResult | None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(script_exit_code(main()))
+    raise SystemExit(thrustmap.script_exit_code(main()))

@@ -10,10 +10,7 @@ Up and down ramps in pairs cancel most of the rotor's lag; slower ramps leave le
 
 from __future__ import annotations
 
-from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.run_types import RunResult
-from thrustmap.rig.script import run_script, script_exit_code
+import thrustmap
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 70 % = 1700 µs).
 FROM_PCT, TO_PCT = 0.0, 70.0  # bottom and top of the ramp
@@ -21,20 +18,22 @@ DURATION_S = 30.0  # seconds for each ramp (up, and again down)
 HOLD_S = 1.0  # seconds at the bottom before and at the top between the ramps
 REPEATS = 1  # up/down pairs
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
-LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
+LIMITS = thrustmap.Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
 # The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
 # and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
 STAND = "sim://tyto-1585?bench=script&drive_esc=0"
 THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
-def plan() -> plans.Plan:
-    return plans.ramp(FROM_PCT, TO_PCT, duration_s=DURATION_S, repeats=REPEATS, hold_s=HOLD_S)
+def plan() -> thrustmap.plans.Plan:
+    return thrustmap.plans.ramp(
+        FROM_PCT, TO_PCT, duration_s=DURATION_S, repeats=REPEATS, hold_s=HOLD_S
+    )
 
 
 # The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
-def main(argv: list[str] | None = None) -> RunResult | None:
-    return run_script(
+def main(argv: list[str] | None = None) -> thrustmap.RunResult | None:
+    return thrustmap.run_script(
         plan(),
         argv,
         limits=LIMITS,
@@ -49,4 +48,4 @@ def main(argv: list[str] | None = None) -> RunResult | None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(script_exit_code(main()))
+    raise SystemExit(thrustmap.script_exit_code(main()))

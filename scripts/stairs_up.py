@@ -9,10 +9,7 @@ stops the motor and verifies the stop; the log is kept and marked with the outco
 
 from __future__ import annotations
 
-from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.run_types import RunResult
-from thrustmap.rig.script import run_script, script_exit_code
+import thrustmap
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 10 % = 1100 µs).
 FROM_PCT, TO_PCT, STEP_PCT = 10.0, 60.0, 5.0  # the levels
@@ -20,15 +17,15 @@ DWELL_S = 3.0  # seconds on each level
 REPEATS = 1  # run the whole staircase this many times
 SETTLE, RECORD_S = False, 1.0  # True: a hold ends RECORD_S after thrust settles (dwell = max)
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
-LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
+LIMITS = thrustmap.Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
 # The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
 # and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
 STAND = "sim://tyto-1585?bench=script&drive_esc=0"
 THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
-def plan() -> plans.Plan:
-    return plans.stairs(
+def plan() -> thrustmap.plans.Plan:
+    return thrustmap.plans.stairs(
         FROM_PCT,
         TO_PCT,
         STEP_PCT,
@@ -41,8 +38,8 @@ def plan() -> plans.Plan:
 
 
 # The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
-def main(argv: list[str] | None = None) -> RunResult | None:
-    return run_script(
+def main(argv: list[str] | None = None) -> thrustmap.RunResult | None:
+    return thrustmap.run_script(
         plan(),
         argv,
         limits=LIMITS,
@@ -57,4 +54,4 @@ def main(argv: list[str] | None = None) -> RunResult | None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(script_exit_code(main()))
+    raise SystemExit(thrustmap.script_exit_code(main()))

@@ -9,10 +9,7 @@ stops the motor and verifies the stop; the log is kept and marked with the outco
 
 from __future__ import annotations
 
-from thrustmap.rig import plans
-from thrustmap.rig.interlocks import Limits
-from thrustmap.rig.run_types import RunResult
-from thrustmap.rig.script import run_script, script_exit_code
+import thrustmap
 
 # The experiment, in % of the ESC's throttle range (PWM 1000..2000 µs: 10 % = 1100 µs).
 FROM_PCT, TO_PCT, STEP_PCT = 15.0, 60.0, 5.0  # the step levels
@@ -20,19 +17,19 @@ LOW_PCT = 10.0  # the level every step returns to
 DWELL_S, LOW_DWELL_S = 3.0, 2.0  # seconds on a step, seconds back at the low level
 SETTLE, RECORD_S = False, 1.0  # True: a hold ends RECORD_S after thrust settles (dwell = max)
 MOTOR, ROTORS_ON_ESC = 1, 1  # the motor on the load cell (1-based); rotors on the ESC: 1 SR, 4 MR
-LIMITS = Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
+LIMITS = thrustmap.Limits(max_throttle_pct=75.0, max_thrust_n=20.0, max_current_a=60.0)
 # The devices: a serial port ("/dev/ttyUSB0", "COM3") or the built-in simulator (a Tyto 1585
 # and a Betaflight FC, PWM 1000..2000 µs as in the paper, on one xNova 2207 / 6S bench).
 STAND = "sim://tyto-1585?bench=script&drive_esc=0"
 THROTTLE = f"sim://betaflight?bench=script&rotors={ROTORS_ON_ESC}&protocol=PWM"
 
 
-def plan() -> plans.Plan:
-    return plans.steps(
+def plan() -> thrustmap.plans.Plan:
+    return thrustmap.plans.steps(
         FROM_PCT,
         TO_PCT,
         STEP_PCT,
-        low=plans.Low(LOW_PCT, LOW_DWELL_S),
+        low=thrustmap.plans.Low(LOW_PCT, LOW_DWELL_S),
         dwell_s=DWELL_S,
         settle=SETTLE,
         record_s=RECORD_S,
@@ -40,8 +37,8 @@ def plan() -> plans.Plan:
 
 
 # The same few lines close every script on purpose: each one stays standalone (copy it anywhere).
-def main(argv: list[str] | None = None) -> RunResult | None:
-    return run_script(
+def main(argv: list[str] | None = None) -> thrustmap.RunResult | None:
+    return thrustmap.run_script(
         plan(),
         argv,
         limits=LIMITS,
@@ -56,4 +53,4 @@ def main(argv: list[str] | None = None) -> RunResult | None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(script_exit_code(main()))
+    raise SystemExit(thrustmap.script_exit_code(main()))

@@ -5,6 +5,7 @@
 while collecting, from ``support.shared.shared_data_dir``). ``public_data``: the public files of
 benchmarks/public-data.toml by name, size and sha256 checked. Tests that need either skip with
 an allow-listed reason (tests/skip-allowlist.toml) when it is absent (a fresh clone elsewhere).
+``demo_run``: ``thrustmap demo`` run once for the whole session (it takes ~30 s).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from support.skip_gate import (  # noqa: F401 - hooks: --skip-report (the CI's s
     pytest_runtest_logreport,
     pytest_sessionfinish,
 )
+from support.terminal import DemoRun
 
 # With pyarrow installed (the fleet extra), pandas keeps strings in Arrow, whose default
 # allocators (mimalloc/jemalloc) reserve large address ranges up front, so the fuzz suite's
@@ -63,3 +65,18 @@ def fresh_simulated_benches() -> None:
     peers = sys.modules.get("thrustmap.rig.sim.peers")
     if peers is not None:
         peers.reset_benches()
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> DemoRun:
+    """The demo, once per session: tests read its files and write theirs beside them (the
+    README's tour writes into ``folder``, the report tests into ``thrustmap-demo``), never
+    over them."""
+    from support.terminal import run_in_terminal
+
+    where = tmp_path_factory.mktemp("demo-run")
+    (where / "fixtures").symlink_to(FIXTURES)
+    # the README's `thrustmap demo`, its folder named in full: the maps then record their
+    # logs' full paths, so a report of them works from any folder
+    code, output = run_in_terminal('thrustmap demo -o "$PWD/thrustmap-demo"', where, timeout_s=600)
+    return DemoRun(where, code, output)

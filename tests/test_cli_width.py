@@ -7,76 +7,23 @@ its subcommand a short usage (exit 2), never a one-line "error: Usage".
 
 from __future__ import annotations
 
-import fcntl
-import os
 import re
-import select
 import shlex
-import struct
-import subprocess
-import sys
-import termios
-import time
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from support.terminal import DemoRun, run_in_terminal
 
 from thrustmap.cli import cli, textwidth
 
 ROOT = Path(__file__).resolve().parent.parent
-ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07]*\x07|[()][0-9A-Za-z]|[=>78])")
 
 
 def run_cli(*args: str) -> tuple[int, str, str]:
     """``thrustmap ARGS`` in this process (stdout and stderr apart)."""
     result = CliRunner().invoke(cli, list(args), prog_name="thrustmap", terminal_width=80)
     return result.exit_code, result.stdout, result.stderr
-
-
-def run_in_terminal(
-    command: str, cwd: Path, cols: int = 80, timeout_s: float = 180
-) -> tuple[int, str]:
-    """``command`` (a shell line; ``thrustmap`` is this checkout's CLI) on a cols-wide pty.
-
-    Returns the exit code and every line the terminal received, escape sequences removed and
-    each carriage-return segment a line of its own (a live panel redraws with them).
-    """
-    master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, cols, 0, 0))
-    # COLUMNS as the issue asks; the CLI itself reads the terminal's size, which is the same
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "TERM": "xterm-256color", "COLUMNS": str(cols)}
-    env.pop("LINES", None)
-    shell = f'thrustmap() {{ {shlex.quote(sys.executable)} -m thrustmap "$@"; }}; {command}'
-    proc = subprocess.Popen(
-        ["bash", "-c", shell], cwd=cwd, stdin=slave, stdout=slave, stderr=slave, env=env,
-        start_new_session=True,
-    )  # fmt: skip
-    os.close(slave)
-    chunks: list[bytes] = []
-    deadline = time.monotonic() + timeout_s
-    try:
-        while time.monotonic() < deadline:
-            ready, _, _ = select.select([master], [], [], 0.2)
-            if ready:
-                try:
-                    data = os.read(master, 65536)
-                except OSError:  # the child closed the terminal
-                    break
-                if not data:
-                    break
-                chunks.append(data)
-            elif proc.poll() is not None:
-                break
-        code = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        os.close(master)
-    text = ANSI.sub("", b"".join(chunks).decode("utf-8", "replace"))
-    lines = [seg for line in text.split("\n") for seg in line.split("\r")]
-    return code, "\n".join(lines)
 
 
 def tour_commands() -> list[str]:
@@ -106,15 +53,14 @@ def test_readme_is_short_and_has_the_two_setup_commands() -> None:
 
 
 @pytest.fixture(scope="module")
-def tour(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[tuple[int, str]]]:
-    """The README's set-up step (``thrustmap demo``), then every tour command in order (each
-    may use what the one before wrote), on an 80-column terminal: the folder and each
-    command's exit code and lines."""
-    where = tmp_path_factory.mktemp("tour")
-    (where / "fixtures").symlink_to(ROOT / "fixtures")
-    code, out = run_in_terminal("thrustmap demo", where)
-    assert code == 0, out
-    wide = [ln for ln in out.splitlines() if len(ln) > 80]
+def tour(demo_run: DemoRun) -> tuple[Path, list[tuple[int, str]]]:
+    """The README's set-up step (``thrustmap demo``: the session's one run, on an 80-column
+    terminal), then every tour command in order in its folder (each may use what the one
+    before wrote), on an 80-column terminal: the folder and each command's exit code and
+    lines."""
+    where = demo_run.folder
+    assert demo_run.code == 0, demo_run.output
+    wide = [ln for ln in demo_run.output.splitlines() if len(ln) > 80]
     assert not wide, wide
     return where, [run_in_terminal(command, where) for command in tour_commands()]
 

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 import support.simulate_flight as simulate_flight
 from support import telemetry_flight as tf
+from support.sockets import wait_until_bound
 
 from thrustmap.cli.gammalive import PANEL_WIDTH, panel_lines
 from thrustmap.fitting.df.options import DfOptions
@@ -210,7 +211,10 @@ def _start_live(tmp_path: Path, port: int, *extra: str) -> subprocess.Popen[str]
     proc = subprocess.Popen(
         args, cwd=tmp_path, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
-    time.sleep(2.0)  # the interpreter starts and binds the port
+    if not wait_until_bound(proc.pid, port):  # the interpreter starts and binds the port
+        proc.kill()
+        _, err = proc.communicate(timeout=10)
+        raise AssertionError(f"gamma live never bound udp port {port}: {err[-2000:]}")
     return proc
 
 

@@ -15,47 +15,12 @@ from pathlib import Path
 
 import pytest
 from support.latency_proxy import LatencyProxy
+from support.sockets import listening_sockets
 
 PROC_NET = Path("/proc/net")
 pytestmark = pytest.mark.skipif(
     not (PROC_NET / "tcp").exists(), reason="needs Linux /proc/net to list listening sockets"
 )
-LISTEN = "0A"  # TCP_LISTEN in /proc/net/tcp
-UNCONNECTED_UDP = "07"  # a bound UDP socket (TCP_CLOSE): it receives from anyone
-
-
-def _address(hex_address: str, v6: bool) -> str:
-    host_hex, _ = hex_address.split(":")
-    raw = bytes.fromhex(host_hex)
-    if v6:  # four host-order 32-bit words
-        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, 16, 4))
-        return str(ipaddress.IPv6Address(raw))
-    return str(ipaddress.IPv4Address(raw[::-1]))
-
-
-def listening_sockets(pid: int) -> list[tuple[str, str, int]]:
-    """(protocol, address, port) of every TCP socket listening and every UDP socket bound,
-    unconnected, that process ``pid`` holds."""
-    inodes = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
-        try:
-            target = os.readlink(fd)
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[len("socket:[") : -1])
-    found = []
-    for name, state in (("tcp", LISTEN), ("tcp6", LISTEN), ("udp", UNCONNECTED_UDP)):
-        path = Path(f"/proc/{pid}/net/{name}")
-        if not path.exists():
-            continue
-        for line in path.read_text().splitlines()[1:]:
-            fields = line.split()
-            if fields[3] != state or fields[9] not in inodes:
-                continue
-            port = int(fields[1].split(":")[1], 16)
-            found.append((name, _address(fields[1], name.endswith("6")), port))
-    return found
 
 
 def outside_loopback(sockets: list[tuple[str, str, int]]) -> list[tuple[str, str, int]]:
@@ -87,7 +52,8 @@ def test_the_latency_proxy_listens_on_loopback_only() -> None:
 
 def _proxy_process(*extra: str) -> tuple[subprocess.Popen[bytes], int]:
     port = free_tcp_port()
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    tests = Path(__file__).resolve().parent  # support.latency_proxy lives in tests/support
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tests.parent), str(tests)]))
     child = subprocess.Popen(
         [sys.executable, "-m", "support.latency_proxy", "--listen", str(port)]
         + ["--to", "127.0.0.1:9", "--delay-ms", "10", *extra],

@@ -22,6 +22,7 @@ import pytest
 from support import simulate_flight as sim
 from support.shared import ABSENT_REASON as SHARED_ABSENT
 from support.shared import shared_data_dir
+from support.terminal import DemoRun
 
 from thrustmap.cli import COMMANDS, main
 from thrustmap.fitting.mapfile import ThrustMap
@@ -93,14 +94,13 @@ def parse(text: str) -> Cells:
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """`thrustmap demo`, then a simulated flight on its SR map, `flightlog extract`, `gamma fit`."""
-    out = tmp_path_factory.mktemp("demo")
-    proc = subprocess.run(
-        [sys.executable, "-m", "thrustmap", "demo", "-o", str(out), "-q"],
-        capture_output=True, text=True, timeout=600, check=True,
-    )  # fmt: skip
-    reports = re.findall(r"^Report: (\S+)", proc.stdout, re.M)
+def demo(demo_run: DemoRun) -> dict[str, Any]:
+    """`thrustmap demo` (the session's one run), then a simulated flight on its SR map,
+    `flightlog extract`, `gamma fit`."""
+    assert demo_run.code == 0, demo_run.output
+    out = demo_run.folder / "thrustmap-demo"
+    # a long path goes on its own line after "Report:" at 80 columns (wrapped between words)
+    reports = re.findall(r"^Report:\s+(\S+)", demo_run.output, re.M)
     sr_map = out / "sr-map.json"
     tmap = ThrustMap.load(sr_map)
     flight = sim.simulate_hover(
@@ -127,10 +127,10 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     )  # fmt: skip
     return {
         "dir": out,
-        "stdout": proc.stdout,
+        "stdout": demo_run.output,
         "reports": reports,
         "map": out / "sr-gamma-map.json",
-        "logs": [str(s["path"]) for s in tmap.sources],
+        "logs": [str(demo_run.folder / s["path"]) for s in tmap.sources],
         "gamma": json.loads(fit.stdout),
         "html": html,
     }

@@ -28,11 +28,11 @@ CHILD = textwrap.dedent(
     """
     import sys, time
     from thrustmap.core.clock import MonotonicClock
-    from thrustmap.rig import connect
+    from thrustmap.rig.devices.opening import open_throttle_output
     from thrustmap.rig.sigterm import terminate_as_exception
 
     url, log, mode = sys.argv[1], sys.argv[2], sys.argv[3]
-    out = connect.open_throttle_output(url, MonotonicClock(), kind="msp", watchdog_log=log)
+    out = open_throttle_output(url, MonotonicClock(), kind="msp", watchdog_log=log)
     out.identify()
     out.set_throttle({0: 1300.0})
     if mode == "clean":

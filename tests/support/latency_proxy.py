@@ -10,7 +10,7 @@ take longer. Two ways to put such a link in front of a device:
 - :class:`LatencyProxy` is a TCP proxy (one client at a time, as a SITL's MSP port): bytes from
   the device reach the client ``delay_s`` after they arrived, in order; bytes from the client
   pass at once. When the client goes, the proxy drops the device connection too (a SITL then
-  takes the next client). Run it from a shell in front of a real SITL::
+  takes the next client). Run it from a shell in front of a real SITL (from ``tests/``)::
 
       python -m support.latency_proxy --listen 5762 --to 127.0.0.1:5761 --delay-ms 500
       thrustmap probe tcp://127.0.0.1:5762

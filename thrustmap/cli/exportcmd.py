@@ -102,30 +102,26 @@ def export_cmd(
         physical.positive(mass_kg, "--mass-kg", "kg")
     if rotors is not None and not 1 <= rotors <= 64:
         raise ConfigError(f"--rotors: expected 1..64 rotors, got {rotors}")
-    from thrustmap.fitting.export.encodings import ExportOptions
-    from thrustmap.fitting.export.targets import export_map
-    from thrustmap.fitting.mapfile import ThrustMap
+    from thrustmap.api import export, load_map
 
     plan = None
     if output is not None:
         from thrustmap.core.files import check_output_path
 
         plan = check_output_path(output, inputs=[map_file], what="export output")
-    tmap = ThrustMap.load(map_file)
+    tmap = load_map(map_file)
     if mass_kg is not None and (why := tmap.hover_refusal(mass_kg, rotors or 4)) is not None:
         raise ConfigError(f"--mass-kg: {why}")
-    result = export_map(
+    result = export(
         tmap,
         target,
-        ExportOptions(
-            range_=range_,
-            encoding=encoding,
-            mass_kg=mass_kg,
-            rotors=rotors,
-            voltage_v=voltage_v,
-            firmware=firmware,
-            spin_max=spin_max,
-        ),
+        range_=range_,
+        encoding=encoding,
+        mass_kg=mass_kg,
+        rotors=rotors,
+        voltage_v=voltage_v,
+        firmware=firmware,
+        spin_max=spin_max,
     )
     if output is None or plan is None:
         click.echo(result.text, nl=False)  # the file itself: never wrapped

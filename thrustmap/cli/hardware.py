@@ -1,6 +1,6 @@
 """``thrustmap ports``, ``thrustmap probe URL`` and ``thrustmap spin URL``: talk to the hardware.
 
-Thin layers over ``thrustmap.rig.connect`` and ``thrustmap.rig.spin``. URLs are device paths
+Thin layers over ``thrustmap.rig.devices`` and ``thrustmap.rig.spin``. URLs are device paths
 (``/dev/ttyACM0``, ``COM3``), ``sim://<peer>`` simulated devices, ``record://<url>?file=x.jsonl``
 and ``replay://x.jsonl``, or ``socket://host:port``.
 

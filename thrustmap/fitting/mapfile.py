@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-import thrustmap
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
 from thrustmap.core.physical import gamma_outside_band, hover_outside_map
 from thrustmap.core.units import ThrottleScale
+from thrustmap.core.version import package_version
 from thrustmap.fitting.interval import Interval, Region, Standing, interval_range
 from thrustmap.fitting.models import Model, get_model, motor_forward
 
@@ -140,7 +140,7 @@ class ThrustMap:
     supported: Region | None = None
     # read when a map is made, not when this module is imported (importlib.metadata: ~20-60 ms
     # of every command that reads a map, e.g. each fleet worker)
-    tool_version: str = field(default_factory=lambda: thrustmap.__version__)
+    tool_version: str = field(default_factory=package_version)
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
     )

@@ -24,12 +24,12 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from thrustmap.flightlogs import blackbox_fast
-
-# the format and frame parsers, re-exported: `blackbox_decode.X` is where callers find them
 from thrustmap.flightlogs.blackbox_format import (
     EVENT_LOG_END,
     EVENT_LOGGING_RESUME,
@@ -156,28 +156,71 @@ def _in_32bit_range(log: DecodedLog) -> bool:
     return in_32bit_range(log.headers, log.main_fields, log.main)
 
 
-def _decode_log(
-    section: bytes,
-    index: int,
-    offset: int,
-    *,
-    wrap: bool,
-    keep_field: Callable[[str], bool] | None = None,
-    resume: ResumeState | None = None,
-    handback_after: int | None = None,
-) -> DecodedLog | ResumeState:
-    """Decode frame by frame (from ``resume`` when given). ``handback_after``: stop at the first
-    intra frame from that byte on that follows a good frame (no rollover so far), and return
-    the state there for the bulk decoder to carry on from."""
+@dataclass(frozen=True)
+class _RefLayout:
+    """A log's frame layouts as the per-frame decoder uses them: a compiled parser per marker,
+    the skipped-frame counts of the P interval, and each frame's work."""
+
+    headers: dict[str, str]
+    defs: dict[str, FrameDef]
+    names: list[str]  # the main-frame fields
+    keep: frozenset[int] | None
+    parsers: dict[int, FrameParser]
+    i_interval: int
+    skip_table: tuple[int, ...]
+    home_idx: list[int]
+    widths: dict[int, int]  # marker -> fields (the work budget)
+    zeros: list[int]  # a main frame of zeros (the history before the first one)
+
+    @property
+    def columns(self) -> int:
+        return len(self.names) if self.keep is None else len(self.keep)
+
+    def parse(
+        self,
+        d: bytes,
+        pos: int,
+        prev: list[int] | None,
+        prev2: list[int],
+        last_iter: int,
+        last_time: int,
+        home: list[int],
+    ) -> tuple[list[int], int, tuple[int, tuple[float, ...]] | None]:
+        """The frame at ``pos`` (any marker): its values, where it ends, and its event (for an
+        ``E`` frame). Raises ``IndexError`` at the end of the data, ``CorruptFrame``."""
+        m = d[pos]
+        zeros = self.zeros
+        if m == MARK_P:
+            if prev is None:
+                vals, p = self.parsers[m](d, pos + 1, zeros, zeros, 0, 0, home)
+            else:
+                skipped = self.skip_table[last_iter % self.i_interval]
+                vals, p = self.parsers[m](d, pos + 1, prev, prev2, skipped, last_time, home)
+        elif m == MARK_I:
+            vals, p = self.parsers[m](d, pos + 1, prev or zeros, zeros, 0, last_time, home)
+        elif m == MARK_E:
+            kind, payload, p = parse_event(d, pos + 1)
+            return [], p, (kind, payload)
+        else:
+            fd = self.defs[chr(m)]
+            vals, p = self.parsers[m](d, pos + 1, [0] * len(fd.names), [], 0, last_time, home)
+        return vals, p, None
+
+
+MARK_I, MARK_P, MARK_E, MARK_S, MARK_G, MARK_H = (ord(c) for c in "IPESGH")
+
+
+def _reference_layout(
+    section: bytes, wrap: bool, keep_field: Callable[[str], bool] | None
+) -> tuple[_RefLayout, int]:
+    """The layout from the headers, and where the frames begin."""
     headers, defs, pos = parse_headers(section)
-    warnings: list[str] = []
     idef = defs.get("I")
     if idef is None or not idef.names:
         raise CorruptFrame("the header defines no main-frame fields ('H Field I name')")
     pdef = defs.get("P", FrameDef())
     pdef = FrameDef(idef.names, idef.signed, pdef.predictor, pdef.encoding)
     names = idef.names
-    nfields = len(names)
     motor0 = names.index("motor[0]") if "motor[0]" in names else -1
     minthrottle = header_int(headers, "minthrottle", 1150)
     constants = {
@@ -205,77 +248,116 @@ def _decode_log(
             f"header 'I interval: {i_interval}' is out of range; expected 1..{MAX_INTERVAL}"
         )
     p_num, p_den = p_interval(headers)
-    skip_table = p_skip_counts(i_interval, p_num, p_den)
-    home_idx = [
-        defs["H"].names.index(k) if "H" in defs and k in defs["H"].names else -1
-        for k in ("GPS_home[0]", "GPS_home[1]")
-    ]
-
-    d = section
-    n = len(d)
-    markers = frozenset(FRAME_MARKERS)
-    zeros = [0] * nfields
-    main_rows: list[list[int]] = []
-    slow_rows: list[list[int]] = []
-    slow_index: list[int] = []
-    gps_rows: list[list[int]] = []
-    events: list[BlackboxEvent] = []
-    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
-    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
-    prev: list[int] | None = None
-    prev2: list[int] = zeros
-    last_iter = -1
-    last_time = -1
-    rollover = 0
-    home = [0, 0]
-    ended = False
-    tail_start = -1
-    garbage_run = False
-    mark_i, mark_p, mark_e = ord("I"), ord("P"), ord("E")
-    mark_s, mark_g, mark_h = ord("S"), ord("G"), ord("H")
     widths = {ord(k): max(len(fd.names), 1) for k, fd in defs.items()}
-    widths[mark_i] = widths[mark_p] = max(nfields, 1)
-    budget = WORK_PER_BYTE * n + 100_000
-    out_of_budget = -1
-    main_offset = 0  # main frames decoded before ``resume.pos`` (not in main_rows)
-    if resume is not None:
-        pos, prev, last_iter, last_time, home = (
-            resume.pos, resume.prev, resume.last_iter, resume.last_time, list(resume.home)
-        )  # fmt: skip
-        prev2 = zeros if resume.prev2 is None else resume.prev2
-        budget -= resume.work_done
-        main_offset = len(resume.main)
-        slow_rows, slow_index = list(resume.slow_rows), list(resume.slow_index)
-        gps_rows, events = list(resume.gps_rows), list(resume.events)
-        stats.update(resume.stats)
-        warnings = list(resume.warnings)
-    starts_frame = bytes(sorted({*parsers, mark_e} & set(markers)))
-    skip_run = re.compile(b"[^" + re.escape(starts_frame) + b"]+").match
-    parse_p = parsers.get(mark_p)
-    width_main = widths[mark_p]
-    append = main_rows.append
+    widths[MARK_I] = widths[MARK_P] = max(len(names), 1)
+    layout = _RefLayout(
+        headers=headers, defs=defs, names=list(names), keep=keep, parsers=parsers,
+        i_interval=i_interval, skip_table=p_skip_counts(i_interval, p_num, p_den),
+        home_idx=[
+            defs["H"].names.index(k) if "H" in defs and k in defs["H"].names else -1
+            for k in ("GPS_home[0]", "GPS_home[1]")
+        ],
+        widths=widths, zeros=[0] * len(names),
+    )  # fmt: skip
+    return layout, pos
 
+
+@dataclass
+class _RefState:
+    """What the per-frame decoder collects besides the main frames (and carries over from a
+    ``ResumeState``)."""
+
+    slow_rows: list[list[int]] = field(default_factory=list)
+    slow_index: list[int] = field(default_factory=list)
+    gps_rows: list[list[int]] = field(default_factory=list)
+    events: list[BlackboxEvent] = field(default_factory=list)
+    stats: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    home: list[int] = field(default_factory=lambda: [0, 0])
+    main_offset: int = 0  # main frames decoded before ``resume.pos`` (not in main_rows)
+    ended: bool = False
+
+    @classmethod
+    def after(cls, resume: ResumeState | None) -> _RefState:
+        stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
+        stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+        if resume is None:
+            return cls(stats=stats)
+        stats.update(resume.stats)
+        return cls(
+            list(resume.slow_rows), list(resume.slow_index), list(resume.gps_rows),
+            list(resume.events), stats, list(resume.warnings), list(resume.home),
+            len(resume.main),
+        )  # fmt: skip
+
+    def event(self, event: tuple[int, tuple[float, ...]], main_rows: int) -> bool:
+        """An event frame; True when it ends the log."""
+        self.stats["E"] += 1
+        kind, payload = event
+        self.events.append(BlackboxEvent(self.main_offset + main_rows, kind, payload))
+        self.ended = kind == EVENT_LOG_END
+        return self.ended
+
+    def aux_frame(self, m: int, vals: list[int], main_rows: int, home_idx: list[int]) -> None:
+        """A slow, GPS or GPS-home frame."""
+        if m == MARK_S:
+            self.stats["S"] += 1
+            self.slow_rows.append(vals)
+            self.slow_index.append(self.main_offset + main_rows)
+        elif m == MARK_G:
+            self.stats["G"] += 1
+            self.gps_rows.append(vals)
+        elif m == MARK_H:
+            self.stats["H"] += 1
+            self.home = [vals[k] if k >= 0 else 0 for k in home_idx]
+
+    def main_table(self, rows: list[list[int]], lay: _RefLayout, resume: ResumeState | None) -> Any:
+        main = rows_to_table(rows, lay.columns)
+        if resume is not None and self.main_offset:
+            main = np.concatenate((resume.main, main)) if len(main) else resume.main
+        return main
+
+
+def _decode_log(
+    section: bytes,
+    index: int,
+    offset: int,
+    *,
+    wrap: bool,
+    keep_field: Callable[[str], bool] | None = None,
+    resume: ResumeState | None = None,
+    handback_after: int | None = None,
+) -> DecodedLog | ResumeState:
+    """Decode frame by frame (from ``resume`` when given). ``handback_after``: stop at the first
+    intra frame from that byte on that follows a good frame (no rollover so far), and return
+    the state there for the bulk decoder to carry on from."""
+    lay, pos = _reference_layout(section, wrap, keep_field)
+    st = _RefState.after(resume)
+    d, n = section, len(section)
+    markers = frozenset(FRAME_MARKERS)
+    main_rows: list[list[int]] = []
+    pos, prev, prev2, last_iter, last_time, budget = _start(lay, pos, n, resume)
+    rollover, tail_start, out_of_budget, garbage_run = 0, -1, -1, False
+    handback_at = handback_after if handback_after is not None else n + 1
+    skip_run = _garbage_pattern(lay, markers)
+    parse_p, skip_table, i_interval = lay.parsers.get(MARK_P), lay.skip_table, lay.i_interval
+    width_main = lay.widths[MARK_P]
+    append = main_rows.append
     while pos < n:
         m = d[pos]
-        if m == mark_p and prev is not None and parse_p is not None and budget > width_main:
+        if m == MARK_P and prev is not None and parse_p is not None and budget > width_main:
             # the common case, an inter frame after a good frame: the general path below, with
             # every check, in one place; anything unusual falls through to it (and is re-read)
             try:
                 vals, p = parse_p(
-                    d, pos + 1, prev, prev2, skip_table[last_iter % i_interval], last_time, home
+                    d, pos + 1, prev, prev2, skip_table[last_iter % i_interval], last_time, st.home
                 )
             except (IndexError, CorruptFrame):
                 p = -1
             if p > pos and p - pos - 1 <= MAX_FRAME_BYTES and (p >= n or d[p] in markers):
                 t = (vals[1] & 0xFFFFFFFF) + rollover
-                roll = 0
-                if (
-                    last_time >= 0
-                    and t < last_time
-                    and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US
-                ):
-                    roll = 1 << 32
-                    t += roll
+                roll = _rollover(t, last_time)
+                t += roll
                 it = vals[0]
                 if (
                     last_iter <= it < last_iter + MAX_ITERATION_JUMP
@@ -284,7 +366,7 @@ def _decode_log(
                     budget -= width_main
                     rollover += roll
                     vals[1] = t
-                    stats["P"] += 1
+                    st.stats["P"] += 1
                     append(vals)
                     prev2 = prev
                     prev = vals
@@ -292,124 +374,145 @@ def _decode_log(
                     garbage_run = False
                     pos = p
                     continue
-        if (
-            m == mark_i
-            and handback_after is not None
-            and pos >= handback_after
-            and not garbage_run
-            and not rollover
-        ):
-            main_now = rows_to_table(main_rows, nfields if keep is None else len(keep))
-            if resume is not None and main_offset:
-                main_now = np.concatenate((resume.main, main_now))
-            return ResumeState(
-                pos=pos, main=main_now, prev=prev, prev2=prev2, last_iter=last_iter,
-                last_time=last_time, home=list(home),
-                work_done=WORK_PER_BYTE * n + 100_000 - budget, slow_rows=slow_rows,
-                slow_index=slow_index, gps_rows=gps_rows, events=events, stats=dict(stats),
-                warnings=list(warnings),
-            )  # fmt: skip
-        if m not in markers or m not in parsers and m != mark_e:
+        if m == MARK_I and pos >= handback_at and not (garbage_run or rollover):
+            work_done = WORK_PER_BYTE * n + 100_000 - budget
+            history = (prev, prev2, last_iter, last_time, work_done)
+            return _handback(st, lay, resume, pos, main_rows, history)
+        if m not in markers or m not in lay.parsers and m != MARK_E:
             # a run of bytes no frame starts with (erased flash after a cut-off log: megabytes
             # of 0xFF) is skipped at once, as byte by byte
-            found = skip_run(d, pos)
-            run = found.end() - pos if found is not None else 1
-            stats["skipped_bytes"] += run
-            if not garbage_run and (main_rows or main_offset):
+            run = found.end() - pos if (found := skip_run(d, pos)) is not None else 1
+            st.stats["skipped_bytes"] += run
+            if not garbage_run and (main_rows or st.main_offset):
                 prev = None
             garbage_run = True
             pos += run
             continue
         start = pos
-        budget -= widths.get(m, 1)
+        budget -= lay.widths.get(m, 1)
         if budget < 0:
             out_of_budget = start
             break
-        event: tuple[int, tuple[float, ...]] | None = None
         try:
-            if m == mark_p:
-                if prev is None:
-                    vals, p = parsers[m](d, pos + 1, zeros, zeros, 0, 0, home)
-                else:
-                    skipped = skip_table[last_iter % i_interval]
-                    vals, p = parsers[m](d, pos + 1, prev, prev2, skipped, last_time, home)
-            elif m == mark_i:
-                vals, p = parsers[m](d, pos + 1, prev or zeros, zeros, 0, last_time, home)
-            elif m == mark_e:
-                kind, payload, p = parse_event(d, pos + 1)
-                vals = []
-                event = (kind, payload)
-            else:
-                fd = defs[chr(m)]
-                vals, p = parsers[m](d, pos + 1, [0] * len(fd.names), [], 0, last_time, home)
+            vals, p, event = lay.parse(d, pos, prev, prev2, last_iter, last_time, st.home)
         except IndexError:
             tail_start = start
             break
         except CorruptFrame:
-            p = -1
+            p, event = -1, None
         bad = p < 0 or p - start - 1 > MAX_FRAME_BYTES or (p < n and d[p] not in markers)
         if bad and (event is None or event[0] != EVENT_LOG_END):
-            stats["corrupt"] += 1
+            st.stats["corrupt"] += 1
             prev = None
             pos = start + 1
             garbage_run = True
             continue
         garbage_run = False
         pos = p
-        if m in (mark_i, mark_p):
+        if m in (MARK_I, MARK_P):
             t = (vals[1] & 0xFFFFFFFF) + rollover
-            if (
-                last_time >= 0
-                and t < last_time
-                and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US
-            ):
-                rollover += 1 << 32
-                t += 1 << 32
+            roll = _rollover(t, last_time)
+            rollover += roll
+            t += roll
             vals[1] = t
             it = vals[0]
-            if m == mark_p:
-                if prev is None:
-                    stats["dropped_p"] += 1
-                    continue
-                ok = last_iter <= it < last_iter + MAX_ITERATION_JUMP and (
-                    last_time <= t < last_time + MAX_TIME_JUMP_US
-                )
-            else:
-                ok = last_iter < 0 or (it >= last_iter and t >= last_time)
-                if ok and last_iter >= 0 and t - last_time >= MAX_TIME_JUMP_US:
-                    warnings.append(
-                        f"log {index + 1}: {1e-6 * (t - last_time):.1f} s gap in the data "
-                        f"after t = {1e-6 * last_time:.3f} s"
-                    )
-            if not ok:
-                stats["invalid_main"] += 1
+            if m == MARK_P and prev is None:
+                st.stats["dropped_p"] += 1
+                continue
+            if not _plausible(m, it, t, last_iter, last_time, index, st.warnings):
+                st.stats["invalid_main"] += 1
                 prev = None
                 continue
-            stats["P" if m == mark_p else "I"] += 1
+            st.stats["P" if m == MARK_P else "I"] += 1
             main_rows.append(vals)
-            prev2 = vals if m == mark_i else (prev or vals)
+            prev2 = vals if m == MARK_I else (prev or vals)
             prev = vals
             last_iter, last_time = it, t
         elif event is not None:
-            stats["E"] += 1
-            kind, payload = event
-            events.append(BlackboxEvent(main_offset + len(main_rows), kind, payload))
-            if kind == EVENT_LOGGING_RESUME:
-                last_iter, last_time = int(payload[0]), int(payload[1]) + rollover
-            elif kind == EVENT_LOG_END:
-                ended = True
+            if st.event(event, len(main_rows)):  # the end of the log
                 break
-        elif m == mark_s:
-            stats["S"] += 1
-            slow_rows.append(vals)
-            slow_index.append(main_offset + len(main_rows))
-        elif m == mark_g:
-            stats["G"] += 1
-            gps_rows.append(vals)
-        elif m == mark_h:
-            stats["H"] += 1
-            home = [vals[k] if k >= 0 else 0 for k in home_idx]
+            if event[0] == EVENT_LOGGING_RESUME:
+                last_iter, last_time = int(event[1][0]), int(event[1][1]) + rollover
+        else:
+            st.aux_frame(m, vals, len(main_rows), lay.home_idx)
+    return _finish(st, lay, resume, main_rows, (index, offset, n, tail_start, out_of_budget))
 
+
+def _start(
+    lay: _RefLayout, pos: int, n: int, resume: ResumeState | None
+) -> tuple[int, list[int] | None, list[int], int, int, int]:
+    """Where decoding starts: position, the last two main frames, the last iteration and time,
+    and the work budget left (all from ``resume`` when given)."""
+    budget = WORK_PER_BYTE * n + 100_000
+    if resume is None:
+        return pos, None, lay.zeros, -1, -1, budget
+    prev2 = lay.zeros if resume.prev2 is None else resume.prev2
+    return (resume.pos, resume.prev, prev2, resume.last_iter, resume.last_time,
+            budget - resume.work_done)  # fmt: skip
+
+
+def _rollover(t: int, last_time: int) -> int:
+    """``1 << 32`` when a time below the last one is the 32-bit timer wrapping, else 0."""
+    if last_time >= 0 and t < last_time and ((t - last_time) & 0xFFFFFFFF) < MAX_TIME_JUMP_US:
+        return 1 << 32
+    return 0
+
+
+def _garbage_pattern(lay: _RefLayout, markers: frozenset[int]) -> Callable[..., Any]:
+    """Matches a run of bytes no frame starts with (skipped at once)."""
+    starts_frame = bytes(sorted({*lay.parsers, MARK_E} & set(markers)))
+    return re.compile(b"[^" + re.escape(starts_frame) + b"]+").match
+
+
+def _plausible(
+    m: int, it: int, t: int, last_iter: int, last_time: int, index: int, warnings: list[str]
+) -> bool:
+    """A main frame's iteration and time against the last good frame's (the reference's
+    checks); an intra frame after a long gap is kept, with a warning."""
+    if m == MARK_P:
+        return last_iter <= it < last_iter + MAX_ITERATION_JUMP and (
+            last_time <= t < last_time + MAX_TIME_JUMP_US
+        )
+    ok = last_iter < 0 or (it >= last_iter and t >= last_time)
+    if ok and last_iter >= 0 and t - last_time >= MAX_TIME_JUMP_US:
+        warnings.append(
+            f"log {index + 1}: {1e-6 * (t - last_time):.1f} s gap in the data "
+            f"after t = {1e-6 * last_time:.3f} s"
+        )
+    return ok
+
+
+def _handback(
+    st: _RefState,
+    lay: _RefLayout,
+    resume: ResumeState | None,
+    pos: int,
+    main_rows: list[list[int]],
+    history: tuple[list[int] | None, list[int], int, int, int],
+) -> ResumeState:
+    """The state at ``pos`` for the bulk decoder to carry on from."""
+    prev, prev2, last_iter, last_time, work_done = history
+    main_now = rows_to_table(main_rows, lay.columns)
+    if resume is not None and st.main_offset:
+        main_now = np.concatenate((resume.main, main_now))
+    return ResumeState(
+        pos=pos, main=main_now, prev=prev, prev2=prev2, last_iter=last_iter,
+        last_time=last_time, home=list(st.home), work_done=work_done, slow_rows=st.slow_rows,
+        slow_index=st.slow_index, gps_rows=st.gps_rows, events=st.events, stats=dict(st.stats),
+        warnings=list(st.warnings),
+    )  # fmt: skip
+
+
+def _finish(
+    st: _RefState,
+    lay: _RefLayout,
+    resume: ResumeState | None,
+    main_rows: list[list[int]],
+    where: tuple[int, int, int, int, int],
+) -> DecodedLog:
+    """The decoded log, with what was skipped said once."""
+    index, offset, n, tail_start, out_of_budget = where
+    warnings = st.warnings
     if tail_start >= 0:
         warnings.append(
             f"log {index + 1}: truncated or corrupt tail at byte {offset + tail_start} "
@@ -420,28 +523,24 @@ def _decode_log(
             f"log {index + 1}: too corrupt to resynchronise economically; decoding stopped at "
             f"byte {offset + out_of_budget} ({n - out_of_budget} bytes ignored)"
         )
-    if (summary := corruption_summary(index, stats)) is not None:
+    if (summary := corruption_summary(index, st.stats)) is not None:
         warnings.append(summary)
-
-    sdef = defs.get("S", FrameDef())
-    gdef = defs.get("G", FrameDef())
-    main = rows_to_table(main_rows, nfields if keep is None else len(keep))
-    if resume is not None and main_offset:
-        main = np.concatenate((resume.main, main)) if len(main) else resume.main
+    sdef = lay.defs.get("S", FrameDef())
+    gdef = lay.defs.get("G", FrameDef())
     return DecodedLog(
         index=index,
-        headers=headers,
-        main_fields=[name for k, name in enumerate(names) if keep is None or k in keep],
-        main=main,
+        headers=lay.headers,
+        main_fields=[name for k, name in enumerate(lay.names) if lay.keep is None or k in lay.keep],
+        main=st.main_table(main_rows, lay, resume),
         slow_fields=list(sdef.names),
-        slow=rows_to_table(slow_rows, len(sdef.names)),
-        slow_frame_index=np.array(slow_index, dtype=np.int64),
+        slow=rows_to_table(st.slow_rows, len(sdef.names)),
+        slow_frame_index=np.array(st.slow_index, dtype=np.int64),
         gps_fields=list(gdef.names),
-        gps=rows_to_table(gps_rows, len(gdef.names)),
-        events=events,
-        stats=stats,
+        gps=rows_to_table(st.gps_rows, len(gdef.names)),
+        events=st.events,
+        stats=st.stats,
         warnings=warnings,
-        ended_cleanly=ended,
+        ended_cleanly=st.ended,
         byte_range=(offset, offset + n),
     )
 

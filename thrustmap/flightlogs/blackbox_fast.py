@@ -34,6 +34,7 @@ from __future__ import annotations
 import functools
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -137,20 +138,34 @@ def _aux_parser(fd: fmt.FrameDef, constants: dict[str, int]) -> fmt.FrameParser:
     return _compiled(layout, tuple(sorted(constants.items())))
 
 
-def _decode(
-    section: bytes,
-    index: int,
-    offset: int,
-    keep_field: Callable[[str], bool] | None,
-    max_frames: int | None = None,
-    *,
-    start: fmt.ResumeState | None = None,
-) -> fmt.DecodedLog | fmt.ResumeState | None:
-    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`);
-    from ``start`` on when given."""
-    headers, defs, pos = fmt.parse_headers(section)
-    if start is not None:
-        pos = start.pos
+@dataclass(frozen=True)
+class _Layout:
+    """What the headers say the main, slow, GPS and GPS-home frames are, checked for what the
+    bulk decoder supports."""
+
+    headers: dict[str, str]
+    defs: dict[str, fmt.FrameDef]
+    idef: fmt.FrameDef
+    pdef: fmt.FrameDef
+    motor0: int
+    constants: dict[str, int]
+    ipred: list[int]
+    ppred: list[int]
+    i_interval: int
+    skip: I64
+    kept: list[int]  # the main-frame fields decoded (columns of the values, in order)
+    col: dict[int, int]  # field -> its column
+    aux_defs: dict[int, fmt.FrameDef]
+    aux_parsers: dict[int, fmt.FrameParser]
+    home_idx: list[int]
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.idef.names)
+
+
+def _layout(headers: dict[str, str], defs: dict[str, fmt.FrameDef],
+            keep_field: Callable[[str], bool] | None) -> _Layout:  # fmt: skip
     idef = defs.get("I")
     if idef is None or not idef.names or not idef.encoding:
         raise Unsupported("no main-frame layout")
@@ -184,21 +199,54 @@ def _decode(
     p_num, p_den = fmt.p_interval(headers)
     skip = np.asarray(fmt.p_skip_counts(i_interval, p_num, p_den), dtype=np.int64)
     keep = fmt.kept_fields(names, idef, pdef, motor0, keep_field)
+    kept = list(range(nf)) if keep is None else sorted(keep)
     # slow (S), GPS (G) and GPS-home (H) frames: few, parsed by the reference's own parsers
     aux_defs = {ord(m): defs[m] for m in "SGH" if m in defs and defs[m].names and defs[m].encoding}
-    aux_parsers = {m: _aux_parser(fd, constants) for m, fd in aux_defs.items()}
-    pattern = frames_pattern(
-        frame_regex(idef),
-        frame_regex(pdef),
-        tuple((bytes([m]), frame_regex(fd)) for m, fd in aux_defs.items()),
-    )
     hdef = defs.get("H", fmt.FrameDef())
-    home_idx = [
-        hdef.names.index(k) if k in hdef.names else -1 for k in ("GPS_home[0]", "GPS_home[1]")
-    ]
+    return _Layout(
+        headers=headers, defs=defs, idef=idef, pdef=pdef, motor0=motor0, constants=constants,
+        ipred=ipred, ppred=ppred, i_interval=i_interval, skip=skip, kept=kept,
+        col={fi: c for c, fi in enumerate(kept)}, aux_defs=aux_defs,
+        aux_parsers={m: _aux_parser(fd, constants) for m, fd in aux_defs.items()},
+        home_idx=[
+            hdef.names.index(k) if k in hdef.names else -1 for k in ("GPS_home[0]", "GPS_home[1]")
+        ],
+    )  # fmt: skip
 
-    # 1. framing: the frames must tile the data up to the end (or the log-end event), or a
-    #    first stretch of it that the reference decoder carries on from
+
+@dataclass
+class _Frames:
+    """Where every frame of the stretch is (framing), and which are main frames."""
+
+    buf: npt.NDArray[np.uint8]
+    starts: I64
+    ends: I64
+    kinds: npt.NDArray[np.uint8]
+    is_main: npt.NDArray[np.bool_]
+    main_at: I64  # frame index of each main frame
+    mk: npt.NDArray[np.uint8]  # each main frame's kind
+    i_rows: I64  # main-frame rows of intra frames
+    p_rows: I64
+    complete: bool
+    ended: bool
+    stop: int  # the byte the frames reach
+    work_done: int
+
+
+def _frame(
+    layout: _Layout,
+    section: bytes,
+    pos: int,
+    max_frames: int | None,
+    start: fmt.ResumeState | None,
+) -> _Frames:
+    """Step 1, framing: the frames must tile the data up to the end (or the log-end event), or a
+    first stretch of it that the reference decoder carries on from."""
+    pattern = frames_pattern(
+        frame_regex(layout.idef),
+        frame_regex(layout.pdef),
+        tuple((bytes([m]), frame_regex(fd)) for m, fd in layout.aux_defs.items()),
+    )
     frames, lengths, complete, ended = framing(pattern, section, pos)
     if max_frames is not None and max_frames < len(frames):
         frames, complete, ended = frames[:max_frames], False, False
@@ -210,155 +258,207 @@ def _decode(
         raise Unsupported("over-long frame")
     ends = pos + np.cumsum(lengths)
     starts = ends - lengths
-    stop = int(ends[-1]) if len(frames) else pos
     buf = np.frombuffer(section + _PAD, dtype=np.uint8)
     kinds = buf[starts]
     is_main = (kinds == ord("I")) | (kinds == ord("P"))
-    widths = np.where(is_main, max(nf, 1), 1)
-    for m, fd in aux_defs.items():
+    widths = np.where(is_main, max(len(layout.idef.names), 1), 1)
+    for m, fd in layout.aux_defs.items():
         widths[kinds == m] = max(len(fd.names), 1)
     work_done = int(widths.sum()) + (start.work_done if start is not None else 0)
     if work_done + fmt.MAX_FIELDS >= fmt.WORK_PER_BYTE * n + 100_000:
         raise Unsupported("work budget")
-
-    # 2. main frames: residuals, then predictions segment by segment
     main_at = np.flatnonzero(is_main)
     if len(main_at) and kinds[main_at[0]] != ord("I"):
         raise Unsupported("an inter frame before the first intra frame")
     mk = kinds[main_at]
-    i_rows = np.flatnonzero(mk == ord("I"))
-    p_rows = np.flatnonzero(mk == ord("P"))
-    kept = list(range(nf)) if keep is None else sorted(keep)
-    col = {fi: c for c, fi in enumerate(kept)}
-    vals = np.empty((len(main_at), len(kept)), dtype=np.int64)
-    if len(main_at):
-        _main_values(buf, starts, ends, main_at, i_rows, p_rows, idef, pdef, col, kept, vals,
-                     ipred, ppred, constants, motor0, skip, i_interval)  # fmt: skip
+    return _Frames(
+        buf=buf, starts=starts, ends=ends, kinds=kinds, is_main=is_main, main_at=main_at, mk=mk,
+        i_rows=np.flatnonzero(mk == ord("I")), p_rows=np.flatnonzero(mk == ord("P")),
+        complete=complete, ended=ended, stop=int(ends[-1]) if len(frames) else pos,
+        work_done=work_done,
+    )  # fmt: skip
 
-    # 3. slow, GPS and GPS-home frames and events, few: the reference's own parsers, in order,
-    #    with the state they see there (the last main frame's time, or a resume event's)
-    it = vals[:, 0]
-    t = vals[:, 1]
-    main_starts = starts[main_at]
-    slow_rows: list[list[int]] = []
-    slow_index: list[int] = []
-    gps_rows: list[list[int]] = []
-    events: list[fmt.BlackboxEvent] = []
-    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
-    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
-    home = [0, 0]
-    first_it, first_t, base = -1, -1, 0  # the state before the first frame here
-    if start is not None:
-        slow_rows, slow_index = list(start.slow_rows), list(start.slow_index)
-        gps_rows, events = list(start.gps_rows), list(start.events)
-        stats.update(start.stats)
-        home = list(start.home)
-        first_it, first_t, base = start.last_iter, start.last_time, len(start.main)
-    stats["I"] += len(i_rows)
-    stats["P"] += len(p_rows)
-    # the history each main frame is checked against: the previous one, or a logging resume
-    last_it = np.concatenate(([first_it], it[:-1]))
-    last_t = np.concatenate(([first_t], t[:-1]))
+
+@dataclass
+class _Aux:
+    """The slow, GPS and GPS-home frames and events, and the state each main frame is checked
+    against (the previous main frame's iteration and time, or a logging resume's)."""
+
+    slow_rows: list[list[int]] = field(default_factory=list)
+    slow_index: list[int] = field(default_factory=list)
+    gps_rows: list[list[int]] = field(default_factory=list)
+    events: list[fmt.BlackboxEvent] = field(default_factory=list)
+    stats: dict[str, int] = field(default_factory=dict)
+    home: list[int] = field(default_factory=lambda: [0, 0])
+    first_it: int = -1  # the state before the first frame here
+    first_t: int = -1
+    base: int = 0  # main frames decoded before this stretch
+    warnings: list[str] = field(default_factory=list)
     resumed: tuple[int, int, int] | None = None  # (main frames before it, iteration, time)
-    aux_at = np.flatnonzero(~is_main)
-    aux_starts = starts[aux_at]
+
+    @classmethod
+    def after(cls, start: fmt.ResumeState | None) -> _Aux:
+        stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
+        stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+        if start is None:
+            return cls(stats=stats)
+        stats.update(start.stats)
+        return cls(
+            list(start.slow_rows), list(start.slow_index), list(start.gps_rows),
+            list(start.events), stats, list(start.home), start.last_iter, start.last_time,
+            len(start.main), list(start.warnings),
+        )  # fmt: skip
+
+
+def _decode(
+    section: bytes,
+    index: int,
+    offset: int,
+    keep_field: Callable[[str], bool] | None,
+    max_frames: int | None = None,
+    *,
+    start: fmt.ResumeState | None = None,
+) -> fmt.DecodedLog | fmt.ResumeState | None:
+    """The log decoded in bulk, or its first ``max_frames`` frames (a :class:`ResumeState`);
+    from ``start`` on when given."""
+    headers, defs, pos = fmt.parse_headers(section)
+    if start is not None:
+        pos = start.pos
+    layout = _layout(headers, defs, keep_field)
+    fr = _frame(layout, section, pos, max_frames, start)
+    # 2. main frames: residuals, then predictions segment by segment
+    vals = np.empty((len(fr.main_at), len(layout.kept)), dtype=np.int64)
+    if len(fr.main_at):
+        _main_values(layout, fr, vals)
+    aux = _Aux.after(start)
+    aux.stats["I"] += len(fr.i_rows)
+    aux.stats["P"] += len(fr.p_rows)
+    last_it, last_t = _aux_frames(layout, fr, section, vals, aux)
+    _check_main(fr, vals, last_it, last_t, index, aux)
+    _wrap_32bit(vals, layout.kept, layout.idef, layout.pdef, layout.constants, layout.motor0)
+    main = vals if start is None else np.concatenate((start.main, vals))
+    if not fr.complete:
+        log.debug("log %d: bulk decoded up to byte %d of %d", index + 1, fr.stop, len(section))
+        return _resume_state(fr, vals, main, aux, start)
+    if start is not None and (summary := fmt.corruption_summary(index, aux.stats)) is not None:
+        aux.warnings.append(summary)  # the reference's closing warning on the stretch it decoded
+    sdef = defs.get("S", fmt.FrameDef())
+    gdef = defs.get("G", fmt.FrameDef())
+    return fmt.DecodedLog(
+        index=index,
+        headers=headers,
+        main_fields=[layout.names[k] for k in layout.kept],
+        main=main,
+        slow_fields=list(sdef.names),
+        slow=fmt.rows_to_table(aux.slow_rows, len(sdef.names)),
+        slow_frame_index=np.array(aux.slow_index, dtype=np.int64),
+        gps_fields=list(gdef.names),
+        gps=fmt.rows_to_table(aux.gps_rows, len(gdef.names)),
+        events=aux.events,
+        stats=aux.stats,
+        warnings=aux.warnings,
+        ended_cleanly=fr.ended,
+        byte_range=(offset, offset + len(section)),
+    )
+
+
+def _aux_frames(
+    layout: _Layout, fr: _Frames, section: bytes, vals: I64, aux: _Aux
+) -> tuple[I64, I64]:
+    """Step 3: slow, GPS and GPS-home frames and events, few: the reference's own parsers, in
+    order, with the state they see there (the last main frame's time, or a resume event's).
+    Returns the iteration and time each main frame is checked against."""
+    it, t = vals[:, 0], vals[:, 1]
+    main_starts = fr.starts[fr.main_at]
+    # the history each main frame is checked against: the previous one, or a logging resume
+    last_it = np.concatenate(([aux.first_it], it[:-1]))
+    last_t = np.concatenate(([aux.first_t], t[:-1]))
+    aux_at = np.flatnonzero(~fr.is_main)
+    aux_starts = fr.starts[aux_at]
     for at, end, kind, before in zip(
         aux_starts.tolist(),
-        ends[aux_at].tolist(),
-        kinds[aux_at].tolist(),
+        fr.ends[aux_at].tolist(),
+        fr.kinds[aux_at].tolist(),
         np.searchsorted(main_starts, aux_starts).tolist(),
         strict=True,
     ):
         if kind == ord("E"):
             ev, payload, p = bfr.parse_event(section, at + 1)
             if ev == fmt.EVENT_LOGGING_RESUME:
-                resumed = (before, int(payload[0]), int(payload[1]))
-                if before < len(main_at):
-                    if mk[before] != ord("I"):
+                aux.resumed = (before, int(payload[0]), int(payload[1]))
+                if before < len(fr.main_at):
+                    if fr.mk[before] != ord("I"):
                         raise Unsupported("an inter frame right after logging resumed")
-                    last_it[before], last_t[before] = resumed[1], resumed[2]
-            stats["E"] += 1
-            events.append(fmt.BlackboxEvent(base + before, ev, payload))
+                    last_it[before], last_t[before] = aux.resumed[1], aux.resumed[2]
+            aux.stats["E"] += 1
+            aux.events.append(fmt.BlackboxEvent(aux.base + before, ev, payload))
         else:
-            if resumed is not None and resumed[0] == before:
-                last_time = resumed[2]
+            if aux.resumed is not None and aux.resumed[0] == before:
+                last_time = aux.resumed[2]
             else:
-                last_time = int(t[before - 1]) if before else first_t
-            fd = aux_defs[kind]
-            row, p = aux_parsers[kind](section, at + 1, [0] * len(fd.names), [], 0, last_time, home)
+                last_time = int(t[before - 1]) if before else aux.first_t
+            fd = layout.aux_defs[kind]
+            row, p = layout.aux_parsers[kind](
+                section, at + 1, [0] * len(fd.names), [], 0, last_time, aux.home
+            )
             if kind == ord("S"):
-                stats["S"] += 1
-                slow_rows.append(row)
-                slow_index.append(base + before)
+                aux.stats["S"] += 1
+                aux.slow_rows.append(row)
+                aux.slow_index.append(aux.base + before)
             elif kind == ord("G"):
-                stats["G"] += 1
-                gps_rows.append(row)
+                aux.stats["G"] += 1
+                aux.gps_rows.append(row)
             else:
-                stats["H"] += 1
-                home = [row[j] if j >= 0 else 0 for j in home_idx]
+                aux.stats["H"] += 1
+                aux.home = [row[j] if j >= 0 else 0 for j in layout.home_idx]
         if p != end:
             raise Unsupported("slow frame or event length disagrees")
+    return last_it, last_t
 
-    # 4. the reference's plausibility checks: the frames before the first main frame failing
-    #    one (a time rollover, an iteration or time jump) are decoded in bulk, the rest by the
-    #    reference
+
+def _check_main(fr: _Frames, vals: I64, last_it: I64, last_t: I64, index: int, aux: _Aux) -> None:
+    """Step 4, the reference's plausibility checks: the frames before the first main frame
+    failing one (a time rollover, an iteration or time jump) are decoded in bulk, the rest by
+    the reference (``_CutBefore``). A long gap is a warning."""
+    it, t = vals[:, 0], vals[:, 1]
     di = it - last_it
     dt = t - last_t
-    ip, tp = di[p_rows], dt[p_rows]
+    ip, tp = di[fr.p_rows], dt[fr.p_rows]
     bad = (t < 0) | (t > 0xFFFFFFFF)  # time outside 32 bits: a rollover
-    bad[p_rows] |= (
+    bad[fr.p_rows] |= (
         (ip < 0) | (ip >= fmt.MAX_ITERATION_JUMP) | (tp < 0) | (tp >= fmt.MAX_TIME_JUMP_US)
     )
-    checked = i_rows[last_it[i_rows] >= 0]
+    checked = fr.i_rows[last_it[fr.i_rows] >= 0]
     bad[checked] |= (di[checked] < 0) | (dt[checked] < 0)
     if bad.any():
-        raise _CutBefore(int(main_at[int(np.argmax(bad))]))
-    warnings = list(start.warnings) if start is not None else []
-    warnings += [
+        raise _CutBefore(int(fr.main_at[int(np.argmax(bad))]))
+    aux.warnings += [
         f"log {index + 1}: {1e-6 * (int(t[r]) - int(last_t[r])):.1f} s gap in the data "
         f"after t = {1e-6 * int(last_t[r]):.3f} s"
         for r in checked[dt[checked] >= fmt.MAX_TIME_JUMP_US].tolist()
     ]
-    _wrap_32bit(vals, kept, idef, pdef, constants, motor0)
 
-    main = vals if start is None else np.concatenate((start.main, vals))
-    if not complete:
-        log.debug("log %d: bulk decoded up to byte %d of %d", index + 1, stop, n)
-        last_iter, last_time = (int(it[-1]), int(t[-1])) if len(it) else (first_it, first_t)
-        if resumed is not None and resumed[0] == len(main_at):
-            last_iter, last_time = resumed[1], resumed[2]
-        prev = vals[-1].tolist() if len(vals) else None
-        prev2 = None
-        if len(vals):
-            prev2 = prev if mk[-1] == ord("I") else vals[-2].tolist()
-        elif start is not None:
-            prev, prev2 = start.prev, start.prev2
-        return fmt.ResumeState(
-            pos=stop, main=main, prev=prev, prev2=prev2, last_iter=last_iter,
-            last_time=last_time, home=home, work_done=work_done, slow_rows=slow_rows,
-            slow_index=slow_index, gps_rows=gps_rows, events=events, stats=stats,
-            warnings=warnings,
-        )  # fmt: skip
-    if start is not None and (summary := fmt.corruption_summary(index, stats)) is not None:
-        warnings.append(summary)  # the reference's closing warning on the stretch it decoded
-    sdef = defs.get("S", fmt.FrameDef())
-    gdef = defs.get("G", fmt.FrameDef())
-    return fmt.DecodedLog(
-        index=index,
-        headers=headers,
-        main_fields=[names[k] for k in kept],
-        main=main,
-        slow_fields=list(sdef.names),
-        slow=fmt.rows_to_table(slow_rows, len(sdef.names)),
-        slow_frame_index=np.array(slow_index, dtype=np.int64),
-        gps_fields=list(gdef.names),
-        gps=fmt.rows_to_table(gps_rows, len(gdef.names)),
-        events=events,
-        stats=stats,
-        warnings=warnings,
-        ended_cleanly=ended,
-        byte_range=(offset, offset + n),
-    )
+
+def _resume_state(
+    fr: _Frames, vals: I64, main: I64, aux: _Aux, start: fmt.ResumeState | None
+) -> fmt.ResumeState:
+    """Where the reference decoder carries on from, after the stretch decoded in bulk."""
+    it, t = vals[:, 0], vals[:, 1]
+    last_iter, last_time = (int(it[-1]), int(t[-1])) if len(it) else (aux.first_it, aux.first_t)
+    if aux.resumed is not None and aux.resumed[0] == len(fr.main_at):
+        last_iter, last_time = aux.resumed[1], aux.resumed[2]
+    prev = vals[-1].tolist() if len(vals) else None
+    prev2 = None
+    if len(vals):
+        prev2 = prev if fr.mk[-1] == ord("I") else vals[-2].tolist()
+    elif start is not None:
+        prev, prev2 = start.prev, start.prev2
+    return fmt.ResumeState(
+        pos=fr.stop, main=main, prev=prev, prev2=prev2, last_iter=last_iter,
+        last_time=last_time, home=aux.home, work_done=fr.work_done, slow_rows=aux.slow_rows,
+        slow_index=aux.slow_index, gps_rows=aux.gps_rows, events=aux.events, stats=aux.stats,
+        warnings=aux.warnings,
+    )  # fmt: skip
 
 
 def _wrapped_by_reference(
@@ -420,37 +520,30 @@ def _wrap_32bit(
             vals[:, c] = col & 0xFFFFFFFF
 
 
-def _main_values(
-    buf: npt.NDArray[np.uint8],
-    starts: I64,
-    ends: I64,
-    main_at: I64,
-    i_rows: I64,
-    p_rows: I64,
-    idef: fmt.FrameDef,
-    pdef: fmt.FrameDef,
-    col: dict[int, int],
-    kept: list[int],
-    vals: I64,
-    ipred: list[int],
-    ppred: list[int],
-    constants: dict[str, int],
-    motor0: int,
-    skip: I64,
-    i_interval: int,
-) -> None:
+def _main_values(layout: _Layout, fr: _Frames, vals: I64) -> None:
     """Every main frame's values into ``vals`` (rows in frame order, columns ``kept``)."""
+    wrapped_intra = _residual_values(layout, fr, vals)
+    _predict(layout, fr, vals, wrapped_intra)
+
+
+def _residual_values(layout: _Layout, fr: _Frames, vals: I64) -> set[int]:
+    """The frames' residuals into ``vals``, intra frames complete (their predictions are
+    constants and motor[0]), inter frames with the constant part of theirs; the intra-frame
+    fields that needed the 32-bit wrap."""
+    buf, starts, ends, main_at = fr.buf, fr.starts, fr.ends, fr.main_at
+    i_rows, p_rows, col, kept = fr.i_rows, fr.p_rows, layout.col, layout.kept
+    idef, constants, motor0 = layout.idef, layout.constants, layout.motor0
     ires, iend = residuals(buf, starts[main_at[i_rows]], idef, col)
-    pres, pend = residuals(buf, starts[main_at[p_rows]], pdef, col)
+    pres, pend = residuals(buf, starts[main_at[p_rows]], layout.pdef, col)
     if not (
         np.array_equal(iend, ends[main_at[i_rows]]) and np.array_equal(pend, ends[main_at[p_rows]])
     ):
         raise Unsupported("frame lengths disagree")  # not expected: the regex is the layout
     for fi in kept:  # intra frames: constants and motor[0] (which precedes its users)
-        c = constant_prediction(ipred[fi], constants)
+        c = constant_prediction(layout.ipred[fi], constants)
         ires[:, col[fi]] += ires[:, col[motor0]] if c is None else c
     for fi in kept:  # inter frames: the constant part of their predictions
-        c = constant_prediction(ppred[fi], constants)
+        c = constant_prediction(layout.ppred[fi], constants)
         if c:
             pres[:, col[fi]] += c
     signed = (list(idef.signed) + [0] * len(idef.names))[: len(idef.names)]
@@ -468,6 +561,16 @@ def _main_values(
             wrapped_intra.add(fi)
     vals[i_rows] = ires
     vals[p_rows] = pres
+    return wrapped_intra
+
+
+def _predict(layout: _Layout, fr: _Frames, vals: I64, wrapped_intra: set[int]) -> None:
+    """The inter frames' predictions, segment by segment (an intra frame and the inter frames
+    after it), added to their residuals in ``vals``."""
+    i_rows, main_at, col, kept, ppred = fr.i_rows, fr.main_at, layout.col, layout.kept, layout.ppred
+    motor0, skip, i_interval = layout.motor0, layout.skip, layout.i_interval
+    idef = layout.idef
+    signed = (list(idef.signed) + [0] * len(idef.names))[: len(idef.names)]
     seg_len = np.diff(np.append(i_rows, len(main_at)))
     if int(seg_len.max()) > MAX_SEGMENT:
         raise Unsupported("long run of inter frames")

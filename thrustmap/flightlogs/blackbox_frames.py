@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -323,99 +324,155 @@ def compile_frame(
     decodes again with the wraps when one does). Fields are local variables, not list items:
     both save most of the per-field cost of the pure-Python decoder. ``keep``: the only fields
     whose values are computed (the others are parsed for their length and read as 0)."""
-    n = len(fd.names)
-    enc = list(fd.encoding) + [ENC_NULL] * (n - len(fd.encoding))
-    pred = list(fd.predictor) + [PRED_ZERO] * (n - len(fd.predictor))
-    signed = list(fd.signed) + [0] * (n - len(fd.signed))
-    for i in range(1, n):  # home coordinates come in (lat, lon) pairs sharing one predictor id
-        if pred[i - 1] == PRED_HOME_COORD and pred[i] == PRED_HOME_COORD:
-            pred[i] = PRED_HOME_COORD_1
-    if keep is not None and motor0 >= 0 and any(pred[i] == PRED_MOTOR_0 for i in keep):
-        keep = keep | {motor0}  # a kept field predicted from motor[0] needs its value
-    live = [keep is None or i in keep for i in range(n)]
-    lines = [
-        "def parse(d, p, prev, prev2, skipped, last_time, home):\n",
-        f"    f = [0] * {n}\n",
-    ]
-    i = 0
-    while i < n:
-        if pred[i] == PRED_INC:
-            if live[i]:
-                lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
-                lines.append(_wrap(i, bool(signed[i])))
-            i += 1
-            continue
-        e = enc[i]
-        group: list[int]
-        if e in (ENC_TAG8_8SVB, ENC_TAG2_3S32, ENC_TAG8_4S16):
-            if e == ENC_TAG8_8SVB:
-                j = i + 1
-                while j < min(i + 8, n) and enc[j] == ENC_TAG8_8SVB:
-                    j += 1
-                if not any(live[i:j]):  # no value needed: skip the set fields' varints
-                    if j - i == 1:
-                        lines.append("    p = _skip_vb(d, p, 1)\n")
-                    else:
-                        lines.append(
-                            f"    p = _skip_vb(d, p + 1, _popcount[d[p] & {(1 << (j - i)) - 1}])\n"
-                        )
-                    i = j
-                    continue
-                if j - i == 1:
-                    lines.append("    g, p = _tag8_8svb(d, p, 1)\n")
-                else:  # most groups are all zero: one header byte of 0
-                    lines.append(
-                        "    if d[p] == 0:\n        g = _zeros; p += 1\n"
-                        f"    else:\n        g, p = _tag8_8svb(d, p, {j - i})\n"
-                    )
-                group = list(range(i, j))
-            elif e == ENC_TAG2_3S32:
-                group = list(range(i, min(i + 3, n)))
-                if not any(live[k] for k in group):
-                    lines.append("    p += _t2len[d[p]]\n")
-                    i = group[-1] + 1
-                    continue
-                lines.append("    g, p = _tag2_3s32(d, p)\n")
+    layout = _FrameLayout.of(fd, constants, data_version, motor0, keep)
+    lines = layout.body()
+    if not wrap:
+        lines = [ln for ln in lines if "0xFFFFFFFF" not in ln or "f[" not in ln.split("=")[0]]
+    lines = [re.sub(r"\bf\[(\d+)\]", r"f\1", ln) for ln in lines]
+    live = layout.live
+    if keep is not None:  # rows hold the kept fields only: prev/prev2 are compact too
+        slot = {fi: k for k, fi in enumerate(i for i in range(layout.n) if live[i])}
+        lines = [
+            re.sub(r"\b(prev2?)\[(\d+)\]", lambda m: f"{m.group(1)}[{slot[int(m.group(2))]}]", ln)
+            for ln in lines
+        ]
+    lines.insert(0, "def parse(d, p, prev, prev2, skipped, last_time, home):\n")
+    if keep is not None:  # a skipped group is not read: a frame cut short must still raise
+        lines.append("    if p > len(d):\n        raise IndexError('frame past end of data')\n")
+    lines.append("    return [" + ", ".join(f"f{i}" for i in range(layout.n) if live[i]) + "], p\n")
+    return _exec_parser("".join(lines), fd, data_version)
+
+
+@dataclass(frozen=True)
+class _FrameLayout:
+    """One frame's fields as the parser is generated from them: encodings, predictors and
+    signedness padded to every field, home coordinates paired, and which fields are live."""
+
+    names: list[str]
+    enc: list[int]
+    pred: list[int]
+    signed: list[int]
+    live: list[bool]
+    constants: dict[str, int]
+    data_version: int
+    motor0: int
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+    @classmethod
+    def of(
+        cls,
+        fd: FrameDef,
+        constants: dict[str, int],
+        data_version: int,
+        motor0: int,
+        keep: frozenset[int] | None,
+    ) -> _FrameLayout:
+        n = len(fd.names)
+        enc = list(fd.encoding) + [ENC_NULL] * (n - len(fd.encoding))
+        pred = list(fd.predictor) + [PRED_ZERO] * (n - len(fd.predictor))
+        signed = list(fd.signed) + [0] * (n - len(fd.signed))
+        for i in range(1, n):  # home coordinates come in (lat, lon) pairs sharing one predictor
+            if pred[i - 1] == PRED_HOME_COORD and pred[i] == PRED_HOME_COORD:
+                pred[i] = PRED_HOME_COORD_1
+        if keep is not None and motor0 >= 0 and any(pred[i] == PRED_MOTOR_0 for i in keep):
+            keep = keep | {motor0}  # a kept field predicted from motor[0] needs its value
+        live = [keep is None or i in keep for i in range(n)]
+        return cls(list(fd.names), enc, pred, signed, live, constants, data_version, motor0)
+
+    def body(self) -> list[str]:
+        """The parser's statements, field by field (``f[i]`` for field i)."""
+        lines: list[str] = []
+        i = 0
+        while i < self.n:
+            e = self.enc[i]
+            if self.pred[i] == PRED_INC:
+                if self.live[i]:
+                    lines.append(f"    f[{i}] = prev[{i}] + skipped + 1\n")
+                    lines.append(_wrap(i, bool(self.signed[i])))
+                i += 1
+            elif e in (ENC_TAG8_8SVB, ENC_TAG2_3S32, ENC_TAG8_4S16):
+                i = self._group(i, e, lines)
+            elif not self.live[i] and e in _VARINT_OR_NULL:
+                i = self._skipped_run(i, lines)
             else:
-                group = list(range(i, min(i + 4, n)))
-                if data_version >= 2 and not any(live[k] for k in group):
-                    lines.append("    p += 1 + _t4len[d[p]]\n")
-                    i = group[-1] + 1
-                    continue
-                call = "_t4v2[d[p]](d, p + 1)" if data_version >= 2 else "_tag8_4s16_v1(d, p)"
-                lines.append(
-                    f"    if d[p] == 0:\n        g = _zeros; p += 1\n    else:\n        g, p = {call}\n"
-                )
-                group = list(range(i, min(i + 4, n)))
-            for k, fi in enumerate(group):
-                if not live[fi]:
-                    continue
-                pe = prediction_code(fi, pred[fi], constants, motor0)
-                lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
-                if pe != "0":
-                    lines.append(_wrap(fi, bool(signed[fi])))
-            i = group[-1] + 1
-            continue
-        if not live[i] and e in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL):
-            j = i  # a run of fields not kept: their varints are skipped, not decoded
-            while (
-                j < n
-                and not live[j]
-                and pred[j] != PRED_INC
-                and enc[j] in (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL)
-            ):
+                self._single(i, e, lines)
+                i += 1
+        return lines
+
+    def _group(self, i: int, e: int, lines: list[str]) -> int:
+        """A group of fields sharing one tag header; the index after it."""
+        n, live = self.n, self.live
+        group: list[int]
+        if e == ENC_TAG8_8SVB:
+            j = i + 1
+            while j < min(i + 8, n) and self.enc[j] == ENC_TAG8_8SVB:
                 j += 1
-            count = sum(1 for k in range(i, j) if enc[k] != ENC_NULL)
-            if 0 < count <= 6:  # inline: most residuals are one byte each
-                test = " and ".join(f"d[p + {k}] < 128" for k in range(count))
+            if not any(live[i:j]):  # no value needed: skip the set fields' varints
+                if j - i == 1:
+                    lines.append("    p = _skip_vb(d, p, 1)\n")
+                else:
+                    lines.append(
+                        f"    p = _skip_vb(d, p + 1, _popcount[d[p] & {(1 << (j - i)) - 1}])\n"
+                    )
+                return j
+            if j - i == 1:
+                lines.append("    g, p = _tag8_8svb(d, p, 1)\n")
+            else:  # most groups are all zero: one header byte of 0
                 lines.append(
-                    f"    if {test}:\n        p += {count}\n"
-                    f"    else:\n        p = _skip_vb(d, p, {count})\n"
+                    "    if d[p] == 0:\n        g = _zeros; p += 1\n"
+                    f"    else:\n        g, p = _tag8_8svb(d, p, {j - i})\n"
                 )
-            elif count:
-                lines.append(f"    p = _skip_vb(d, p, {count})\n")
-            i = j
-            continue
+            group = list(range(i, j))
+        elif e == ENC_TAG2_3S32:
+            group = list(range(i, min(i + 3, n)))
+            if not any(live[k] for k in group):
+                lines.append("    p += _t2len[d[p]]\n")
+                return group[-1] + 1
+            lines.append("    g, p = _tag2_3s32(d, p)\n")
+        else:
+            group = list(range(i, min(i + 4, n)))
+            if self.data_version >= 2 and not any(live[k] for k in group):
+                lines.append("    p += 1 + _t4len[d[p]]\n")
+                return group[-1] + 1
+            call = "_t4v2[d[p]](d, p + 1)" if self.data_version >= 2 else "_tag8_4s16_v1(d, p)"
+            lines.append(
+                f"    if d[p] == 0:\n        g = _zeros; p += 1\n    else:\n        g, p = {call}\n"
+            )
+        for k, fi in enumerate(group):
+            if not live[fi]:
+                continue
+            pe = prediction_code(fi, self.pred[fi], self.constants, self.motor0)
+            lines.append(f"    f[{fi}] = g[{k}]" + ("" if pe == "0" else f" + {pe}") + "\n")
+            if pe != "0":
+                lines.append(_wrap(fi, bool(self.signed[fi])))
+        return group[-1] + 1
+
+    def _skipped_run(self, i: int, lines: list[str]) -> int:
+        """A run of fields not kept: their varints are skipped, not decoded; the index after."""
+        j = i
+        while (
+            j < self.n
+            and not self.live[j]
+            and self.pred[j] != PRED_INC
+            and self.enc[j] in _VARINT_OR_NULL
+        ):
+            j += 1
+        count = sum(1 for k in range(i, j) if self.enc[k] != ENC_NULL)
+        if 0 < count <= 6:  # inline: most residuals are one byte each
+            test = " and ".join(f"d[p + {k}] < 128" for k in range(count))
+            lines.append(
+                f"    if {test}:\n        p += {count}\n"
+                f"    else:\n        p = _skip_vb(d, p, {count})\n"
+            )
+        elif count:
+            lines.append(f"    p = _skip_vb(d, p, {count})\n")
+        return j
+
+    def _single(self, i: int, e: int, lines: list[str]) -> None:
+        """One field with its own encoding."""
         if e == ENC_SIGNED_VB:
             lines.append(_UVB + "    v = (u >> 1) ^ -(u & 1)\n")
         elif e == ENC_UNSIGNED_VB:
@@ -425,32 +482,24 @@ def compile_frame(
         elif e == ENC_NULL:
             lines.append("    v = 0\n")
         else:
-            raise CorruptFrame(f"unsupported field encoding {e} for field '{fd.names[i]}'")
-        if not live[i]:
-            i += 1
-            continue
-        pe = prediction_code(i, pred[i], constants, motor0)
+            raise CorruptFrame(f"unsupported field encoding {e} for field '{self.names[i]}'")
+        if not self.live[i]:
+            return
+        pe = prediction_code(i, self.pred[i], self.constants, self.motor0)
         if pe == "0":
             lines.append(f"    f[{i}] = v\n")
             if e == ENC_UNSIGNED_VB:
-                lines.append(_wrap(i, bool(signed[i])))
+                lines.append(_wrap(i, bool(self.signed[i])))
         else:
             lines.append(f"    f[{i}] = v + {pe}\n")
-            lines.append(_wrap(i, bool(signed[i])))
-        i += 1
-    if not wrap:
-        lines = [ln for ln in lines if "0xFFFFFFFF" not in ln or "f[" not in ln.split("=")[0]]
-    lines = [re.sub(r"\bf\[(\d+)\]", r"f\1", ln) for ln in lines[2:]]
-    if keep is not None:  # rows hold the kept fields only: prev/prev2 are compact too
-        slot = {fi: k for k, fi in enumerate(i for i in range(n) if live[i])}
-        lines = [
-            re.sub(r"\b(prev2?)\[(\d+)\]", lambda m: f"{m.group(1)}[{slot[int(m.group(2))]}]", ln)
-            for ln in lines
-        ]
-    lines.insert(0, "def parse(d, p, prev, prev2, skipped, last_time, home):\n")
-    if keep is not None:  # a skipped group is not read: a frame cut short must still raise
-        lines.append("    if p > len(d):\n        raise IndexError('frame past end of data')\n")
-    lines.append("    return [" + ", ".join(f"f{i}" for i in range(n) if live[i]) + "], p\n")
+            lines.append(_wrap(i, bool(self.signed[i])))
+
+
+_VARINT_OR_NULL = (ENC_SIGNED_VB, ENC_UNSIGNED_VB, ENC_NEG_14BIT, ENC_NULL)
+
+
+def _exec_parser(source: str, fd: FrameDef, data_version: int) -> FrameParser:
+    """The generated parser, compiled with the field readers it calls."""
     namespace: dict[str, Any] = {
         "_uvb_tail": _read_uvb_tail,
         "_skip_vb": _skip_vb,
@@ -464,7 +513,7 @@ def compile_frame(
         "_t4v2": _tag8_4s16_v2_table() if data_version >= 2 else None,
         "_zeros": (0, 0, 0, 0, 0, 0, 0, 0),
     }
-    exec(compile("".join(lines), f"<blackbox frame {fd.names[:1]}>", "exec"), namespace)
+    exec(compile(source, f"<blackbox frame {fd.names[:1]}>", "exec"), namespace)
     parser: FrameParser = namespace["parse"]
     return parser
 

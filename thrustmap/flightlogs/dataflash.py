@@ -493,7 +493,19 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             "bytes_decoded": df.bytes_decoded,
         }
     )
-    # battery voltage: BAT.Volt (V), old firmware CURR.Volt (centivolts, int16)
+    _voltage(df, flight)
+    _accel_up(df, flight)
+    pilot_in = _ctun(df, flight)
+    _range_finder(df, flight)
+    _attitude(df, flight)
+    flight.armed, flight.landed = _events(df, flight.warnings)
+    _motor_outputs(df, flight, params, msgs, motor_channels)
+    _finish(df, flight, params, pilot_in)
+    return [flight]
+
+
+def _voltage(df: DataFlashLog, flight: FlightLog) -> None:
+    """The battery voltage: BAT.Volt (V), old firmware CURR.Volt (centivolts, int16)."""
     if df.has("BAT"):
         c = df.columns("BAT")
         keep = _instance0(c)
@@ -513,40 +525,55 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             flight.warnings.append("CURR.Volt reads 0 V throughout: no battery voltage sensed")
     else:
         flight.warnings.append("no BAT or CURR messages: no battery voltage")
-    # upward specific force: -IMU.AccZ (FRD body frame), first IMU only
+
+
+def _accel_up(df: DataFlashLog, flight: FlightLog) -> None:
+    """The upward specific force: -IMU.AccZ (FRD body frame), first IMU only."""
     if df.has("IMU"):
         c = df.columns("IMU")
         keep = _instance0(c)
         flight.accel_up_mps2 = sorted_signal(
             df.time_s("IMU")[keep], -np.asarray(c["AccZ"], float)[keep], "m/s^2", "-IMU.AccZ"
         )
-    pilot_in: Signal | None = None
+
+
+def _ctun(df: DataFlashLog, flight: FlightLog) -> Signal | None:
+    """CTUN: the collective throttle 0..1 (ThO; older ThrOut 0..1000), the hover throttle, the
+    height above home and climb rate (in-air evidence); returns the pilot's throttle (ThrIn,
+    Copter <= 3.3) when logged."""
     # collective throttle 0..1: CTUN.ThO (older ThrOut 0..1000)
-    if df.has("CTUN"):
-        c = df.columns("CTUN")
-        t = df.time_s("CTUN")
-        if "ThO" in c:
-            flight.thrust_cmd_norm = sorted_signal(t, c["ThO"], "1", "CTUN.ThO")
-        elif "ThrOut" in c:
-            flight.thrust_cmd_norm = sorted_signal(
-                t, np.asarray(c["ThrOut"], float) / 1000.0, "1", "CTUN.ThrOut/1000"
-            )
-        if "ThrIn" in c:  # the pilot's throttle (rc_3.control_in, 0..1000), Copter <= 3.3
-            pilot_in = sorted_signal(t, c["ThrIn"], "1", "CTUN.ThrIn")
-        if "ThH" in c:
-            flight.extras["hover_throttle"] = sorted_signal(t, c["ThH"], "1", "CTUN.ThH")
-        # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
+    if not df.has("CTUN"):
+        return None
+    pilot_in: Signal | None = None
+    c = df.columns("CTUN")
+    t = df.time_s("CTUN")
+    if "ThO" in c:
+        flight.thrust_cmd_norm = sorted_signal(t, c["ThO"], "1", "CTUN.ThO")
+    elif "ThrOut" in c:
+        flight.thrust_cmd_norm = sorted_signal(
+            t, np.asarray(c["ThrOut"], float) / 1000.0, "1", "CTUN.ThrOut/1000"
+        )
+    if "ThrIn" in c:  # the pilot's throttle (rc_3.control_in, 0..1000), Copter <= 3.3
+        pilot_in = sorted_signal(t, c["ThrIn"], "1", "CTUN.ThrIn")
+    if "ThH" in c:
+        flight.extras["hover_throttle"] = sorted_signal(t, c["ThH"], "1", "CTUN.ThH")
+    # in-air evidence: altitude above home (set at arming, m) and climb rate (cm/s)
+    if "Alt" in c:
+        flight.extras["height_m"] = sorted_signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
+    if "CRt" in c:
+        crt = np.asarray(c["CRt"], float)
+        flight.extras["climb_mps"] = sorted_signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
         if "Alt" in c:
-            flight.extras["height_m"] = sorted_signal(t, c["Alt"], "m", "CTUN.Alt (above home)")
-        if "CRt" in c:
-            crt = np.asarray(c["CRt"], float)
-            flight.extras["climb_mps"] = sorted_signal(t, crt / 100.0, "m/s", "CTUN.CRt/100")
-            if "Alt" in c:
-                climb_from_altitude(flight, t, crt / 100.0, np.asarray(c["Alt"], float))
-        baro_col = next((k for k in ("BarAlt", "BAlt") if k in c), None)
-        if "Alt" in c and baro_col is not None:
-            inertial_or_baro(flight, t, np.asarray(c["Alt"], float),
-                              np.asarray(c[baro_col], float), f"CTUN.{baro_col}")  # fmt: skip
+            climb_from_altitude(flight, t, crt / 100.0, np.asarray(c["Alt"], float))
+    baro_col = next((k for k in ("BarAlt", "BAlt") if k in c), None)
+    if "Alt" in c and baro_col is not None:
+        inertial_or_baro(flight, t, np.asarray(c["Alt"], float),
+                          np.asarray(c[baro_col], float), f"CTUN.{baro_col}")  # fmt: skip
+    return pilot_in
+
+
+def _range_finder(df: DataFlashLog, flight: FlightLog) -> None:
+    """The range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)."""
     if df.has("RFND"):  # range finder: Dist (m, Stat 4 = good) or older Dist1 (cm)
         c = df.columns("RFND")
         keep = _instance0(c)
@@ -563,6 +590,10 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             good, origin = np.zeros(0, bool), ""
         if good.any():
             flight.extras["range_m"] = sorted_signal(t, np.where(good, dist, np.nan), "m", origin)
+
+
+def _attitude(df: DataFlashLog, flight: FlightLog) -> None:
+    """The tilt from ATT.Roll/Pitch, and MOTB.BatVolt (the motors' voltage compensation)."""
     if df.has("ATT"):
         c = df.columns("ATT")
         r, p = np.radians(np.asarray(c["Roll"], float)), np.radians(np.asarray(c["Pitch"], float))
@@ -573,7 +604,17 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
         flight.extras["motb_batvolt"] = sorted_signal(
             df.time_s("MOTB"), c["BatVolt"], "1", "MOTB.BatVolt"
         )
-    flight.armed, flight.landed = _events(df, flight.warnings)
+
+
+def _motor_outputs(
+    df: DataFlashLog,
+    flight: FlightLog,
+    params: dict[str, float],
+    msgs: list[str],
+    motor_channels: list[str] | None,
+) -> None:
+    """The motor outputs from RCOU: the channels given, else the frame's, else the leading
+    outputs that move while armed; their PWM scale."""
     if df.has("RCOU"):
         c = df.columns("RCOU")
         t = df.time_s("RCOU")
@@ -609,6 +650,12 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             )  # fmt: skip
         else:
             flight.warnings.append("no RCOU channel looks like a motor output")
+
+
+def _finish(
+    df: DataFlashLog, flight: FlightLog, params: dict[str, float], pilot_in: Signal | None
+) -> None:
+    """Untimed events, the parameters kept, and what is missing."""
     ev = df.by_name.get("EV")
     ev_untimed = ev is not None and df.has("EV") and not {"TimeUS", "TimeMS"} & set(ev.columns)
     cmd = flight.thrust_cmd_norm
@@ -630,4 +677,3 @@ def read(path: Path, *, motor_channels: list[str] | None = None, **_: Any) -> li
             if s is None
         ]
         flight.warnings.append(f"missing {', '.join(missing)} messages")
-    return [flight]

@@ -16,6 +16,7 @@ import contextlib
 import io
 import logging
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,8 @@ def sniff(path: Path, head: bytes) -> bool:
 
 
 Data = dict[str, npt.NDArray[Any]]
+#: a topic's first instance by name, or None when the log lacks it (or it is empty)
+Topic = Callable[[str], Data | None]
 
 
 def _topics(ulog: Any) -> dict[tuple[str, int], Data]:
@@ -331,6 +334,37 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         raise DataFormatError(f"cannot read ULog: {exc.strerror}", file=str(path)) from None
     if not raw.startswith(MAGIC) or len(raw) < 16:
         raise DataFormatError("not a ULog file (expected the 'ULog' header)", file=str(path))
+    ulog, problem = _parse(raw, path)
+    if problem is not None:
+        warnings.append(problem)
+    elif getattr(ulog, "file_corruption", False):
+        warnings.append("corrupt data in the log (pyulog resynchronised); the good part is used")
+    topics = _topics(ulog)
+    if not topics:
+        raise DataFormatError(
+            "ULog holds none of the needed topics (" + ", ".join(TOPICS[:4]) + ", ...)",
+            file=str(path),
+        )
+    t0 = int(ulog.start_timestamp)
+    params = dict(ulog.initial_parameters)
+    flight = FlightLog(path=str(path), format="ulog", warnings=warnings)
+    _metadata(flight, ulog, topics, params)
+
+    def topic(name: str) -> Data | None:
+        d = topics.get((name, 0))
+        return d if d is not None and len(d.get("timestamp", ())) else None
+
+    _power_and_thrust(flight, topic, t0)
+    _armed_and_landed(flight, topic, t0)
+    _position_and_attitude(flight, topic, t0)
+    _motors(flight, topics, topic, t0, params)
+    _finish(flight)
+    return [flight]
+
+
+def _parse(raw: bytes, path: Path) -> tuple[Any, str | None]:
+    """The log's topics: the vectorised reader, else pyulog on the intact part; and the problem
+    found in the file, if any."""
     ulog: Any = ulog_fast.parse(raw, TOPICS)  # vectorised; None: something pyulog must handle
     if ulog is not None:
         problem = ulog.problem
@@ -356,19 +390,14 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         finally:
             for line in chatter.getvalue().splitlines()[:5]:
                 log.debug("%s: pyulog: %s", path, line)
-    if problem is not None:
-        warnings.append(problem)
-    elif getattr(ulog, "file_corruption", False):
-        warnings.append("corrupt data in the log (pyulog resynchronised); the good part is used")
-    topics = _topics(ulog)
-    if not topics:
-        raise DataFormatError(
-            "ULog holds none of the needed topics (" + ", ".join(TOPICS[:4]) + ", ...)",
-            file=str(path),
-        )
+    return ulog, problem
+
+
+def _metadata(
+    flight: FlightLog, ulog: Any, topics: dict[tuple[str, int], Data], params: dict[str, Any]
+) -> None:
+    """What the log says about itself: versions, topics, duration, the parameters kept."""
     t0 = int(ulog.start_timestamp)
-    params = dict(ulog.initial_parameters)
-    flight = FlightLog(path=str(path), format="ulog", warnings=warnings)
     info = ulog.msg_info_dict
     flight.metadata.update(
         {
@@ -387,14 +416,13 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         }
     )
     if params.get("MC_BAT_SCALE_EN", 0):
-        warnings.append(
+        flight.warnings.append(
             "MC_BAT_SCALE_EN=1: PX4 already scaled the thrust setpoint by battery_status.scale"
         )
 
-    def topic(name: str) -> Data | None:
-        d = topics.get((name, 0))
-        return d if d is not None and len(d.get("timestamp", ())) else None
 
+def _power_and_thrust(flight: FlightLog, topic: Topic, t0: int) -> None:
+    """Battery voltage, upward specific force and the collective thrust command."""
     if (b := topic("battery_status")) is not None:
         key = "voltage_v" if "voltage_v" in b else "voltage_filtered_v"
         v = np.asarray(b[key], float)
@@ -419,6 +447,10 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         flight.thrust_cmd_norm = _signal(
             _time(ac, t0), ac["control[3]"], "1", "actuator_controls_0.control[3]"
         )
+
+
+def _armed_and_landed(flight: FlightLog, topic: Topic, t0: int) -> None:
+    """Armed, landed and ground contact (step signals: the state since its last sample)."""
     if (vs := topic("vehicle_status")) is not None:
         flight.armed = _signal(
             _state_time(vs, t0),
@@ -443,6 +475,10 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
                 "bool",
                 "vehicle_land_detected." + " | ".join(contact),
             )
+
+
+def _position_and_attitude(flight: FlightLog, topic: Topic, t0: int) -> None:
+    """Height, range, climb rate, the hover-thrust estimate and the tilt."""
     if (lp := topic("vehicle_local_position")) is not None:
         t_lp = _time(lp, t0)
         ok = np.asarray(lp.get("z_valid", np.ones(len(t_lp))), bool)
@@ -480,6 +516,18 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         flight.extras["tilt_deg"] = _signal(
             _time(att, t0), np.degrees(np.arccos(cos_tilt)), "deg", "vehicle_attitude.q"
         )
+
+
+def _motors(
+    flight: FlightLog,
+    topics: dict[tuple[str, int], Data],
+    topic: Topic,
+    t0: int,
+    params: dict[str, Any],
+) -> None:
+    """The motor outputs: actuator_motors in the motors' output ranges, else the PWM or UAVCAN
+    outputs; which outputs are motors (the frame, else those that move)."""
+    warnings = flight.warnings
     frame = rotor_count(params)
     if frame is not None:
         flight.metadata["motor_channels"] = frame[1]
@@ -535,6 +583,11 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
             warnings.append(
                 "no MAV_TYPE in the log: motors taken as the leading moving outputs; check --rotors"
             )
+
+
+def _finish(flight: FlightLog) -> None:
+    """An empty step signal is absent; say what is missing."""
+    warnings = flight.warnings
     for state in ("armed", "landed"):  # an empty step signal holds nothing: treat as absent
         sig = getattr(flight, state)
         if sig is not None and not len(sig):
@@ -544,4 +597,3 @@ def read(path: Path, **_: Any) -> list[FlightLog]:
         warnings.append("no sensor_combined / vehicle_acceleration: no upward specific force")
     if flight.voltage_v is None:
         warnings.append("no battery_status: no battery voltage")
-    return [flight]

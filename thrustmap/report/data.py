@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap import __version__
 from thrustmap.core.errors import ConfigError, ThrustmapError
+from thrustmap.core.version import package_version
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit.coefficients import Pool, pool
 from thrustmap.fitting.fit.validation import Row, validate
@@ -92,7 +92,7 @@ class ReportData:
     gamma: GammaData | None
     exports: list[ExportRow]
     notes: list[str] = field(default_factory=list)
-    tool_version: str = __version__
+    tool_version: str = field(default_factory=package_version)
     #: the map's values every export writes (``fitting.mapvalues``), None: not computed
     map_values: MapValues | None = None
     #: the stand logs given that are not the map's sources (by sha256): scored, not fitted on

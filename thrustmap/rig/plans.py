@@ -13,7 +13,7 @@ when discharging cannot get there, a ``PackChange`` (the runner stops the motor,
 stop, asks for the other pack and checks that the voltage moved).
 
 The segments live in ``rig.segments`` and the adaptive plan's feedback side in
-``rig.adaptive_plan``; both are re-exported here, the one module a script needs.
+``rig.adaptive_plan``; a script needs only this module (``thrustmap.plans``).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ One monotonic clock (injected) timestamps everything; with a ``SimClock`` a test
 minute-long sweep in milliseconds and never sleeps for real.
 
 What a run is set up with, reports and returns (``RunConfig``, ``Status``, ``RunResult``) is in
-``rig.run_types`` and re-exported here. The ``Runner`` itself stays one class on purpose: every
+``rig.run_types``. The ``Runner`` itself stays one class on purpose: every
 way out of a run (and every stop it must verify) is in one place.
 """
 

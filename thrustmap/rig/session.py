@@ -3,8 +3,7 @@
 ``thrustmap sweep``, ``thrustmap spin`` and every script in ``scripts/`` go through here::
 
     rig = Rig(stand="sim://tyto-1585", throttle="sim://betaflight")
-    clock = choose_clock(rig.urls())
-    with BenchSession(rig, clock) as bench:          # SIGTERM now unwinds like Ctrl-C
+    with BenchSession(rig) as bench:   # its clock: choose_clock(rig.urls()); SIGTERM unwinds
         result = bench.sweep(plan, "run.csv", limits=Limits())
     sys.exit(exit_code(result.outcome, result.stop_verified))
 
@@ -156,9 +155,11 @@ class BenchSession:
     """The devices of one bench session, open between ``__enter__`` and ``__exit__`` (see
     module). ``output`` and ``stand`` are available inside the block."""
 
-    def __init__(self, rig: Rig, clock: Clock) -> None:
+    def __init__(self, rig: Rig, clock: Clock | None = None) -> None:
         self.rig = rig
-        self.clock = clock
+        #: the session's clock; by default THE rule (``choose_clock``): simulated time when
+        #: nothing real is behind any of the rig's URLs, else the monotonic clock
+        self.clock = clock if clock is not None else choose_clock(rig.urls())
         self._stack = contextlib.ExitStack()
         self._output: ThrottleOutput | None = None
         self._stand: Stand | None = None

@@ -21,7 +21,7 @@ MSP_MOTOR / MOTOR_CONFIG reads, and SET_ARMING_DISABLED 0 after a verified stop.
 
 Run as ``python -m thrustmap.rig.watchdog --url URL --parent-pid PID [--baud N] [--log FILE]``;
 :func:`~thrustmap.rig.watchdog_handle.start_watchdog` does that and returns a
-:class:`~thrustmap.rig.watchdog_handle.Watchdog` handle (re-exported here). The handle lives in
+:class:`~thrustmap.rig.watchdog_handle.Watchdog` handle. The handle lives in
 ``rig.watchdog_handle``, below both this process and the MSP driver that starts it.
 """
 

@@ -13,7 +13,7 @@ within ``max_gap_s`` of a bin leaves it empty). Then:
 ``extract()`` returns the table and a report of how much flight time each filter dropped and
 why; ``write_df()`` writes the CSV plus a JSON sidecar naming the origin of every column.
 
-The package, one module per job (``thrustmap.fitting.df`` keeps every public name):
+The package, one module per job, each imported by its own path (``thrustmap.fitting.df.<module>``; this file re-exports no name):
 ``options`` (DfOptions, the constants, the report types), ``table`` (the Df table),
 ``resample`` (one timeline: bins, running statistics, time sanity), ``airborne`` (the rules that
 tell ground from free flight, the rest calibration), ``thrust`` (T_c from the motor outputs

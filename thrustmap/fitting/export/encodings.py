@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from thrustmap import __version__
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import SCALES, ThrottleScale
+from thrustmap.core.version import package_version
 from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
 from thrustmap.fitting.mapvalues import MapValue, MapValues, map_values, pct_to_native
 from thrustmap.fitting.models import PolyModel
@@ -186,7 +186,7 @@ def header_lines(
     box = tmap.validity
     digest = tmap.file_sha256 or "(map built in memory; no file hash)"
     lines = [
-        f"thrustmap {__version__} export: {title}",
+        f"thrustmap {package_version()} export: {title}",
         f"map file sha256: {digest}",
         f"map model: {tmap.model} ({tmap.model_def.formula}), loss {tmap.loss}, "
         f"strategy {tmap.strategy}, created {tmap.created_utc or 'unknown'}",

@@ -6,7 +6,7 @@ counts every held-out point, with the points inside and outside the training poi
 region beside it.
 ``evaluate``: an existing map against new files.
 
-The package, one module per job (``thrustmap.fitting.fit`` keeps every public name):
+The package, one module per job, each imported by its own path (``thrustmap.fitting.fit.<module>``; this file re-exports no name):
 ``coefficients`` (the pooled points, coefficients, their covariance), ``fitmap`` (``fit_map``
 and its interval, checks and advice), ``backemf`` (the back-EMF trial), ``validation``
 (``validate``, ``compare``, ``evaluate``). No module imports another's private name.

@@ -15,7 +15,7 @@ What a loader assumes, it says (``Dataset.meta`` and a logged warning):
   measure, and thrust per electrical watt a propeller can make; anything else is refused with
   the file, line and column. A written ``nan`` or ``inf`` is never a measurement.
 
-The package, one module per job (``thrustmap.fitting.loaders`` keeps every public name):
+The package, one module per job, each imported by its own path (``thrustmap.fitting.loaders.<module>``; this file re-exports no name):
 ``load`` (``load_dataset``, ``ColumnMap``), ``formats`` (each format's reader, ``FORMATS``),
 ``table`` (the delimited text, its columns and cells), ``assemble`` (columns to a Dataset,
 sparse logs), ``checks`` (the unit checks against physics). No module imports another's private

@@ -44,7 +44,7 @@ Logs recorded by thrustmap say where each step begins and where the runner saw i
 marks are used instead of being guessed again. Step-summary exports (one averaged row per step)
 are steady-state points as they are. ``Points.report`` counts what each rule did.
 
-The package, one module per job (``thrustmap.fitting.selection`` keeps every public name):
+The package, one module per job, each imported by its own path (``thrustmap.fitting.selection.<module>``; this file re-exports no name):
 ``options`` (Selection, the sample roles), ``points`` (``select`` and ``Points``), ``rest`` (the
 rotor at rest, the load cell's zero), ``plateaus`` (levels, settling, sensor updates), ``stairs``
 (legs, pairing, disagreement), ``creep`` (a creeping load cell), ``steady`` (the extraction in

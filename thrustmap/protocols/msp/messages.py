@@ -9,7 +9,7 @@ floats; encoding rounds to the wire resolution.
 
 Decoding a payload too short for the fields it must hold raises :class:`MspPayloadError`
 (a :class:`~thrustmap.protocols.msp.framing.MspProtocolError`). Motor records and throttle encodings live
-in :mod:`thrustmap.protocols.msp.motor` and are re-exported here, so one import serves a driver.
+in :mod:`thrustmap.protocols.msp.motor`.
 """
 
 from __future__ import annotations

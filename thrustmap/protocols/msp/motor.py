@@ -2,8 +2,7 @@
 telemetry, ADVANCED_CONFIG's motor protocol, and the mapping from MSP's "external" motor values
 (1000..2000) to what the ESC receives for each protocol.
 
-Records follow the conventions of :mod:`thrustmap.protocols.msp.messages` (which re-exports
-everything here): ``CMD``, ``encode() -> bytes``, ``decode(payload)``, SI units.
+Records follow the conventions of :mod:`thrustmap.protocols.msp.messages`: ``CMD``, ``encode() -> bytes``, ``decode(payload)``, SI units.
 
 Betaflight's motor protocol enum (ADVANCED_CONFIG) is :class:`MotorProtocol`; INAV numbers its
 protocols differently, so INAV drivers should not trust ``AdvancedConfig.protocol``.

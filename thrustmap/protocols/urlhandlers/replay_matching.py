@@ -37,7 +37,7 @@ The rules, all in message terms:
   stream goes on by the clock alone (so a driver that stops can still see the device idle).
 
 Pure: no I/O and no clock of its own (times are passed in, relative to the port's opening).
-How each protocol's bytes become messages is in ``transcript_messages`` (re-exported here).
+How each protocol's bytes become messages is in ``transcript_messages``.
 """
 
 from __future__ import annotations

@@ -12,7 +12,6 @@
 - ``opening``: throttle outputs and stands opened through the registry.
 - ``probe``: identity plus a short live reading (``thrustmap probe``).
 
-``thrustmap.rig.connect`` re-exports all of it for callers that know only that module; nothing
-here imports it.
+Each is imported by its own path (``from thrustmap.rig.devices.opening import open_stand``).
 Adding a device: declare a ``Driver`` in ``builtin`` (or ``registry.register`` one).
 """

@@ -2,8 +2,7 @@
 ESC as a throttle output (``open_throttle_output``), a thrust stand (``open_stand``), and the ESC
 output of an open stand (``stand_esc_output``).
 
-Below ``probe`` (which opens what it reports on) and ``rig.connect`` (which re-exports these for
-the bench session and every caller that knows only that module).
+Below ``probe`` (which opens what it reports on) and the bench session (``rig.session``).
 """
 
 from __future__ import annotations

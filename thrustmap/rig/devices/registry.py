@@ -4,7 +4,7 @@ A ``Driver`` says what it is (``kind``, ``aliases``, ``role``), how to recognise
 writing to it (the ``sim://`` peer names it answers to, what it sends unasked, what a host
 writes to it first), and how to open it (``open_output`` for flight controllers; ``open_stand``
 and ``esc_output`` for stands). Detection (``rig.devices.detect``), ``thrustmap ports --probe``
-and ``thrustmap probe`` iterate ``drivers()``; ``rig.connect`` opens through ``driver(kind)``.
+and ``thrustmap probe`` iterate ``drivers()``; ``rig.devices.opening`` opens through ``driver(kind)``.
 
 The built-in drivers (``rig.devices.builtin``) are imported on first use, so importing the
 registry costs nothing and a driver's heavy dependencies (pymavlink) load only when it opens.

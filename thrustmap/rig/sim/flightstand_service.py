@@ -26,254 +26,268 @@ from thrustmap.rig.sim.flightstand_core import (
 log = logging.getLogger(__name__)
 
 
-def make_servicer(core: FlightStandCore) -> Any:
-    """The gRPC servicer: the package's ``FlightStandServicer`` with the calls implemented."""
-    import grpc
-    from FlightStand import flight_stand_api_v1_pb2_grpc as fs_grpc
+class FlightStandCalls:
+    """Every call of the Flight Stand service implemented on a ``FlightStandCore``: the
+    servicer's methods (``make_servicer`` puts them on the package's ``FlightStandServicer``).
+    """
 
-    fs = core.fs
+    def __init__(self, core: FlightStandCore) -> None:
+        import grpc
 
-    def abort(context: Any, code: Any, message: str) -> NoReturn:
+        self.core = core
+        self.fs = core.fs
+        self.codes = grpc.StatusCode
+
+    def _abort(self, context: Any, code: Any, message: str) -> NoReturn:
         context.abort(code, message)  # raises
         raise AssertionError("unreachable")
 
-    def board_of(context: Any, name: str) -> Board:
-        board = core.boards.get(name)
+    def _board_of(self, context: Any, name: str) -> Board:
+        board = self.core.boards.get(name)
         if board is None:
-            abort(context, grpc.StatusCode.NOT_FOUND, f"no board {name!r}")
+            self._abort(context, self.codes.NOT_FOUND, f"no board {name!r}")
         return board
 
-    class Servicer(fs_grpc.FlightStandServicer):  # type: ignore[misc]
-        def GetServerStatus(self, request: Any, context: Any) -> Any:  # noqa: N802
-            core.heartbeat()
-            return fs.ServerStatus()
+    def GetServerStatus(self, request: Any, context: Any) -> Any:  # noqa: N802
+        self.core.heartbeat()
+        return self.fs.ServerStatus()
 
-        def GetCore(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                msg = fs.Core(autoconnect_com_ports=True, autosync_timestamps=True)
-                if core.cutoff is not None:
-                    msg.cutoff_active.CopyFrom(core.cutoff)
-                return msg
+    def GetCore(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            msg = self.fs.Core(autoconnect_com_ports=True, autosync_timestamps=True)
+            if self.core.cutoff is not None:
+                msg.cutoff_active.CopyFrom(self.core.cutoff)
+            return msg
 
-        def ListBoards(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                return fs.ListBoardsResponse(
-                    boards=[core.board_message(b) for b in core.boards.values()]
-                )
-
-        def GetBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                return core.board_message(board_of(context, request.name))
-
-        def CreateSimulatedBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
-            core.add_board()
-            return fs.CreateSimulatedBoardResponse()
-
-        def DisconnectBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                board = board_of(context, request.board_name)
-                board.esc.output_target.CopyFrom(board.esc.cutoff_target)
-                del core.boards[board.name]
-            return fs.DisconnectBoardResponse()
-
-        def ListInputs(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                return fs.ListInputsResponse(
-                    inputs=[i for b in core.boards.values() for i in b.inputs.values()]
-                )
-
-        def GetInput(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                for b in core.boards.values():
-                    for i in b.inputs.values():
-                        if i.name == request.name:
-                            return i
-            abort(context, grpc.StatusCode.NOT_FOUND, f"no input {request.name!r}")
-
-        def UpdateInput(self, request: Any, context: Any) -> Any:  # noqa: N802
-            allowed = {"alias", "reversed", "min_user_cutoff", "max_user_cutoff",
-                       "has_min_user_cutoff", "has_max_user_cutoff", "enabled"}  # fmt: skip
-            paths = list(request.mask.paths)
-            bad = [p for p in paths if p not in allowed]
-            if bad or not paths:
-                abort(context, grpc.StatusCode.INVALID_ARGUMENT,
-                              f"mask paths {bad or paths} cannot be updated")  # fmt: skip
-            with core.lock:
-                for b in core.boards.values():
-                    for i in b.inputs.values():
-                        if i.name == request.input.name:
-                            for p in paths:
-                                setattr(i, p, getattr(request.input, p))
-                            return i
-            abort(context, grpc.StatusCode.NOT_FOUND, f"no input {request.input.name!r}")
-
-        def ListOutputs(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                return fs.ListOutputsResponse(outputs=[b.esc for b in core.boards.values()])
-
-        def GetOutput(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                for b in core.boards.values():
-                    if b.esc.name == request.name:
-                        return b.esc
-            abort(context, grpc.StatusCode.NOT_FOUND, f"no output {request.name!r}")
-
-        def UpdateOutput(self, request: Any, context: Any) -> Any:  # noqa: N802
-            paths = list(request.mask.paths)
-            if paths != ["output_target"]:
-                abort(context, grpc.StatusCode.INVALID_ARGUMENT,
-                              f"this simulated core updates output_target only, not {paths}")  # fmt: skip
-            with core.lock:
-                board = next((b for b in core.boards.values() if b.esc.name == request.output.name),
-                             None)  # fmt: skip
-                if board is None:
-                    abort(context, grpc.StatusCode.NOT_FOUND, f"no output {request.output.name!r}")
-                target = request.output.output_target
-                esc = board.esc
-                if target.active and not (
-                    esc.min_user_value <= target.target_value <= esc.max_user_value
-                ):
-                    context.abort(
-                        grpc.StatusCode.INVALID_ARGUMENT,
-                        f"output target {target.target_value:g} outside the user range "
-                        f"[{esc.min_user_value:g}, {esc.max_user_value:g}]",
-                    )
-                if core.cutoff is not None and (
-                    target.active != esc.cutoff_target.active
-                    or target.target_value != esc.cutoff_target.target_value
-                ):
-                    abort(context, grpc.StatusCode.FAILED_PRECONDITION,
-                                  "a cutoff is active: clear it before changing an output")  # fmt: skip
-                esc.output_target.CopyFrom(target)
-                esc.output_target.target_value = round(target.target_value / esc.step_size) * (
-                    esc.step_size
-                )
-                return esc
-
-        def ListSamples(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                group = core.history[-1] if core.history else fs.SampleGroup()
-                return fs.ListSamplesResponse(sample_group=group)
-
-        def WatchSamples(self, requests: Any, context: Any) -> Iterator[Any]:  # noqa: N802
-            """As the service documents it: a bidirectional stream at a fixed 10 Hz, one
-            response per request (the client acknowledges each), the groups taken since the last
-            response buffered up to ``WATCH_BUFFER_GROUPS``."""
-            with core.lock:
-                if core.watchers >= MAX_WATCHERS:
-                    abort(context, grpc.StatusCode.RESOURCE_EXHAUSTED,
-                          f"at most {MAX_WATCHERS} sample watchers")  # fmt: skip
-                core.watchers += 1
-                seen = core.watch_count
-            try:
-                for _ in requests:
-                    groups: list[Any] = []
-                    while not groups and context.is_active() and not core.closed:
-                        with core.new_group:
-                            core.new_group.wait_for(
-                                functools.partial(core.has_news, seen), timeout=0.5
-                            )
-                            fresh = min(core.watch_count - seen, len(core.watch_history))
-                            if fresh:
-                                groups = list(core.watch_history)[-fresh:]
-                            seen = core.watch_count
-                    if not groups:
-                        return
-                    yield fs.WatchSamplesResponse(sample_groups=groups)
-            finally:
-                with core.lock:
-                    core.watchers -= 1
-
-        def ListSignalStats(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                names = [s.signal_name for s in core.history[-1].samples] if core.history else []
-            rate = 1.0 / core.period_s
-            return fs.ListSignalStatsResponse(
-                signal_stats=[fs.SignalStat(signal_name=n, update_rate_hz=rate) for n in names]
+    def ListBoards(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            return self.fs.ListBoardsResponse(
+                boards=[self.core.board_message(b) for b in self.core.boards.values()]
             )
 
-        def TareInputs(self, request: Any, context: Any) -> Any:  # noqa: N802
-            core.tare()
-            return fs.TareInputsResponse()
+    def GetBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            return self.core.board_message(self._board_of(context, request.name))
 
-        def TriggerCutoff(self, request: Any, context: Any) -> Any:  # noqa: N802
-            core.trigger_cutoff(fs.CutoffCondition(type=fs.MANUAL), "TriggerCutoff")
-            return fs.TriggerCutoffResponse()
+    def CreateSimulatedBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
+        self.core.add_board()
+        return self.fs.CreateSimulatedBoardResponse()
 
-        def ClearCutoff(self, request: Any, context: Any) -> Any:  # noqa: N802
-            holding = core.conditions_holding()
-            with core.lock:
-                if core.cutoff is None:
-                    return fs.ClearCutoffResponse()
-                if holding:
-                    abort(context, grpc.StatusCode.FAILED_PRECONDITION,
-                                  "a cutoff condition still holds")  # fmt: skip
-                core.cutoff = None
-                log.info("simulated Flight Stand core: cutoff cleared")
-            return fs.ClearCutoffResponse()
+    def DisconnectBoard(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            board = self._board_of(context, request.board_name)
+            board.esc.output_target.CopyFrom(board.esc.cutoff_target)
+            del self.core.boards[board.name]
+        return self.fs.DisconnectBoardResponse()
 
-        def ListCutoffConditions(self, request: Any, context: Any) -> Any:  # noqa: N802
-            return fs.ListCutoffConditionsResponse(cutoff_conditions=core.conditions_holding())
+    def ListInputs(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            return self.fs.ListInputsResponse(
+                inputs=[i for b in self.core.boards.values() for i in b.inputs.values()]
+            )
 
-        def TakeSampleTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
-            if not core.take_manual_sample():
-                abort(
-                    context, grpc.StatusCode.RESOURCE_EXHAUSTED, "manual samples are rate limited"
+    def GetInput(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            for b in self.core.boards.values():
+                for i in b.inputs.values():
+                    if i.name == request.name:
+                        return i
+        self._abort(context, self.codes.NOT_FOUND, f"no input {request.name!r}")
+
+    def UpdateInput(self, request: Any, context: Any) -> Any:  # noqa: N802
+        allowed = {"alias", "reversed", "min_user_cutoff", "max_user_cutoff",
+                   "has_min_user_cutoff", "has_max_user_cutoff", "enabled"}  # fmt: skip
+        paths = list(request.mask.paths)
+        bad = [p for p in paths if p not in allowed]
+        if bad or not paths:
+            self._abort(context, self.codes.INVALID_ARGUMENT,
+                          f"mask paths {bad or paths} cannot be updated")  # fmt: skip
+        with self.core.lock:
+            for b in self.core.boards.values():
+                for i in b.inputs.values():
+                    if i.name == request.input.name:
+                        for p in paths:
+                            setattr(i, p, getattr(request.input, p))
+                        return i
+        self._abort(context, self.codes.NOT_FOUND, f"no input {request.input.name!r}")
+
+    def ListOutputs(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            return self.fs.ListOutputsResponse(outputs=[b.esc for b in self.core.boards.values()])
+
+    def GetOutput(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            for b in self.core.boards.values():
+                if b.esc.name == request.name:
+                    return b.esc
+        self._abort(context, self.codes.NOT_FOUND, f"no output {request.name!r}")
+
+    def UpdateOutput(self, request: Any, context: Any) -> Any:  # noqa: N802
+        paths = list(request.mask.paths)
+        if paths != ["output_target"]:
+            self._abort(context, self.codes.INVALID_ARGUMENT,
+                          f"this simulated core updates output_target only, not {paths}")  # fmt: skip
+        with self.core.lock:
+            board = next((b for b in self.core.boards.values() if b.esc.name == request.output.name),
+                         None)  # fmt: skip
+            if board is None:
+                self._abort(context, self.codes.NOT_FOUND, f"no output {request.output.name!r}")
+            target = request.output.output_target
+            esc = board.esc
+            if target.active and not (
+                esc.min_user_value <= target.target_value <= esc.max_user_value
+            ):
+                context.abort(
+                    self.codes.INVALID_ARGUMENT,
+                    f"output target {target.target_value:g} outside the user range "
+                    f"[{esc.min_user_value:g}, {esc.max_user_value:g}]",
                 )
-            return fs.TakeSampleTestRecorderResponse()
+            if self.core.cutoff is not None and (
+                target.active != esc.cutoff_target.active
+                or target.target_value != esc.cutoff_target.target_value
+            ):
+                self._abort(context, self.codes.FAILED_PRECONDITION,
+                              "a cutoff is active: clear it before changing an output")  # fmt: skip
+            esc.output_target.CopyFrom(target)
+            esc.output_target.target_value = round(target.target_value / esc.step_size) * (
+                esc.step_size
+            )
+            return esc
 
-        def ClearTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
-            core.clear_recorder()
-            return fs.ClearTestRecorderResponse()
+    def ListSamples(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            group = self.core.history[-1] if self.core.history else self.fs.SampleGroup()
+            return self.fs.ListSamplesResponse(sample_group=group)
 
-        def GetTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                return fs.TestRecorder(
-                    is_continuous_recording=core.continuous is not None,
-                    title=core.recorder_title,
-                    manual_samples_count=len(core.manual),
-                )
+    def WatchSamples(self, requests: Any, context: Any) -> Iterator[Any]:  # noqa: N802
+        """As the service documents it: a bidirectional stream at a fixed 10 Hz, one
+        response per request (the client acknowledges each), the groups taken since the last
+        response buffered up to ``WATCH_BUFFER_GROUPS``."""
+        with self.core.lock:
+            if self.core.watchers >= MAX_WATCHERS:
+                self._abort(context, self.codes.RESOURCE_EXHAUSTED,
+                      f"at most {MAX_WATCHERS} sample watchers")  # fmt: skip
+            self.core.watchers += 1
+            seen = self.core.watch_count
+        try:
+            for _ in requests:
+                groups: list[Any] = []
+                while not groups and context.is_active() and not self.core.closed:
+                    with self.core.new_group:
+                        self.core.new_group.wait_for(
+                            functools.partial(self.core.has_news, seen), timeout=0.5
+                        )
+                        fresh = min(self.core.watch_count - seen, len(self.core.watch_history))
+                        if fresh:
+                            groups = list(self.core.watch_history)[-fresh:]
+                        seen = self.core.watch_count
+                if not groups:
+                    return
+                yield self.fs.WatchSamplesResponse(sample_groups=groups)
+        finally:
+            with self.core.lock:
+                self.core.watchers -= 1
 
-        def UpdateTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
-            for path in request.mask.paths:
-                if path == "is_continuous_recording":
-                    core.set_recording(request.test_recorder.is_continuous_recording)
-                elif path == "title":
-                    with core.lock:
-                        core.recorder_title = request.test_recorder.title
-                else:
-                    abort(context, grpc.StatusCode.INVALID_ARGUMENT, f"cannot update {path!r}")
-            return self.GetTestRecorder(fs.GetTestRecorderRequest(), context)
+    def ListSignalStats(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            names = (
+                [s.signal_name for s in self.core.history[-1].samples] if self.core.history else []
+            )
+        rate = 1.0 / self.core.period_s
+        return self.fs.ListSignalStatsResponse(
+            signal_stats=[self.fs.SignalStat(signal_name=n, update_rate_hz=rate) for n in names]
+        )
 
-        def SaveTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                if not core.recorder_title:
-                    abort(context, grpc.StatusCode.FAILED_PRECONDITION, "a test needs a title")
-                return fs.SaveTestRecorderResponse(test_name=core.save())
+    def TareInputs(self, request: Any, context: Any) -> Any:  # noqa: N802
+        self.core.tare()
+        return self.fs.TareInputsResponse()
 
-        def ListTestData(self, request: Any, context: Any) -> Any:  # noqa: N802
-            with core.lock:
-                test = core.tests.get(request.test_name)
-            if test is None:
-                abort(context, grpc.StatusCode.NOT_FOUND, f"no test {request.test_name!r}")
-            _, manual, segments = test
-            if request.continuous_recording:
-                if not 0 <= request.continuous_segment_index < len(segments):
-                    abort(context, grpc.StatusCode.OUT_OF_RANGE, "no such continuous segment")
-                step = seconds_of(request.resample_step_duration)
-                rows = resample(segments[request.continuous_segment_index], step, fs)
+    def TriggerCutoff(self, request: Any, context: Any) -> Any:  # noqa: N802
+        self.core.trigger_cutoff(self.fs.CutoffCondition(type=self.fs.MANUAL), "TriggerCutoff")
+        return self.fs.TriggerCutoffResponse()
+
+    def ClearCutoff(self, request: Any, context: Any) -> Any:  # noqa: N802
+        holding = self.core.conditions_holding()
+        with self.core.lock:
+            if self.core.cutoff is None:
+                return self.fs.ClearCutoffResponse()
+            if holding:
+                self._abort(context, self.codes.FAILED_PRECONDITION,
+                              "a cutoff condition still holds")  # fmt: skip
+            self.core.cutoff = None
+            log.info("simulated Flight Stand core: cutoff cleared")
+        return self.fs.ClearCutoffResponse()
+
+    def ListCutoffConditions(self, request: Any, context: Any) -> Any:  # noqa: N802
+        return self.fs.ListCutoffConditionsResponse(
+            cutoff_conditions=self.core.conditions_holding()
+        )
+
+    def TakeSampleTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
+        if not self.core.take_manual_sample():
+            self._abort(context, self.codes.RESOURCE_EXHAUSTED, "manual samples are rate limited")
+        return self.fs.TakeSampleTestRecorderResponse()
+
+    def ClearTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
+        self.core.clear_recorder()
+        return self.fs.ClearTestRecorderResponse()
+
+    def GetTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            return self.fs.TestRecorder(
+                is_continuous_recording=self.core.continuous is not None,
+                title=self.core.recorder_title,
+                manual_samples_count=len(self.core.manual),
+            )
+
+    def UpdateTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
+        for path in request.mask.paths:
+            if path == "is_continuous_recording":
+                self.core.set_recording(request.test_recorder.is_continuous_recording)
+            elif path == "title":
+                with self.core.lock:
+                    self.core.recorder_title = request.test_recorder.title
             else:
-                rows = manual
-            size = request.page_size if request.page_size > 0 else 1000
-            start = int(request.page_token) if request.page_token.isdigit() else 0
-            end = min(start + size, len(rows))
-            token = str(end) if end < len(rows) else ""
-            return fs.ListTestSamplesResponse(
-                sample_groups=rows[start:end], next_page_token=token, progress=100.0,
-                rows_count=len(rows),
-            )  # fmt: skip
+                self._abort(context, self.codes.INVALID_ARGUMENT, f"cannot update {path!r}")
+        return self.GetTestRecorder(self.fs.GetTestRecorderRequest(), context)
 
-    return Servicer()
+    def SaveTestRecorder(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            if not self.core.recorder_title:
+                self._abort(context, self.codes.FAILED_PRECONDITION, "a test needs a title")
+            return self.fs.SaveTestRecorderResponse(test_name=self.core.save())
+
+    def ListTestData(self, request: Any, context: Any) -> Any:  # noqa: N802
+        with self.core.lock:
+            test = self.core.tests.get(request.test_name)
+        if test is None:
+            self._abort(context, self.codes.NOT_FOUND, f"no test {request.test_name!r}")
+        _, manual, segments = test
+        if request.continuous_recording:
+            if not 0 <= request.continuous_segment_index < len(segments):
+                self._abort(context, self.codes.OUT_OF_RANGE, "no such continuous segment")
+            step = seconds_of(request.resample_step_duration)
+            rows = resample(segments[request.continuous_segment_index], step, self.fs)
+        else:
+            rows = manual
+        size = request.page_size if request.page_size > 0 else 1000
+        start = int(request.page_token) if request.page_token.isdigit() else 0
+        end = min(start + size, len(rows))
+        token = str(end) if end < len(rows) else ""
+        return self.fs.ListTestSamplesResponse(
+            sample_groups=rows[start:end], next_page_token=token, progress=100.0,
+            rows_count=len(rows),
+        )  # fmt: skip
+
+
+def make_servicer(core: FlightStandCore) -> Any:
+    """The gRPC servicer: the package's ``FlightStandServicer`` with the calls implemented."""
+    from FlightStand import flight_stand_api_v1_pb2_grpc as fs_grpc
+
+    class Servicer(FlightStandCalls, fs_grpc.FlightStandServicer):  # type: ignore[misc]
+        pass
+
+    return Servicer(core)
 
 
 class FlightStandServer:

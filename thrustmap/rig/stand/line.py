@@ -27,7 +27,7 @@ does not answer ``#ERR`` to the stop command).
 
 ``load_line_spec(path)`` reads a user's own stand description (JSON, see
 ``line_spec_from_dict``) with errors that name the file, the key and, where it can, the line;
-that reader lives in ``rig.stand.line_spec`` and is re-exported here.
+that reader lives in ``rig.stand.line_spec``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ Formulas (reference/mavlink.md, reference/msp.md, seed 2):
   out = m·(1 + e·(1 − m)·(1 + e·(1 − 2m))) (2026.6+), e = value/100, m = T/T_max.
 (Aerostack2 and seed 2's Crazyflie linearisation are in ``export_platforms``.)
 
-The package, one module per firmware (``thrustmap.fitting.export.firmware`` keeps every public
+The package, one module per firmware, each imported by its own path (``thrustmap.fitting.export.firmware.<module>``; this file re-exports no
 name): ``px4``, ``ardupilot``, ``betaflight``, over ``common`` (the samples, the output range and
 the spin-up they share). No module imports another's private name.
 """
