@@ -29,30 +29,16 @@ FORWARDING_ALLOWED = {
 
 #: functions still over the limits until they are split (issue 41); the list only shrinks
 TO_SPLIT_LONG = {
-    "thrustmap.fitting.selection.steady:steady_state",
-    "thrustmap.fitting.df.extraction:extract_flight_columns",
-    "thrustmap.fitting.gamma:fit_gamma",
     "thrustmap.cli.fleet:extract_cmd",
     "thrustmap.cli.gammalive:gamma_live_cmd",
     "thrustmap.cli.flight:gamma_fit_cmd",
-    "thrustmap.cli.fitcmd:predict_cmd",
-    "thrustmap.fitting.export.firmware.ardupilot:export_ardupilot",
-    "thrustmap.fitting.interval:learn_interval",
 }
 TO_SPLIT_PARAMETERS = {
-    "thrustmap.rig.plans:adaptive",
     "thrustmap.fitting.loaders.assemble:finish_dataset",
-    "thrustmap.fitting.interval:learn_interval",
     "thrustmap.rig.script:run_script",
-    "thrustmap.rig.devices.probe:_probe",
     "thrustmap.rig.devices.opening:open_throttle_output",
     "thrustmap.fitting.gamma:fit_gamma",
     "thrustmap.fitting.fit.fitmap:model_interval",
-    "thrustmap.rig.sim.sysid:simulate_staircase",
-    "thrustmap.rig.runner:record_sweep",
-    "thrustmap.rig.plans:steps",
-    "thrustmap.rig.devices.probe:probe_device",
-    "thrustmap.fitting.df.airborne:in_air_evidence",
 }
 
 

@@ -503,10 +503,3 @@ RP2040_WHOOP = LineStandSpec(
 #: the presets defined here; every preset (one module per DIY firmware in
 #: ``protocols.stands.presets``, aliases) is in ``protocols.stands.line_presets``
 PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, RP2040_WHOOP)}
-
-
-def preset(name: str) -> LineStandSpec:
-    """Any preset by name or alias (``line_presets.preset``)."""
-    from thrustmap.protocols.stands.line_presets import preset as find
-
-    return find(name)
