@@ -35,10 +35,8 @@ TO_SPLIT_LONG = {
 }
 TO_SPLIT_PARAMETERS = {
     "thrustmap.fitting.loaders.assemble:finish_dataset",
-    "thrustmap.rig.script:run_script",
     "thrustmap.rig.devices.opening:open_throttle_output",
     "thrustmap.fitting.gamma:fit_gamma",
-    "thrustmap.fitting.fit.fitmap:model_interval",
 }
 
 

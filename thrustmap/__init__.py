@@ -8,7 +8,7 @@ The Python API (each imported on first use, so ``import thrustmap`` costs nothin
 - the bench: ``open_bench`` (a session on devices given by URL; it chooses its clock),
   ``plans`` (the plan builders: ``plans.stairs``, ``plans.steps``, ``plans.ramp``,
   ``plans.adaptive`` with a ``MapChooser``), ``Limits`` (the interlocks), ``RunResult``, and
-  ``run_script``/``script_exit_code`` (a standalone bench script: its arguments, the
+  ``run_script``/``ScriptBench``/``script_exit_code`` (a standalone bench script: its arguments, the
   operator's confirmation, the run; ``scripts/``).
 
 See ``help(thrustmap.fit)`` and the API page of the docs (docs/api.md).
@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time each name loads on 
     from thrustmap.rig import plans
     from thrustmap.rig.interlocks import Limits
     from thrustmap.rig.run_types import RunResult
-    from thrustmap.rig.script import run_script, script_exit_code
+    from thrustmap.rig.script import ScriptBench, run_script, script_exit_code
 
 #: the public API: name -> the module that defines it
 API = {
@@ -65,6 +65,7 @@ API = {
     "Limits": "thrustmap.rig.interlocks",
     "RunResult": "thrustmap.rig.run_types",
     "run_script": "thrustmap.rig.script",
+    "ScriptBench": "thrustmap.rig.script",
     "script_exit_code": "thrustmap.rig.script",
 }
 __all__ = [
@@ -72,6 +73,7 @@ __all__ = [
     "MapChooser",
     "Prediction",
     "RunResult",
+    "ScriptBench",
     "__version__",
     "compare",
     "corrected_map",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 from thrustmap.rig.interlocks import Limits
 from thrustmap.rig.plans import Plan
@@ -76,26 +77,39 @@ class SegmentLog:
         )
 
 
+@dataclass(frozen=True)
+class ScriptBench:
+    """A script's default devices (``--stand`` and ``--throttle`` override the URLs), the motor
+    on the load cell (1-based) and the rotors on its ESC (1: SR, 4: MR)."""
+
+    stand_url: str
+    throttle_url: str
+    motor: int = 1
+    rotors_on_esc: int = 1
+
+
 def run_script(
     plan: Plan,
     argv: Sequence[str] | None,
     *,
     limits: Limits,
-    stand_url: str,
-    throttle_url: str,
-    motor: int = 1,
-    rotors_on_esc: int = 1,
+    bench: ScriptBench,
     description: str = "",
     emit: Callable[[str], None],
     ask: Callable[[str], str],
 ) -> RunResult | None:
     """Parse ``--stand URL --throttle URL --calibration cal.json -o run.csv --yes``, ask
     "propellers on?" (unless ``--yes``), run ``plan`` with ``limits`` in one bench session and
-    record it. ``--throttle stand`` lets the stand drive the ESC. ``motor`` is 1-based.
+    record it. ``--throttle stand`` lets the stand drive the ESC.
     Returns None when the user declined (nothing was opened)."""
+    motor, rotors_on_esc = bench.motor, bench.rotors_on_esc
     ap = argparse.ArgumentParser(description=description or f"The {plan.name} experiment.")
-    ap.add_argument("--stand", default=stand_url, help="stand URL: serial port, sim://, replay://")
-    ap.add_argument("--throttle", default=throttle_url, help="FC URL, or 'stand' (its own ESC)")
+    ap.add_argument(
+        "--stand", default=bench.stand_url, help="stand URL: serial port, sim://, replay://"
+    )
+    ap.add_argument(
+        "--throttle", default=bench.throttle_url, help="FC URL, or 'stand' (its own ESC)"
+    )
     ap.add_argument("--calibration", help="calibration JSON of a real Tyto 1585")
     ap.add_argument("-o", "--output", default=f"{plan.name}.csv", help="the Ds log to write")
     ap.add_argument("--yes", action="store_true", help="do not ask whether the propellers are on")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -126,21 +126,28 @@ def bound_term(
     return [(float(np.percentile(delta, 95)), f"{which}: what freeing it would change")]
 
 
+class FittedPoints(NamedTuple):
+    """The points a model was fitted on: thrust, voltage, throttle and each one's file."""
+
+    thrust_n: FloatArray
+    voltage_v: FloatArray
+    throttle_pct: FloatArray
+    file_index: np.ndarray[Any, np.dtype[np.int64]]
+
+
 def model_interval(
     m: Model,
     coef: FloatArray,
-    t: FloatArray,
-    b: FloatArray,
-    th: FloatArray,
-    file_index: np.ndarray[Any, np.dtype[np.int64]],
+    points: FittedPoints,
     loss: Loss,
     ident: Identification | None = None,
     systematic: Sequence[tuple[float, str]] = (),
     file_fit: Callable[[int], Callable[[FloatArray, FloatArray], FloatArray]] | None = None,
 ) -> Interval | None:
     """The map's one 95 % prediction interval (fitting.interval.learn_interval) for model ``m``
-    fitted with ``coef`` on these points: what ``fit`` writes, and what ``compare`` scores
-    each fold's map with."""
+    fitted with ``coef`` on ``points``: what ``fit`` writes, and what ``compare`` scores each
+    fold's map with."""
+    t, b, th, file_index = points
 
     def predictor(
         tt: FloatArray, bb: FloatArray, tth: FloatArray, files: IntArray
@@ -185,10 +192,7 @@ def fit_map(
     interval = model_interval(
         m,
         coef,
-        data.thrust_n,
-        data.voltage_v,
-        data.throttle_pct,
-        data.file_index,
+        FittedPoints(data.thrust_n, data.voltage_v, data.throttle_pct, data.file_index),
         loss,
         ident,
         systematic_terms(data.points),

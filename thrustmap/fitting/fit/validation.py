@@ -13,7 +13,7 @@ import numpy as np
 from thrustmap.core.errors import ConfigError, FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset, FloatArray
 from thrustmap.fitting.fit.coefficients import Pool, check_fit_data, fit_coefficients, pool
-from thrustmap.fitting.fit.fitmap import model_interval, systematic_terms
+from thrustmap.fitting.fit.fitmap import FittedPoints, model_interval, systematic_terms
 from thrustmap.fitting.interval import Region
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.fitting.metrics import Coverage, ErrorStats, coverage, error_stats
@@ -241,10 +241,7 @@ def _fold_half_width(
         iv = model_interval(
             m,
             coef,
-            t,
-            b,
-            th,
-            data.file_index[train],
+            FittedPoints(t, b, th, data.file_index[train]),
             loss,
             systematic=systematic_terms([data.points[f] for f in files]),
         )
