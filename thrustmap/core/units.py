@@ -86,6 +86,7 @@ SCALES: dict[str, ThrottleScale] = {
         ThrottleScale("crazyflie", 0.0, 65535.0, "cmd"),
         ThrottleScale("crazyflie-cmd", 10001.0, 60000.0, "cmd"),
         ThrottleScale("percent", 0.0, 100.0, "%"),
+        ThrottleScale("duty8", 0.0, 255.0, "duty"),  # an 8-bit analogWrite() duty
         ThrottleScale("norm", 0.0, 1.0, "1"),
         ThrottleScale("norm-sym", -1.0, 1.0, "1"),
     )

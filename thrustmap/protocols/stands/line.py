@@ -42,6 +42,8 @@ from typing import Any
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.units import scale as lookup_scale
 
+#: lines a port must print before ``matches_lines`` identifies a preset from them
+IDENTIFY_MIN_LINES = 3
 FIELDS = ("time_s", "throttle", "thrust_n", "torque_nm", "voltage_v", "current_a", "rpm")
 MAX_LINE_BYTES = 4096
 
@@ -54,12 +56,23 @@ class Column:
     name: str | None = None
     scale: float = 1.0
     offset: float = 0.0
+    #: the firmware prints the count modulo this (a 16-bit ``%d`` of a wider count): the count
+    #: less its tare (``-offset / scale``) is taken in ``[-modulo/2, modulo/2)``
+    modulo: int | None = None
 
     def to_si(self, raw: float) -> float:
-        return raw * self.scale + self.offset
+        if self.modulo is None:
+            return raw * self.scale + self.offset
+        return _wrap(raw + self.offset / self.scale, self.modulo) * self.scale
 
     def from_si(self, value: float) -> float:
-        return (value - self.offset) / self.scale
+        raw = (value - self.offset) / self.scale
+        return raw if self.modulo is None else _wrap(raw, self.modulo)
+
+
+def _wrap(counts: float, modulo: int) -> float:
+    half = modulo / 2
+    return (counts + half) % modulo - half
 
 
 @dataclass(frozen=True)
@@ -79,6 +92,26 @@ class LineStandSpec:
     baudrate: int | None = None
     command_vars: Mapping[str, Any] = field(default_factory=dict)
     description: str = ""
+    #: where this preset comes from: the firmware's repository, pinned commit, file and line
+    source: str = ""
+    #: how the preset was checked (shown by ``thrustmap probe`` and the README's stand table)
+    verified: str = ""
+    #: False when the firmware only echoes the throttle it is sent (it drives no ESC): the
+    #: motor is then driven, and stopped, by the flight controller (``--throttle``)
+    drives_esc: bool = True
+    #: the firmware runs its own sweep: this line starts it (the motor spins: sent only when
+    #: asked), ``sequence_end`` ends it; the run is read as a recording (throttle from its rows)
+    sequence_start: str | None = None
+    sequence_end: str | None = None
+    #: resetting the board (a DTR pulse on an Arduino's auto-reset line) stops its output; the
+    #: way out for a firmware with no stop command
+    reset_stops: bool = False
+    #: identification by ``thrustmap probe``: every complete line the port prints unasked
+    #: fullmatches one of these regular expressions (at least ``IDENTIFY_MIN_LINES`` of them)
+    line_patterns: tuple[str, ...] = ()
+    #: fields read as raw counts: ``thrustmap stand calibrate`` (tare + a known mass) writes the
+    #: calibration that turns them into SI; until then the column's own scale is used
+    raw_counts: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         unknown = set(self.columns) - set(FIELDS)
@@ -100,7 +133,19 @@ class LineStandSpec:
                 )
             if col.scale == 0 or not math.isfinite(col.scale):
                 raise ConfigError(f"line stand '{self.name}': column {key} needs a finite scale")
+            if col.modulo is not None and col.modulo < 2:
+                raise ConfigError(f"line stand '{self.name}': column {key} modulo must be >= 2")
         lookup_scale(self.throttle_scale)
+        for pattern in self.line_patterns:
+            try:
+                re.compile(pattern)
+            except re.error as exc:
+                raise ConfigError(
+                    f"line stand '{self.name}': bad line pattern {pattern!r}: {exc}"
+                ) from None
+        for key in self.raw_counts:
+            if key not in self.columns:
+                raise ConfigError(f"line stand '{self.name}': raw_counts names no column {key}")
         for template in (self.throttle_command, self.stop_command):
             if template is not None:
                 try:
@@ -131,6 +176,17 @@ class LineStandSpec:
         if self.throttle_command is None:
             raise ConfigError(f"line stand '{self.name}' takes no commands")
         return self._format(self.throttle_command, 0.0).encode()
+
+    def matches_lines(self, lines: list[str]) -> bool:
+        """True when these complete lines (empty ones skipped) are what this stand prints:
+        at least ``IDENTIFY_MIN_LINES``, each fullmatching one of ``line_patterns``."""
+        if not self.line_patterns:
+            return False
+        texts = [ln.strip() for ln in lines if ln.strip()]
+        if len(texts) < IDENTIFY_MIN_LINES:
+            return False
+        patterns = [re.compile(p) for p in self.line_patterns]
+        return all(any(p.fullmatch(t) for p in patterns) for t in texts)
 
     def keepalive_bytes(self) -> bytes | None:
         return None if self.keepalive is None else self.keepalive.encode()
@@ -329,6 +385,9 @@ class LineStandDecoder:
         if self._indices is None:
             self._error(events, f"data before a usable {self.spec.header_prefix} header", text)
             return
+        if self.spec.sequence_end is not None and text == self.spec.sequence_end:
+            events.append(LineComment(self.line_no, text))
+            return
         parts = text.split(self.spec.delimiter) if self.spec.delimiter else text.split()
         values: dict[str, float] = {}
         for key, index in self._indices.items():
@@ -429,28 +488,13 @@ RP2040_WHOOP = LineStandSpec(
     description="RP2040 whoop stand; set log_ms/settle_ms in command_vars for your firmware",
 )
 
-#: STM32 + HX711 at 921600 baud: ``millis, throttle_us, raw_thrust`` lines, ``<int>\\n`` in.
-STM32_HX711 = LineStandSpec(
-    name="stm32-hx711",
-    columns={
-        "time_s": Column(index=0, scale=1e-3),
-        "throttle": Column(index=1),
-        "thrust_n": Column(index=2),
-    },
-    header_prefix=None,
-    throttle_scale="pwm",
-    throttle_command="{us:d}\n",
-    baudrate=921600,
-    description="STM32 + HX711; raw thrust needs with_load_cell('thrust_n', tare, n_per_count)",
-)
-
-PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, RP2040_WHOOP, STM32_HX711)}
+#: the presets defined here; every preset (one module per DIY firmware in
+#: ``protocols.stands.presets``, aliases) is in ``protocols.stands.line_presets``
+PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, RP2040_WHOOP)}
 
 
 def preset(name: str) -> LineStandSpec:
-    try:
-        return PRESETS[name.lower()]
-    except KeyError:
-        raise ConfigError(
-            f"unknown line stand preset '{name}'; expected one of: {', '.join(PRESETS)}"
-        ) from None
+    """Any preset by name or alias (``line_presets.preset``)."""
+    from thrustmap.protocols.stands.line_presets import preset as find
+
+    return find(name)

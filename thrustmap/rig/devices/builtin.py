@@ -12,7 +12,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from thrustmap.core.errors import ConfigError, ThrustmapError
-from thrustmap.protocols.stands.line import PRESETS, LineStandSpec, preset
+from thrustmap.protocols.stands.line import LineStandSpec
+from thrustmap.protocols.stands.line_presets import aliases, preset, presets
 from thrustmap.protocols.stands.tyto import TYTO_READY_LINE, TytoCalibration
 from thrustmap.rig.devices.declaration import Detection, Driver, OpenRequest
 from thrustmap.rig.devices.urls import (
@@ -221,8 +222,9 @@ TYTO = Driver(
 def sim_line_preset(options: Mapping[str, str]) -> str:
     """The line preset a ``sim://line-stand`` URL asks for (``line_preset=`` or ``preset=``)."""
     for key in ("line_preset", "preset"):
-        if options.get(key, "").lower() in PRESETS:
-            return options[key].lower()
+        name = options.get(key, "").lower()
+        if name in presets() or name in aliases():
+            return preset(name).name
     return "thrustmap-line"
 
 
@@ -234,7 +236,7 @@ def _line_sim(name: str, options: Mapping[str, str]) -> Detection | None:
 
 def _header_preset(names: Sequence[str]) -> str | None:
     lower = {n.lower() for n in names}
-    for spec in PRESETS.values():
+    for spec in presets().values():
         named = [c.name.lower() for c in spec.columns.values() if c.name is not None]
         if named and all(n in lower for n in named) and spec.header_names:
             return spec.name
@@ -251,18 +253,34 @@ def _line_classify(data: bytes, lines: list[str]) -> Detection | None:
             return Detection(
                 "line-stand", line_preset=_header_preset(names), evidence=f"header '{line[:60]}'"
             )
+    from thrustmap.protocols.stands.line_presets import identify
+
+    texts = [ln for ln in lines[1:] if ln]  # the first line may have been cut short
+    matched = identify(texts)
+    if len(matched) == 1:
+        return Detection(
+            "line-stand",
+            line_preset=matched[0].name,
+            evidence=f"{len(texts)} lines as {matched[0].name} prints them: {texts[0][:40]!r}",
+        )
     numeric = 0
     widths: set[int] = set()
-    for line in lines:
+    for line in texts:
         cells = [c for c in re.split(r"[,;\s]+", line) if c]
         if len(cells) >= 2 and all(_NUMBER.match(c) for c in cells):
             numeric += 1
             widths.add(len(cells))
     if numeric >= 3 and len(widths) == 1:
         width = widths.pop()
-        guess = "stm32-hx711" if width == 3 else None
+        which = (
+            f"matches presets {', '.join(s.name for s in matched)}"
+            if matched
+            else "matches no preset"
+        )
         return Detection(
-            "line-stand", line_preset=guess, evidence=f"{numeric} numeric lines of {width} fields"
+            "line-stand",
+            evidence=f"{numeric} numeric lines of {width} fields ({which}); first lines: "
+            + " | ".join(repr(t[:60]) for t in texts[:3]),
         )
     return None
 
@@ -290,7 +308,7 @@ def line_spec_for(
     if detected_preset is not None:
         return preset(detected_preset)
     raise ConfigError(
-        f"which line stand is on {url}? pass --line-preset ({', '.join(PRESETS)}) or "
+        f"which line stand is on {url}? pass --line-preset ({', '.join(presets())}) or "
         "--line-spec my-stand.json"
     )
 
@@ -317,7 +335,9 @@ def _open_line(req: OpenRequest) -> Stand:
 def _line_esc(stand: Stand, motor: int) -> ThrottleOutput | None:
     from thrustmap.rig.stand.line import LineStand, LineStandEscOutput
 
-    return LineStandEscOutput(stand, motor) if isinstance(stand, LineStand) else None
+    if not isinstance(stand, LineStand) or not stand.spec.drives_esc:
+        return None  # a stand that only measures: the FC drives (and stops) the motor
+    return LineStandEscOutput(stand, motor)
 
 
 LINE = Driver(

@@ -24,7 +24,8 @@ from collections.abc import Callable, Collection, Mapping
 from thrustmap.core.errors import ConfigError
 from thrustmap.core.units import scale as lookup_scale
 from thrustmap.protocols.peer import BytePeer, register_peer
-from thrustmap.protocols.stands.line import REFERENCE, LineStandSpec, preset
+from thrustmap.protocols.stands.line import REFERENCE, LineStandSpec
+from thrustmap.protocols.stands.line_presets import preset
 from thrustmap.protocols.stands.tyto import (
     TYTO_POLL_CODE,
     TYTO_READY_LINE,

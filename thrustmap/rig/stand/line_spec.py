@@ -15,7 +15,8 @@ from typing import Any
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.core.jsonfile import load_json
 from thrustmap.core.units import scale as lookup_scale
-from thrustmap.protocols.stands.line import FIELDS, Column, LineStandSpec, preset
+from thrustmap.protocols.stands.line import FIELDS, Column, LineStandSpec
+from thrustmap.protocols.stands.line_presets import preset
 
 SPEC_KEYS = {
     "format",
@@ -36,9 +37,17 @@ SPEC_KEYS = {
     "baudrate",
     "command_vars",
     "load_cell",
+    "source",
+    "verified",
+    "drives_esc",
+    "sequence_start",
+    "sequence_end",
+    "reset_stops",
+    "line_patterns",
+    "raw_counts",
 }
 SPEC_FORMAT = "thrustmap-line-stand"
-COLUMN_KEYS = {"index", "name", "scale", "offset"}
+COLUMN_KEYS = {"index", "name", "scale", "offset", "modulo"}
 LOAD_CELL_KEYS = {"field", "tare", "si_per_count"}
 
 
@@ -110,7 +119,12 @@ class _SpecReader:
         if scale == 0:
             raise self.error(path + ".scale", "expected a non-zero number")
         offset = 0.0 if "offset" not in data else self.number(data, "offset", path + ".offset")
-        return Column(index=index, name=name, scale=scale, offset=offset)
+        modulo = data.get("modulo")
+        if modulo is not None and (
+            isinstance(modulo, bool) or not isinstance(modulo, int) or modulo < 2
+        ):
+            raise self.error(path + ".modulo", f"expected an integer >= 2, got {modulo!r}")
+        return Column(index=index, name=name, scale=scale, offset=offset, modulo=modulo)
 
 
 def line_spec_from_dict(
@@ -148,12 +162,31 @@ def line_spec_from_dict(
         raise r.error(missing, "required (or 'extends' naming a preset to start from)")
 
     kwargs: dict[str, Any] = {}
-    for key in ("name", "description", "comment_prefix", "throttle_scale"):
+    for key in ("name", "description", "comment_prefix", "throttle_scale", "source", "verified"):
         if key in data:
             kwargs[key] = r.string(data, key, key)
-    for key in ("delimiter", "header_prefix", "throttle_command", "stop_command", "keepalive"):
+    for key in (
+        "delimiter",
+        "header_prefix",
+        "throttle_command",
+        "stop_command",
+        "keepalive",
+        "sequence_start",
+        "sequence_end",
+    ):
         if key in data:
             kwargs[key] = r.string(data, key, key, null=True)
+    for key in ("drives_esc", "reset_stops"):
+        if key in data:
+            if not isinstance(data[key], bool):
+                raise r.error(key, f"expected true or false, got {data[key]!r}")
+            kwargs[key] = data[key]
+    for key in ("line_patterns", "raw_counts"):
+        if key in data:
+            items = data[key]
+            if not isinstance(items, list) or not all(isinstance(n, str) for n in items):
+                raise r.error(key, "expected a list of strings")
+            kwargs[key] = tuple(items)
     if kwargs.get("delimiter") == "":
         raise r.error("delimiter", "expected a non-empty string, or null for whitespace")
     if "keepalive_interval_s" in data:
@@ -244,6 +277,8 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
             entry["name"] = col.name
         entry["scale"] = col.scale
         entry["offset"] = col.offset
+        if col.modulo is not None:
+            entry["modulo"] = col.modulo
         columns[key] = entry
     return {
         "format": SPEC_FORMAT,
@@ -262,4 +297,12 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "watchdog_s": spec.watchdog_s,
         "baudrate": spec.baudrate,
         "command_vars": dict(spec.command_vars),
+        "source": spec.source,
+        "verified": spec.verified,
+        "drives_esc": spec.drives_esc,
+        "sequence_start": spec.sequence_start,
+        "sequence_end": spec.sequence_end,
+        "reset_stops": spec.reset_stops,
+        "line_patterns": list(spec.line_patterns),
+        "raw_counts": list(spec.raw_counts),
     }
