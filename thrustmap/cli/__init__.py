@@ -41,6 +41,7 @@ COMMANDS: dict[str, str] = {
     "report": "report:report_cmd",
     "plot": "report:plot_cmd",
     "sim-serve": "simserve:simserve_cmd",
+    "stand": "standcmd:stand_group",
 }
 
 
@@ -65,6 +66,7 @@ SUMMARIES: dict[str, str] = {
     "report": "A self-contained HTML report of a map and its data.",
     "plot": "Publication figures of a map: surface, slices, residuals, coverage, gamma...",
     "sim-serve": "Serve a simulated device (a Flight Stand core) for scripts and drivers.",
+    "stand": "DIY line stands: calibrate the load cell, run the firmware's own sweep.",
 }
 
 

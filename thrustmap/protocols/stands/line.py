@@ -103,6 +103,15 @@ class LineStandSpec:
     #: asked), ``sequence_end`` ends it; the run is read as a recording (throttle from its rows)
     sequence_start: str | None = None
     sequence_end: str | None = None
+    #: the firmware's own sequence as its source defines it (for the simulator and the docs):
+    #: the throttle levels (``throttle_scale`` units), the wait after each level is set, then
+    #: ``sequence_rows`` rows ``sequence_row_period_s`` apart
+    sequence_levels: tuple[float, ...] = ()
+    sequence_settle_s: float = 0.0
+    sequence_rows: int = 0
+    sequence_row_period_s: float = 0.0
+    #: what the firmware prints between cells when it is not ``delimiter`` (``", "``)
+    row_separator: str | None = None
     #: resetting the board (a DTR pulse on an Arduino's auto-reset line) stops its output; the
     #: way out for a firmware with no stop command
     reset_stops: bool = False
@@ -234,7 +243,7 @@ class LineStandSpec:
             if key in values:
                 raw = self.columns[key].from_si(values[key])
                 cells[pos] = str(int(round(raw))) if abs(raw) < 1e15 else repr(raw)
-        return (self.delimiter or " ").join(cells)
+        return (self.row_separator or self.delimiter or " ").join(cells)
 
     def with_load_cell(self, field_name: str, tare: float, si_per_count: float) -> LineStandSpec:
         """Calibrate a raw column: ``si = (raw - tare) * si_per_count``."""

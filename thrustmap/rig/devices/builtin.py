@@ -322,8 +322,14 @@ def _open_line(req: OpenRequest) -> Stand:
         line_spec_file=req.line_spec_file,
         detected_preset=req.detected_preset,
     )
+    if req.calibration is not None:
+        from thrustmap.rig.stand.line_calibration import load_line_calibration
+
+        spec = load_line_calibration(req.calibration).apply(spec, req.calibration)
     baud = req.baudrate or spec.baudrate or LINE.default_baud
     stand = LineStand(open_port(req.url, req.clock, baudrate=baud), req.clock, spec)
+    if spec.sequence_start is not None:
+        return stand  # silent until its sequence is started: nothing to wait for
     try:
         stand.wait_for_data(req.wait_s)
     except BaseException:

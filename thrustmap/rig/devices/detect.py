@@ -106,6 +106,7 @@ def sniff(
     listen_s: float = 2.0,
     msp_timeout_s: float = 1.5,
     send_msp: bool = True,
+    heard: bytearray | None = None,
 ) -> Detection | None:
     """Listen for ``listen_s``, then (if nothing spoke) ask once for MSP API_VERSION, waiting
     as long as the MSP driver's longest wait (a SITL on a busy machine, a radio bridge)."""
@@ -124,6 +125,8 @@ def sniff(
             break
         else:
             clock.sleep_s(0.01)
+    if heard is not None:
+        heard += seen[: 4096 - len(heard)]
     if not send_msp:
         return None
     api = _msp_ask(port, clock, MspCommand.API_VERSION, msp_timeout_s)
@@ -177,12 +180,14 @@ def detect_kind(
             f"({', '.join(d.kind for d in drivers())})"
         )
     bauds = (baudrate,) if baudrate is not None else PROBE_BAUDS
+    heard: dict[int, bytearray] = {}
     for i, baud in enumerate(bauds):
         port = open_port(url, clock, baudrate=baud)
+        heard[baud] = bytearray()
         try:
             log.info("probing %s at %d baud", url, baud)
             # MSP is asked only on the first pass: FCs answer at any rate over USB.
-            found = sniff(port, clock, listen_s=listen_s, send_msp=(i == 0))
+            found = sniff(port, clock, listen_s=listen_s, send_msp=(i == 0), heard=heard[baud])
         finally:
             port.close()
         if found is not None:
@@ -191,8 +196,27 @@ def detect_kind(
     tried = ", ".join(str(b) for b in bauds)
     raise ConfigError(
         f"could not tell what is on {url} (listened at {tried} baud, asked MSP API_VERSION); "
-        "pass --kind and --baud"
+        f"{heard_summary(heard)}; pass --kind and --baud"
     )
+
+
+def heard_summary(heard: dict[int, bytearray]) -> str:
+    """What a port printed while it was listened to (its first lines), or that it was silent
+    and which presets' firmware waits silently for a start command probe never sends."""
+    for baud, data in heard.items():
+        lines = [ln.strip() for ln in re.split(r"[\r\n]+", data.decode("latin-1")) if ln.strip()]
+        if lines:
+            shown = " | ".join(repr(ln[:60]) for ln in lines[:3])
+            return f"at {baud} baud it printed {shown}, which no preset knows"
+    from thrustmap.protocols.stands.line_presets import presets
+
+    silent = [
+        f"{s.name} (waits for {s.sequence_start.strip()!r}, which starts its sweep)"
+        for s in presets().values()
+        if s.sequence_start is not None
+    ]
+    waits = f"; stands silent until asked: {', '.join(silent)}" if silent else ""
+    return "it printed nothing" + waits
 
 
 def resolve(url: str, clock: Clock, kind: str | None, baudrate: int | None) -> Detection:

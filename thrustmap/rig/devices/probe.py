@@ -102,8 +102,11 @@ def probe_device(
                       line_spec_file, seconds, signing_key)  # fmt: skip
     finally:  # say how this kind's protocol was checked (a real device, an official client...)
         checked = driver(found.kind).verified
+        spec_checked = report.identity.details.get("verified") if report.identity else None
+        checked = spec_checked or checked
         if report.identity is not None and checked:
             details = {**report.identity.details, "protocol_checked": checked}
+            details.pop("verified", None)
             report.identity = replace(report.identity, details=details)
 
 
@@ -155,6 +158,16 @@ def _probe(
                 except ThrustmapError as exc:
                     report.warnings.append(f"no motor values: {exc}")
         return report
+    if (
+        found.kind == "line-stand"
+        and found.line_preset is None
+        and line_preset is None
+        and line_spec_file is None
+    ):
+        raise ConfigError(
+            f"{url} prints text lines no line-stand preset knows ({found.evidence}); "
+            "pass --line-preset or describe it with --line-spec"
+        )
     stand = open_stand(
         url,
         clock,
@@ -177,4 +190,10 @@ def _probe(
         if isinstance(stand, LineStand):
             report.stand.bad_lines = stand.error_count
             report.identity = stand.identify()
+            if stand.spec.sequence_start is not None:
+                report.warnings.append(
+                    f"{stand.spec.name} prints only during its own sweep, started by "
+                    f"{stand.spec.sequence_start.strip()!r} (probe never sends it): "
+                    "thrustmap stand run"
+                )
     return report

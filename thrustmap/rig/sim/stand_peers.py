@@ -175,8 +175,12 @@ class LineStandPeer:
         self._next_k = 0  # index of the next sample: t = start + k * period
         self._last_rx_s: float | None = None
         self.throttle_pct = 0.0
+        self.label_pct = 0.0  # what a stand that drives no ESC echoes in its throttle column
         self.watchdog_trips = 0
         self.lines_sent = 0
+        #: the firmware's own sequence once started: (time, level) changes and row times
+        self._sequence: list[tuple[float, str, float]] = []
+        self.sequences_run = 0
 
     # -- BytePeer -----------------------------------------------------------------------------
     def write(self, data: bytes, now_s: float) -> None:
@@ -211,10 +215,20 @@ class LineStandPeer:
 
     def _command(self, line: str, now_s: float) -> None:
         self._last_rx_s = now_s
-        pct = self.spec.parse_command(line)
+        spec = self.spec
+        if spec.sequence_start is not None and line == spec.sequence_start.strip():
+            if not self._sequence:
+                self._start_sequence(now_s)
+            return
+        pct = spec.parse_command(line)
+        if pct is not None and not spec.drives_esc:
+            self.label_pct = pct  # only printed back: the FC drives the motor
+            return
         if pct is not None:
             self._set_pct(pct, now_s)
             return
+        if spec.sequence_start is not None:
+            return  # a firmware that only waits for its start byte ignores everything else
         keepalive = self.spec.keepalive
         if keepalive is not None and line == keepalive.strip():
             return
@@ -231,14 +245,63 @@ class LineStandPeer:
             log.info("simulated line stand: watchdog stopped the motor at %.3f s", trip_s)
             self._say(f"{self.spec.comment_prefix}WATCHDOG")
 
+    # -- a firmware that runs its own sequence ---------------------------------------------
+    def _start_sequence(self, t: float) -> None:
+        spec = self.spec
+        scale = lookup_scale(spec.throttle_scale)
+        at = t
+        for level in spec.sequence_levels:
+            pct = float(scale.to_pct(level))
+            self._sequence.append((at, "set", pct))
+            at += spec.sequence_settle_s
+            for _ in range(spec.sequence_rows):
+                at += spec.sequence_row_period_s
+                self._sequence.append((at, "row", pct))
+        self._sequence.append((at, "end", 0.0))
+        self.sequences_run += 1
+
+    def _emit_sequence(self, now_s: float) -> None:
+        while self._sequence and self._sequence[0][0] <= now_s:
+            t, what, pct = self._sequence.pop(0)
+            if what == "set":
+                self._set_pct(pct, t)
+            elif what == "row":
+                self._row(t)
+            else:
+                self._set_pct(0.0, t)
+                if self.spec.sequence_end is not None:
+                    self._say(self.spec.sequence_end)
+
+    def _row(self, t: float) -> None:
+        assert self._start_s is not None
+        scale = lookup_scale(self.spec.throttle_scale)
+        state = self.plant.state(t)
+        rpm = state.rpm[self.motor] if self.motor < len(state.rpm) else 0.0
+        pct = self.throttle_pct if self.spec.drives_esc else self.label_pct
+        values = {
+            "time_s": t - self._start_s,
+            "throttle": float(scale.from_pct(pct)),
+            "thrust_n": state.thrust_n,
+            "torque_nm": state.torque_nm,
+            "voltage_v": state.voltage_v,
+            "current_a": state.current_a,
+            "rpm": rpm,
+        }
+        self._say(self.spec.format_sample(values))
+        self.lines_sent += 1
+
     def _emit_until(self, now_s: float) -> None:
         if self._start_s is None:
             self._start_s = now_s
-            for text in self.banner:
-                self._say(f"{self.spec.comment_prefix} {text}")
+            if self.spec.header_prefix is not None:  # a firmware with no header prints no banner
+                for text in self.banner:
+                    self._say(f"{self.spec.comment_prefix} {text}")
             header = self.spec.header_line()
             if header is not None:
                 self._say(header)
+        if self.spec.sequence_start is not None:
+            self._emit_sequence(now_s)  # silent but for its own sequence
+            return
         start = self._start_s
         # the last sample due by now (a tiny epsilon absorbs float error in k * period)
         last_k = int((now_s - start) / self.period_s + 1e-9)
@@ -246,23 +309,10 @@ class LineStandPeer:
         if last_k - self._next_k > backlog_k:  # a real port would drop these lines
             self._watchdog(start + (last_k - backlog_k) * self.period_s)
             self._next_k = last_k - backlog_k
-        scale = lookup_scale(self.spec.throttle_scale)
         while self._next_k <= last_k:
             t = start + self._next_k * self.period_s
             self._watchdog(t)
-            state = self.plant.state(t)
-            rpm = state.rpm[self.motor] if self.motor < len(state.rpm) else 0.0
-            values = {
-                "time_s": t - start,
-                "throttle": float(scale.from_pct(self.throttle_pct)),
-                "thrust_n": state.thrust_n,
-                "torque_nm": state.torque_nm,
-                "voltage_v": state.voltage_v,
-                "current_a": state.current_a,
-                "rpm": rpm,
-            }
-            self._say(self.spec.format_sample(values))
-            self.lines_sent += 1
+            self._row(t)
             self._next_k += 1
 
 

@@ -37,6 +37,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from thrustmap.core.clock import Clock
 from thrustmap.core.errors import ConfigError, SafetyError, ThrustmapError
@@ -141,6 +142,9 @@ class LineStand(Stand):
         self._last_tx_s = -math.inf
         self._closed = False
         self._errors_seen = 0
+        self.sequence_started = False
+        self.sequence_ended = False
+        self.resets = 0
 
     # -- counters ---------------------------------------------------------------------------
     @property
@@ -242,6 +246,10 @@ class LineStand(Stand):
 
     def _comment(self, comment: LineComment) -> None:
         text = comment.text
+        if self.spec.sequence_end is not None and text == self.spec.sequence_end:
+            self.sequence_ended = True
+            log.info("%s: the firmware's sequence ended (line %d)", self.spec.name, comment.line_no)
+            return
         word = text.split(None, 1)[0].upper() if text else ""
         if word == "WATCHDOG":
             self.watchdog_trips += 1
@@ -272,6 +280,12 @@ class LineStand(Stand):
             details["columns"] = ",".join(self.header_seen)
         if self.spec.throttle_command is not None:
             details["throttle_scale"] = self.spec.throttle_scale
+        if self.spec.source:
+            details["firmware_source"] = self.spec.source
+        if self.spec.verified:
+            details["verified"] = self.spec.verified
+        if not self.spec.drives_esc:
+            details["motor"] = "driven and stopped by the flight controller (--throttle)"
         return DeviceIdentity(kind="line-stand", details=details)
 
     def _to_stand_sample(self, raw: _Raw) -> StandSample:
@@ -355,6 +369,37 @@ class LineStand(Stand):
             self.tare_offset_n,
         )
 
+    # -- the firmware's own sequence --------------------------------------------------------
+    def start_sequence(self) -> None:
+        """Send the line that starts the firmware's own sweep (the motor will spin)."""
+        if self.spec.sequence_start is None:
+            raise ConfigError(f"line stand '{self.spec.name}' runs no sequence of its own")
+        self._pump()
+        self.sequence_started = True
+        self.sequence_ended = False
+        self.send(self.spec.sequence_start.encode())
+
+    @property
+    def sequence_running(self) -> bool:
+        return self.sequence_started and not self.sequence_ended
+
+    def reset_board(self) -> bool:
+        """Reset the board with a DTR pulse (an Arduino's auto-reset line): its outputs stop.
+        False when the port cannot drive DTR (a pseudo-terminal, a network port)."""
+        try:
+            port: Any = self.port
+            port.dtr = False
+            self.clock.sleep_s(0.05)
+            port.dtr = True  # asserting DTR pulls RESET low through the board's capacitor
+            self.clock.sleep_s(0.05)
+        except (OSError, AttributeError, ValueError) as exc:
+            log.error("%s: could not reset the board by DTR: %s", self.spec.name, exc)
+            return False
+        self.resets += 1
+        self.sequence_started = False
+        log.warning("%s: board reset by a DTR pulse (its outputs stop)", self.spec.name)
+        return True
+
     def close(self) -> None:
         if self._closed:
             return
@@ -362,6 +407,13 @@ class LineStand(Stand):
         try:
             if self.spec.throttle_command is not None or self.spec.stop_command is not None:
                 self.send_stop()
+            # no stop command: only a reset ends the firmware's own sweep early
+            if self.spec.reset_stops and self.sequence_running and not self.reset_board():
+                log.error(
+                    "%s: the firmware's sequence is still running: it ends by itself "
+                    "(no stop command, no watchdog) — cut the motor's power if needed",
+                    self.spec.name,
+                )
         except Exception as exc:  # the port may be gone; closing must not raise
             log.warning("%s: could not send the stop command on close: %s", self.spec.name, exc)
         finally:

@@ -45,6 +45,7 @@ SPEC_KEYS = {
     "reset_stops",
     "line_patterns",
     "raw_counts",
+    "row_separator",
 }
 SPEC_FORMAT = "thrustmap-line-stand"
 COLUMN_KEYS = {"index", "name", "scale", "offset", "modulo"}
@@ -173,6 +174,7 @@ def line_spec_from_dict(
         "keepalive",
         "sequence_start",
         "sequence_end",
+        "row_separator",
     ):
         if key in data:
             kwargs[key] = r.string(data, key, key, null=True)
@@ -305,4 +307,5 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "reset_stops": spec.reset_stops,
         "line_patterns": list(spec.line_patterns),
         "raw_counts": list(spec.raw_counts),
+        "row_separator": spec.row_separator,
     }

@@ -50,6 +50,12 @@ PRESET = LineStandSpec(
     baudrate=115200,
     sequence_start="S\n",
     sequence_end="Done",
+    # duty 0..190 step 10 (lines 11-12, 53); 200 ms (line 56) plus the dummy HX711 read
+    # (line 58: one conversion, 0.1 s at 10 samples/s), then 10 rows, one per conversion
+    sequence_levels=tuple(float(d) for d in range(0, 200, 10)),
+    sequence_settle_s=0.3,
+    sequence_rows=10,
+    sequence_row_period_s=0.1,
     reset_stops=True,
     line_patterns=(r"1?\d{1,2}0?\t\d{1,4}\t\d{1,4}\t-?\d{1,5}", r"Done"),
     raw_counts=("thrust_n",),

@@ -45,6 +45,7 @@ PRESET = LineStandSpec(
         "thrust_n": Column(index=2, scale=AUTHORS_N_PER_COUNT),
     },
     delimiter=",",
+    row_separator=", ",
     header_prefix=None,
     throttle_scale="pwm",
     throttle_command="{us:d}\n",

@@ -1,0 +1,192 @@
+"""CLI: ``thrustmap stand calibrate`` (tare + a known mass -> the calibration a preset reads) and
+``thrustmap stand run`` (a firmware's own sweep, read as a recording into a Ds log)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import click
+
+from thrustmap.cli.hardware import CLOCK_CHOICE
+from thrustmap.cli.textwidth import echo
+from thrustmap.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from thrustmap.core.clock import Clock
+    from thrustmap.rig.stand.line import LineStand
+
+
+@click.group("stand")
+def stand_group() -> None:
+    """DIY line stands: calibrate the load cell, run the firmware's own sweep."""
+
+
+def _open(
+    url: str,
+    clock: Clock,
+    preset_name: str,
+    baud: int | None,
+    calibration: str | None,
+    raw_field: str | None = None,
+) -> LineStand:
+    from thrustmap.protocols.stands.line_presets import preset
+    from thrustmap.rig.devices.urls import open_port
+    from thrustmap.rig.stand.line import LineStand
+    from thrustmap.rig.stand.line_calibration import load_line_calibration, raw_spec
+
+    spec = preset(preset_name)
+    if raw_field is not None:
+        spec = raw_spec(spec, raw_field)
+    elif calibration is not None:
+        spec = load_line_calibration(calibration).apply(spec, calibration)
+    port = open_port(url, clock, baudrate=baud or spec.baudrate or 115200)
+    return LineStand(port, clock, spec)
+
+
+def _confirm(text: str, yes: bool) -> None:
+    if not yes and not click.confirm(text, default=False):
+        raise click.Abort()
+
+
+def _wait_enter(text: str) -> None:
+    click.prompt(text, default="", show_default=False, prompt_suffix=" ")
+
+
+@stand_group.command("calibrate")
+@click.argument("url")
+@click.option("--line-preset", "preset_name", required=True, help="The stand's preset.")
+@click.option("--mass-g", type=float, required=True, help="The known mass, grams.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
+@click.option("--samples", type=click.IntRange(3, 10_000), default=50, show_default=True)
+@click.option("--field", "field_name", default="thrust_n", show_default=True)
+@click.option("--baud", type=int, default=None, help="Serial baud rate (default: the preset's).")
+@click.option(
+    "--motor-unplugged",
+    is_flag=True,
+    help="A stand that prints only during its own sweep (tiny-thrust-stand): run that sweep "
+    "twice with the motor unplugged (or the propeller off) and read its rows.",
+)
+@click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True)
+@click.option("--clock", "clock_choice", type=CLOCK_CHOICE, default="auto", show_default=True)
+def calibrate_cmd(
+    url: str,
+    preset_name: str,
+    mass_g: float,
+    output: str,
+    samples: int,
+    field_name: str,
+    baud: int | None,
+    motor_unplugged: bool,
+    timeout_s: float,
+    clock_choice: str,
+) -> None:
+    """Tare the load cell at rest, then read it under a known mass pulling the way thrust
+    does; write the calibration (`--calibration FILE` on probe, `--line-calibration` on
+    sweep). Never overwrites a file."""
+    from thrustmap.cli.hardware import make_clock
+    from thrustmap.core.files import check_output_path
+    from thrustmap.rig.stand.line_calibration import (
+        calibration_from_counts,
+        write_line_calibration,
+    )
+
+    check_output_path(output, what="calibration")
+    clock = make_clock(clock_choice, [url])
+    stand = _open(url, clock, preset_name, baud, None, raw_field=field_name)
+    with stand:
+        if stand.spec.sequence_start is not None and not motor_unplugged:
+            raise ConfigError(
+                f"'{stand.spec.name}' prints only during its own sweep, which spins the motor: "
+                "unplug the motor (or take the propeller off) and pass --motor-unplugged"
+            )
+        _wait_enter("Nothing on the load cell (motor stopped). Press Enter to tare.")
+        rest = _counts(stand, field_name, samples, timeout_s)
+        _wait_enter(f"Hang {mass_g:g} g so that it pulls the way thrust does. Press Enter.")
+        loaded = _counts(stand, field_name, samples, timeout_s)
+    cal = calibration_from_counts(stand.spec, rest, loaded, mass_g / 1000.0, field_name)
+    write_line_calibration(output, cal)
+    echo(
+        f"{output}: tare {cal.tare_counts:.1f} counts, {cal.counts_per_n:.2f} counts/N "
+        f"({cal.counts_per_n * 0.00980665:.2f} counts/g), noise {cal.noise_counts:.1f} counts"
+    )
+
+
+def _counts(stand: LineStand, field_name: str, samples: int, timeout_s: float) -> list[float]:
+    from thrustmap.rig.stand.line_runs import collect_values, run_sequence
+
+    if stand.spec.sequence_start is None:
+        return collect_values(stand, field_name, samples, timeout_s)
+    result = run_sequence(stand, timeout_s)
+    values = [getattr(s, field_name) for s in result.samples]
+    return [float(v) for v in values if v is not None]
+
+
+@stand_group.command("run")
+@click.argument("url")
+@click.option("--line-preset", "preset_name", required=True, help="The stand's preset.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Ds log.")
+@click.option("--calibration", type=click.Path(dir_okay=False), help="From stand calibrate.")
+@click.option("--baud", type=int, default=None, help="Serial baud rate (default: the preset's).")
+@click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True)
+@click.option("-y", "--yes", is_flag=True, help="Do not ask whether the area is clear.")
+@click.option("--clock", "clock_choice", type=CLOCK_CHOICE, default="auto", show_default=True)
+def run_cmd(
+    url: str,
+    preset_name: str,
+    output: str,
+    calibration: str | None,
+    baud: int | None,
+    timeout_s: float,
+    yes: bool,
+    clock_choice: str,
+) -> None:
+    """Start the firmware's own sweep and record it as a Ds log (the throttle from its rows).
+    Ctrl-C or any error resets the board (the firmware has no stop command)."""
+    from thrustmap.cli.hardware import make_clock
+    from thrustmap.core.dslog import DsWriter
+    from thrustmap.core.files import check_output_path
+    from thrustmap.core.units import scale
+    from thrustmap.rig.safety import terminate_as_exception
+    from thrustmap.rig.stand.line_runs import run_sequence
+
+    check_output_path(output, what="Ds log")
+    clock = make_clock(clock_choice, [url])
+    stand = _open(url, clock, preset_name, baud, calibration)
+    spec = stand.spec
+    if spec.sequence_start is None:
+        stand.close()
+        raise ConfigError(f"'{spec.name}' runs no sweep of its own: use thrustmap sweep")
+    meta = {"devices": {"stand": {"url": url, "preset": spec.name, "source": spec.source}},
+            "plan": {"kind": "firmware-sequence"}, "rotors_on_esc": 1, "strategy": "SR",
+            "motor": 0, "calibration": calibration}  # fmt: skip
+    writer = DsWriter(output, scale(spec.throttle_scale), meta)
+    status, reason = "aborted", "interrupted"
+    steps: list[float] = []
+    try:
+        with terminate_as_exception(), stand:
+            _confirm(f"'{spec.name}' will run its own sweep: propeller on, area clear?", yes)
+
+            def write(sample: object, throttle: float) -> None:
+                from thrustmap.rig.interfaces import StandSample
+
+                assert isinstance(sample, StandSample)
+                if not steps or steps[-1] != throttle:
+                    steps.append(throttle)
+                values = {
+                    k: getattr(sample, k) for k in ("thrust_n", "voltage_v", "current_a", "rpm")
+                }
+                writer.write(sample.time_s, throttle, {**values, "step": len(steps) - 1,
+                                                       "phase": "firmware"})  # fmt: skip
+
+            run_sequence(stand, timeout_s, write)
+            status, reason = "completed", f"'{spec.sequence_end}' from the firmware"
+    except BaseException as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+        raise
+    finally:
+        extra = {"stop_verified": status == "completed" or stand.resets > 0,
+                 "stop": "the firmware's end line" if status == "completed" else
+                 ("a DTR reset" if stand.resets else "NOT verified")}  # fmt: skip
+        writer.finish(status, reason, extra)
+    echo(json.dumps({"output": output, "rows": writer.rows, "levels": len(steps)}))
