@@ -185,8 +185,10 @@ def run_cmd(
         reason = f"{type(exc).__name__}: {exc}"
         raise
     finally:
-        extra = {"stop_verified": status == "completed" or stand.resets > 0,
+        confirmed = stand.stop_confirmation
+        extra = {"stop_verified": status == "completed" or stand.resets > 0 or bool(confirmed),
                  "stop": "the firmware's end line" if status == "completed" else
-                 ("a DTR reset" if stand.resets else "NOT verified")}  # fmt: skip
+                 ("a DTR reset" if stand.resets else
+                  f"its stop command ({confirmed})" if confirmed else "NOT verified")}  # fmt: skip
         writer.finish(status, reason, extra)
     echo(json.dumps({"output": output, "rows": writer.rows, "levels": len(steps)}))

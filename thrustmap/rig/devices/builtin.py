@@ -236,6 +236,11 @@ def _line_sim(name: str, options: Mapping[str, str]) -> Detection | None:
 
 def _header_preset(names: Sequence[str]) -> str | None:
     lower = {n.lower() for n in names}
+    exact = [
+        s.name for s in presets().values() if s.header_names and tuple(names) == s.header_names
+    ]
+    if exact:
+        return exact[0]  # a preset printing this very header before one reading some of it
     for spec in presets().values():
         named = [c.name.lower() for c in spec.columns.values() if c.name is not None]
         if named and all(n in lower for n in named) and spec.header_names:
@@ -343,6 +348,8 @@ def _line_esc(stand: Stand, motor: int) -> ThrottleOutput | None:
 
     if not isinstance(stand, LineStand) or not stand.spec.drives_esc:
         return None  # a stand that only measures: the FC drives (and stops) the motor
+    if not stand.spec.takes_throttle:
+        return None  # it runs its own programs only (``thrustmap stand run``)
     return LineStandEscOutput(stand, motor)
 
 

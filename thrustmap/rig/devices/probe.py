@@ -173,7 +173,8 @@ def _probe(
         clock,
         kind=found.kind,
         calibration=calibration,
-        line_preset=line_preset,
+        # the preset the port's own lines identified (opening again by kind does not sniff)
+        line_preset=line_preset or (found.line_preset if line_spec_file is None else None),
         line_spec_file=line_spec_file,
         baudrate=baudrate,
     )
