@@ -11,7 +11,6 @@ from thrustmap.protocols.stands.line import (
     PRESETS,
     REFERENCE,
     RP2040_WHOOP,
-    STM32_HX711,
     Column,
     LineComment,
     LineError,
@@ -28,6 +27,22 @@ REF_STREAM = (
     b"1000000,1500,4021,-52,16012,8340,21050\r\n"
     b"1004000,1500,4030,-53,16010,8342,21070\r\n"
 )
+
+#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
+#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
+STM32_HX711 = LineStandSpec(
+    name="generic-3col",
+    columns={
+        "time_s": Column(index=0, scale=1e-3),
+        "throttle": Column(index=1),
+        "thrust_n": Column(index=2),
+    },
+    header_prefix=None,
+    throttle_scale="pwm",
+    throttle_command="{us:d}\n",
+    baudrate=921600,
+)
+
 
 
 def test_reference_stream_values() -> None:

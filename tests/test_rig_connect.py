@@ -85,7 +85,7 @@ def peers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[tuple[str, Any]]]:
         ("sim://ardupilot", "mavlink", "ardupilot", None),
         ("sim://tyto-1585?drive_esc=0", "tyto-1585", None, None),
         ("sim://line-stand", "line-stand", None, "thrustmap-line"),
-        ("sim://line-stand?line_preset=stm32-hx711", "line-stand", None, "stm32-hx711"),
+        ("sim://line-stand?line_preset=stm32-hx711", "line-stand", None, "victorhook-thruststand"),
         ("record://sim://px4?motors=4&file=x.jsonl", "mavlink", "px4", None),
     ],
 )
@@ -151,7 +151,12 @@ def test_detect_from_a_transcript_of_a_sim(tmp_path: Path) -> None:
             None,
             "rp2040-whoop",
         ),
-        (LineStandPeer(ConstantPlant(1), preset("stm32-hx711")), "line-stand", None, "stm32-hx711"),
+        (
+            LineStandPeer(ConstantPlant(1), preset("stm32-hx711")),
+            "line-stand",
+            None,
+            "victorhook-thruststand",
+        ),
     ],
 )
 def test_sniff_recognises_talkers_without_writing(

@@ -10,7 +10,7 @@ import pytest
 
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError, SafetyError
-from thrustmap.protocols.stands.line import REFERENCE, STM32_HX711, Column, LineStandSpec, preset
+from thrustmap.protocols.stands.line import REFERENCE, Column, LineStandSpec, preset
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer
@@ -25,6 +25,22 @@ from thrustmap.rig.stand.line import (
 )
 
 HEADER = b"#COLS t_us,throttle_us,thrust_mN,torque_mNm,voltage_mV,current_mA,rpm\n"
+
+#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
+#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
+STM32_HX711 = LineStandSpec(
+    name="generic-3col",
+    columns={
+        "time_s": Column(index=0, scale=1e-3),
+        "throttle": Column(index=1),
+        "thrust_n": Column(index=2),
+    },
+    header_prefix=None,
+    throttle_scale="pwm",
+    throttle_command="{us:d}\n",
+    baudrate=921600,
+)
+
 
 
 class ScriptPeer:

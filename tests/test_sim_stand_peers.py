@@ -14,10 +14,11 @@ from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.stands.line import (
     REFERENCE,
     RP2040_WHOOP,
-    STM32_HX711,
+    Column,
     LineComment,
     LineSample,
     LineStandDecoder,
+    LineStandSpec,
 )
 from thrustmap.protocols.stands.tyto import (
     TytoDecoder,
@@ -39,6 +40,22 @@ from thrustmap.rig.sim.stand_peers import (
 from thrustmap.rig.stand.tyto import save_calibration
 
 # --------------------------------------------------------------------------- Tyto
+
+#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
+#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
+STM32_HX711 = LineStandSpec(
+    name="generic-3col",
+    columns={
+        "time_s": Column(index=0, scale=1e-3),
+        "throttle": Column(index=1),
+        "thrust_n": Column(index=2),
+    },
+    header_prefix=None,
+    throttle_scale="pwm",
+    throttle_command="{us:d}\n",
+    baudrate=921600,
+)
+
 
 
 def test_tyto_is_a_byte_peer() -> None:
@@ -196,7 +213,7 @@ def test_long_silence_is_bounded() -> None:
 
 def test_line_peer_options() -> None:
     peer = line_peer_from_options({"preset": "stm32-hx711", "rate_hz": "20"})
-    assert peer.spec is STM32_HX711 and peer.period_s == pytest.approx(0.05)
+    assert peer.spec.name == "victorhook-thruststand" and peer.period_s == pytest.approx(0.05)
     with pytest.raises(ConfigError):
         line_peer_from_options({"preset": "nope"})
     with pytest.raises(ConfigError):

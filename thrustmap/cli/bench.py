@@ -264,6 +264,14 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     return decorate
 
 
+def _calibration(tyto: str | None, line: str | None) -> str | None:
+    from thrustmap.core.errors import ConfigError
+
+    if tyto is not None and line is not None:
+        raise ConfigError("give --tyto-calibration or --line-calibration, not both")
+    return tyto if tyto is not None else line
+
+
 @click.command("sweep")
 @click.argument("kind", type=click.Choice(list(plans.PLANS)))
 @click.option(
@@ -388,7 +396,7 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     help="Per-unit Tyto 1585 calibration JSON.",
 )
 @click.option(
-    "--line-preset", help="Line stand preset (thrustmap-line, rp2040-whoop, stm32-hx711)."
+    "--line-preset", help="Line stand preset (thrustmap probe names it; e.g. thrustmap-line)."
 )
 @click.option(
     "--realtime/--fast",
@@ -396,6 +404,11 @@ def limit_options_except(*exclude: str) -> Callable[[FC], FC]:
     help="Simulated rigs run as fast as possible unless --realtime.",
 )
 @click.option("--line-spec", type=click.Path(dir_okay=False), help="Line stand spec (JSON).")
+@click.option(
+    "--line-calibration",
+    type=click.Path(dir_okay=False),
+    help="Line stand load-cell calibration (from thrustmap stand calibrate).",
+)
 @click.option(
     "--dry-run",
     is_flag=True,
@@ -461,7 +474,7 @@ def sweep_cmd(
         stand=pair_sim_urls(stand_url, throttle_url, apart=kw["sim_apart"]),
         throttle=throttle_url,
         kind=None if fc_kind == "auto" else fc_kind,
-        calibration=kw["tyto_calibration"],
+        calibration=_calibration(kw["tyto_calibration"], kw["line_calibration"]),
         line_preset=kw["line_preset"],
         line_spec=kw["line_spec"],
         motor=(motor_number or 1) - 1,

@@ -60,12 +60,14 @@ def _device_options(fn: click.decorators.FC) -> click.decorators.FC:
             "--calibration",
             type=click.Path(dir_okay=False),
             default=None,
-            help="Tyto 1585 load-cell calibration (JSON).",
+            help="Load-cell calibration (JSON): a Tyto 1585's, or a line stand's from "
+            "thrustmap stand calibrate.",
         ),
         click.option(
             "--line-preset",
             default=None,
-            help="Line stand preset (thrustmap-line, rp2040-whoop, stm32-hx711).",
+            help="Line stand preset (e.g. thrustmap-line, tiny-thrust-stand, "
+            "victorhook-thruststand).",
         ),
         click.option(
             "--line-spec",

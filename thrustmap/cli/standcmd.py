@@ -68,6 +68,15 @@ def _wait_enter(text: str) -> None:
     "twice with the motor unplugged (or the propeller off) and read its rows.",
 )
 @click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True)
+@click.option(
+    "--settle",
+    "settle_s",
+    type=click.FloatRange(0.0, 60.0),
+    default=2.5,
+    show_default=True,
+    help="Seconds of readings dropped after each step (a firmware's moving average: "
+    "HX711_ADC's 16 conversions at 10/s take 1.6 s).",
+)
 @click.option("--clock", "clock_choice", type=CLOCK_CHOICE, default="auto", show_default=True)
 def calibrate_cmd(
     url: str,
@@ -79,6 +88,7 @@ def calibrate_cmd(
     baud: int | None,
     motor_unplugged: bool,
     timeout_s: float,
+    settle_s: float,
     clock_choice: str,
 ) -> None:
     """Tare the load cell at rest, then read it under a known mass pulling the way thrust
@@ -101,9 +111,9 @@ def calibrate_cmd(
                 "unplug the motor (or take the propeller off) and pass --motor-unplugged"
             )
         _wait_enter("Nothing on the load cell (motor stopped). Press Enter to tare.")
-        rest = _counts(stand, field_name, samples, timeout_s)
+        rest = _counts(stand, field_name, samples, timeout_s, settle_s)
         _wait_enter(f"Hang {mass_g:g} g so that it pulls the way thrust does. Press Enter.")
-        loaded = _counts(stand, field_name, samples, timeout_s)
+        loaded = _counts(stand, field_name, samples, timeout_s, settle_s)
     cal = calibration_from_counts(stand.spec, rest, loaded, mass_g / 1000.0, field_name)
     write_line_calibration(output, cal)
     echo(
@@ -112,10 +122,17 @@ def calibrate_cmd(
     )
 
 
-def _counts(stand: LineStand, field_name: str, samples: int, timeout_s: float) -> list[float]:
+def _counts(
+    stand: LineStand, field_name: str, samples: int, timeout_s: float, settle_s: float
+) -> list[float]:
     from thrustmap.rig.stand.line_runs import collect_values, run_sequence
 
     if stand.spec.sequence_start is None:
+        stand.wait_for_data(timeout_s)  # a board that resets when its port opens boots first
+        end = stand.clock.now_s() + settle_s
+        while stand.clock.now_s() < end:
+            stand.read_samples()  # dropped: the reading is still moving to the new load
+            stand.clock.sleep_s(0.02)
         return collect_values(stand, field_name, samples, timeout_s)
     result = run_sequence(stand, timeout_s)
     values = [getattr(s, field_name) for s in result.samples]

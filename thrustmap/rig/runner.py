@@ -617,13 +617,16 @@ class Runner:
         low end)."""
         if self.writer is None:
             return
+        tel = self._telemetry  # a stand that reads no voltage: the FC's last reading
         for s in samples:
             self.writer.write(
                 s.time_s,
                 float(self.scale.lo),
                 {
                     "thrust_n": s.thrust_n,
-                    "voltage_v": s.voltage_v,
+                    "voltage_v": s.voltage_v
+                    if s.voltage_v is not None or tel is None
+                    else tel.voltage_v,
                     "current_a": s.current_a,
                     "rpm": s.rpm,
                     "torque_nm": s.torque_nm,

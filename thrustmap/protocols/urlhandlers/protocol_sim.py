@@ -96,7 +96,10 @@ class SimSerial(SerialBase):
         """Nothing to configure: a simulated link has no baud rate."""
 
     def _update_dtr_state(self) -> None:
-        pass
+        """A peer with ``set_dtr(asserted, now_s)`` sees the DTR line (an Arduino's reset)."""
+        set_dtr = getattr(self._peer, "set_dtr", None)
+        if callable(set_dtr):
+            set_dtr(bool(self.dtr), self._clock.now_s())
 
     def _update_rts_state(self) -> None:
         pass

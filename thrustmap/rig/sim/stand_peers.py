@@ -181,6 +181,7 @@ class LineStandPeer:
         #: the firmware's own sequence once started: (time, level) changes and row times
         self._sequence: list[tuple[float, str, float]] = []
         self.sequences_run = 0
+        self.resets = 0
 
     # -- BytePeer -----------------------------------------------------------------------------
     def write(self, data: bytes, now_s: float) -> None:
@@ -244,6 +245,15 @@ class LineStandPeer:
             self.watchdog_trips += 1
             log.info("simulated line stand: watchdog stopped the motor at %.3f s", trip_s)
             self._say(f"{self.spec.comment_prefix}WATCHDOG")
+
+    def set_dtr(self, asserted: bool, now_s: float) -> None:
+        """DTR asserted resets a board that resets by it (``reset_stops``): the output stops,
+        its own sequence is forgotten, and it waits again for its start command."""
+        self._emit_until(now_s)
+        if asserted and self.spec.reset_stops:
+            self._sequence.clear()
+            self._set_pct(0.0, now_s)
+            self.resets += 1
 
     # -- a firmware that runs its own sequence ---------------------------------------------
     def _start_sequence(self, t: float) -> None:
