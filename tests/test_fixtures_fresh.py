@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from pathlib import Path
@@ -31,10 +32,15 @@ def regenerated(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _recorded(path: Path) -> bool:
-    """A recording of a real program (``*.recorded.jsonl``, e.g. a stand firmware's authors'
-    emulator) or a hand-written README: no generator can write it; its README gives its
-    source, commit and sha256 (tests/test_diy_stands.py checks them)."""
-    return ".recorded." in path.name or path.name == "README.md"
+    """A hand-written README, or a recording of a real program (a stand firmware, its authors'
+    emulator) that the README beside it vouches for by its sha256: no generator can write it."""
+    if path.name == "README.md":
+        return True
+    readme = path.parent / "README.md"
+    if not readme.is_file():
+        return False
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return ".recorded." in path.name and digest in readme.read_text(encoding="utf-8")
 
 
 def _shipped() -> list[Path]:

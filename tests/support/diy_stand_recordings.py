@@ -5,10 +5,10 @@ Every line below is what one ``Serial.print*`` call sequence prints, cited by fi
 the pinned commit; the values come from a small known table (:func:`truth`) so a test can check
 what the preset decodes against what was printed.
 
-- ``mqtb_teststand/program_s.jsonl``: VirtualEnder/TestStandv2 @ 8521231b3d2d: the menu, the
+- ``mqtb-teststand/program_s.jsonl``: VirtualEnder/TestStandv2 @ 8521231b3d2d: the menu, the
   host's ``s``, the stepping program's header and 3 s of its 250 Hz rows, the host's ``x``
   (any byte ends a program) and the menu again.
-- ``avenhaus_thrust_stand/session.jsonl``: avenhaus/thrust_stand @ a1eb40a2b013: boot and help,
+- ``avenhaus-thrust-stand/session.jsonl``: avenhaus/thrust_stand @ a1eb40a2b013: boot and help,
   live rows at 10 Hz, ``3`` (a cosine ramp to 30 %), a space (the ramp back to 0), ``s`` (its
   own test) aborted by a space after its first two summaries, with the result block.
 
@@ -253,9 +253,9 @@ def write_avenhaus(path: Path) -> Path:
 
 
 def write_fixtures(folder: Path) -> list[Path]:
-    (folder / "mqtb_teststand").mkdir(parents=True, exist_ok=True)
-    (folder / "avenhaus_thrust_stand").mkdir(parents=True, exist_ok=True)
+    (folder / "mqtb-teststand").mkdir(parents=True, exist_ok=True)
+    (folder / "avenhaus-thrust-stand").mkdir(parents=True, exist_ok=True)
     return [
-        write_mqtb(folder / "mqtb_teststand" / "program_s.jsonl"),
-        write_avenhaus(folder / "avenhaus_thrust_stand" / "session.jsonl"),
+        write_mqtb(folder / "mqtb-teststand" / "program_s.jsonl"),
+        write_avenhaus(folder / "avenhaus-thrust-stand" / "session.jsonl"),
     ]

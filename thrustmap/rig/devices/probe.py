@@ -191,7 +191,7 @@ def _probe(
         if isinstance(stand, LineStand):
             report.stand.bad_lines = stand.error_count
             report.identity = stand.identify()
-            if stand.spec.sequence_start is not None:
+            if stand.spec.sequence_start is not None and not samples:
                 report.warnings.append(
                     f"{stand.spec.name} prints only during its own sweep, started by "
                     f"{stand.spec.sequence_start.strip()!r} (probe never sends it): "

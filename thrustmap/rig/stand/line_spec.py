@@ -46,6 +46,13 @@ SPEC_KEYS = {
     "line_patterns",
     "raw_counts",
     "row_separator",
+    "data_match",
+    "cell_match",
+    "watchdog_match",
+    "error_match",
+    "throttle_levels",
+    "stop_confirm",
+    "stop_time_s",
 }
 SPEC_FORMAT = "thrustmap-line-stand"
 COLUMN_KEYS = {"index", "name", "scale", "offset", "modulo"}
@@ -233,6 +240,7 @@ def line_spec_from_dict(
             else:
                 columns[field_name] = r.column(field_name, col)
     kwargs["columns"] = columns
+    kwargs.update(_firmware_keys(r, data))
 
     try:
         spec = replace(base, **kwargs) if base is not None else LineStandSpec(**kwargs)
@@ -256,6 +264,35 @@ def line_spec_from_dict(
             raise r.error("load_cell.si_per_count", "expected a non-zero number")
         spec = spec.with_load_cell(field_name, tare, per)
     return spec
+
+
+def _firmware_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data_match``, ``cell_match``, ``stop_confirm`` (regular expressions or null),
+    ``watchdog_match``, ``error_match`` (regular expressions), ``stop_time_s`` (seconds) and
+    ``throttle_levels`` (``[[percent, "command"], ...]``)."""
+    out: dict[str, Any] = {}
+    for key in ("data_match", "cell_match", "stop_confirm"):
+        if key in data:
+            out[key] = r.string(data, key, key, null=True)
+    for key in ("watchdog_match", "error_match"):
+        if key in data:
+            out[key] = r.string(data, key, key)
+    if "stop_time_s" in data:
+        out["stop_time_s"] = r.number(data, "stop_time_s", "stop_time_s")
+    if "throttle_levels" in data:
+        levels = data["throttle_levels"]
+        ok = isinstance(levels, list) and all(
+            isinstance(lv, list)
+            and len(lv) == 2
+            and isinstance(lv[0], (int, float))
+            and not isinstance(lv[0], bool)
+            and isinstance(lv[1], str)
+            for lv in levels
+        )
+        if not ok:
+            raise r.error("throttle_levels", 'expected a list of [percent, "command"] pairs')
+        out["throttle_levels"] = tuple((float(lv[0]), lv[1]) for lv in levels)
+    return out
 
 
 def load_line_spec(path: str | Path) -> LineStandSpec:
@@ -308,4 +345,11 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "line_patterns": list(spec.line_patterns),
         "raw_counts": list(spec.raw_counts),
         "row_separator": spec.row_separator,
+        "data_match": spec.data_match,
+        "cell_match": spec.cell_match,
+        "watchdog_match": spec.watchdog_match,
+        "error_match": spec.error_match,
+        "throttle_levels": [[pct, cmd] for pct, cmd in spec.throttle_levels],
+        "stop_confirm": spec.stop_confirm,
+        "stop_time_s": spec.stop_time_s,
     }

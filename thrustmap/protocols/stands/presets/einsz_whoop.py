@@ -46,7 +46,7 @@ emulator ``tools/fake_stand.py`` (same commit; line numbers of that file):
   from each row.
 
 Checked against the authors' emulator (``tools/fake_stand.py --serve`` on a pty, recorded
-through ``record://``: ``fixtures/stands/einsz_whoop/``). The emulator has no watchdog (its
+through ``record://``: ``fixtures/stands/einsz-whoop/``). The emulator has no watchdog (its
 ``PING`` does nothing): the watchdog is checked against this simulator, written from
 ``serviceWatchdog()``, not against the authors' code.
 """
@@ -118,7 +118,7 @@ PRESET = LineStandSpec(
     sequence_end="END_SWEEP",
     line_patterns=(
         r"D(,-?\d{1,10}){23}",
-        r"#[A-Z]{2,8}(,[^\s]*)?",
+        r"#[A-Z]{2,8}(,.*)?",
         r"SYSTEM_READY",
         r"(START|END)_[A-Z]+(,-?\d+)*",
         r"MIN_RELIABLE_IDLE,\d+",
