@@ -328,7 +328,6 @@ def test_einsz_watchdog_stops_the_motor_when_thrustmap_goes_silent() -> None:
 
 def test_einsz_watchdog_is_not_armed_without_a_ping() -> None:
     """A person at a serial monitor is not a dead host (the firmware's own rule)."""
-    clock = SimClock()
     peer = EinszWhoopPeer(ConstantPlant(1), preset("einsz-whoop"))
     peer.write(b"20\n", 0.0)
     peer.read(5.0)
