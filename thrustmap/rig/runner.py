@@ -617,16 +617,17 @@ class Runner:
         low end)."""
         if self.writer is None:
             return
-        tel = self._telemetry  # a stand that reads no voltage: the FC's last reading
         for s in samples:
+            if s.voltage_v is None:
+                # a stand that reads no voltage (the FC's telemetry stops with the motor): a
+                # row without one cannot be loaded, and its spin-down thrust is no rest zero
+                continue
             self.writer.write(
                 s.time_s,
                 float(self.scale.lo),
                 {
                     "thrust_n": s.thrust_n,
-                    "voltage_v": s.voltage_v
-                    if s.voltage_v is not None or tel is None
-                    else tel.voltage_v,
+                    "voltage_v": s.voltage_v,
                     "current_a": s.current_a,
                     "rpm": s.rpm,
                     "torque_nm": s.torque_nm,

@@ -276,16 +276,19 @@ class LineStandPeer:
             if what == "set":
                 self._set_pct(pct, t)
             elif what == "row":
-                self._row(t)
+                self._row(t, now_s)
             else:
                 self._set_pct(0.0, t)
                 if self.spec.sequence_end is not None:
                     self._say(self.spec.sequence_end)
 
-    def _row(self, t: float) -> None:
+    def _row(self, t: float, now_s: float) -> None:
         assert self._start_s is not None
         scale = lookup_scale(self.spec.throttle_scale)
-        state = self.plant.state(t)
+        try:
+            state = self.plant.state(t)
+        except ValueError:  # a simulated FC on the same bench has moved the plant past t
+            state = self.plant.state(now_s)
         rpm = state.rpm[self.motor] if self.motor < len(state.rpm) else 0.0
         pct = self.throttle_pct if self.spec.drives_esc else self.label_pct
         values = {
@@ -322,7 +325,7 @@ class LineStandPeer:
         while self._next_k <= last_k:
             t = start + self._next_k * self.period_s
             self._watchdog(t)
-            self._row(t)
+            self._row(t, now_s)
             self._next_k += 1
 
 

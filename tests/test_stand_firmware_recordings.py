@@ -1,0 +1,346 @@
+"""The DIY stand presets against recordings of their real firmware (compiled for the host with
+tests/support/arduino_shim, fed by thrustmap's simulator; fixtures/stands/<stand>/README.md says
+how), their byte-level simulators against those recordings, and their sweeps on the simulator.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thrustmap.core.clock import SimClock
+from thrustmap.core.errors import ConfigError
+from thrustmap.core.physical import G0
+from thrustmap.protocols.stands.line import LineComment, LineSample, LineStandDecoder
+from thrustmap.protocols.stands.line_presets import identify, preset
+from thrustmap.protocols.transcript import read_transcript
+from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
+from thrustmap.rig.devices.detect import detect_from_url
+from thrustmap.rig.sim.physics import make_plant, true_thrust_n
+from thrustmap.rig.sim.presets import preset as plant_preset
+from thrustmap.rig.sim.stand_peers import LineStandPeer
+from thrustmap.rig.stand.line import LineStand
+from thrustmap.rig.stand.line_calibration import (
+    calibration_from_counts,
+    load_line_calibration,
+    raw_spec,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+FIX = ROOT / "fixtures" / "stands"
+TINY = FIX / "tiny-thrust-stand"
+VICTOR = FIX / "victorhook-thruststand"
+
+
+def decode(path: Path, spec_name: str, calibration: Path | None = None, raw: bool = False):
+    spec = preset(spec_name)
+    if raw:
+        spec = raw_spec(spec)
+    elif calibration is not None:
+        spec = load_line_calibration(calibration).apply(spec)
+    decoder = LineStandDecoder(spec)
+    events = decoder.feed_events(read_transcript(path).read())
+    assert decoder.error_count == 0, [e for e in events if not isinstance(e, LineSample)][:3]
+    return events
+
+
+def samples_of(events) -> list[LineSample]:
+    return [e for e in events if isinstance(e, LineSample)]
+
+
+def shape(line: str) -> str:
+    """A line with every number replaced by N: its framing."""
+    return re.sub(r"-?\d+", "N", line)
+
+
+def lines_of(data: bytes) -> list[str]:
+    return [ln for ln in re.split(r"\r\n|\n|\r", data.decode()) if ln]
+
+
+# --------------------------------------------------------------------------- tiny-thrust-stand
+
+
+def test_tiny_run_replays_through_the_preset_with_the_simulators_thrust() -> None:
+    assert read_transcript(TINY / "run.jsonl").written() == b"S\n"  # only its start command
+    events = decode(TINY / "run.jsonl", "tiny-thrust-stand", TINY / "cal.json")
+    rows = samples_of(events)
+    assert [e.text for e in events if isinstance(e, LineComment)] == ["Done"]
+    assert [r.throttle for r in rows] == [float(d) for d in range(0, 200, 10) for _ in range(10)]
+    params = plant_preset("crazyflie-2.1")  # the plant the recording's harness ran
+    for duty in range(0, 200, 10):
+        level = [r for r in rows if r.throttle == duty]
+        volts = np.mean([r.voltage_v for r in level])
+        assert 4.0 < volts < 4.2  # a 1S pack through the 10-bit ADC (5 V / 1024)
+        thrust = np.mean([r.thrust_n for r in level[5:]])
+        truth = float(true_thrust_n(params, 1, duty / 255, volts))
+        assert thrust == pytest.approx(truth, rel=0.03, abs=1.5e-3), duty
+    currents = [np.mean([r.current_a for r in rows if r.throttle == d]) for d in (0, 100, 190)]
+    assert currents[0] == pytest.approx(0.103, abs=0.01) and currents[0] < currents[1]
+    assert currents[2] == pytest.approx(0.677, abs=0.02)
+
+
+def test_tiny_prints_the_wrapped_16_bit_count_the_avr_prints() -> None:
+    # 24-bit -83000 >> 4 is 1043388: an AVR's %d prints its low 16 bits, signed: -5188
+    rows = samples_of(decode(TINY / "run.jsonl", "tiny-thrust-stand", raw=True))
+    assert all(-32768 <= r.thrust_n < 32768 for r in rows)
+    assert np.mean([r.thrust_n for r in rows[:10]]) == pytest.approx(-5188, abs=30)
+
+
+def test_tiny_calibration_recording_finds_the_cell() -> None:
+    events = decode(TINY / "calibrate.jsonl", "tiny-thrust-stand", raw=True)
+    runs: list[list[float]] = [[]]
+    for e in events:
+        if isinstance(e, LineComment) and e.text == "Done":
+            runs.append([])
+        elif isinstance(e, LineSample):
+            runs[-1].append(e.thrust_n)
+    assert [len(r) for r in runs] == [200, 200, 0]  # two sweeps, the motor unplugged
+    cal = calibration_from_counts(preset("tiny-thrust-stand"), runs[0], runs[1], 0.010)
+    assert cal.counts_per_n == pytest.approx(-422.0 / G0 * 1000.0, rel=0.005)  # the harness's
+    written = load_line_calibration(TINY / "cal.json")
+    assert written.counts_per_n == pytest.approx(cal.counts_per_n)
+
+
+# --------------------------------------------------------------------------- victorhook
+
+
+def test_victorhook_sweep_replays_through_the_preset_at_the_fcs_levels() -> None:
+    tr = read_transcript(VICTOR / "sweep.jsonl")
+    # a stand that drives no ESC is only ever sent the stop label
+    assert set(lines_of(tr.written())) == {"1000"}
+    rows = samples_of(decode(VICTOR / "sweep.jsonl", "victorhook-thruststand", VICTOR / "cal.json"))
+    assert len(rows) > 3000 and all(r.throttle == 1000.0 for r in rows)  # the label echoed
+    gaps = np.diff([r.time_s for r in rows])
+    assert np.median(gaps) == pytest.approx(0.010, abs=1e-4)  # every 10 ms (main.cpp line 7)
+    thrust = np.array([r.thrust_n for r in rows])
+    # plateaus: a level held 4 s; HX711_ADC's 16-conversion average settles in 1.6 s
+    params = plant_preset("xnova-2207-6s")
+    levels = [float(true_thrust_n(params, 1, f, 24.7)) for f in (0.2, 0.3, 0.4, 0.5)]
+    for truth in levels:
+        near = thrust[np.abs(thrust - truth) < 0.1 * truth]
+        assert near.size > 150, truth  # held for > 1.5 s at that thrust
+        assert np.median(near) == pytest.approx(truth, rel=0.03)
+    assert abs(np.median(thrust[:100])) < 0.01  # tared at rest
+
+
+def test_victorhook_calibration_recording_finds_the_cell() -> None:
+    rows = samples_of(decode(VICTOR / "calibrate.jsonl", "victorhook-thruststand", raw=True))
+    counts = np.array([r.thrust_n for r in rows])
+    cal = load_line_calibration(VICTOR / "cal.json")
+    assert cal.preset == "victorhook-thruststand"
+    assert cal.counts_per_n * G0 / 1000.0 == pytest.approx(-400.0, rel=0.01)  # the harness's
+    assert counts.min() < cal.tare_counts + 0.2 * G0 * cal.counts_per_n * 0.9  # the 200 g seen
+
+
+# --------------------------------------------------------------------------- identification
+
+
+@pytest.mark.parametrize(
+    ("path", "name"),
+    [
+        (TINY / "run.jsonl", "tiny-thrust-stand"),
+        (TINY / "calibrate.jsonl", "tiny-thrust-stand"),
+        (VICTOR / "sweep.jsonl", "victorhook-thruststand"),
+        (VICTOR / "calibrate.jsonl", "victorhook-thruststand"),
+    ],
+)
+def test_probe_identifies_each_recording_alone(path: Path, name: str) -> None:
+    found = detect_from_url(f"replay://{path}")
+    assert found is not None and (found.kind, found.line_preset) == ("line-stand", name)
+    lines = lines_of(read_transcript(path).read())[1:40]
+    assert [s.name for s in identify(lines)] == [name]  # no other preset claims its lines
+
+
+def test_probe_says_it_knows_none_and_shows_the_first_lines(tmp_path: Path) -> None:
+    from thrustmap.protocols.transcript import TranscriptWriter
+
+    path = tmp_path / "unknown.jsonl"
+    writer = TranscriptWriter(path, inner="/dev/ttyUSB0", origin_s=0.0)
+    writer.event("r", b"12;34;56;78\n" * 6, 0.1)
+    writer.close()
+    r = subprocess.run(
+        [sys.executable, "-m", "thrustmap", "probe", f"replay://{path}"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "no line-stand preset knows" in r.stderr and "'12;34;56;78'" in r.stderr
+    assert "--line-preset" in r.stderr
+
+
+def test_a_silent_port_names_the_stands_that_wait_for_a_start_command() -> None:
+    from thrustmap.rig.devices.detect import heard_summary
+
+    said = heard_summary({115200: bytearray()})
+    assert "printed nothing" in said and "tiny-thrust-stand (waits for 'S'" in said
+    assert heard_summary({115200: bytearray(b"hello\r\nworld\r\n")}).startswith(
+        "at 115200 baud it printed 'hello' | 'world'"
+    )
+
+
+# --------------------------------------------------------------------------- the simulators
+
+
+def test_simulated_tiny_prints_what_the_firmware_printed() -> None:
+    recorded = lines_of(read_transcript(TINY / "run.jsonl").read())
+    peer = LineStandPeer(
+        make_plant("crazyflie-2.1", rotors_on_esc=1, seed=1), preset("tiny-thrust-stand")
+    )
+    assert peer.read(5.0) == b""  # silent until its start command, like the firmware
+    peer.write(read_transcript(TINY / "run.jsonl").written(), 5.0)  # the recording's commands
+    simulated = lines_of(peer.read(60.0))
+    assert (
+        {shape(ln) for ln in simulated} == {shape(ln) for ln in recorded} == {"N\tN\tN\tN", "Done"}
+    )
+    assert [ln.split("\t")[0] for ln in simulated] == [ln.split("\t")[0] for ln in recorded]
+    assert peer.throttle_pct == 0.0  # duty 0 after its sweep (line 67)
+
+
+def test_simulated_victorhook_prints_what_the_firmware_printed() -> None:
+    recorded = lines_of(read_transcript(VICTOR / "sweep.jsonl").read())[1:]
+    peer = LineStandPeer(
+        make_plant("xnova-2207-6s", rotors_on_esc=1, seed=1), preset("victorhook-thruststand")
+    )
+    peer.write(b"1000\n", 0.0)
+    simulated = lines_of(peer.read(2.0))
+    assert {shape(ln) for ln in simulated} == {shape(ln) for ln in recorded} == {"N, N, N"}
+    assert len(simulated) == pytest.approx(200, abs=2)  # 100 lines a second
+    peer.write(b"1600\n", 2.0)  # a label only: the firmware drives no motor
+    assert lines_of(peer.read(2.1))[-1].split(", ")[1] == "1600" and peer.throttle_pct == 0.0
+
+
+# --------------------------------------------------------------------------- ways out
+
+
+class DtrPort(SimSerial):
+    """A simulated port that remembers the DTR levels set on it."""
+
+    def __init__(self, peer: LineStandPeer, clock: SimClock) -> None:
+        super().__init__(peer, clock)
+        self.dtr_levels: list[bool] = []
+
+    def _update_dtr_state(self) -> None:
+        self.dtr_levels.append(bool(self.dtr))
+        super()._update_dtr_state()
+
+
+def test_closing_during_tinys_own_sweep_resets_the_board_and_the_motor_stops() -> None:
+    from thrustmap.rig.stand.line_runs import run_sequence
+
+    clock = SimClock()
+    peer = LineStandPeer(
+        make_plant("crazyflie-2.1", rotors_on_esc=1, seed=1), preset("tiny-thrust-stand")
+    )
+    port = DtrPort(peer, clock)
+    stand = LineStand(port, clock, preset("tiny-thrust-stand"))
+
+    spinning: list[float] = []
+
+    def interrupt(sample: object, throttle: float) -> None:
+        if throttle >= 100:
+            spinning.append(peer.throttle_pct)
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt), stand:
+        run_sequence(stand, 60.0, interrupt)
+    assert spinning[0] > 30  # it was spinning when interrupted
+    # close() ran on the way out: DTR dropped then asserted (the Pro Mini's reset)
+    assert port.dtr_levels[-2:] == [False, True] and stand.resets == 1
+    assert peer.resets == 1 and peer.throttle_pct == 0.0
+    assert peer.read(clock.now_s() + 30.0) == b""  # the sweep does not resume
+
+
+def test_tiny_without_dtr_says_the_sweep_runs_on(caplog: pytest.LogCaptureFixture) -> None:
+    class NoDtr(SimSerial):
+        def _update_dtr_state(self) -> None:
+            raise OSError(25, "Inappropriate ioctl for device")  # a pseudo-terminal
+
+    clock = SimClock()
+    peer = LineStandPeer(
+        make_plant("crazyflie-2.1", rotors_on_esc=1, seed=1), preset("tiny-thrust-stand")
+    )
+    stand = LineStand(NoDtr(peer, clock), clock, preset("tiny-thrust-stand"))
+    stand.start_sequence()
+    stand.close()
+    assert "still running" in caplog.text and "cut the motor's power" in caplog.text
+
+
+def test_victorhook_cannot_be_the_esc_output_the_fc_drives_and_stops_it(tmp_path: Path) -> None:
+    from thrustmap.rig.devices.opening import stand_esc_output
+
+    clock = SimClock()
+    peer = LineStandPeer(
+        make_plant("xnova-2207-6s", rotors_on_esc=1, seed=1), preset("victorhook-thruststand")
+    )
+    stand = LineStand(SimSerial(peer, clock), clock, preset("victorhook-thruststand"))
+    with pytest.raises(ConfigError, match="cannot drive an ESC"):
+        stand_esc_output(stand, 0)
+    stand.close()
+    r = subprocess.run(
+        [sys.executable, "-m", "thrustmap", "sweep", "steps", "--yes", "-q",
+         "--stand", "sim://line-stand?preset=victorhook-thruststand",
+         "-o", str(tmp_path / "x.csv")],
+        capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    assert r.returncode == 2 and "cannot drive an ESC" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------- sweeps on the simulator
+
+
+def truth_error_pct(csv: Path, plant: str) -> tuple[float, float, int]:
+    """Mean and max |map - truth| (% throttle) at the run's steady points, and their count."""
+    from thrustmap.fitting.fit import fit_map
+    from thrustmap.fitting.loaders import load_dataset
+    from thrustmap.fitting.selection import Selection, select
+    from thrustmap.rig.sim.physics import true_throttle_fraction
+
+    ds = load_dataset(csv)
+    tmap = fit_map([ds]).map
+    pts = select(ds, Selection())
+    keep = pts.thrust_n > 0.05 * pts.thrust_n.max()  # every point but the motor at rest
+    t, b = pts.thrust_n[keep], pts.voltage_v[keep]
+    truth = true_throttle_fraction(plant_preset(plant), 1, t, b) * 100.0
+    err = np.abs(tmap.throttle_pct(t, b, corrected=False) - truth)
+    assert np.all(np.isfinite(err)), err
+    return float(err.mean()), float(err.max()), int(keep.sum())
+
+
+def thrustmap_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "thrustmap", *args], capture_output=True, text=True, cwd=ROOT
+    )
+
+
+def test_tinys_own_sweep_on_its_simulator_fits_within_1pct_of_the_truth(tmp_path: Path) -> None:
+    out = tmp_path / "tiny.csv"
+    url = "sim://line-stand?preset=tiny-thrust-stand&plant=crazyflie-2.1"
+    r = thrustmap_cli(
+        "stand", "run", url, "--line-preset", "tiny-thrust-stand", "-o", str(out), "--yes"
+    )
+    assert r.returncode == 0, r.stderr
+    assert '"rows": 200' in r.stdout and '"levels": 20' in r.stdout
+    mean, worst, n = truth_error_pct(out, "crazyflie-2.1")
+    assert n >= 15 and mean < 1.0 and worst < 2.0, (mean, worst, n)
+    meta = (tmp_path / "tiny.meta.json").read_text()
+    assert '"status": "completed"' in meta and '"stop_verified": true' in meta
+
+
+def test_victorhook_sweep_by_the_fc_on_its_simulator_fits_within_1pct(tmp_path: Path) -> None:
+    out = tmp_path / "vh.csv"
+    r = thrustmap_cli(
+        "sweep", "steps", "--stand", "sim://line-stand?preset=victorhook-thruststand",
+        "--throttle", "sim://betaflight", "--to", "60", "--step", "10", "--dwell", "2",
+        "--yes", "-q", "-o", str(out),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "completed" in r.stdout and "stop verified" in r.stdout  # stopped by the FC
+    mean, worst, n = truth_error_pct(out, "xnova-2207-6s")
+    assert n >= 5 and mean < 1.0 and worst < 2.0, (mean, worst, n)
