@@ -326,7 +326,7 @@ def test_tinys_own_sweep_on_its_simulator_fits_within_1pct_of_the_truth(tmp_path
         "stand", "run", url, "--line-preset", "tiny-thrust-stand", "-o", str(out), "--yes"
     )
     assert r.returncode == 0, r.stderr
-    assert '"rows": 200' in r.stdout and '"levels": 20' in r.stdout
+    assert "completed: 200 rows, 20 levels; stop verified (its end line)" in r.stdout
     mean, worst, n = truth_error_pct(out, "crazyflie-2.1")
     assert n >= 15 and mean < 1.0 and worst < 2.0, (mean, worst, n)
     meta = (tmp_path / "tiny.meta.json").read_text()
@@ -344,3 +344,25 @@ def test_victorhook_sweep_by_the_fc_on_its_simulator_fits_within_1pct(tmp_path: 
     assert "completed" in r.stdout and "stop verified" in r.stdout  # stopped by the FC
     mean, worst, n = truth_error_pct(out, "xnova-2207-6s")
     assert n >= 5 and mean < 1.0 and worst < 2.0, (mean, worst, n)
+
+
+def test_sigterm_during_tinys_own_sweep_resets_the_board_exit_130(tmp_path: Path) -> None:
+    import signal
+    import time
+
+    out = tmp_path / "t.csv"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "thrustmap", "stand", "run", "--clock", "real", "--yes",
+         "sim://line-stand?preset=tiny-thrust-stand&plant=crazyflie-2.1",
+         "--line-preset", "tiny-thrust-stand", "-o", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and (not out.exists() or out.read_text().count("\n") < 30):
+        time.sleep(0.05)  # rows are written as they come: wait for the motor to be driven
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=20)
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stdout and "stop verified (a DTR reset)" in stdout
+    meta = (tmp_path / "t.meta.json").read_text()
+    assert '"stop": "a DTR reset"' in meta and '"stop_verified": true' in meta

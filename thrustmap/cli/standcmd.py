@@ -3,14 +3,14 @@
 
 from __future__ import annotations
 
-import json
+import sys
 from typing import TYPE_CHECKING
 
 import click
 
 from thrustmap.cli.hardware import CLOCK_CHOICE
 from thrustmap.cli.textwidth import echo
-from thrustmap.core.errors import ConfigError
+from thrustmap.core.errors import ConfigError, ThrustmapError
 
 if TYPE_CHECKING:
     from thrustmap.core.clock import Clock
@@ -159,53 +159,74 @@ def run_cmd(
     clock_choice: str,
 ) -> None:
     """Start the firmware's own sweep and record it as a Ds log (the throttle from its rows).
-    Ctrl-C or any error resets the board (the firmware has no stop command)."""
+    Ctrl-C, SIGTERM or any error resets the board (the firmware has no stop command).
+
+    \b
+    Exit codes: 0 done, 1 failed (board reset), 2 refused or bad input,
+      3 stop NOT verified (cut the motor's power), 130 interrupted (board reset)."""
     from thrustmap.cli.hardware import make_clock
-    from thrustmap.core.dslog import DsWriter
     from thrustmap.core.files import check_output_path
-    from thrustmap.core.units import scale
-    from thrustmap.rig.safety import terminate_as_exception
-    from thrustmap.rig.stand.line_runs import run_sequence
 
     check_output_path(output, what="Ds log")
     clock = make_clock(clock_choice, [url])
     stand = _open(url, clock, preset_name, baud, calibration)
-    spec = stand.spec
-    if spec.sequence_start is None:
+    if stand.spec.sequence_start is None:
         stand.close()
-        raise ConfigError(f"'{spec.name}' runs no sweep of its own: use thrustmap sweep")
+        raise ConfigError(f"'{stand.spec.name}' runs no sweep of its own: use thrustmap sweep")
+    if not yes and not click.confirm(
+        f"'{stand.spec.name}' will run its own sweep: propeller on, area clear?", default=False
+    ):
+        stand.close()
+        raise click.Abort()
+    code = _record_sequence(stand, url, output, calibration, timeout_s)
+    if code:
+        sys.exit(code)
+
+
+def _record_sequence(
+    stand: LineStand, url: str, output: str, calibration: str | None, timeout_s: float
+) -> int:
+    """Run the sequence into a Ds log; the exit code (``sweep``'s meanings)."""
+    from thrustmap.core.dslog import DsWriter
+    from thrustmap.core.units import scale
+    from thrustmap.rig.interfaces import StandSample
+    from thrustmap.rig.safety import terminate_as_exception
+    from thrustmap.rig.session import exit_code
+    from thrustmap.rig.stand.line_runs import run_sequence
+
+    spec = stand.spec
     meta = {"devices": {"stand": {"url": url, "preset": spec.name, "source": spec.source}},
             "plan": {"kind": "firmware-sequence"}, "rotors_on_esc": 1, "strategy": "SR",
             "motor": 0, "calibration": calibration}  # fmt: skip
     writer = DsWriter(output, scale(spec.throttle_scale), meta)
-    status, reason = "aborted", "interrupted"
     steps: list[float] = []
+
+    def write(sample: StandSample, throttle: float) -> None:
+        if not steps or steps[-1] != throttle:
+            steps.append(throttle)
+        values = {k: getattr(sample, k) for k in ("thrust_n", "voltage_v", "current_a", "rpm")}
+        writer.write(sample.time_s, throttle, {**values, "step": len(steps) - 1,
+                                               "phase": "firmware"})  # fmt: skip
+
+    outcome, reason = "aborted", ""
     try:
         with terminate_as_exception(), stand:
-            _confirm(f"'{spec.name}' will run its own sweep: propeller on, area clear?", yes)
-
-            def write(sample: object, throttle: float) -> None:
-                from thrustmap.rig.interfaces import StandSample
-
-                assert isinstance(sample, StandSample)
-                if not steps or steps[-1] != throttle:
-                    steps.append(throttle)
-                values = {
-                    k: getattr(sample, k) for k in ("thrust_n", "voltage_v", "current_a", "rpm")
-                }
-                writer.write(sample.time_s, throttle, {**values, "step": len(steps) - 1,
-                                                       "phase": "firmware"})  # fmt: skip
-
             run_sequence(stand, timeout_s, write)
-            status, reason = "completed", f"'{spec.sequence_end}' from the firmware"
-    except BaseException as exc:
-        reason = f"{type(exc).__name__}: {exc}"
-        raise
+            outcome, reason = "completed", f"'{spec.sequence_end}' from the firmware"
+    except KeyboardInterrupt as exc:
+        outcome, reason = "interrupted", f"{type(exc).__name__} {exc}".strip()
+    except ThrustmapError as exc:
+        reason = str(exc)
     finally:
         confirmed = stand.stop_confirmation
-        extra = {"stop_verified": status == "completed" or stand.resets > 0 or bool(confirmed),
-                 "stop": "the firmware's end line" if status == "completed" else
-                 ("a DTR reset" if stand.resets else
-                  f"its stop command ({confirmed})" if confirmed else "NOT verified")}  # fmt: skip
-        writer.finish(status, reason, extra)
-    echo(json.dumps({"output": output, "rows": writer.rows, "levels": len(steps)}))
+        verified = outcome == "completed" or stand.resets > 0 or bool(confirmed)
+        how = (
+            "its end line" if outcome == "completed" else "a DTR reset" if stand.resets
+            else f"its stop command, confirmed by its {confirmed}" if confirmed else ""
+        )  # fmt: skip
+        writer.finish("completed" if outcome == "completed" else "aborted", reason,
+                      {"stop_verified": verified, "stop": how or "NOT verified"})  # fmt: skip
+    stop = f"stop verified ({how})" if verified else "stop NOT verified: cut the motor's power"
+    echo(f"{outcome}: {writer.rows} rows, {len(steps)} levels; {stop}; log {output}"
+         + (f" ({reason})" if outcome != "completed" else ""))  # fmt: skip
+    return exit_code(outcome, verified)
