@@ -366,3 +366,19 @@ def test_sigterm_during_tinys_own_sweep_resets_the_board_exit_130(tmp_path: Path
     assert "interrupted" in stdout and "stop verified (a DTR reset)" in stdout
     meta = (tmp_path / "t.meta.json").read_text()
     assert '"stop": "a DTR reset"' in meta and '"stop_verified": true' in meta
+
+
+@pytest.mark.parametrize("stand", ["tiny-thrust-stand", "victorhook-thruststand"])
+def test_each_recording_names_its_firmware_commit_and_the_shim_it_ran_on(stand: str) -> None:
+    import hashlib
+    import json
+
+    prov = json.loads((FIX / stand / "provenance.json").read_text())
+    assert (
+        prov["firmware"]["commit"] in preset(stand).source
+        or prov["firmware"]["commit"][:12] in preset(stand).source
+    )
+    shim = ROOT / "tests" / "support" / "arduino_shim"
+    for name, sha in prov["shim"]["sha256"].items():
+        # the shim changed since the recording: re-record (tests/support/arduino_shim/README.md)
+        assert hashlib.sha256((shim / name).read_bytes()).hexdigest() == sha, name

@@ -146,9 +146,13 @@ class Harness:
         grams = state.thrust_n / G0 * 1000.0 + self.mass_g
         lines = [f"HX {int(round(w.hx711_tare_counts + grams * w.counts_per_gram))}"]
         if w.voltage_pin >= 0:
-            lines.append(f"ADC {w.voltage_pin} {min(1023, round(state.voltage_v / w.volts_per_count))}")
+            lines.append(
+                f"ADC {w.voltage_pin} {min(1023, round(state.voltage_v / w.volts_per_count))}"
+            )
         if w.current_pin >= 0:
-            lines.append(f"ADC {w.current_pin} {min(1023, round(state.current_a / w.amps_per_count))}")
+            lines.append(
+                f"ADC {w.current_pin} {min(1023, round(state.current_a / w.amps_per_count))}"
+            )
         assert self.proc.stdin is not None
         self.proc.stdin.write("\n".join(lines) + "\n")
         self.proc.stdin.flush()
