@@ -38,6 +38,7 @@ RUNS = {
         "3",
     ],  # fmt: skip
     "mqtb-teststand": ["stand", "run"],
+    "einsz-whoop SWEEP": ["stand", "run"],  # the firmware's own program
 }
 
 
@@ -46,6 +47,7 @@ def run(name: str, out: Path) -> None:
 
     reset_benches()  # each run on a fresh simulated bench (its clock starts at 0)
     args = RUNS[name]
+    name = name.split()[0]
     url = f"sim://line-stand?preset={name}"
     if args[0] == "sweep":
         argv = [*args[:2], "--stand", url, *args[2:], "--yes", "-q", "-o", str(out)]
@@ -63,7 +65,7 @@ def error_pct(name: str, csv: Path) -> tuple[float, float, int]:
     keep = pts.thrust_n > 0.05 * pts.thrust_n.max()
     t, b = pts.thrust_n[keep], pts.voltage_v[keep]
     fraction = true_throttle_fraction(preset("xnova-2207-6s"), 1, t, b)
-    if name == "einsz-whoop":
+    if name.startswith("einsz-whoop"):
         truth = 1.0 + (fraction * 2000.0 - 1.0) * 99.0 / 1999.0
     else:
         truth = fraction * 100.0
@@ -75,7 +77,7 @@ def main() -> None:
     print(f"{'preset':24s} {'points':>6s} {'mean |err| %':>13s} {'max |err| %':>12s}  target")
     with tempfile.TemporaryDirectory() as tmp:
         for name in RUNS:
-            out = Path(tmp) / f"{name}.csv"
+            out = Path(tmp) / f"{name.replace(' ', '-')}.csv"
             run(name, out)
             mean, worst, n = error_pct(name, out)
             print(f"{name:24s} {n:6d} {mean:13.2f} {worst:12.2f}  mean < 1")

@@ -34,7 +34,7 @@ from thrustmap.rig.sim.diy_stand_peers import (
     einsz_dshot,
 )
 from thrustmap.rig.sim.plant import ConstantPlant
-from thrustmap.rig.stand.line import LineStand, LineStandEscOutput
+from thrustmap.rig.stand.line import STOP_TOLERANCE_PCT, LineStand, LineStandEscOutput
 
 ROOT = Path(__file__).resolve().parent.parent
 STANDS = ROOT / "fixtures" / "stands"
@@ -346,6 +346,7 @@ class Spy:
 
     def read(self, now_s: float) -> bytes:
         data: bytes = self.inner.read(now_s)  # type: ignore[attr-defined]
+        self.history.append(self.inner.throttle_pct)  # type: ignore[attr-defined]
         return data
 
 
@@ -434,3 +435,79 @@ def test_presets_need_their_stop_command_for_levels() -> None:
             header_prefix=None,
             throttle_levels=((10.0, "1"),),
         )
+
+
+def test_einsz_own_sweep_on_the_simulator_fits_within_1pct_of_the_truth(tmp_path: Path) -> None:
+    """``SWEEP`` runs the firmware's own program (idle hunt, 1 % steps up and back down, 250 Hz
+    rows in the last 100 ms of each): read as a recording, the throttle from its rows."""
+    out = tmp_path / "run.csv"
+    result = CliRunner().invoke(
+        cli,
+        ["stand", "run", "sim://line-stand?preset=einsz-whoop", "--line-preset", "einsz-whoop",
+         "--yes", "-o", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "stop verified (its end line)" in result.output
+    mean, worst, n = _truth_error(out, "einsz")
+    assert n >= 100
+    assert mean < 1.0 and worst < 1.5, (mean, worst)
+
+
+@pytest.mark.parametrize("cause", ["stop", "watchdog"])
+def test_einsz_stop_and_watchdog_abort_its_own_sweep(cause: str) -> None:
+    """endSequence(): an aborted program skips the ramp, says why, and still ends with
+    END_SWEEP so the host is never left waiting."""
+    peer = EinszWhoopPeer(ConstantPlant(1), preset("einsz-whoop"))
+    peer.write(b"PING\nSWEEP\n", 0.0)
+    t = 0.0
+    while t < 8.0:  # the host keeps pinging into the up leg
+        t += 0.25
+        peer.write(b"PING\n", t)
+    assert peer.in_sequence and peer.pct > 10
+    if cause == "stop":
+        peer.write(b"STOP\n", 8.1)
+    text = peer.read(8.2 if cause == "stop" else 10.0).decode()
+    assert peer.throttle_pct == 0.0 and not peer.in_sequence
+    aborted = text.index(f"#WARN,sequence_aborted,{cause}")
+    assert text.index("END_SWEEP", aborted) > aborted
+    ramp_rows = re.findall(r"^D,\d+,8,", text[aborted:], flags=re.M)
+    assert not ramp_rows  # no logged ramp down (phase 8): the stop was at once
+    if cause == "watchdog":
+        assert "#WARN,watchdog_timeout" in text
+
+
+@pytest.mark.parametrize("name", ["einsz-whoop", "mqtb-teststand", "avenhaus-thrust-stand"])
+@pytest.mark.parametrize("action", ["ctrl-c", "sigterm", "exception"])
+def test_every_way_out_of_a_stand_run_stops_the_firmwares_program(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, name: str, action: str
+) -> None:
+    from test_cli_hardware import Trigger
+
+    from thrustmap.protocols.urlhandlers import protocol_sim
+
+    created: list[Spy] = []
+    original = protocol_sim.create_peer
+
+    def spy(peer_name: str, options: object = None) -> object:
+        created.append(Spy(original(peer_name, options)))  # type: ignore[arg-type]
+        return created[-1]
+
+    monkeypatch.setattr(protocol_sim, "create_peer", spy)
+    Trigger(monkeypatch, 12.0, action)  # mid-program, the motor turning
+    out = tmp_path / "run.csv"
+    result = CliRunner().invoke(
+        cli,
+        ["stand", "run", f"sim://line-stand?preset={name}", "--line-preset", name, "--yes",
+         "-o", str(out)],
+    )  # fmt: skip
+    (stand,) = created
+    peer = stand.inner
+    assert max(stand.history) > 10.0  # it was spinning when the way out came
+    # stopped (an ESC does not turn within the driver's 0.5 % stop tolerance; avenhaus's own
+    # ramp reaches 0 a tick later)
+    assert peer.throttle_pct <= STOP_TOLERANCE_PCT  # type: ignore[attr-defined]
+    meta = json.loads(out.with_suffix(".meta.json").read_text())
+    assert meta["stop_verified"], meta
+    assert "its stop command, confirmed" in meta["stop"]
+    assert "stop verified" in result.output or action == "exception"
+    assert result.exit_code == {"ctrl-c": 130, "sigterm": 130, "exception": 1}[action]

@@ -6,7 +6,9 @@ with what it receives. ``sim://line-stand?preset=<name>`` picks one when it exis
   ``SYSTEM_READY`` at boot, ``D,...`` rows of 23 fields at 10 Hz, a bare percent, ``DSHOT,v``,
   ``STOP``, ``TARE``, ``ID``; ``PING`` arms the 1 s watchdog (``#WD,armed``), which stops a
   turning motor and prints ``#WARN,watchdog_timeout``; unknown lines are ignored. The DShot
-  value is ``map(pct, 1, 100, 1, 2000)`` and the plant sees ``dshot / 2000``.
+  value is ``map(pct, 1, 100, 1, 2000)`` and the plant sees ``dshot / 2000``. Its own ``SWEEP``
+  (the idle hunt, 1 % steps up and down with 250 Hz rows, the logged ramp down, ``END_SWEEP``;
+  ``STOP`` or the watchdog abort it) is simulated; its other programs answer ``#ERROR``.
 - :class:`MqtbPeer` (VirtualEnder/TestStandv2): the menu, ``Input: ...``; ``s`` runs the
   stepping program (2 s, header, 250 Hz rows of a 27 s ramp 1100-2000-1100 µs); any byte
   ends it (1000 µs, menu again); ``t`` tares. Thrust in whole grams, as ``int`` prints it.
@@ -20,7 +22,7 @@ The plant is thrustmap's physics simulator: throttle is the fraction of full ESC
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 from thrustmap.protocols.stands.line import LineStandSpec
 from thrustmap.rig.sim.plant import Plant
@@ -153,11 +155,18 @@ def einsz_pct_label(dshot: int) -> int:
     return 1 + ((dshot - 1) * 99 + 999) // 1999 if dshot else 0
 
 
+#: a segment of a firmware's own program: (seconds, phase, log rows after this many seconds
+#: into it, or None for a wait that logs nothing: ``sequenceDelay()``)
+Segment = tuple[float, int, float | None]
+
+
 class EinszWhoopPeer(FirmwarePeer):
     WATCHDOG_S = 1.0  # WATCHDOG_MS
+    IDLE_S = 0.1  # PRINT_IDLE_US
+    FAST_S = 0.004  # PRINT_FAST_US (HX711 build)
 
     def __init__(self, plant: Plant, spec: LineStandSpec, *, motor: int = 0) -> None:
-        super().__init__(plant, spec, motor=motor, period_s=0.1)  # PRINT_IDLE_US
+        super().__init__(plant, spec, motor=motor, period_s=self.IDLE_S)
         self.pct = 0
         self.dshot = 0
         self.armed = False
@@ -165,7 +174,12 @@ class EinszWhoopPeer(FirmwarePeer):
         self.watchdog_trips = 0
         self.last_host_s = 0.0
         self.tare_n = 0.0
+        self.abort = ""  # why a running program is being ended early
         self._rx = bytearray()
+        self._program: Iterator[Segment] | None = None
+        self._segment: Segment = (0.0, 0, None)
+        self._segment_t = 0.0
+        self._now = 0.0
 
     def boot(self, t: float) -> None:
         for line in (*EINSZ_INIT, *einsz_banner(self.spec.header_names), "SYSTEM_READY"):
@@ -176,6 +190,10 @@ class EinszWhoopPeer(FirmwarePeer):
         self.pct, self.dshot = pct, dshot
         self.set_fraction(dshot / 2000.0, t)
 
+    @property
+    def in_sequence(self) -> bool:
+        return self._program is not None
+
     def receive(self, data: bytes, t: float) -> None:
         self._rx += data
         while True:
@@ -183,7 +201,7 @@ class EinszWhoopPeer(FirmwarePeer):
                 (i for i in (self._rx.find(b"\n"), self._rx.find(b"\r")) if i >= 0), default=-1
             )
             if cut < 0:
-                del self._rx[:-31]  # inputBuf[32]: the rest is dropped
+                del self._rx[31:]  # inputBuf[32]: the rest of an overlong line is dropped
                 return
             line = self._rx[:cut].decode("ascii", errors="replace")[:31]
             del self._rx[: cut + 1]
@@ -191,9 +209,11 @@ class EinszWhoopPeer(FirmwarePeer):
                 self.command(line, t)
 
     def command(self, cmd: str, t: float) -> None:
-        """``handleCommand()``; the sequences (SWEEP, HOLD, ...) are not simulated."""
+        """``handleCommand()``; of the firmware's own programs only ``SWEEP`` is simulated."""
         self.last_host_s = t
-        if cmd == "PING":
+        if self.in_sequence and cmd not in ("PING", "STOP"):
+            self.say("#ERROR,busy," + cmd, "\n")
+        elif cmd == "PING":
             if not self.armed:
                 self.armed = True
                 self.say("#WD,armed", "\n")
@@ -201,11 +221,14 @@ class EinszWhoopPeer(FirmwarePeer):
             for line in einsz_banner(self.spec.header_names):
                 self.say(line, "\n")
         elif cmd == "STOP":
-            self._set(0, 0, t)
+            self._set(0, 0, t)  # immediate, never ramped
+            self.abort = self.abort or ("stop" if self.in_sequence else "")
         elif cmd == "TARE":
             self._set(0, 0, t)
             self.tare_n = self.si(t)["thrust_n"]
             self.say("#TARE,ok", "\n")
+        elif cmd == "SWEEP":
+            self._start(self._sweep(), t)
         elif cmd.startswith("DSHOT,"):
             value = min(max(_atoi(cmd[6:]), 0), 2000)
             self._set(einsz_pct_label(value), value, t)
@@ -214,8 +237,77 @@ class EinszWhoopPeer(FirmwarePeer):
             pct = min(max(_atoi(cmd), 0), 100)
             self._set(pct, einsz_dshot(pct), t)
             self.tripped = False
-        elif cmd in ("SWEEP", "TRANSIENT") or cmd.startswith(("RESPONSE", "HOLD", "DHOLD")):
+        elif cmd in ("TRANSIENT",) or cmd.startswith(("RESPONSE", "HOLD", "DHOLD", "COAST")):
             self.say("#ERROR,not_simulated," + cmd, "\n")
+
+    # -- the firmware's own SWEEP (runSweepSequence(), endSequence(), rampThrottleDown()) ----
+    def _start(self, program: Iterator[Segment], t: float) -> None:
+        self.abort = ""
+        self.tripped = False  # resetSequenceCounters()
+        self._program = program
+        self.period_s = self.FAST_S
+        self._segment_t = t
+        self._segment = (0.0, 0, None)
+        self._now = t
+
+    def _sweep(self) -> Iterator[Segment]:
+        # ``self._now`` is the start of the segment being entered (set before each step)
+        self._set(0, 0, self._now)
+        yield (0.5, 0, None)
+        self.say("#AMBIENT,start,present=0", "\n")
+        self.say("START_SWEEP", "\n")
+        idle = 0
+        for pct in range(1, 16):  # phase A: the lowest throttle that keeps the rotor turning
+            self._set(pct, einsz_dshot(pct), self._now)
+            yield (0.45, 1, None)
+            if self.abort:
+                break
+            if self.si(self._now)["rpm"] >= 2500:
+                idle = pct
+                self.say(f"MIN_RELIABLE_IDLE,{idle}", "\n")
+                break
+        if not idle and not self.abort:
+            self.say("#ERROR,idle_hunt_failed", "\n")
+        levels = [] if not idle else [*range(idle, 101), *range(99, idle - 1, -1)]
+        for i, pct in enumerate(levels):  # phases B and C: 200 ms a level, 100 ms logged
+            if self.abort:
+                break
+            self._set(pct, einsz_dshot(pct), self._now)
+            yield (0.2, 2 if i <= 100 - idle else 4, 0.1)
+        yield from self._end_sequence("sweep", "END_SWEEP")
+
+    def _end_sequence(self, tag: str, sentinel: str) -> Iterator[Segment]:
+        if not self.abort:
+            value = self.dshot
+            while value > 0:  # rampThrottleDown(): 100 DShot steps every 20 ms, logged
+                value = max(0, value - 100)
+                self._set(einsz_pct_label(value), value, self._now)
+                yield (0.02, 8, 0.0)
+            self._set(0, 0, self._now)
+            yield (0.1, 8, 0.0)
+        else:
+            self.say(f"#WARN,sequence_aborted,{self.abort}", "\n")
+        self._set(0, 0, self._now)
+        self.say(f"#STATS,{tag},telem_ok=0,telem_bad=0,rows_dropped=0", "\n")
+        self.say("#AMBIENT,end,present=0", "\n")
+        self.say(sentinel, "\n")
+
+    def _run_program(self, t: float) -> bool:
+        """Advance the running program to ``t``; True when this tick prints a row."""
+        assert self._program is not None
+        if self.abort and self._segment[1] != 8:  # runWindow() returns at the next sample
+            self._segment = (t - self._segment_t, *self._segment[1:])  # (the ramp is exempt)
+        while t >= self._segment_t + self._segment[0]:
+            self._segment_t += self._segment[0]
+            self._now = self._segment_t
+            step = next(self._program, None)
+            if step is None:
+                self._program = None
+                self.period_s = self.IDLE_S
+                return True
+            self._segment = step
+        log_after = self._segment[2]
+        return log_after is not None and t - self._segment_t >= log_after
 
     def tick(self, t: float) -> None:
         trip_s = self.last_host_s + self.WATCHDOG_S
@@ -223,7 +315,16 @@ class EinszWhoopPeer(FirmwarePeer):
             self._set(0, 0, trip_s)  # serviceWatchdog()
             self.tripped = True
             self.watchdog_trips += 1
+            self.abort = self.abort or ("watchdog" if self.in_sequence else "")
             self.say("#WARN,watchdog_timeout", "\n")
+        phase = 0
+        if self._program is not None:
+            if not self._run_program(t):
+                return
+            phase = self._segment[1] if self._program is not None else 0
+        self._row(t, phase)
+
+    def _row(self, t: float, phase: int) -> None:
         v = self.si(t)
         v["thrust_n"] -= self.tare_n
         t_us = int((t - self.start_s) * 1e6) & 0xFFFFFFFF
@@ -231,7 +332,7 @@ class EinszWhoopPeer(FirmwarePeer):
         erpm = rpm * 6
         flags = 16 if self.tripped else 0
         cells = (
-            t_us, 0, self.pct, self.dshot, rpm, erpm, 4095 if erpm == 0 else 0, 0,
+            t_us, phase, self.pct, self.dshot, rpm, erpm, 4095 if erpm == 0 else 0, 0,
             int(round(self.raw(v, "thrust_n"))), 0, 0,
             int(round(self.raw(v, "voltage_v"))), int(round(self.raw(v, "current_a"))),
             0, 0, 0, 0, 0, 0, 0, 0, 0, flags,
