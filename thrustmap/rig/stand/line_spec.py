@@ -225,21 +225,7 @@ def line_spec_from_dict(
         except ConfigError as exc:
             raise r.error("throttle_scale", exc.message) from None
 
-    columns: dict[str, Column] = dict(base.columns) if base is not None else {}
-    if "columns" in data:
-        given = data["columns"]
-        if not isinstance(given, dict):
-            raise r.error("columns", "expected an object mapping fields to columns")
-        for field_name, col in given.items():
-            if field_name not in FIELDS:
-                raise r.error(
-                    f"columns.{field_name}", f"unknown field; expected some of {', '.join(FIELDS)}"
-                )
-            if col is None and base is not None:
-                columns.pop(field_name, None)
-            else:
-                columns[field_name] = r.column(field_name, col)
-    kwargs["columns"] = columns
+    kwargs["columns"] = _columns(r, data, base)
     kwargs.update(_firmware_keys(r, data))
 
     try:
@@ -264,6 +250,27 @@ def line_spec_from_dict(
             raise r.error("load_cell.si_per_count", "expected a non-zero number")
         spec = spec.with_load_cell(field_name, tare, per)
     return spec
+
+
+def _columns(
+    r: _SpecReader, data: Mapping[str, Any], base: LineStandSpec | None
+) -> dict[str, Column]:
+    """The preset's columns (if it extends one) with the file's ``columns`` over them."""
+    columns: dict[str, Column] = dict(base.columns) if base is not None else {}
+    if "columns" in data:
+        given = data["columns"]
+        if not isinstance(given, dict):
+            raise r.error("columns", "expected an object mapping fields to columns")
+        for field_name, col in given.items():
+            if field_name not in FIELDS:
+                raise r.error(
+                    f"columns.{field_name}", f"unknown field; expected some of {', '.join(FIELDS)}"
+                )
+            if col is None and base is not None:
+                columns.pop(field_name, None)
+            else:
+                columns[field_name] = r.column(field_name, col)
+    return columns
 
 
 def _firmware_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
