@@ -220,7 +220,7 @@ def sim_lines(name: str, script: list[tuple[float, bytes]], until_s: float) -> l
     ("name", "path", "script", "until_s"),
     [
         ("einsz-whoop", EINSZ_SWEEP, [(0.5, b"PING\n"), (0.6, b"30\n"), (1.5, b"STOP\n")], 2.0),
-        ("mqtb-teststand", MQTB, [(0.5, b"s"), (3.5, b"x")], 4.0),
+        ("mqtb-teststand", MQTB, [(0.5, b"s"), (3.5, b"e")], 4.0),
         ("avenhaus-thrust-stand", AVENHAUS, [(0.5, b"3"), (2.0, b" "), (3.0, b"s")], 9.0),
     ],
 )
@@ -385,7 +385,7 @@ def test_every_way_out_of_a_spin_stops_the_stands_esc(
 
 def test_mqtb_program_is_stopped_by_any_byte_and_confirmed_by_its_menu() -> None:
     """Against the recording: thrustmap starts the program ('s'), reads its rows, and on the way
-    out sends 'x' (any byte ends a program); the menu printed again confirms it."""
+    out sends 'e' (any byte ends a program); the menu printed again confirms it."""
     clock = SimClock()
     spec = preset("mqtb-teststand")
     stand = LineStand(open_transport(f"replay://{MQTB}", clock=clock, timeout=0), clock, spec)

@@ -6,7 +6,7 @@ the pinned commit; the values come from a small known table (:func:`truth`) so a
 what the preset decodes against what was printed.
 
 - ``mqtb-teststand/program_s.jsonl``: VirtualEnder/TestStandv2 @ 8521231b3d2d: the menu, the
-  host's ``s``, the stepping program's header and 3 s of its 250 Hz rows, the host's ``x``
+  host's ``s``, the stepping program's header and 3 s of its 250 Hz rows, the host's ``e``
   (any byte ends a program) and the menu again.
 - ``avenhaus-thrust-stand/session.jsonl``: avenhaus/thrust_stand @ a1eb40a2b013: boot and help,
   live rows at 10 Hz, ``3`` (a cosine ramp to 30 %), a space (the ramp back to 0), ``s`` (its
@@ -125,7 +125,7 @@ def write_mqtb(path: Path, stop_after_s: float = 3.0) -> Path:
             chunk = ""
     end = start + stop_after_s
     tape.out(end, chunk)
-    tape.host(end + 0.001, "x")  # any byte: while(!Serial.available()) ends (line 461)
+    tape.host(end + 0.001, "e")  # any byte: while(!Serial.available()) ends (line 461)
     # drain (lines 544-547), return, delay(100) (ino line 151), updatePWM(1000), menu again
     tape.out(end + 0.105, MQTB_MENU)
     tape.close()

@@ -27,8 +27,10 @@ only -- "documentation/source only".
 - Throttle comes from the rows (``Throttle(uS)``, 1000..2000 µs); the host sends none.
 - Stop: ANY byte ends a program (``while(!Serial.available())``, lines 461 and 544-547): the
   firmware drains the input, returns to ``loop()``, sets 1000 µs and prints the menu again --
-  the menu's first line confirms the stop (``stop_confirm``). thrustmap sends ``x`` (no
-  program letter) on every way out it controls.
+  the menu's first line confirms the stop (``stop_confirm``). thrustmap sends ``e`` on every way
+  out it controls: no program letter in the menu, and the key that EXITS the ESC calibration
+  prompt (``calibrate()``, ``testRoutines.ino`` lines 62-69), where any other byte would go on
+  to command full throttle.
 - No watchdog: if thrustmap dies without sending the byte the program runs to its end (up to
   27 s, through full throttle) and then stops by itself. The ESC is on the stand, so no flight
   controller can stop it: keep a hand on the battery plug (or run the ESC from an FC and use
@@ -66,7 +68,7 @@ PRESET = LineStandSpec(
     header_prefix=None,
     data_match=r"(?=-?\d+,-?\d+,)",
     throttle_scale="pwm",
-    stop_command="x",
+    stop_command="e",
     stop_confirm=r"Type: t\(Tare\)",
     baudrate=921600,
     sequence_start="s",
