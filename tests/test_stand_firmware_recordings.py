@@ -382,3 +382,41 @@ def test_each_recording_names_its_firmware_commit_and_the_shim_it_ran_on(stand: 
     for name, sha in prov["shim"]["sha256"].items():
         # the shim changed since the recording: re-record (tests/support/arduino_shim/README.md)
         assert hashlib.sha256((shim / name).read_bytes()).hexdigest() == sha, name
+
+
+def test_probe_of_a_serial_port_printing_the_firmwares_lines_names_its_preset() -> None:
+    """A pseudo-terminal plays the real firmware's recorded output back at its own pace: probe
+    finds the preset from the lines alone, and opens the stand with it."""
+    import os
+    import threading
+    import time
+    import tty
+
+    events = [e for e in read_transcript(VICTOR / "sweep.jsonl").events if e.direction == "r"]
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    stop = threading.Event()
+
+    def play() -> None:
+        start = time.monotonic() - events[0].time_s
+        for e in events:
+            if stop.is_set():
+                return
+            time.sleep(max(0.0, e.time_s - (time.monotonic() - start)))
+            os.write(master, e.data)
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    try:
+        r = thrustmap_cli("probe", os.ttyname(slave), "--seconds", "0.5")
+    finally:
+        stop.set()
+        player.join(5)
+        os.close(master)
+        os.close(slave)
+    assert r.returncode == 0, r.stderr
+    assert "as victorhook-thruststand prints them" in r.stdout
+    assert "spec: victorhook-thruststand" in r.stdout
+    rate = re.search(r"samples in [\d.]+ s at (\d+) Hz", r.stdout)
+    assert rate is not None and 90 <= int(rate.group(1)) <= 110
+    assert "motor: driven and stopped by the flight controller" in r.stdout

@@ -95,6 +95,8 @@ def probe_device(
 ) -> ProbeReport:
     """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
     output (its exit commands stop and verifies it, as always) but no motor is commanded."""
+    if kind is None and (line_preset is not None or line_spec_file is not None):
+        kind = "line-stand"  # a silent stand (one that waits for its start) is named by them
     found = resolve(url, clock, kind, baudrate)
     report = ProbeReport(url, found)
     try:
