@@ -511,3 +511,17 @@ def test_every_way_out_of_a_stand_run_stops_the_firmwares_program(
     assert "its stop command, confirmed" in meta["stop"]
     assert "stop verified" in result.output or action == "exception"
     assert result.exit_code == {"ctrl-c": 130, "sigterm": 130, "exception": 1}[action]
+
+
+@pytest.mark.parametrize(
+    ("vid", "pid", "name"), [(0x2E8A, 0x000A, "einsz-whoop"), (0x1CBE, 0x00FD, "mqtb-teststand")]
+)
+def test_ports_names_the_boards_these_stands_are_built_on(vid: int, pid: int, name: str) -> None:
+    from types import SimpleNamespace
+
+    from thrustmap.rig.devices.ports import describe_port
+
+    info = SimpleNamespace(device="/dev/ttyACM0", description="", hwid="", vid=vid, pid=pid,
+                           serial_number=None, manufacturer=None, product=None)  # fmt: skip
+    port = describe_port(info)  # type: ignore[arg-type]
+    assert name in port.guess and port.kinds == ("line-stand",)
