@@ -106,6 +106,22 @@ def test_tiny_calibration_recording_finds_the_cell() -> None:
     assert written.counts_per_n == pytest.approx(cal.counts_per_n)
 
 
+def test_tiny_interrupted_on_the_real_firmware_is_reset_by_dtr_and_falls_silent() -> None:
+    tr = read_transcript(TINY / "interrupted.jsonl")
+    (start,) = [e for e in tr.events if e.direction == "w"]
+    assert start.data == b"S\n" and start.time_s >= 2.0  # after the bootloader's wait
+    notes = [(e.time_s, e.note) for e in tr.events if e.note]
+    assert [n for _, n in notes] == ["dtr 0", "dtr 1"]  # the reset pulse, on the way out
+    reads = [e for e in tr.events if e.direction == "r"]
+    assert reads[-1].time_s < notes[0][0]  # nothing at all after the reset
+    events = decode(TINY / "interrupted.jsonl", "tiny-thrust-stand", TINY / "cal.json")
+    rows = samples_of(events)
+    levels = sorted({r.throttle for r in rows})
+    assert levels[:5] == [0.0, 10.0, 20.0, 30.0, 40.0]  # it was sweeping when stopped
+    assert np.mean([r.thrust_n for r in rows if r.throttle == 40.0]) > 0.005
+    assert not any(isinstance(e, LineComment) for e in events)  # no "Done": cut short
+
+
 # --------------------------------------------------------------------------- victorhook
 
 
@@ -145,6 +161,7 @@ def test_victorhook_calibration_recording_finds_the_cell() -> None:
     [
         (TINY / "run.jsonl", "tiny-thrust-stand"),
         (TINY / "calibrate.jsonl", "tiny-thrust-stand"),
+        (TINY / "interrupted.jsonl", "tiny-thrust-stand"),
         (VICTOR / "sweep.jsonl", "victorhook-thruststand"),
         (VICTOR / "calibrate.jsonl", "victorhook-thruststand"),
     ],
@@ -251,7 +268,7 @@ def test_closing_during_tinys_own_sweep_resets_the_board_and_the_motor_stops() -
         run_sequence(stand, 60.0, interrupt)
     assert spinning[0] > 30  # it was spinning when interrupted
     # close() ran on the way out: DTR dropped then asserted (the Pro Mini's reset)
-    assert port.dtr_levels[-2:] == [False, True] and stand.resets == 1
+    assert port.dtr_levels[-2:] == [False, True] and stand.resets == 1 and stand.reset_verified
     assert peer.resets == 1 and peer.throttle_pct == 0.0
     assert peer.read(clock.now_s() + 30.0) == b""  # the sweep does not resume
 
@@ -268,7 +285,8 @@ def test_tiny_without_dtr_says_the_sweep_runs_on(caplog: pytest.LogCaptureFixtur
     stand = LineStand(NoDtr(peer, clock), clock, preset("tiny-thrust-stand"))
     stand.start_sequence()
     stand.close()
-    assert "still running" in caplog.text and "cut the motor's power" in caplog.text
+    assert "may still be running" in caplog.text and "cut the motor's power" in caplog.text
+    assert not stand.reset_verified
 
 
 def test_victorhook_cannot_be_the_esc_output_the_fc_drives_and_stops_it(tmp_path: Path) -> None:
@@ -363,9 +381,9 @@ def test_sigterm_during_tinys_own_sweep_resets_the_board_exit_130(tmp_path: Path
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=20)
     assert proc.returncode == 130, stderr
-    assert "interrupted" in stdout and "stop verified (a DTR reset)" in stdout
+    assert "interrupted" in stdout and "stop verified (a DTR reset, then silence)" in stdout
     meta = (tmp_path / "t.meta.json").read_text()
-    assert '"stop": "a DTR reset"' in meta and '"stop_verified": true' in meta
+    assert '"stop": "a DTR reset, then silence"' in meta and '"stop_verified": true' in meta
 
 
 @pytest.mark.parametrize("stand", ["tiny-thrust-stand", "victorhook-thruststand"])

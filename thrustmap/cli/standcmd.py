@@ -219,9 +219,10 @@ def _record_sequence(
         reason = str(exc)
     finally:
         confirmed = stand.stop_confirmation
-        verified = outcome == "completed" or stand.resets > 0 or bool(confirmed)
+        verified = outcome == "completed" or stand.reset_verified or bool(confirmed)
         how = (
-            "its end line" if outcome == "completed" else "a DTR reset" if stand.resets
+            "its end line" if outcome == "completed"
+            else "a DTR reset, then silence" if stand.reset_verified
             else f"its stop command, confirmed by its {confirmed}" if confirmed else ""
         )  # fmt: skip
         writer.finish("completed" if outcome == "completed" else "aborted", reason,

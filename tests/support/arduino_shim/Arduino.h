@@ -14,7 +14,7 @@
 
 #include <string>
 
-#define SHIM_VERSION "arduino-shim 1"
+#define SHIM_VERSION "arduino-shim 2"
 
 typedef uint8_t byte;
 typedef bool boolean;

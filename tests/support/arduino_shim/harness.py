@@ -10,7 +10,8 @@ binary, prints the stand's serial port (a pseudo-terminal) and, for a stand that
 motor (victorhook), a second pseudo-terminal where a simulated Betaflight FC (thrustmap's
 ``MspPeer``) drives the same motor; then it feeds the firmware's HX711 and ADC pins from the
 plant and applies the firmware's ``analogWrite`` to the motor, until stdin closes.
-Lines on stdin: ``mass <grams>`` hangs a known mass on the load cell (for
+``--rfc2217 PORT`` also serves the stand's port as ``rfc2217://127.0.0.1:PORT``: a client's DTR
+reaches the board's reset line there (a pseudo-terminal has no DTR). Lines on stdin: ``mass <grams>`` hangs a known mass on the load cell (for
 ``thrustmap stand calibrate``), ``mass 0`` takes it off; ``unplug``/``plug`` disconnect the
 motor from the firmware's PWM output; ``events`` prints the firmware's last control events.
 
@@ -29,8 +30,10 @@ import sys
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from thrustmap.core.physical import G0
 from thrustmap.rig.sim.msp_peer import MspPeer
@@ -54,6 +57,7 @@ class StandWiring:
     amps_per_count: float = 0.0
     sources: tuple[str, ...] = ()  # firmware files, relative to its checkout
     avr_int16: bool = False
+    boot_s: float = 0.0  # after a reset the bootloader hears nothing for this long
 
 
 STANDS = {
@@ -72,6 +76,7 @@ STANDS = {
         amps_per_count=0.06 * 22 * 5.0 / 1024,
         sources=("Arduino/Tiny-Thrust-Stand/Tiny-Thrust-Stand.ino",),
         avr_int16=True,
+        boot_s=1.0,  # Optiboot's wait after a reset
     ),
     # Blue Pill: DOUT PB9, SCK PB8 (main.cpp lines 4-5). A cell a little different from the
     # authors' (220000 counts per 490 g): calibration has something to find.
@@ -122,6 +127,7 @@ class Harness:
         self.mass_g = 0.0
         self.motor_plugged = True
         env = dict(os.environ, SHIM_HX711_SCK=str(self.wiring.hx711_sck_pin))
+        env["SHIM_BOOT_S"] = str(self.wiring.boot_s)
         self.proc = subprocess.Popen(
             [str(binary)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
         )
@@ -201,14 +207,99 @@ class Harness:
 
         threading.Thread(target=serve, daemon=True).start()
 
+    def reset(self) -> None:
+        """The board's reset line pulled low (DTR asserted through the auto-reset capacitor):
+        the MCU restarts; its pins float meanwhile, and the motor MOSFET's gate pull-down keeps
+        the motor off (tiny-thrust-stand's schematic) until the firmware drives it again."""
+        with self.lock:
+            self.plant.set_throttle(0, 0.0, self.now())
+        assert self.proc.stdin is not None
+        self.proc.stdin.write("RESET\n")
+        self.proc.stdin.flush()
+        self.events.append(f"{self.now():.3f} DTR reset")
+
+    def serve_rfc2217(self, tcp_port: int) -> None:
+        """The stand's port over RFC 2217 on 127.0.0.1 (``rfc2217://127.0.0.1:<port>``): a
+        client's DTR reaches the board's reset line, as on a USB-serial adapter."""
+        import select
+        import socket
+
+        from serial.rfc2217 import PortManager
+
+        server = socket.create_server(("127.0.0.1", tcp_port))
+
+        def bridge() -> None:
+            while self.proc.poll() is None:
+                conn, _ = server.accept()
+                fd = os.open(self.stand_port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+                manager = PortManager(_ResetLine(self.reset), _Connection(conn))
+                try:
+                    while True:
+                        ready, _, _ = select.select([conn, fd], [], [], 0.5)
+                        if conn in ready:
+                            data = conn.recv(4096)
+                            if not data:
+                                break
+                            os.write(fd, b"".join(manager.filter(data)))
+                        if fd in ready:
+                            conn.sendall(b"".join(manager.escape(os.read(fd, 4096))))
+                except OSError:
+                    pass
+                finally:
+                    os.close(fd)
+                    conn.close()
+
+        threading.Thread(target=bridge, daemon=True).start()
+
     def close(self) -> None:
         if self.proc.poll() is None:
             self.proc.terminate()
             self.proc.wait(5)
 
 
-def run(stand: str, binary: Path, seed: int, noise: bool) -> None:
+class _Connection:
+    """A socket as ``PortManager`` writes to it."""
+
+    def __init__(self, sock: Any) -> None:
+        self.sock = sock
+
+    def write(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+
+class _ResetLine:
+    """What the RFC 2217 server sees as its serial port: settings it may set, and DTR, whose
+    assertion resets the board (an Arduino's auto-reset)."""
+
+    def __init__(self, on_reset: Callable[[], None]) -> None:
+        self.on_reset = on_reset
+        self._dtr = False
+        self.baudrate, self.bytesize, self.parity, self.stopbits = 115200, 8, "N", 1
+        self.rts = self.break_condition = False
+        self.cts = self.dsr = self.ri = self.cd = False  # modem lines a USB adapter reports
+
+    @property
+    def dtr(self) -> bool:
+        return self._dtr
+
+    @dtr.setter
+    def dtr(self, value: bool) -> None:
+        if value and not self._dtr:
+            self.on_reset()
+        self._dtr = bool(value)
+
+    def reset_input_buffer(self) -> None:
+        pass
+
+    def reset_output_buffer(self) -> None:
+        pass
+
+
+def run(stand: str, binary: Path, seed: int, noise: bool, rfc2217: int | None = None) -> None:
     h = Harness(stand, binary, seed=seed, noise=noise)
+    if rfc2217 is not None:
+        h.serve_rfc2217(rfc2217)
+        print(f"rfc2217 rfc2217://127.0.0.1:{rfc2217}", flush=True)
     print(f"stand {h.stand_port}" + (f"\nfc {h.fc_port}" if h.fc_port else ""), flush=True)
     try:
         for line in sys.stdin:
@@ -238,11 +329,12 @@ def main() -> None:
     r.add_argument("--binary", type=Path, required=True)
     r.add_argument("--seed", type=int, default=1)
     r.add_argument("--no-noise", action="store_true")
+    r.add_argument("--rfc2217", type=int, help="also serve the stand on this TCP port (DTR)")
     args = ap.parse_args()
     if args.cmd == "build":
         build(args.stand, args.firmware, args.lib, args.out)
     else:
-        run(args.stand, args.binary, args.seed, not args.no_noise)
+        run(args.stand, args.binary, args.seed, not args.no_noise, args.rfc2217)
 
 
 if __name__ == "__main__":

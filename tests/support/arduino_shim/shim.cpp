@@ -4,8 +4,11 @@
 // host program (thrustmap) opens it. Control protocol with the harness (one line each):
 //   harness -> shim (stdin):  "HX <signed 24-bit>"   the HX711's next conversion
 //                              "ADC <pin> <0..1023>"  what analogRead(pin) returns
+//                              "RESET"                the MCU resets (its DTR reset line):
+//                              the process re-executes itself on the same pseudo-terminal
 //   shim -> harness (stdout): "PTY <path>", "PWM <pin> <value>" (analogWrite),
 //                              "RX <text>" (a line the firmware received), "RESET"
+// SHIM_BOOT_S: after a (re)start the board hears nothing for this long (a bootloader).
 // The HX711 is emulated at its pins: DOUT low when a conversion is ready (SHIM_HX711_SPS,
 // default 10/s), 24 bits MSB first on SCK rising edges, then the gain pulses.
 #include <errno.h>
@@ -244,31 +247,57 @@ int shim_avr_format(char* buf, const char* fmt, const ShimAvrArgs& args) {
 }
 
 // ------------------------------------------------------------------------------ harness link
+static char** g_argv;
+static int g_keep = -1;
+
+static void reset_mcu() {  // a reset runs the firmware from setup() again, on the same port
+  char fds[64];
+  snprintf(fds, sizeof fds, "%d %d", g_master, g_keep);
+  setenv("SHIM_PTY_FDS", fds, 1);
+  control("RESET");
+  execv("/proc/self/exe", g_argv);
+  _exit(4);
+}
+
 static void* control_reader(void*) {
   char line[128];
   while (fgets(line, sizeof line, stdin)) {
     long a = 0, b = 0;
+    if (strncmp(line, "RESET", 5) == 0) reset_mcu();
     if (sscanf(line, "HX %ld", &a) == 1) g_hx_value.store(a);
     else if (sscanf(line, "ADC %ld %ld", &a, &b) == 2 && a >= A0 && a < A0 + 8) g_adc[a - A0].store((int)b);
   }
   exit(0);  // the harness is gone
 }
 
-int main() {
+int main(int, char** argv) {
+  g_argv = argv;
   clock_gettime(CLOCK_MONOTONIC, &g_start);
-  g_master = posix_openpt(O_RDWR | O_NOCTTY);
-  if (g_master < 0 || grantpt(g_master) || unlockpt(g_master)) return 2;
+  const char* fds = getenv("SHIM_PTY_FDS");
+  if (fds && sscanf(fds, "%d %d", &g_master, &g_keep) == 2) {
+    // after a reset: the same pseudo-terminal
+  } else {
+    g_master = posix_openpt(O_RDWR | O_NOCTTY);
+    if (g_master < 0 || grantpt(g_master) || unlockpt(g_master)) return 2;
+    g_keep = open(ptsname(g_master), O_RDWR | O_NOCTTY);  // held: no EIO while the host reopens
+    struct termios tio;
+    tcgetattr(g_keep, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(g_keep, TCSANOW, &tio);
+    fcntl(g_master, F_SETFL, fcntl(g_master, F_GETFL) | O_NONBLOCK);
+  }
   const char* slave = ptsname(g_master);
-  int keep = open(slave, O_RDWR | O_NOCTTY);  // held open: no EIO while the host reopens
-  struct termios tio;
-  tcgetattr(keep, &tio);
-  cfmakeraw(&tio);
-  tcsetattr(keep, TCSANOW, &tio);
-  fcntl(g_master, F_SETFL, fcntl(g_master, F_GETFL) | O_NONBLOCK);
   pthread_t reader;
   pthread_create(&reader, nullptr, control_reader, nullptr);
   control("PTY %s", slave);
   control("SHIM %s", SHIM_VERSION);
+  const char* boot = getenv("SHIM_BOOT_S");
+  if (boot && atof(boot) > 0) {  // the bootloader: what arrives meanwhile is lost
+    sleep_us((long)(atof(boot) * 1e6));
+    char junk[256];
+    while (::read(g_master, junk, sizeof junk) > 0) {
+    }
+  }
   setup();
   for (;;) {
     loop();

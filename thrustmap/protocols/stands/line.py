@@ -113,6 +113,9 @@ class LineStandSpec:
     sequence_row_period_s: float = 0.0
     #: what the firmware prints between cells when it is not ``delimiter`` (``", "``)
     row_separator: str | None = None
+    #: the board resets when its port is opened (Arduino auto-reset by DTR) and hears
+    #: nothing for this long (its bootloader): the first command waits for it
+    boot_s: float = 0.0
     #: resetting the board (a DTR pulse on an Arduino's auto-reset line) stops its output; the
     #: way out for a firmware with no stop command
     reset_stops: bool = False

@@ -159,6 +159,7 @@ class RecordingSerial(SerialBase):
     def _update_dtr_state(self) -> None:
         if self._inner is not None:
             self._inner.dtr = self.dtr
+            self.note(f"dtr {int(bool(self.dtr))}")  # a board's reset line: kept in the record
 
     def _update_rts_state(self) -> None:
         if self._inner is not None:

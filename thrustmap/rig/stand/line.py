@@ -153,6 +153,8 @@ class LineStand(Stand):
         self.stop_confirmed_line = 0
         #: how ``close`` confirmed the stop of a running firmware program (None: it did not)
         self.stop_confirmation: str | None = None
+        self.reset_verified = False  # the board fell silent after its reset
+        self.opened_s = clock.now_s()  # a board that resets on open boots from here
 
     # -- counters ---------------------------------------------------------------------------
     @property
@@ -383,6 +385,9 @@ class LineStand(Stand):
         """Send the line that starts the firmware's own sweep (the motor will spin)."""
         if self.spec.sequence_start is None:
             raise ConfigError(f"line stand '{self.spec.name}' runs no sequence of its own")
+        while self.clock.now_s() < self.opened_s + self.spec.boot_s:
+            self._pump()  # its bootloader would swallow the start command
+            self.clock.sleep_s(0.02)
         self._pump()
         self.sequence_started = True
         self.sequence_ended = False
@@ -401,6 +406,7 @@ class LineStand(Stand):
             self.clock.sleep_s(0.05)
             port.dtr = True  # asserting DTR pulls RESET low through the board's capacitor
             self.clock.sleep_s(0.05)
+            self.opened_s = self.clock.now_s()  # booting again
         except (OSError, AttributeError, ValueError) as exc:
             log.error("%s: could not reset the board by DTR: %s", self.spec.name, exc)
             return False
@@ -431,6 +437,25 @@ class LineStand(Stand):
                 return None
             self.clock.sleep_s(0.005)
 
+    def confirm_silent(self, settle_s: float = 0.3, watch_s: float = 1.0) -> bool:
+        """After a reset: True when the board prints no data row for ``watch_s`` (what it
+        sent before the reset, in the first ``settle_s``, is dropped). A firmware back at its
+        start waits silently; one still running its sweep prints a row at least every
+        ``sequence_row_period_s``."""
+        end = self.clock.now_s() + settle_s
+        while self.clock.now_s() < end:
+            self._read_available()
+            self.clock.sleep_s(0.02)
+        self.decoder = LineStandDecoder(self.spec)  # no half line from before the reset
+        end = self.clock.now_s() + watch_s
+        while self.clock.now_s() < end:
+            events = self.decoder.feed_events(self._read_available())
+            if any(isinstance(e, LineSample) for e in events):
+                log.error("%s: still printing rows after the reset", self.spec.name)
+                return False
+            self.clock.sleep_s(0.02)
+        return True
+
     def close(self) -> None:
         if self._closed:
             return
@@ -444,12 +469,14 @@ class LineStand(Stand):
             elif self.spec.takes_throttle or self.spec.stop_command is not None:
                 self.send_stop()
             # no stop command: only a reset ends the firmware's own sweep early
-            if self.spec.reset_stops and self.sequence_running and not self.reset_board():
-                log.error(
-                    "%s: the firmware's sequence is still running: it ends by itself "
-                    "(no stop command, no watchdog) — cut the motor's power if needed",
-                    self.spec.name,
-                )
+            if self.spec.reset_stops and self.sequence_running:
+                self.reset_verified = self.reset_board() and self.confirm_silent()
+                if not self.reset_verified:
+                    log.error(
+                        "%s: the firmware's sequence may still be running: it ends by itself "
+                        "(no stop command, no watchdog) — cut the motor's power if needed",
+                        self.spec.name,
+                    )
         except Exception as exc:  # the port may be gone; closing must not raise
             log.warning("%s: could not send the stop command on close: %s", self.spec.name, exc)
         finally:

@@ -6,6 +6,9 @@ b028e455762a83da40422e2784b491120a0ba0ce (cited by line below) and the authors' 
 ``Python/plot_thrust.py`` (the ADC scales):
 
 - 115200 baud (``.ino`` line 44); nothing is printed until an ``S`` arrives (lines 50-52).
+  Opening the port resets the Pro Mini (DTR on its auto-reset line): its bootloader hears
+  nothing for a while, so the authors wait 2 s before sending ``S\r\n`` (``plot_thrust.py``
+  lines 38-41); ``boot_s``.
 - ``S`` starts the firmware's own sweep (line 53): duty 0, 10, ... 190 of 255 (``PWM_MAX`` 200,
   ``PWM_STEP`` 10, lines 11-12), each held 200 ms and then 10 rows (lines 56-65); then duty 0
   (line 67) and ``Done`` (line 68). The run is read as a recording: the throttle is the duty
@@ -57,9 +60,10 @@ PRESET = LineStandSpec(
     sequence_rows=10,
     sequence_row_period_s=0.1,
     reset_stops=True,
+    boot_s=2.0,  # opening the port resets the Pro Mini: the authors wait 2 s (plot_thrust.py:40)
     line_patterns=(r"1?\d{1,2}0?\t\d{1,4}\t\d{1,4}\t-?\d{1,5}", r"Done"),
     raw_counts=("thrust_n",),
-    source=f"{REPO}@{COMMIT[:12]} {SKETCH}:44,50-68; Python/plot_thrust.py:15-17",
+    source=f"{REPO}@{COMMIT[:12]} {SKETCH}:44,50-68; Python/plot_thrust.py:15-17,38-41",
     verified="real firmware on a host shim (tests/support/arduino_shim), recording replayed in CI",
     description="tiny-thrust-stand (Arduino Pro Mini + HX711 + INA139, brushed motor): "
     "runs its own sweep on 'S'; no stop command, no watchdog: a DTR reset stops it",
