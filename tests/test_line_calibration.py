@@ -106,3 +106,14 @@ def test_probe_reads_a_line_stand_with_its_calibration(tmp_path: Path) -> None:
     assert "spec: victorhook-thruststand" in r.stdout and "mean thrust" in r.stdout
     other = run("probe", "sim://line-stand?preset=tiny-thrust-stand", "--calibration", str(path))
     assert other.returncode == 2 and "calibration of 'victorhook-thruststand'" in other.stderr
+
+
+@pytest.mark.parametrize("name", ["tiny-thrust-stand", "victorhook-thruststand"])
+def test_a_firmware_preset_is_declarable_in_json_and_reads_back_equal(
+    tmp_path: Path, name: str
+) -> None:
+    from thrustmap.rig.stand.line_spec import line_spec_to_dict, load_line_spec
+
+    path = tmp_path / "spec.json"
+    path.write_text(json.dumps(line_spec_to_dict(preset(name))))
+    assert load_line_spec(path) == preset(name)

@@ -166,15 +166,16 @@ def probe_cmd(
         raise ConfigError(f"--seconds must be in (0, 60], got {seconds:g}")
     clock = make_clock(clock_choice, [url])
     from thrustmap.rig import connect
+    from thrustmap.rig.devices.probe import StandOptions
 
+    if kind is None and (line_preset is not None or line_spec is not None):
+        kind = "line-stand"  # a silent stand (one that waits for its start) is named by them
     report = connect.probe_device(
         url,
         clock,
         kind=kind,
         baudrate=baud,
-        calibration=calibration,
-        line_preset=line_preset,
-        line_spec_file=line_spec,
+        stand=StandOptions(calibration, line_preset, line_spec),
         seconds=seconds,
         signing_key=signing_key,
     )

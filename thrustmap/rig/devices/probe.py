@@ -81,27 +81,32 @@ def summarize_samples(samples: Sequence[StandSample], duration_s: float) -> Stan
     return StandSummary(len(samples), duration_s, rate, means)
 
 
+@dataclass(frozen=True)
+class StandOptions:
+    """How to read a stand: its calibration file, a line-stand preset or spec file."""
+
+    calibration: str | None = None
+    line_preset: str | None = None
+    line_spec_file: str | None = None
+
+
 def probe_device(
     url: str,
     clock: Clock,
     *,
     kind: str | None = None,
     baudrate: int | None = None,
-    calibration: str | None = None,
-    line_preset: str | None = None,
-    line_spec_file: str | None = None,
+    stand: StandOptions | None = None,
     seconds: float = 1.0,
     signing_key: Any = None,
 ) -> ProbeReport:
     """Identify what is at ``url`` and take a short live reading. An FC is opened as a throttle
     output (its exit commands stop and verifies it, as always) but no motor is commanded."""
-    if kind is None and (line_preset is not None or line_spec_file is not None):
-        kind = "line-stand"  # a silent stand (one that waits for its start) is named by them
     found = resolve(url, clock, kind, baudrate)
     report = ProbeReport(url, found)
     try:
-        return _probe(report, url, clock, kind, baudrate, calibration, line_preset,
-                      line_spec_file, seconds, signing_key)  # fmt: skip
+        return _probe(report, url, clock, kind, baudrate, stand or StandOptions(), seconds,
+                      signing_key)  # fmt: skip
     finally:  # say how this kind's protocol was checked (a real device, an official client...)
         checked = driver(found.kind).verified
         spec_checked = report.identity.details.get("verified") if report.identity else None
@@ -118,9 +123,7 @@ def _probe(
     clock: Clock,
     kind: str | None,
     baudrate: int | None,
-    calibration: str | None,
-    line_preset: str | None,
-    line_spec_file: str | None,
+    options: StandOptions,
     seconds: float,
     signing_key: Any,
 ) -> ProbeReport:
@@ -163,8 +166,8 @@ def _probe(
     if (
         found.kind == "line-stand"
         and found.line_preset is None
-        and line_preset is None
-        and line_spec_file is None
+        and options.line_preset is None
+        and options.line_spec_file is None
     ):
         raise ConfigError(
             f"{url} prints text lines no line-stand preset knows ({found.evidence}); "
@@ -174,10 +177,11 @@ def _probe(
         url,
         clock,
         kind=found.kind,
-        calibration=calibration,
+        calibration=options.calibration,
         # the preset the port's own lines identified (opening again by kind does not sniff)
-        line_preset=line_preset or (found.line_preset if line_spec_file is None else None),
-        line_spec_file=line_spec_file,
+        line_preset=options.line_preset
+        or (found.line_preset if options.line_spec_file is None else None),
+        line_spec_file=options.line_spec_file,
         baudrate=baudrate,
     )
     with stand:

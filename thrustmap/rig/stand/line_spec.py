@@ -46,6 +46,11 @@ SPEC_KEYS = {
     "line_patterns",
     "raw_counts",
     "row_separator",
+    "sequence_levels",
+    "sequence_settle_s",
+    "sequence_rows",
+    "sequence_row_period_s",
+    "boot_s",
     "data_match",
     "cell_match",
     "watchdog_match",
@@ -135,6 +140,47 @@ class _SpecReader:
         return Column(index=index, name=name, scale=scale, offset=offset, modulo=modulo)
 
 
+def _firmware_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys that describe a stand's firmware: its source, how it was checked, whether it
+    drives the ESC, its own sequence, its reset, the lines probe knows it by, raw columns."""
+    out: dict[str, Any] = {}
+    for key in ("source", "verified"):
+        if key in data:
+            out[key] = r.string(data, key, key)
+    for key in ("sequence_start", "sequence_end", "row_separator"):
+        if key in data:
+            out[key] = r.string(data, key, key, null=True)
+    for key in ("drives_esc", "reset_stops"):
+        if key in data:
+            if not isinstance(data[key], bool):
+                raise r.error(key, f"expected true or false, got {data[key]!r}")
+            out[key] = data[key]
+    for key in ("line_patterns", "raw_counts"):
+        if key in data:
+            items = data[key]
+            if not isinstance(items, list) or not all(isinstance(n, str) for n in items):
+                raise r.error(key, "expected a list of strings")
+            out[key] = tuple(items)
+    for key in ("sequence_settle_s", "sequence_row_period_s", "boot_s"):
+        if key in data:
+            out[key] = r.number(data, key, key)
+            if out[key] < 0:
+                raise r.error(key, "expected seconds >= 0")
+    if "sequence_rows" in data:
+        rows = data["sequence_rows"]
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:
+            raise r.error("sequence_rows", f"expected a count >= 0, got {rows!r}")
+        out["sequence_rows"] = rows
+    if "sequence_levels" in data:
+        levels = data["sequence_levels"]
+        if not isinstance(levels, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in levels
+        ):
+            raise r.error("sequence_levels", "expected a list of throttle values")
+        out["sequence_levels"] = tuple(float(v) for v in levels)
+    return out
+
+
 def line_spec_from_dict(
     data: Any, source: str | None = None, *, text: str | None = None
 ) -> LineStandSpec:
@@ -170,32 +216,13 @@ def line_spec_from_dict(
         raise r.error(missing, "required (or 'extends' naming a preset to start from)")
 
     kwargs: dict[str, Any] = {}
-    for key in ("name", "description", "comment_prefix", "throttle_scale", "source", "verified"):
+    for key in ("name", "description", "comment_prefix", "throttle_scale"):
         if key in data:
             kwargs[key] = r.string(data, key, key)
-    for key in (
-        "delimiter",
-        "header_prefix",
-        "throttle_command",
-        "stop_command",
-        "keepalive",
-        "sequence_start",
-        "sequence_end",
-        "row_separator",
-    ):
+    for key in ("delimiter", "header_prefix", "throttle_command", "stop_command", "keepalive"):
         if key in data:
             kwargs[key] = r.string(data, key, key, null=True)
-    for key in ("drives_esc", "reset_stops"):
-        if key in data:
-            if not isinstance(data[key], bool):
-                raise r.error(key, f"expected true or false, got {data[key]!r}")
-            kwargs[key] = data[key]
-    for key in ("line_patterns", "raw_counts"):
-        if key in data:
-            items = data[key]
-            if not isinstance(items, list) or not all(isinstance(n, str) for n in items):
-                raise r.error(key, "expected a list of strings")
-            kwargs[key] = tuple(items)
+    kwargs.update(_firmware_keys(r, data))
     if kwargs.get("delimiter") == "":
         raise r.error("delimiter", "expected a non-empty string, or null for whitespace")
     if "keepalive_interval_s" in data:
@@ -226,7 +253,7 @@ def line_spec_from_dict(
             raise r.error("throttle_scale", exc.message) from None
 
     kwargs["columns"] = _columns(r, data, base)
-    kwargs.update(_firmware_keys(r, data))
+    kwargs.update(_matching_keys(r, data))
 
     try:
         spec = replace(base, **kwargs) if base is not None else LineStandSpec(**kwargs)
@@ -273,7 +300,7 @@ def _columns(
     return columns
 
 
-def _firmware_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
+def _matching_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
     """``data_match``, ``cell_match``, ``stop_confirm`` (regular expressions or null),
     ``watchdog_match``, ``error_match`` (regular expressions), ``stop_time_s`` (seconds) and
     ``throttle_levels`` (``[[percent, "command"], ...]``)."""
@@ -352,6 +379,11 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "line_patterns": list(spec.line_patterns),
         "raw_counts": list(spec.raw_counts),
         "row_separator": spec.row_separator,
+        "sequence_levels": list(spec.sequence_levels),
+        "sequence_settle_s": spec.sequence_settle_s,
+        "sequence_rows": spec.sequence_rows,
+        "sequence_row_period_s": spec.sequence_row_period_s,
+        "boot_s": spec.boot_s,
         "data_match": spec.data_match,
         "cell_match": spec.cell_match,
         "watchdog_match": spec.watchdog_match,
