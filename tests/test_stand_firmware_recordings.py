@@ -438,3 +438,25 @@ def test_probe_of_a_serial_port_printing_the_firmwares_lines_names_its_preset() 
     rate = re.search(r"samples in [\d.]+ s at (\d+) Hz", r.stdout)
     assert rate is not None and 90 <= int(rate.group(1)) <= 110
     assert "motor: driven and stopped by the flight controller" in r.stdout
+
+
+def test_sigterm_during_a_victorhook_sweep_stops_the_motor_through_the_fc(tmp_path: Path) -> None:
+    import signal
+    import time
+
+    out = tmp_path / "v.csv"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "thrustmap", "sweep", "steps", "--realtime", "--yes", "-q",
+         "--stand", "sim://line-stand?preset=victorhook-thruststand",
+         "--throttle", "sim://betaflight", "--to", "40", "--dwell", "5", "-o", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.read_text().count("\n") < 100):
+        time.sleep(0.05)  # the FC is driving the motor (rows are written as they come)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 130, stderr
+    assert "stop verified" in stdout
+    meta = (tmp_path / "v.meta.json").read_text()
+    assert '"stop_verified": true' in meta and '"status": "aborted"' in meta
