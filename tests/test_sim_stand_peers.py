@@ -57,7 +57,6 @@ STM32_HX711 = LineStandSpec(
 )
 
 
-
 def test_tyto_is_a_byte_peer() -> None:
     assert isinstance(TytoStandPeer(ConstantPlant(1)), BytePeer)
     assert isinstance(LineStandPeer(ConstantPlant(1)), BytePeer)
