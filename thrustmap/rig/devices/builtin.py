@@ -346,10 +346,18 @@ def _open_line(req: OpenRequest) -> Stand:
 def _line_esc(stand: Stand, motor: int) -> ThrottleOutput | None:
     from thrustmap.rig.stand.line import LineStand, LineStandEscOutput
 
-    if not isinstance(stand, LineStand) or not stand.spec.drives_esc:
-        return None  # a stand that only measures: the FC drives (and stops) the motor
+    if not isinstance(stand, LineStand):
+        return None
+    if not stand.spec.drives_esc:
+        raise ConfigError(
+            f"line stand '{stand.spec.name}' cannot drive an ESC (its firmware only measures): "
+            "pass --throttle with the flight controller that drives the motor; it also stops it"
+        )
     if not stand.spec.takes_throttle:
-        return None  # it runs its own programs only (``thrustmap stand run``)
+        raise ConfigError(
+            f"line stand '{stand.spec.name}' takes no throttle from the host (it runs its own "
+            "programs): use thrustmap stand run, or pass --throttle with a flight controller"
+        )
     return LineStandEscOutput(stand, motor)
 
 
