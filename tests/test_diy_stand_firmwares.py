@@ -525,3 +525,18 @@ def test_ports_names_the_boards_these_stands_are_built_on(vid: int, pid: int, na
                            serial_number=None, manufacturer=None, product=None)  # fmt: skip
     port = describe_port(info)  # type: ignore[arg-type]
     assert name in port.guess and port.kinds == ("line-stand",)
+
+
+def test_a_sweep_on_a_stand_that_runs_only_its_own_programs_is_refused(tmp_path: Path) -> None:
+    """The MQTB firmware takes no throttle from the host: a sweep without an FC is refused
+    before anything is sent (its own program is `thrustmap stand run`)."""
+    result = CliRunner().invoke(
+        cli,
+        ["sweep", "steps", "--stand", "sim://line-stand?preset=mqtb-teststand", "--yes",
+         "-o", str(tmp_path / "run.csv")],
+    )  # fmt: skip
+    from thrustmap.core.errors import ConfigError
+
+    assert isinstance(result.exception, ConfigError), result.output  # exit 2 from the CLI
+    assert "use thrustmap stand run" in str(result.exception)
+    assert not (tmp_path / "run.csv").exists()
