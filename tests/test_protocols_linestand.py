@@ -18,8 +18,8 @@ from thrustmap.protocols.stands.line import (
     LineSample,
     LineStandDecoder,
     LineStandSpec,
-    preset,
 )
+from thrustmap.protocols.stands.line_presets import preset
 
 REF_STREAM = (
     b"# thrustmap-line demo v1\r\n"

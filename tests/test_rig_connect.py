@@ -15,7 +15,7 @@ from thrustmap.core.errors import ConfigError
 from thrustmap.protocols.msp.framing import encode_request
 from thrustmap.protocols.msp.messages import ArmingDisable, MspCommand
 from thrustmap.protocols.peer import BytePeer
-from thrustmap.protocols.stands.line import preset
+from thrustmap.protocols.stands.line_presets import preset
 from thrustmap.protocols.transcript import TranscriptWriter
 from thrustmap.protocols.urlhandlers import protocol_sim
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial

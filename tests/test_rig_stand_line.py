@@ -10,7 +10,8 @@ import pytest
 
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError, SafetyError
-from thrustmap.protocols.stands.line import REFERENCE, Column, LineStandSpec, preset
+from thrustmap.protocols.stands.line import REFERENCE, Column, LineStandSpec
+from thrustmap.protocols.stands.line_presets import preset
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
 from thrustmap.rig.sim.plant import ConstantPlant
 from thrustmap.rig.sim.stand_peers import LineStandPeer

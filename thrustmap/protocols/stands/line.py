@@ -592,10 +592,3 @@ RP2040_WHOOP = GENERIC_HOLD
 #: the presets defined here; every preset (one module per DIY firmware in
 #: ``protocols.stands.presets``, aliases) is in ``protocols.stands.line_presets``
 PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, GENERIC_HOLD)}
-
-
-def preset(name: str) -> LineStandSpec:
-    """Any preset by name or alias (``line_presets.preset``)."""
-    from thrustmap.protocols.stands.line_presets import preset as find
-
-    return find(name)
