@@ -154,10 +154,10 @@ def test_detect_from_a_transcript_of_a_sim(tmp_path: Path) -> None:
         (TytoStandPeer(ConstantPlant(1)), "tyto-1585", None, None),
         (LineStandPeer(ConstantPlant(1)), "line-stand", None, "thrustmap-line"),
         (
-            LineStandPeer(ConstantPlant(1), preset("rp2040-whoop")),
+            LineStandPeer(ConstantPlant(1), preset("generic-hold-csv")),
             "line-stand",
             None,
-            "rp2040-whoop",
+            "generic-hold-csv",
         ),
         (
             LineStandPeer(ConstantPlant(1), preset("stm32-hx711")),

@@ -190,7 +190,7 @@ def test_spec_validation() -> None:
         STM32_HX711.__class__("y", columns={"thrust_n": Column(index=0)}).command_for(1500)
     with pytest.raises(ConfigError, match="expected one of"):
         preset("teensy")
-    assert preset("THRUSTMAP-LINE") is REFERENCE and set(PRESETS) >= {"rp2040-whoop"}
+    assert preset("THRUSTMAP-LINE") is REFERENCE and set(PRESETS) >= {"generic-hold-csv"}
 
 
 _pieces = st.one_of(

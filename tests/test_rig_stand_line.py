@@ -390,8 +390,8 @@ def test_close_sends_stop_once_and_closes_the_port() -> None:
     assert not stand.port.is_open
 
 
-def test_rp2040_preset_commands_in_percent() -> None:
-    spec = preset("rp2040-whoop")
+def test_generic_hold_preset_commands_in_percent() -> None:
+    spec = preset("generic-hold-csv")
     clock = SimClock()
     peer = ScriptPeer([])
     stand = LineStand(SimSerial(peer, clock), clock, spec)
@@ -401,11 +401,26 @@ def test_rp2040_preset_commands_in_percent() -> None:
     assert peer.lines_written() == [b"HOLD,12.5,0,0"]
 
 
+def test_rp2040_whoop_now_means_the_einsz_firmware_and_never_asks_for_more() -> None:
+    """einsz/whoop_thrust_stand takes a bare whole percent (``setThrottle(atoi(cmd))``): 12.5 %
+    is sent as 12, never rounded up to 13."""
+    spec = preset("rp2040-whoop")
+    assert spec.name == "einsz-whoop"
+    clock = SimClock()
+    peer = ScriptPeer([])
+    stand = LineStand(SimSerial(peer, clock), clock, spec)
+    out = LineStandEscOutput(stand)
+    out.set_throttle({0: 12.5})
+    out.set_throttle({0: 12.999})
+    out.stop()
+    assert peer.lines_written() == [b"12", b"12", b"STOP"]
+
+
 # --------------------------------------------------------------------------- JSON specs
 
 
 def test_spec_json_round_trips(tmp_path: Path) -> None:
-    for spec in (REFERENCE, STM32_HX711, preset("rp2040-whoop")):
+    for spec in (REFERENCE, STM32_HX711, preset("rp2040-whoop"), preset("avenhaus-thrust-stand")):
         path = tmp_path / f"{spec.name}.json"
         path.write_text(json.dumps(line_spec_to_dict(spec)), encoding="utf-8")
         assert load_line_spec(path) == spec

@@ -114,13 +114,24 @@ def test_tyto_decoder_takes_any_bytes(parts: list[bytes]) -> None:
             assert not isinstance(event, Exception) or isinstance(event, ThrustmapError)
 
 
-@FAST
-@given(chunks, st.sampled_from(["thrustmap-line", "rp2040-whoop", "stm32-hx711"]))
-def test_line_stand_decoder_takes_any_bytes(parts: list[bytes], name: str) -> None:
-    from thrustmap.protocols.stands.line import PRESETS, LineStandDecoder
+LINE_PRESETS = [
+    "thrustmap-line",
+    "generic-hold-csv",
+    "einsz-whoop",
+    "mqtb-teststand",
+    "avenhaus-thrust-stand",
+    "tiny-thrust-stand",
+    "victorhook-thruststand",
+]
 
-    spec = PRESETS.get(name) or next(iter(PRESETS.values()))
-    dec = LineStandDecoder(spec)
+
+@FAST
+@given(chunks, st.sampled_from(LINE_PRESETS))
+def test_line_stand_decoder_takes_any_bytes(parts: list[bytes], name: str) -> None:
+    from thrustmap.protocols.stands.line import LineStandDecoder
+    from thrustmap.protocols.stands.line_presets import preset
+
+    dec = LineStandDecoder(preset(name))
     for part in parts:
         for event in dec.feed_events(part):
             assert not isinstance(event, Exception) or isinstance(event, ThrustmapError)

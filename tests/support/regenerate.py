@@ -14,6 +14,7 @@ from pathlib import Path
 
 from support import (
     blackbox_encode,
+    diy_stand_recordings,
     mavlink_transcripts,
     rosbag_sim,
     simulate_flight,
@@ -40,6 +41,7 @@ def regenerate(fixtures: Path) -> list[Path]:
         sweep_recordings.record(flavour, sweeps)
     written += sorted(p for p in sweeps.iterdir() if p.is_file())
     written += stand_recordings.write_fixtures(fixtures / "stands")
+    written += diy_stand_recordings.write_fixtures(fixtures / "stands")
     return written
 
 

@@ -218,14 +218,13 @@ def _record_sequence(
     except ThrustmapError as exc:
         reason = str(exc)
     finally:
-        verified = outcome == "completed" or stand.reset_verified
+        confirmed = stand.stop_confirmation
+        verified = outcome == "completed" or stand.reset_verified or bool(confirmed)
         how = (
-            "its end line"
-            if outcome == "completed"
-            else "a DTR reset, then silence"
-            if stand.reset_verified
-            else ""
-        )
+            "its end line" if outcome == "completed"
+            else "a DTR reset, then silence" if stand.reset_verified
+            else f"its stop command, confirmed by its {confirmed}" if confirmed else ""
+        )  # fmt: skip
         writer.finish("completed" if outcome == "completed" else "aborted", reason,
                       {"stop_verified": verified, "stop": how or "NOT verified"})  # fmt: skip
     stop = f"stop verified ({how})" if verified else "stop NOT verified: cut the motor's power"

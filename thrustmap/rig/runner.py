@@ -616,27 +616,17 @@ class Runner:
 
     def _write_rest(self, samples: list[StandSample], phase: str) -> None:
         """Samples read with the motor stopped, written as they came (command at the scale's
-        low end)."""
+        low end). A row without a voltage (a stand that reads none, once the FC's telemetry
+        stops with the motor) is not written: it cannot be loaded, nor is spin-down a rest zero."""
         if self.writer is None:
             return
         for s in samples:
             if s.voltage_v is None:
-                # a stand that reads no voltage (the FC's telemetry stops with the motor): a
-                # row without one cannot be loaded, and its spin-down thrust is no rest zero
                 continue
-            self.writer.write(
-                s.time_s,
-                float(self.scale.lo),
-                {
-                    "thrust_n": s.thrust_n,
-                    "voltage_v": s.voltage_v,
-                    "current_a": s.current_a,
-                    "rpm": s.rpm,
-                    "torque_nm": s.torque_nm,
-                    "step": self._segment_index,
-                    "phase": phase,
-                },
-            )
+            values = {"thrust_n": s.thrust_n, "voltage_v": s.voltage_v, "current_a": s.current_a,
+                      "rpm": s.rpm, "torque_nm": s.torque_nm, "step": self._segment_index,
+                      "phase": phase}  # fmt: skip
+            self.writer.write(s.time_s, float(self.scale.lo), values)
 
     def _report(self, now: float) -> None:
         if self.monitor is None:

@@ -76,5 +76,7 @@ def rotor_stopped(ds: Dataset, sel: Selection) -> npt.NDArray[np.bool_]:
             making = fin & (t - base > MAKING_THRUST_FRACTION * full)
             if not full > 0:
                 making[:] = False
-            stopped = stopped | (no_rpm & ~making)
+            # a zero command with the rotor still turning and pulling (a stand's ramped stop,
+            # the spin-down after a stop) is not rest: its thrust is not the load cell's zero
+            stopped = (stopped & ~(~no_rpm & making)) | (no_rpm & ~making)
     return np.asarray(stopped, dtype=bool)

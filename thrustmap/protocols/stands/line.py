@@ -10,7 +10,8 @@ A :class:`LineStandSpec` says how to read one stand's lines and how to command i
   columns resolve against the latest header. Other lines starting with ``comment_prefix``
   (``#``) are banners/comments.
 - ``throttle_command``: a ``str.format`` template with ``{us}`` (int, PWM µs 1000..2000),
-  ``{pct}`` (float 0..100), ``{fraction}`` (0..1), ``{native}`` and any ``command_vars``;
+  ``{pct}`` (float 0..100), ``{pct_floor}`` (int, never above ``pct``), ``{fraction}`` (0..1),
+  ``{native}`` and any ``command_vars``;
   e.g. ``"HOLD,{pct:.1f}\\n"``, ``"{us:d}\\n"``, ``"thr({pct:.0f})"``. ``stop_command``
   (default: the throttle command at 0 %). ``keepalive`` line sent every
   ``keepalive_interval_s`` (the stand's watchdog, ``watchdog_s``, stops the motor without it).
@@ -124,6 +125,27 @@ class LineStandSpec:
     #: fields read as raw counts: ``thrustmap stand calibrate`` (tare + a known mass) writes the
     #: calibration that turns them into SI; until then the column's own scale is used
     raw_counts: tuple[str, ...] = ()
+    #: data lines are those this regular expression matches at their start (the data is what
+    #: follows the match: ``"D,"``); other lines (``SYSTEM_READY``, a menu) are text, kept as
+    #: comments. None: every line that is not a comment or a header is data.
+    data_match: str | None = None
+    #: the number inside each cell is this expression's first group (``"Thrust: 12.3"`` with
+    #: ``r":\s*(\S+)"``); None: the cell is the number
+    cell_match: str | None = None
+    #: a comment or text line this matches (at its start, any case) is the stand's watchdog
+    #: stopping the motor; ``error_match``: the stand refusing a command
+    watchdog_match: str = r"WATCHDOG\b"
+    error_match: str = r"ERR\b"
+    #: a firmware that takes a fixed set of throttle levels: (percent, command) pairs; a
+    #: request is sent as the highest level at or below it (never more), below the lowest
+    #: one as the stop command
+    throttle_levels: tuple[tuple[float, str], ...] = ()
+    #: a comment or text line this matches (at its start) confirms the stop (a firmware that
+    #: prints no throttle column after stopping, e.g. a menu it prints again)
+    stop_confirm: str | None = None
+    #: how long the firmware's own stop takes (a ramp down): added to the time allowed to
+    #: confirm it
+    stop_time_s: float = 0.0
 
     def __post_init__(self) -> None:
         unknown = set(self.columns) - set(FIELDS)
@@ -158,6 +180,7 @@ class LineStandSpec:
         for key in self.raw_counts:
             if key not in self.columns:
                 raise ConfigError(f"line stand '{self.name}': raw_counts names no column {key}")
+        self._check_firmware_fields()
         for template in (self.throttle_command, self.stop_command):
             if template is not None:
                 try:
@@ -167,20 +190,55 @@ class LineStandSpec:
                         f"line stand '{self.name}': bad command template {template!r}: {exc}"
                     ) from None
 
+    def _check_firmware_fields(self) -> None:
+        for what, regex in (
+            ("data_match", self.data_match),
+            ("cell_match", self.cell_match),
+            ("watchdog_match", self.watchdog_match),
+            ("error_match", self.error_match),
+            ("stop_confirm", self.stop_confirm),
+        ):
+            _check_regex(self.name, what, regex)
+        if self.cell_match is not None and re.compile(self.cell_match).groups < 1:
+            raise ConfigError(f"line stand '{self.name}': cell_match needs one (group)")
+        if not (0.0 <= self.stop_time_s <= 60.0):
+            raise ConfigError(f"line stand '{self.name}': stop_time_s must be 0..60 s")
+        if self.throttle_levels and self.stop_command is None:
+            raise ConfigError(f"line stand '{self.name}': throttle levels need a stop command")
+
     # -- commands (host -> stand) ---------------------------------------------------------
     def _format(self, template: str, pct: float) -> str:
         pct = min(max(pct, 0.0), 100.0)
         native = float(lookup_scale(self.throttle_scale).from_pct(pct))
         values = dict(self.command_vars)
-        values.update(pct=pct, us=int(round(1000 + 10 * pct)), fraction=pct / 100, native=native)
+        values.update(
+            pct=pct,
+            pct_floor=int(math.floor(pct + 1e-9)),
+            us=int(round(1000 + 10 * pct)),
+            fraction=pct / 100,
+            native=native,
+        )
         return template.format(**values)
 
     def command_for(self, throttle_native: float) -> bytes:
         """The throttle command for a value in ``throttle_scale`` units (clamped to 0..100 %)."""
+        pct = float(lookup_scale(self.throttle_scale).to_pct(throttle_native))
+        if self.throttle_levels:
+            return self._level_command(pct)
         if self.throttle_command is None:
             raise ConfigError(f"line stand '{self.name}' takes no throttle command")
-        pct = float(lookup_scale(self.throttle_scale).to_pct(throttle_native))
         return self._format(self.throttle_command, pct).encode()
+
+    def _level_command(self, pct: float) -> bytes:
+        below = [lv for lv in self.throttle_levels if lv[0] <= pct + 1e-9]
+        if not below:
+            return self.stop_bytes()
+        return max(below)[1].encode()
+
+    @property
+    def takes_throttle(self) -> bool:
+        """True when the host can set the throttle (a template or a set of levels)."""
+        return self.throttle_command is not None or bool(self.throttle_levels)
 
     def stop_bytes(self) -> bytes:
         if self.stop_command is not None:
@@ -209,14 +267,17 @@ class LineStandSpec:
         text = line.strip()
         if self.stop_command is not None and text == self.stop_command.strip():
             return 0.0
+        for pct, command in self.throttle_levels:
+            if text == command.strip():
+                return pct
         if self.throttle_command is None:
             return None
         match = _template_regex(self.throttle_command, dict(self.command_vars)).fullmatch(text)
         if match is None:
             return None
         got = {k: float(v) for k, v in match.groupdict().items()}
-        if "pct" in got:
-            return min(max(got["pct"], 0.0), 100.0)
+        if "pct" in got or "pct_floor" in got:
+            return min(max(got.get("pct", got.get("pct_floor", 0.0)), 0.0), 100.0)
         if "us" in got:
             return min(max((got["us"] - 1000.0) / 10.0, 0.0), 100.0)
         if "fraction" in got:
@@ -256,13 +317,22 @@ class LineStandSpec:
         return replace(self, columns=cols)
 
 
+def _check_regex(name: str, what: str, pattern: str | None) -> None:
+    if pattern is None:
+        return
+    try:
+        re.compile(pattern)
+    except re.error as exc:
+        raise ConfigError(f"line stand '{name}': bad {what} {pattern!r}: {exc}") from None
+
+
 def _template_regex(template: str, fixed: dict[str, Any]) -> re.Pattern[str]:
     parts: list[str] = []
     for literal, name, spec, _conv in string.Formatter().parse(template.strip()):
         parts.append(re.escape(literal))
         if name is None:
             continue
-        if name in ("pct", "us", "fraction", "native"):
+        if name in ("pct", "pct_floor", "us", "fraction", "native"):
             parts.append(rf"(?P<{name}>[-+]?\d+(?:\.\d*)?)")
         elif name in fixed:
             parts.append(re.escape(format(fixed[name], spec or "")))
@@ -322,6 +392,8 @@ class LineStandDecoder:
         self._indices: dict[str, int] | None = self._resolve(None)
         self.errors: deque[LineError] = deque(maxlen=max_kept_errors)
         self.error_count = 0
+        self._data_re = None if spec.data_match is None else re.compile(spec.data_match)
+        self._cell_re = None if spec.cell_match is None else re.compile(spec.cell_match)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[LineSample]:
         samples: list[LineSample] = []
@@ -379,6 +451,12 @@ class LineStandDecoder:
         if text.startswith(spec.comment_prefix):
             events.append(LineComment(self.line_no, text[len(spec.comment_prefix) :].strip()))
             return
+        if self._data_re is not None:
+            match = self._data_re.match(text)
+            if match is None:
+                events.append(LineComment(self.line_no, text))
+                return
+            text = text[match.end() :]
         self._data_line(text, events)
 
     def _resolve(self, names: tuple[str, ...] | None) -> dict[str, int] | None:
@@ -414,6 +492,9 @@ class LineStandDecoder:
                 )
                 return
             cell = parts[index].strip()
+            if self._cell_re is not None:
+                found = self._cell_re.search(cell)
+                cell = found.group(1) if found is not None else cell
             try:
                 raw = float(cell)
             except ValueError:
@@ -468,10 +549,13 @@ REFERENCE = LineStandSpec(
     description="thrustmap reference line protocol v1 (see protocols/LINE_PROTOCOL.md)",
 )
 
-#: RP2040 whoop stand (HX711/NAU7802 + INA226, bidirectional DShot), USB CDC, 250 Hz.
-#: thrust_raw is uncalibrated: apply ``with_load_cell("thrust_n", tare, n_per_count)``.
-RP2040_WHOOP = LineStandSpec(
-    name="rp2040-whoop",
+#: A GENERIC hold-command CSV stand (not any published firmware): ``#COLS`` with 8 named
+#: columns, ``HOLD,<pct>,<log_ms>,<settle_ms>``, ``STOP``, ``PING`` every 0.25 s against a 1 s
+#: watchdog. It was once called ``rp2040-whoop`` from notes; that name now means the real
+#: RP2040 whoop firmware (einsz/whoop_thrust_stand, ``presets/einsz_whoop.py``), which this
+#: does not match. thrust_raw is uncalibrated: ``with_load_cell("thrust_n", tare, n_per_count)``.
+GENERIC_HOLD = LineStandSpec(
+    name="generic-hold-csv",
     columns={
         "time_s": Column(name="t_us", scale=1e-6),
         "throttle": Column(name="throttle_pct"),
@@ -497,9 +581,14 @@ RP2040_WHOOP = LineStandSpec(
     keepalive_interval_s=0.25,
     watchdog_s=1.0,
     command_vars={"log_ms": 0, "settle_ms": 0},
-    description="RP2040 whoop stand; set log_ms/settle_ms in command_vars for your firmware",
+    description="generic hold-command CSV stand (no published firmware; formerly "
+    "'rp2040-whoop'); set log_ms/settle_ms in command_vars for your firmware",
+    verified="documentation only (a generic protocol; no firmware to check against)",
 )
+
+#: the old name of ``GENERIC_HOLD`` (the preset ``rp2040-whoop`` now means einsz's firmware)
+RP2040_WHOOP = GENERIC_HOLD
 
 #: the presets defined here; every preset (one module per DIY firmware in
 #: ``protocols.stands.presets``, aliases) is in ``protocols.stands.line_presets``
-PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, RP2040_WHOOP)}
+PRESETS: dict[str, LineStandSpec] = {s.name: s for s in (REFERENCE, GENERIC_HOLD)}

@@ -236,6 +236,11 @@ def _line_sim(name: str, options: Mapping[str, str]) -> Detection | None:
 
 def _header_preset(names: Sequence[str]) -> str | None:
     lower = {n.lower() for n in names}
+    exact = [
+        s.name for s in presets().values() if s.header_names and tuple(names) == s.header_names
+    ]
+    if exact:
+        return exact[0]  # a preset printing this very header before one reading some of it
     for spec in presets().values():
         named = [c.name.lower() for c in spec.columns.values() if c.name is not None]
         if named and all(n in lower for n in named) and spec.header_names:
@@ -347,6 +352,11 @@ def _line_esc(stand: Stand, motor: int) -> ThrottleOutput | None:
         raise ConfigError(
             f"line stand '{stand.spec.name}' cannot drive an ESC (its firmware only measures): "
             "pass --throttle with the flight controller that drives the motor; it also stops it"
+        )
+    if not stand.spec.takes_throttle:
+        raise ConfigError(
+            f"line stand '{stand.spec.name}' takes no throttle from the host (it runs its own "
+            "programs): use thrustmap stand run, or pass --throttle with a flight controller"
         )
     return LineStandEscOutput(stand, motor)
 

@@ -94,7 +94,12 @@ USB_IDS: dict[tuple[int, int | None], tuple[str, tuple[str, ...]]] = {
     (0x2341, None): ("Arduino board: a DIY line stand or a Tyto-like stand", ("line-stand",)),
     (0x2A03, None): ("Arduino board: a DIY line stand", ("line-stand",)),
     (0x2E8A, None): (
-        "Raspberry Pi RP2040/RP2350: a DIY line stand (e.g. whoop stand)",
+        "Raspberry Pi RP2040/RP2350: a DIY line stand (e.g. the einsz whoop stand, einsz-whoop)",
+        ("line-stand",),
+    ),
+    (0x1CBE, 0x00FD): (
+        "TI Stellaris/Tiva C LaunchPad ICDI: a DIY line stand (e.g. the MQTB stand, "
+        "mqtb-teststand)",
         ("line-stand",),
     ),
     (0x16C0, 0x0483): ("Teensy USB serial: a DIY line stand", ("line-stand",)),

@@ -179,7 +179,9 @@ def _probe(
         clock,
         kind=found.kind,
         calibration=options.calibration,
-        line_preset=options.line_preset or found.line_preset,  # what the port's lines matched
+        # the preset the port's own lines identified (opening again by kind does not sniff)
+        line_preset=options.line_preset
+        or (found.line_preset if options.line_spec_file is None else None),
         line_spec_file=options.line_spec_file,
         baudrate=baudrate,
     )
@@ -196,7 +198,7 @@ def _probe(
         if isinstance(stand, LineStand):
             report.stand.bad_lines = stand.error_count
             report.identity = stand.identify()
-            if stand.spec.sequence_start is not None:
+            if stand.spec.sequence_start is not None and not samples:
                 report.warnings.append(
                     f"{stand.spec.name} prints only during its own sweep, started by "
                     f"{stand.spec.sequence_start.strip()!r} (probe never sends it): "

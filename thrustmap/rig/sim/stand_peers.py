@@ -363,12 +363,20 @@ def tyto_peer_from_options(
 
 def line_peer_from_options(
     options: Mapping[str, str], plant: Plant | None = None, *, allow: Collection[str] = ()
-) -> LineStandPeer:
-    """``sim://line-stand?preset=thrustmap-line&rate_hz=100``."""
+) -> BytePeer:
+    """``sim://line-stand?preset=thrustmap-line&rate_hz=100``; a preset whose firmware has its
+    own simulator (``rig.sim.diy_stand_peers``) gets that one, at the firmware's own rate."""
+    from thrustmap.rig.sim.diy_stand_peers import FIRMWARE_PEERS
+
     _check(options, {"preset", "rate_hz"}, "line stand", allow)
+    spec = preset(options.get("preset", REFERENCE.name))
+    if spec.name in FIRMWARE_PEERS:
+        if "rate_hz" in options:
+            raise ConfigError(f"sim line stand '{spec.name}' prints at its firmware's own rate")
+        return FIRMWARE_PEERS[spec.name](plant if plant is not None else ConstantPlant(1), spec)
     return LineStandPeer(
         plant if plant is not None else ConstantPlant(1),
-        preset(options.get("preset", REFERENCE.name)),
+        spec,
         rate_hz=opt_float(options, "rate_hz", 100.0, positive=True, what="a rate in Hz"),
     )
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -129,6 +130,13 @@ class LineStand(Stand):
         self.sequence_started = False
         self.sequence_ended = False
         self.resets = 0
+        self._watchdog_re = re.compile(spec.watchdog_match, re.IGNORECASE)
+        self._error_re = re.compile(spec.error_match, re.IGNORECASE)
+        self._confirm_re = None if spec.stop_confirm is None else re.compile(spec.stop_confirm)
+        #: the line number of the latest line confirming a stop (``spec.stop_confirm``)
+        self.stop_confirmed_line = 0
+        #: how ``close`` confirmed the stop of a running firmware program (None: it did not)
+        self.stop_confirmation: str | None = None
         self.reset_verified = False  # the board fell silent after its reset
         self.opened_s = clock.now_s()  # a board that resets on open boots from here
 
@@ -232,19 +240,20 @@ class LineStand(Stand):
 
     def _comment(self, comment: LineComment) -> None:
         text = comment.text
+        if self._confirm_re is not None and self._confirm_re.match(text):
+            self.stop_confirmed_line = comment.line_no
         if self.spec.sequence_end is not None and text == self.spec.sequence_end:
             self.sequence_ended = True
             log.info("%s: the firmware's sequence ended (line %d)", self.spec.name, comment.line_no)
             return
-        word = text.split(None, 1)[0].upper() if text else ""
-        if word == "WATCHDOG":
+        if self._watchdog_re.match(text):
             self.watchdog_trips += 1
             log.warning(
                 "%s: the stand's watchdog stopped the motor (line %d)",
                 self.spec.name,
                 comment.line_no,
             )
-        elif word == "ERR":
+        elif self._error_re.match(text):
             self.command_errors += 1
             log.warning(
                 "%s: the stand did not understand a command: %s (line %d)",
@@ -264,7 +273,7 @@ class LineStand(Stand):
             details["banner"] = " | ".join(self.banner[:4])
         if self.header_seen is not None:
             details["columns"] = ",".join(self.header_seen)
-        if self.spec.throttle_command is not None:
+        if self.spec.takes_throttle:
             details["throttle_scale"] = self.spec.throttle_scale
         if self.spec.source:
             details["firmware_source"] = self.spec.source
@@ -390,6 +399,28 @@ class LineStand(Stand):
         log.warning("%s: board reset by a DTR pulse (its outputs stop)", self.spec.name)
         return True
 
+    def stop_and_confirm(self, timeout_s: float = 0.5) -> str | None:
+        """Send the stand's stop and wait up to ``timeout_s`` plus the firmware's own stop time
+        (``spec.stop_time_s``) for it to confirm: a ``stop_confirm`` line, or a row with the
+        throttle at stop. How it was confirmed, or None (not confirmed)."""
+        self._pump()  # lines already here were sent before the stop
+        after_line = self.decoder.line_no
+        self.send_stop()
+        deadline = self.clock.now_s() + timeout_s + self.spec.stop_time_s
+        scale = lookup_scale(self.spec.throttle_scale)
+        while True:
+            self.service()
+            if self.stop_confirmed_line > after_line:
+                return "stop line"
+            for raw in self._pending:
+                s = raw.sample
+                stopped = s.throttle is not None and scale.to_pct(s.throttle) <= STOP_TOLERANCE_PCT
+                if s.line_no > after_line and stopped:
+                    return "throttle column"
+            if self.clock.now_s() >= deadline:
+                return None
+            self.clock.sleep_s(0.005)
+
     def confirm_silent(self, settle_s: float = 0.3, watch_s: float = 1.0) -> bool:
         """After a reset: True when the board prints no data row for ``watch_s`` (what it
         sent before the reset, in the first ``settle_s``, is dropped). A firmware back at its
@@ -414,7 +445,12 @@ class LineStand(Stand):
             return
         self._closed = True
         try:
-            if self.spec.throttle_command is not None or self.spec.stop_command is not None:
+            if self.sequence_running and self.spec.stop_command is not None:
+                # the firmware's own program: its stop, confirmed (``stop_confirm``, the rows)
+                self.stop_confirmation = self.stop_and_confirm()
+                if self.stop_confirmation is None:
+                    log.error("%s: the stop was sent but NOT confirmed", self.spec.name)
+            elif self.spec.takes_throttle or self.spec.stop_command is not None:
                 self.send_stop()
             # no stop command: only a reset ends the firmware's own sweep early
             if self.spec.reset_stops and self.sequence_running:
@@ -436,7 +472,7 @@ class LineStandEscOutput(ThrottleOutput):
 
     def __init__(self, stand: LineStand, motor: int = 0, *, verify_timeout_s: float = 0.5) -> None:
         spec = stand.spec
-        if spec.throttle_command is None:
+        if not spec.takes_throttle:
             raise ConfigError(
                 f"line stand '{spec.name}' has no throttle command: it cannot drive the ESC"
             )
@@ -495,7 +531,7 @@ class LineStandEscOutput(ThrottleOutput):
         assert self._stop_sent_at_line is not None
         after_line = self._stop_sent_at_line
         has_throttle = "throttle" in stand.spec.columns
-        deadline = stand.clock.now_s() + self.verify_timeout_s
+        deadline = stand.clock.now_s() + self.verify_timeout_s + stand.spec.stop_time_s
         while True:
             stand.service()
             if stand.command_errors > self._errors_at_stop:
@@ -503,6 +539,9 @@ class LineStandEscOutput(ThrottleOutput):
                 log.error("%s: the stand answered #ERR to the stop command", stand.spec.name)
                 return False
             fresh = [r.sample for r in stand._pending if r.sample.line_no > after_line]
+            if stand.stop_confirmed_line > after_line:
+                self.last_verification = "stop line"
+                return True
             if has_throttle:
                 for s in fresh:
                     if s.throttle is not None and self._is_stop(s.throttle):

@@ -51,6 +51,13 @@ SPEC_KEYS = {
     "sequence_rows",
     "sequence_row_period_s",
     "boot_s",
+    "data_match",
+    "cell_match",
+    "watchdog_match",
+    "error_match",
+    "throttle_levels",
+    "stop_confirm",
+    "stop_time_s",
 }
 SPEC_FORMAT = "thrustmap-line-stand"
 COLUMN_KEYS = {"index", "name", "scale", "offset", "modulo"}
@@ -245,21 +252,8 @@ def line_spec_from_dict(
         except ConfigError as exc:
             raise r.error("throttle_scale", exc.message) from None
 
-    columns: dict[str, Column] = dict(base.columns) if base is not None else {}
-    if "columns" in data:
-        given = data["columns"]
-        if not isinstance(given, dict):
-            raise r.error("columns", "expected an object mapping fields to columns")
-        for field_name, col in given.items():
-            if field_name not in FIELDS:
-                raise r.error(
-                    f"columns.{field_name}", f"unknown field; expected some of {', '.join(FIELDS)}"
-                )
-            if col is None and base is not None:
-                columns.pop(field_name, None)
-            else:
-                columns[field_name] = r.column(field_name, col)
-    kwargs["columns"] = columns
+    kwargs["columns"] = _columns(r, data, base)
+    kwargs.update(_matching_keys(r, data))
 
     try:
         spec = replace(base, **kwargs) if base is not None else LineStandSpec(**kwargs)
@@ -283,6 +277,56 @@ def line_spec_from_dict(
             raise r.error("load_cell.si_per_count", "expected a non-zero number")
         spec = spec.with_load_cell(field_name, tare, per)
     return spec
+
+
+def _columns(
+    r: _SpecReader, data: Mapping[str, Any], base: LineStandSpec | None
+) -> dict[str, Column]:
+    """The preset's columns (if it extends one) with the file's ``columns`` over them."""
+    columns: dict[str, Column] = dict(base.columns) if base is not None else {}
+    if "columns" in data:
+        given = data["columns"]
+        if not isinstance(given, dict):
+            raise r.error("columns", "expected an object mapping fields to columns")
+        for field_name, col in given.items():
+            if field_name not in FIELDS:
+                raise r.error(
+                    f"columns.{field_name}", f"unknown field; expected some of {', '.join(FIELDS)}"
+                )
+            if col is None and base is not None:
+                columns.pop(field_name, None)
+            else:
+                columns[field_name] = r.column(field_name, col)
+    return columns
+
+
+def _matching_keys(r: _SpecReader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data_match``, ``cell_match``, ``stop_confirm`` (regular expressions or null),
+    ``watchdog_match``, ``error_match`` (regular expressions), ``stop_time_s`` (seconds) and
+    ``throttle_levels`` (``[[percent, "command"], ...]``)."""
+    out: dict[str, Any] = {}
+    for key in ("data_match", "cell_match", "stop_confirm"):
+        if key in data:
+            out[key] = r.string(data, key, key, null=True)
+    for key in ("watchdog_match", "error_match"):
+        if key in data:
+            out[key] = r.string(data, key, key)
+    if "stop_time_s" in data:
+        out["stop_time_s"] = r.number(data, "stop_time_s", "stop_time_s")
+    if "throttle_levels" in data:
+        levels = data["throttle_levels"]
+        ok = isinstance(levels, list) and all(
+            isinstance(lv, list)
+            and len(lv) == 2
+            and isinstance(lv[0], (int, float))
+            and not isinstance(lv[0], bool)
+            and isinstance(lv[1], str)
+            for lv in levels
+        )
+        if not ok:
+            raise r.error("throttle_levels", 'expected a list of [percent, "command"] pairs')
+        out["throttle_levels"] = tuple((float(lv[0]), lv[1]) for lv in levels)
+    return out
 
 
 def load_line_spec(path: str | Path) -> LineStandSpec:
@@ -340,4 +384,11 @@ def line_spec_to_dict(spec: LineStandSpec) -> dict[str, Any]:
         "sequence_rows": spec.sequence_rows,
         "sequence_row_period_s": spec.sequence_row_period_s,
         "boot_s": spec.boot_s,
+        "data_match": spec.data_match,
+        "cell_match": spec.cell_match,
+        "watchdog_match": spec.watchdog_match,
+        "error_match": spec.error_match,
+        "throttle_levels": [[pct, cmd] for pct, cmd in spec.throttle_levels],
+        "stop_confirm": spec.stop_confirm,
+        "stop_time_s": spec.stop_time_s,
     }
