@@ -17,7 +17,7 @@ API_PAGE = ROOT / "docs" / "api.md"
 NAMES = {
     "Prediction", "compare", "corrected_map", "export", "extract_df", "fit", "fit_gamma",
     "load_map", "load_stand_logs", "open_bench", "plans", "predict", "read_flight_log",
-    "save_map", "Limits", "MapChooser", "RunResult", "run_script", "script_exit_code",
+    "save_map", "Limits", "MapChooser", "RunResult", "ScriptBench", "run_script", "script_exit_code",
 }  # fmt: skip
 
 
@@ -39,7 +39,7 @@ def test_help_lists_the_api_and_importing_it_loads_nothing_heavy() -> None:
     loaded, text = out.split("\n", 1)
     assert loaded == "[]", loaded  # import thrustmap imports neither numpy nor any submodule
     functions = text.split("FUNCTIONS", 1)[1]
-    for name in NAMES - {"Prediction", "plans", "Limits", "MapChooser", "RunResult"}:
+    for name in NAMES - {"Prediction", "plans", "Limits", "MapChooser", "RunResult", "ScriptBench"}:
         assert re.search(rf"^    {name}\(", functions, re.M), f"help(thrustmap) lacks {name}"
     assert "class Prediction" in text and "plans" in text
 
