@@ -319,11 +319,11 @@ def sim_crazyflie(seeds: tuple[int, ...], tmp: Path) -> Iterator[Recording]:
     """Simulated Crazyflie staircases, 1 s stairs on a creeping load cell (one rotor)."""
     from thrustmap.fitting.loaders.load import load_dataset
     from thrustmap.rig.sim.physics import LoadCellCreep
-    from thrustmap.rig.sim.sysid import simulate_staircase, write_csv
+    from thrustmap.rig.sim.sysid import StaircaseSpec, simulate_staircase, write_csv
 
     for s in seeds:
         log = simulate_staircase(
-            seed=s, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep()
+            StaircaseSpec(seed=s, levels=8, dwell_s=1.0, cell_update_s=0.1, creep=LoadCellCreep())
         )
         ds = load_dataset(write_csv(log, tmp / f"cf-creep-{s}.csv"))
         aside = s not in TUNE_SEEDS
