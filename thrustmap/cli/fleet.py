@@ -13,6 +13,7 @@ from typing import Any, TextIO
 import click
 
 from thrustmap.cli import textwidth
+from thrustmap.cli.df_options import EXTRACT_FIELDS, df_click_options
 from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.safety import terminate_as_exception
@@ -142,19 +143,10 @@ def fleet_group() -> None:
 @click.argument("sources", nargs=-1, required=True)
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder: fleet.parquet and df/ (created when missing).")  # fmt: skip
-@click.option("--mass-kg", type=float, help="Take-off mass (kg) of every vehicle.")
 @click.option("--masses", "masses_path", type=click.Path(path_type=Path),
               help="CSV of pattern,mass_kg: the first glob matching a log's name or path wins.")  # fmt: skip
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
-@click.option("--rotors", type=int, help="Rotor count (default: each log's frame).")
-@click.option("--thrust-source", type=click.Choice(["auto", "log", "motors", "norm"]),
-              default="auto", show_default=True)  # fmt: skip
-@click.option("--rate-hz", type=float, default=10.0, show_default=True)
-@click.option("--accel-tol", type=float, default=1.0, show_default=True)
-@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
-@click.option("--settle-s", type=float, default=2.0, show_default=True)
-@click.option("--min-height-m", type=float, default=0.5, show_default=True)
-@click.option("--climb-max", type=float, default=1.0, show_default=True)
+@df_click_options(EXTRACT_FIELDS)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--workers", type=int,
               help="Local worker processes, forked from this command, one log at a time each; "
@@ -175,17 +167,8 @@ def fleet_group() -> None:
 def extract_cmd(
     sources: tuple[str, ...],
     out_dir: Path,
-    mass_kg: float | None,
     masses_path: Path | None,
     map_path: Path | None,
-    rotors: int | None,
-    thrust_source: str,
-    rate_hz: float,
-    accel_tol: float,
-    tilt_max_deg: float,
-    settle_s: float,
-    min_height_m: float,
-    climb_max: float,
     fmt: str | None,
     workers: int | None,
     scheduler: str | None,
@@ -193,6 +176,7 @@ def extract_cmd(
     memory_per_worker: str,
     max_log_mb: float,
     quiet: bool,
+    **df_values: Any,
 ) -> None:
     """Extract Df from every log in SOURCES (folders, globs, files) into OUT_DIR.
 
@@ -224,17 +208,7 @@ def extract_cmd(
         raise ConfigError("the output must be a folder", file=str(out_dir))
     config = run.FleetConfig(
         out_dir=out_dir.absolute(),
-        df_options={
-            "mass_kg": mass_kg,
-            "rotors": rotors,
-            "rate_hz": rate_hz,
-            "accel_tol_mps2": accel_tol,
-            "tilt_max_deg": tilt_max_deg,
-            "settle_s": settle_s,
-            "min_height_m": min_height_m,
-            "climb_max_mps": climb_max,
-            "thrust_source": thrust_source,
-        },
+        df_options=df_values,
         masses=run.read_masses(masses_path) if masses_path else [],
         map_path=map_path,
         fmt=fmt,

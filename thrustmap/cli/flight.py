@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.df_options import EXTRACT_FIELDS, df_click_options
 from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError
 
@@ -148,36 +149,9 @@ def readers_cmd() -> None:
 
 @flightlog_group.command("extract")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--mass-kg", type=float, help="Vehicle take-off mass (kg); F_m = m·a_up.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Df CSV.")
-@click.option(
-    "--rotors",
-    type=int,
-    help="Rotor count: sums the first N motor outputs (default: the log's frame).",
-)
-@click.option(
-    "--thrust-source",
-    type=click.Choice(["auto", "log", "motors", "norm"]),
-    default="auto",
-    show_default=True,
-    help="T_c from the log's newtons, the motor outputs through the map, or the normalised "
-    "command through the map.",
-)
-@click.option("--rate-hz", type=float, default=10.0, show_default=True, help="Resampling rate.")
-@click.option("--accel-tol", type=float, default=1.0, show_default=True, help="|a_up−g| max.")
-@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
-@click.option("--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing.")
-@click.option(
-    "--min-height-m",
-    type=float,
-    default=0.5,
-    show_default=True,
-    help="Airborne only from this height above the takeoff level (0: off).",
-)
-@click.option(
-    "--climb-max", type=float, default=1.0, show_default=True, help="|climb rate| max, m/s."
-)
+@df_click_options(EXTRACT_FIELDS)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option(
     "--force",
@@ -188,20 +162,12 @@ def readers_cmd() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
 def extract_cmd(
     logs: tuple[Path, ...],
-    mass_kg: float | None,
     map_path: Path | None,
     output: Path,
-    rotors: int | None,
-    thrust_source: str,
-    rate_hz: float,
-    accel_tol: float,
-    tilt_max_deg: float,
-    settle_s: float,
-    min_height_m: float,
-    climb_max: float,
     fmt: str | None,
     force: bool,
     as_json: bool,
+    **df_values: Any,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar.
 
@@ -209,7 +175,8 @@ def extract_cmd(
     is refused (exit 2) unless --force."""
     from thrustmap.core.files import check_output_path
     from thrustmap.core.identity import Identity, file_sha256, refuse_repeats
-    from thrustmap.fitting.df import DfOptions, extract, sidecar_path, write_df
+    from thrustmap.fitting.df import extract, sidecar_path, write_df
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.flightlogs.detect import read_log
 
     inputs = [*logs, *([map_path] if map_path else [])]
@@ -221,17 +188,7 @@ def extract_cmd(
             "use .csv",
             file=str(output),
         )
-    opts = DfOptions(
-        mass_kg=mass_kg,
-        rotors=rotors,
-        rate_hz=rate_hz,
-        accel_tol_mps2=accel_tol,
-        tilt_max_deg=tilt_max_deg,
-        settle_s=settle_s,
-        min_height_m=min_height_m,
-        climb_max_mps=climb_max,
-        thrust_source=thrust_source,
-    )
+    opts = DfOptions(**df_values)
     tmap = None
     if map_path:  # the map module (models, version metadata) only when a map is given
         from thrustmap.fitting.mapfile import ThrustMap

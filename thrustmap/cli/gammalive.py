@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.df_options import LIVE_FIELDS, df_click_options
 from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.core.errors import ConfigError
 
@@ -215,9 +216,7 @@ def _deferred() -> Iterator[list[int]]:
     type=click.Path(path_type=Path),
     help="Stand map (per rotor).",
 )
-@click.option(
-    "--mass-kg", required=True, type=float, help="Vehicle take-off mass (kg); F_m = m·a_up."
-)
+@df_click_options(LIVE_FIELDS, required=("mass_kg",))
 @click.option(
     "-o",
     "--output",
@@ -233,12 +232,7 @@ def _deferred() -> Iterator[list[int]]:
 @click.option(
     "--record", type=click.Path(path_type=Path), help="Write the raw telemetry to this new .tlog."
 )
-@click.option("--rotors", type=int, help="Rotor count (default: the vehicle's frame).")
 @click.option("--loss", type=click.Choice(["l1", "l2"]), default="l1", show_default=True)
-@click.option("--rate-hz", type=float, default=10.0, show_default=True, help="Df resampling rate.")
-@click.option(
-    "--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing margin."
-)
 @click.option(
     "--link-timeout-s",
     type=float,
@@ -259,19 +253,16 @@ def _deferred() -> Iterator[list[int]]:
 def gamma_live_cmd(
     url: str,
     map_path: Path,
-    mass_kg: float,
     output: Path | None,
     df_path: Path | None,
     record: Path | None,
-    rotors: int | None,
     loss: str,
-    rate_hz: float,
-    settle_s: float,
     link_timeout_s: float,
     start_timeout_s: float,
     no_panel: bool,
     as_json: bool,
     signing_key: Any,
+    **df_values: Any,
 ) -> None:
     """Fit γ(B) while the vehicle flies, from its MAVLink telemetry at URL.
 
@@ -293,14 +284,15 @@ def gamma_live_cmd(
     import time
 
     from thrustmap.core.files import check_output_path
-    from thrustmap.fitting.df import DfOptions, sidecar_path
+    from thrustmap.fitting.df import sidecar_path
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.flightlogs.telemetry import Telemetry
     from thrustmap.fitting.gamma_live import LiveGamma
     from thrustmap.fitting.mapfile import ThrustMap
     from thrustmap.rig.fc.telemetry_stream import LinkLost, open_stream
 
-    if not mass_kg > 0:
-        raise ConfigError(f"--mass-kg must be positive, got {mass_kg}")
+    if not df_values["mass_kg"] > 0:
+        raise ConfigError(f"--mass-kg must be positive, got {df_values['mass_kg']}")
     if df_path is None:
         df_path = output.with_suffix(".df.csv") if output is not None else Path("gamma-live.csv")
     inputs: list[Path] = [map_path]
@@ -313,7 +305,7 @@ def gamma_live_cmd(
     if record is not None:
         check_output_path(record, inputs=inputs, what="recording")
     tmap = ThrustMap.load(map_path)
-    opts = DfOptions(mass_kg=mass_kg, rotors=rotors, rate_hz=rate_hz, settle_s=settle_s)
+    opts = DfOptions(**df_values)
     stream = open_stream(
         url,
         record=record,

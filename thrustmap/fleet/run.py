@@ -65,7 +65,11 @@ def rules_fingerprint() -> str:
 
     h = hashlib.sha256()
     files: list[Path] = []
-    for name in ("thrustmap.fitting.df", "thrustmap.fitting.flightlogs"):
+    for name in (
+        "thrustmap.fitting.df",
+        "thrustmap.fitting.df_options",
+        "thrustmap.fitting.flightlogs",
+    ):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
             raise ConfigError(f"cannot find {name}")

@@ -14,7 +14,8 @@ within ``max_gap_s`` of a bin leaves it empty). Then:
 why; ``write_df()`` writes the CSV plus a JSON sidecar naming the origin of every column.
 
 The package, one module per job (``thrustmap.fitting.df`` keeps every public name):
-``options`` (DfOptions, the constants, the report types), ``table`` (the Df table),
+``options`` (the constants, the report types; ``DfOptions`` is in
+``thrustmap.fitting.df_options``, light enough for the CLI to build its options from), ``table`` (the Df table),
 ``resample`` (one timeline: bins, running statistics, time sanity), ``airborne`` (the rules that
 tell ground from free flight, the rest calibration), ``thrust`` (T_c from the motor outputs
 through the stand map), ``extraction`` (the filters in order; ``extract``), ``dffile`` (the CSV
@@ -39,7 +40,6 @@ from thrustmap.fitting.df.options import (
     RANGE_COVERAGE,
     SATURATED_NORM,
     BoolArray,
-    DfOptions,
     FilterStep,
     FlightReport,
 )
@@ -56,6 +56,7 @@ from thrustmap.fitting.df.thrust import (
     select_motors,
     thrust_from_motors,
 )
+from thrustmap.fitting.df_options import DfOptions
 
 __all__ = [
     "BINS_PER_SAMPLE",
