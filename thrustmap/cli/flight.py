@@ -325,7 +325,7 @@ def gamma_fit_cmd(
     from thrustmap.fitting.df import sidecar_path
     from thrustmap.fitting.df.pool import pool_dfs
     from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
-    from thrustmap.fitting.mapfile import ThrustMap, file_sha256, gamma_text
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     if rotors is not None and not 1 <= rotors <= 64:
         raise ConfigError(f"--rotors {rotors}: expected 1..64 rotors")
@@ -349,6 +349,16 @@ def gamma_fit_cmd(
     if as_json:
         click.echo(json.dumps(fit.to_dict(), indent=2, default=float))
         return
+    _print_fit(fit)
+    _print_by_voltage(fit)
+    _print_no_worse(fit)
+    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+
+
+def _print_fit(fit: Any) -> None:
+    """γ(B), the flown voltage, the held-out error by degree and e_Th / e_T before and after."""
+    from thrustmap.fitting.mapfile import gamma_text
+
     c = fit.correction
     terms = gamma_text(c.coefficients)
     echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
@@ -375,6 +385,11 @@ def gamma_fit_cmd(
                 f"{key} %: before {b['mean']:.3f} ± {b['std']:.3f}, after "
                 f"{a['mean']:.3f} ± {a['std']:.3f}"
             )
+
+
+def _print_by_voltage(fit: Any) -> None:
+    """One row per voltage bin: n, γ, e_Th and e_T before/after, flagged when worse."""
+    m = fit.metrics
     echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
     g = fit.guard
     floor = int(g.get("min_bin_samples", 20))
@@ -399,7 +414,12 @@ def gamma_fit_cmd(
             f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
             + flag
         )
-    # the no-worse check on stdout too (its warnings also went to stderr): which bin and why
+
+
+def _print_no_worse(fit: Any) -> None:
+    """The no-worse check on stdout too (its warnings also went to stderr): which bin and why."""
+    m, g = fit.metrics, fit.guard
+    floor = int(g.get("min_bin_samples", 20))
     metric = g.get("metric", "e_Th")
     for r in g.get("rejected", []):
         bins = "; ".join(
@@ -428,7 +448,6 @@ def gamma_fit_cmd(
             echo(head + f"the requested degree {fit.degree} is worse in the bins marked WORSE")
         else:
             echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
-    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
 
 
 def _register_live() -> None:  # `gamma live` lives in its own module (click only at import)

@@ -281,10 +281,6 @@ def gamma_live_cmd(
     γ is determined (otherwise it says why not) and the recording. A stream without battery
     voltage, acceleration or a thrust command is named at the start (exit 2: no γ possible).
     """
-    import time
-
-    from thrustmap.core.files import check_output_path
-    from thrustmap.fitting.df import sidecar_path
     from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.flightlogs.telemetry import Telemetry
     from thrustmap.fitting.gamma_live import LiveGamma
@@ -293,17 +289,7 @@ def gamma_live_cmd(
 
     if not df_values["mass_kg"] > 0:
         raise ConfigError(f"--mass-kg must be positive, got {df_values['mass_kg']}")
-    if df_path is None:
-        df_path = output.with_suffix(".df.csv") if output is not None else Path("gamma-live.csv")
-    inputs: list[Path] = [map_path]
-    if url.lower().startswith("replay://"):
-        inputs.append(Path(url[len("replay://") :]))
-    check_output_path(df_path, inputs=inputs, what="Df output")
-    check_output_path(sidecar_path(df_path), inputs=inputs, what="Df sidecar")
-    if output is not None:
-        check_output_path(output, inputs=inputs, what="map output")
-    if record is not None:
-        check_output_path(record, inputs=inputs, what="recording")
+    df_path = _check_outputs(url, map_path, output, df_path, record)
     tmap = ThrustMap.load(map_path)
     opts = DfOptions(**df_values)
     stream = open_stream(
@@ -315,66 +301,12 @@ def gamma_live_cmd(
     )
     tel = Telemetry(url, "tlog")
     live = LiveGamma(tel, opts, tmap, loss=loss)
-    flight = _Flight()
     panel = _Panel(not no_panel)
     code, why = EXIT_OK, ""
-    first_hb_t: float | None = None
-    streams_checked = False
     try:
         with _signals_as_stop():
             try:
-                for t, msg in stream.messages():
-                    tel.add(msg, t)
-                    if first_hb_t is None and tel.vehicle is not None:
-                        first_hb_t = t
-                    if (
-                        not streams_checked
-                        and first_hb_t is not None
-                        and t - first_hb_t >= STREAMS_GRACE_S
-                    ):
-                        streams_checked = True
-                        fatal, other = _missing_streams(tel)
-                        refused = stream.requests.refused()
-                        if other:
-                            click.echo("warning: the stream lacks " + "; ".join(other), err=True)
-                        if fatal:
-                            raise _Stop(
-                                "the stream lacks "
-                                + "; ".join(fatal)
-                                + ": γ cannot be fitted"
-                                + (f" (refused: {', '.join(refused)})" if refused else ""),
-                                EXIT_BAD,
-                            )
-                    if flight.update(tel, t):
-                        why = "landed and disarmed"
-                        break
-                    if panel.enabled and live.due(t) and tel.vehicle is not None:
-                        live.refit(t)
-                    wall = time.monotonic()
-                    if panel.due(wall):
-                        panel.draw(
-                            panel_lines(
-                                url,
-                                tel,
-                                live.state,
-                                t - (first_hb_t or t),
-                                stream.requests.refused(),
-                            ),
-                            wall,
-                        )
-                else:
-                    why = (
-                        "end of the recording"
-                        if url.lower().startswith("replay://")
-                        else "stream ended"
-                    )
-                if not streams_checked and tel.vehicle is not None:
-                    fatal, _ = _missing_streams(tel)
-                    if fatal:
-                        raise _Stop(
-                            "the stream lacks " + "; ".join(fatal) + ": γ cannot be fitted",
-                            EXIT_BAD,
-                        )
+                why = _listen(url, stream, tel, live, panel)
             except LinkLost as exc:
                 code, why = EXIT_LOST, f"lost link: {exc}"
             except _Stop as exc:
@@ -394,6 +326,80 @@ def gamma_live_cmd(
     click.echo(f"{head}{why}; {summary}" if why else summary, err=code != EXIT_OK)
     if code:
         sys.exit(code)
+
+
+def _check_outputs(
+    url: str, map_path: Path, output: Path | None, df_path: Path | None, record: Path | None
+) -> Path:
+    """Every file the run will write, checked before it listens (none may be an input); the
+    Df's path (beside -o, or gamma-live.csv, when not given)."""
+    from thrustmap.core.files import check_output_path
+    from thrustmap.fitting.df import sidecar_path
+
+    if df_path is None:
+        df_path = output.with_suffix(".df.csv") if output is not None else Path("gamma-live.csv")
+    inputs: list[Path] = [map_path]
+    if url.lower().startswith("replay://"):
+        inputs.append(Path(url[len("replay://") :]))
+    check_output_path(df_path, inputs=inputs, what="Df output")
+    check_output_path(sidecar_path(df_path), inputs=inputs, what="Df sidecar")
+    if output is not None:
+        check_output_path(output, inputs=inputs, what="map output")
+    if record is not None:
+        check_output_path(record, inputs=inputs, what="recording")
+    return df_path
+
+
+def _listen(url: str, stream: Any, tel: Telemetry, live: Any, panel: _Panel) -> str:
+    """Read the stream until the flight is over or the stream ends; why it stopped. The streams
+    are judged STREAMS_GRACE_S after the first heartbeat, or at the end if that came sooner (a
+    γ fit impossible: ``_Stop``)."""
+    import time
+
+    flight = _Flight()
+    first_hb_t: float | None = None
+    streams_checked = False
+    for t, msg in stream.messages():
+        tel.add(msg, t)
+        if first_hb_t is None and tel.vehicle is not None:
+            first_hb_t = t
+        if not streams_checked and first_hb_t is not None and t - first_hb_t >= STREAMS_GRACE_S:
+            streams_checked = True
+            _check_streams(tel, stream.requests.refused())
+        if flight.update(tel, t):
+            why = "landed and disarmed"
+            break
+        if panel.enabled and live.due(t) and tel.vehicle is not None:
+            live.refit(t)
+        wall = time.monotonic()
+        if panel.due(wall):
+            lines = panel_lines(
+                url, tel, live.state, t - (first_hb_t or t), stream.requests.refused()
+            )
+            panel.draw(lines, wall)
+    else:
+        why = "end of the recording" if url.lower().startswith("replay://") else "stream ended"
+    if not streams_checked and tel.vehicle is not None:
+        fatal, _ = _missing_streams(tel)
+        if fatal:
+            raise _Stop("the stream lacks " + "; ".join(fatal) + ": γ cannot be fitted", EXIT_BAD)
+    return why
+
+
+def _check_streams(tel: Telemetry, refused: dict[str, str]) -> None:
+    """The streams a γ fit needs, once: those it is poorer without are a warning, those it
+    cannot do without stop the run (``_Stop``, exit 2)."""
+    fatal, other = _missing_streams(tel)
+    if other:
+        click.echo("warning: the stream lacks " + "; ".join(other), err=True)
+    if fatal:
+        raise _Stop(
+            "the stream lacks "
+            + "; ".join(fatal)
+            + ": γ cannot be fitted"
+            + (f" (refused: {', '.join(refused)})" if refused else ""),
+            EXIT_BAD,
+        )
 
 
 def _finish(
