@@ -324,7 +324,7 @@ def gamma_fit_cmd(
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.df import sidecar_path
     from thrustmap.fitting.df.pool import pool_dfs
-    from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
+    from thrustmap.fitting.gamma import GammaOptions, check_physical, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     if rotors is not None and not 1 <= rotors <= 64:
@@ -337,8 +337,10 @@ def gamma_fit_cmd(
         table,
         side,
         tmap,
-        loss="l1" if loss == "l1" else "l2",
-        degree=None if degree == "auto" else int(degree),
+        GammaOptions(
+            loss="l1" if loss == "l1" else "l2",
+            degree=None if degree == "auto" else int(degree),
+        ),
         rotors=rotors,
         allow_mixed=pool_mixed,
     )
