@@ -36,7 +36,7 @@ from support import public_data as pd  # noqa: E402
 
 from thrustmap.core.errors import ConfigError, DataFormatError  # noqa: E402
 from thrustmap.fitting.df.extraction import extract  # noqa: E402
-from thrustmap.fitting.df.options import DfOptions  # noqa: E402
+from thrustmap.fitting.df_options import DfOptions  # noqa: E402
 from thrustmap.flightlogs import dataflash  # noqa: E402
 from thrustmap.flightlogs.detect import read_log  # noqa: E402
 

@@ -15,7 +15,7 @@ from support.public_data import PublicDataError, PublicFiles, manifest
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import DfOptions
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.detect import read_log
 
 #: the rules named in a flight's report (docs/old-arducopter.md); log-pause is a filter step

@@ -19,7 +19,7 @@ from support.public_data import PublicFiles, names
 
 from thrustmap.cli import main
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import DfOptions
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.blackbox import read
 
 

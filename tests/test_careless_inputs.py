@@ -562,7 +562,7 @@ def test_accelerometer_in_g_is_caught(work: dict[str, str]) -> None:
     """A binary log's acceleration in g (≈ 1 at hover) is converted and said, not used as
     m/s² (which leaves no sample near hover, or a force ten times too small)."""
     from thrustmap.fitting.df.extraction import extract
-    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.mapfile import ThrustMap
     from thrustmap.flightlogs.detect import read_log
 

@@ -11,8 +11,9 @@ from support.copter33 import ACCEL_SCALE, GROUND_RUN_S, PAUSE_S, Copter33, write
 
 from thrustmap.core.errors import DataFormatError
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.fitting.df.options import G0
 from thrustmap.fitting.df.table import Df
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.detect import read_log
 from thrustmap.flightlogs.series import FlightLog, Signal
 

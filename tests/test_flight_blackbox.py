@@ -360,7 +360,7 @@ def test_flightlog_extract_runs_without_pandas(tmp_path: Path) -> None:
         import pandas as pd
 
         from thrustmap.fitting.df.extraction import extract
-        from thrustmap.fitting.df.options import DfOptions
+        from thrustmap.fitting.df_options import DfOptions
         from thrustmap.flightlogs.detect import read_log
 
         # settle 1 s: the blackbox fixture's logs (4 s, 3 s) are otherwise too short to be used

@@ -13,7 +13,7 @@ import pytest
 from support import flight_defects as fd
 
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import DfOptions
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.detect import read_log
 from thrustmap.flightlogs.series import Signal
 

@@ -12,8 +12,9 @@ from support import simulate_flight as sim
 from thrustmap.core.errors import ConfigError
 from thrustmap.fitting.df.dffile import read_df, write_df
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.fitting.df.options import G0
 from thrustmap.fitting.df.table import hover_throttle
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.flightlogs.detect import read_log
 

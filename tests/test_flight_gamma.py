@@ -13,9 +13,9 @@ from support import simulate_flight as sim
 
 from thrustmap.cli.flight import flightlog_group, gamma_group
 from thrustmap.core.errors import ConfigError, FitError
+from thrustmap.fitting.df import DfOptions
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import DfOptions
-from thrustmap.fitting.gamma import corrected_map, fit_gamma
+from thrustmap.fitting.gamma import GammaOptions, corrected_map, fit_gamma
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.flightlogs.detect import read_log
 
@@ -44,7 +44,7 @@ def test_known_gamma_recovered_within_1pct(
     truth, (bin_path, ulg_path, _) = two_flights
     tmap = truth.stand_map
     df = extract(read_log(bin_path) + read_log(ulg_path), DfOptions(mass_kg=1.0), tmap)
-    fit = fit_gamma(df.table, df.sources, tmap, loss=loss)  # type: ignore[arg-type]
+    fit = fit_gamma(df.table, df.sources, tmap, GammaOptions(loss=loss))  # type: ignore[arg-type]
     assert fit.validation == "leave-one-flight-out (2 flights)"
     box = fit.correction.voltage_v
     assert box.lo < 21.2 and box.hi > 23.8  # both flights' voltage ranges together
@@ -89,7 +89,7 @@ def test_corrected_map_applies_gamma_and_round_trips(
     truth, (bin_path, _, _) = two_flights
     tmap = truth.stand_map
     df = extract(read_log(bin_path), DfOptions(mass_kg=1.0), tmap)
-    fit = fit_gamma(df.table, df.sources, tmap, degree=2)
+    fit = fit_gamma(df.table, df.sources, tmap, GammaOptions(degree=2))
     out = corrected_map(tmap, fit, [{"path": "df.csv"}])
     out.save(tmp_path / "c.json")
     back = ThrustMap.load(tmp_path / "c.json")
@@ -112,7 +112,7 @@ def test_bad_requests_are_clear_errors() -> None:
     with pytest.raises(FitError, match="at least 10"):
         fit_gamma(table, {}, None)
     with pytest.raises(ConfigError, match="degree"):
-        fit_gamma(table, {}, None, degree=5)
+        fit_gamma(table, {}, None, GammaOptions(degree=5))
     norm_only = pd.DataFrame({"voltage_v": [22.0] * 20, "force_n": [9.8] * 20,
                               "thrust_cmd_norm": [0.4] * 20})  # fmt: skip
     with pytest.raises(ConfigError, match="--map"):
@@ -186,7 +186,7 @@ def test_narrow_voltage_span_warns_and_fits_a_constant() -> None:
     fit = fit_gamma(table, {}, None)
     assert fit.degree == 0
     assert any("spans only 0.30 V" in w for w in fit.warnings)
-    forced = fit_gamma(table, {}, None, degree=1)
+    forced = fit_gamma(table, {}, None, GammaOptions(degree=1))
     assert forced.degree == 1 and any("not supported" in w for w in forced.warnings)
 
 

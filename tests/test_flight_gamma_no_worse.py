@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from thrustmap.cli import main
 from thrustmap.cli.flight import flightlog_group, gamma_group
-from thrustmap.fitting.gamma import MIN_BIN_SAMPLES, GammaFit, fit_gamma, worse_bins
+from thrustmap.fitting.gamma import MIN_BIN_SAMPLES, GammaFit, GammaOptions, fit_gamma, worse_bins
 
 
 def falling(seed: int, n: int = 1000, noise: float = 0.03) -> pd.DataFrame:
@@ -79,7 +79,7 @@ def test_the_held_out_choice_is_replaced_when_it_is_worse_somewhere() -> None:
 
 
 def test_a_requested_degree_is_kept_but_its_worse_bins_are_said() -> None:
-    fit = fit_gamma(falling(3), {}, None, degree=0)
+    fit = fit_gamma(falling(3), {}, None, GammaOptions(degree=0))
     assert fit.degree == 0 and len(fit.correction.coefficients) == 1
     assert worse_bins(fit.metrics)  # it is worse at the top ...
     assert any(

@@ -13,7 +13,8 @@ import pytest
 
 from thrustmap.cli import main
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import G0, DfOptions
+from thrustmap.fitting.df.options import G0
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.detect import read_log
 
 FL = Path(__file__).resolve().parent.parent / "fixtures" / "flightlogs"

@@ -26,7 +26,7 @@ from support import telemetry_flight as tf
 from support.sockets import wait_until_bound
 
 from thrustmap.cli.gammalive import PANEL_WIDTH, panel_lines
-from thrustmap.fitting.df.options import DfOptions
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.fitting.gamma_live import LiveGamma
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.flightlogs.telemetry import Telemetry

@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from thrustmap.fitting.dataset import Dataset
-    from thrustmap.fitting.df.options import DfOptions
     from thrustmap.fitting.df.table import Df
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.export.encodings import ExportResult
     from thrustmap.fitting.fit.fitmap import FitOutcome
     from thrustmap.fitting.fit.validation import Row
@@ -220,7 +220,7 @@ def extract_df(
     are the CLI's), ``mass_kg`` the vehicle's mass, ``tmap`` the stand map that turns motor
     outputs into thrust. ``.table`` is the table, ``.reports`` what each filter dropped."""
     from thrustmap.fitting.df.extraction import extract
-    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.fitting.df_options import DfOptions
 
     opts = options or DfOptions()
     if mass_kg is not None:
@@ -238,9 +238,10 @@ def fit_gamma(
 ) -> GammaFit:
     """Fit the correction γ(B) on a Df against the stand map, as ``thrustmap gamma fit``
     (``degree=None`` chooses it by held-out error)."""
+    from thrustmap.fitting.gamma import GammaOptions
     from thrustmap.fitting.gamma import fit_gamma as fit
 
-    return fit(df.table, df.sources, tmap, loss=loss, degree=degree, rotors=rotors)
+    return fit(df.table, df.sources, tmap, GammaOptions(loss=loss, degree=degree), rotors=rotors)
 
 
 def corrected_map(

@@ -46,7 +46,7 @@ def _auto_flight(path: Path) -> Any:
 def _extract(path: Path) -> Any:
     """Flight log all the way to Df: the time-span bound and the resampling."""
     from thrustmap.fitting.df.extraction import extract
-    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.flightlogs.detect import read_log
 
     flights = read_log(path)

@@ -13,6 +13,7 @@ from typing import Any, TextIO
 import click
 
 from thrustmap.cli import textwidth
+from thrustmap.cli.df_options import EXTRACT_FIELDS, df_click_options
 from thrustmap.cli.textwidth import echo, plural
 from thrustmap.core.errors import ConfigError
 from thrustmap.rig.sigterm import terminate_as_exception
@@ -142,19 +143,10 @@ def fleet_group() -> None:
 @click.argument("sources", nargs=-1, required=True)
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder: fleet.parquet and df/ (created when missing).")  # fmt: skip
-@click.option("--mass-kg", type=float, help="Take-off mass (kg) of every vehicle.")
 @click.option("--masses", "masses_path", type=click.Path(path_type=Path),
               help="CSV of pattern,mass_kg: the first glob matching a log's name or path wins.")  # fmt: skip
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
-@click.option("--rotors", type=int, help="Rotor count (default: each log's frame).")
-@click.option("--thrust-source", type=click.Choice(["auto", "log", "motors", "norm"]),
-              default="auto", show_default=True)  # fmt: skip
-@click.option("--rate-hz", type=float, default=10.0, show_default=True)
-@click.option("--accel-tol", type=float, default=1.0, show_default=True)
-@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
-@click.option("--settle-s", type=float, default=2.0, show_default=True)
-@click.option("--min-height-m", type=float, default=0.5, show_default=True)
-@click.option("--climb-max", type=float, default=1.0, show_default=True)
+@df_click_options(EXTRACT_FIELDS)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option("--workers", type=int,
               help="Local worker processes, forked from this command, one log at a time each; "
@@ -175,17 +167,8 @@ def fleet_group() -> None:
 def extract_cmd(
     sources: tuple[str, ...],
     out_dir: Path,
-    mass_kg: float | None,
     masses_path: Path | None,
     map_path: Path | None,
-    rotors: int | None,
-    thrust_source: str,
-    rate_hz: float,
-    accel_tol: float,
-    tilt_max_deg: float,
-    settle_s: float,
-    min_height_m: float,
-    climb_max: float,
     fmt: str | None,
     workers: int | None,
     scheduler: str | None,
@@ -193,6 +176,7 @@ def extract_cmd(
     memory_per_worker: str,
     max_log_mb: float,
     quiet: bool,
+    **df_values: Any,
 ) -> None:
     """Extract Df from every log in SOURCES (folders, globs, files) into OUT_DIR.
 
@@ -200,6 +184,25 @@ def extract_cmd(
     table of outcomes (OUT_DIR/fleet.parquet). A bad log is listed with its reason and never
     stops the fleet. A re-run skips logs already done with the same content and options.
     """
+    from thrustmap.fleet import run
+
+    dask_local, dash = _check_modes(workers, scheduler, dashboard, max_log_mb)
+    mem = _parse_size(memory_per_worker)
+    config = _fleet_config(out_dir, masses_path, map_path, fmt, max_log_mb, df_values)
+    # the number of local workers and their memory, checked before anything is read
+    spec = None if workers == 0 or scheduler is not None else run.local_cluster_spec(
+        workers, mem, dash)  # fmt: skip
+    limits = f"logs over {max_log_mb:g} MB refused unread"
+    fleet = _FleetRun(workers, scheduler, dask_local, dash, spec, None if quiet else _Bar(), limits)
+    started = time.monotonic()
+    result = fleet.extract(sources, config)
+    _print_outcome(result, time.monotonic() - started)
+
+
+def _check_modes(
+    workers: int | None, scheduler: str | None, dashboard: str | None, max_log_mb: float
+) -> tuple[bool, str | None]:
+    """Where the logs run, checked: (whether on a local Dask cluster, its dashboard address)."""
     from thrustmap.fleet import local, run
 
     if workers is not None and scheduler is not None:
@@ -216,56 +219,75 @@ def extract_cmd(
     dash = None if dashboard is None else run.dashboard_address(dashboard)
     if max_log_mb <= 0:
         raise ConfigError(f"--max-log-mb must be positive, got {max_log_mb:g}")
+    return dask_local, dash
 
-    mem = _parse_size(memory_per_worker)
+
+def _fleet_config(
+    out_dir: Path,
+    masses_path: Path | None,
+    map_path: Path | None,
+    fmt: str | None,
+    max_log_mb: float,
+    df_values: dict[str, Any],
+) -> Any:
+    """The fleet run's ``FleetConfig``: its paths checked, the masses read."""
+    from thrustmap.fleet import run
+
     if map_path is not None and not map_path.is_file():
         raise ConfigError("map file not found", file=str(map_path))
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError("the output must be a folder", file=str(out_dir))
-    config = run.FleetConfig(
+    return run.FleetConfig(
         out_dir=out_dir.absolute(),
-        df_options={
-            "mass_kg": mass_kg,
-            "rotors": rotors,
-            "rate_hz": rate_hz,
-            "accel_tol_mps2": accel_tol,
-            "tilt_max_deg": tilt_max_deg,
-            "settle_s": settle_s,
-            "min_height_m": min_height_m,
-            "climb_max_mps": climb_max,
-            "thrust_source": thrust_source,
-        },
+        df_options=df_values,
         masses=run.read_masses(masses_path) if masses_path else [],
         map_path=map_path,
         fmt=fmt,
         max_log_bytes=int(max_log_mb * 2**20),
     )
-    # the number of local workers and their memory, checked before anything is read
-    spec = None if workers == 0 or scheduler is not None else run.local_cluster_spec(
-        workers, mem, dash)  # fmt: skip
-    bar = None if quiet else _Bar()
 
-    def say(text: str) -> None:
+
+class _FleetRun:
+    """One ``fleet extract`` run on its workers (serial, forked, a local Dask cluster or a
+    scheduler): started, said on stderr, and on every way out stopped, no child left behind."""
+
+    def __init__(
+        self,
+        workers: int | None,
+        scheduler: str | None,
+        dask_local: bool,
+        dash: str | None,
+        spec: Any,
+        bar: _Bar | None,
+        limits: str,
+    ) -> None:
+        from thrustmap.fleet import run
+
+        self.workers, self.scheduler, self.dask_local = workers, scheduler, dask_local
+        self.dash, self.spec, self.bar, self.limits = dash, spec, bar, limits
+        self.holder: dict[str, Any] = {}
+        # what a Dask cluster may leave behind is looked for at the end (forked workers are
+        # each stopped and confirmed gone by the pool itself)
+        self.before = run.child_pids() if scheduler is not None or dask_local else set()
+
+    def say(self, text: str) -> None:
         """A line on stderr of its own (the bar, if shown, is cleared first)."""
-        if bar is not None:
-            bar.note(text)
+        if self.bar is not None:
+            self.bar.note(text)
         else:
             echo(text, err=True)
 
-    # what a Dask cluster may leave behind is looked for at the end (forked workers are each
-    # stopped and confirmed gone by the pool itself)
-    before = run.child_pids() if scheduler is not None or dask_local else set()
-    started = time.monotonic()
-    holder: dict[str, Any] = {}
-    limits = f"logs over {max_log_mb:g} MB refused unread"
-
-    def begin() -> Any:
+    def begin(self) -> Any:
         """Start the local Dask cluster in the background (once)."""
+        from thrustmap.fleet import run
+
+        holder, spec = self.holder, self.spec
         if "start" not in holder:
             assert spec is not None
-            say(
+            self.say(
                 f"local Dask cluster: {spec.workers} worker processes, one log at a time each, "
-                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; {limits}"
+                f"memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per worker; "
+                f"{self.limits}"
             )
             holder["local"] = True  # from here, whatever happens, no child may outlive it
             holder["spec"] = spec
@@ -273,54 +295,73 @@ def extract_cmd(
             holder["start"] = run.LocalClusterStart(spec)
         return holder["start"]
 
-    def connect() -> tuple[Any, int]:
-        if scheduler is not None:
-            client = holder["client"] = run.connect(scheduler)
-            threads = sum(client.nthreads().values()) or 1
-            say(f"Dask scheduler {scheduler}: {threads} worker threads")
-            return client, 2 * threads
-        _, client = begin().wait()
-        if dash is not None:
-            say(f"Dask dashboard: {client.dashboard_link}")
-        return client, 2 * holder["spec"].workers
+    def connect(self) -> tuple[Any, int]:
+        from thrustmap.fleet import run
 
-    def on_local_workers(tasks: list[Any]) -> Any:
+        if self.scheduler is not None:
+            client = self.holder["client"] = run.connect(self.scheduler)
+            threads = sum(client.nthreads().values()) or 1
+            self.say(f"Dask scheduler {self.scheduler}: {threads} worker threads")
+            return client, 2 * threads
+        _, client = self.begin().wait()
+        if self.dash is not None:
+            self.say(f"Dask dashboard: {client.dashboard_link}")
+        return client, 2 * self.holder["spec"].workers
+
+    def on_local_workers(self, tasks: list[Any]) -> Any:
+        from thrustmap.fleet import local
+
+        spec = self.spec
         assert spec is not None
         n = min(spec.workers, len(tasks))  # no idle worker for a handful of logs
-        say(
+        self.say(
             f"local workers: {plural(n, 'process', 'processes')} forked from this command, one "
             f"log at a time each, memory limit {spec.memory_limit_bytes / 2**30:.2f} GiB per "
-            f"worker; {limits}"
+            f"worker; {self.limits}"
         )
-        pool = holder["pool"] = local.ForkPool(local.LocalSpec(n, spec.memory_limit_bytes))
+        pool = self.holder["pool"] = local.ForkPool(local.LocalSpec(n, spec.memory_limit_bytes))
         return pool.run(tasks)
 
-    if workers == 0:
-        say("serial loop in this process (no worker processes)")
-    if bar is not None:
-        bar.attach()
-    try:
+    def extract(self, sources: tuple[str, ...], config: Any) -> Any:
+        """Run the fleet; the workers are stopped on every way out."""
+        from thrustmap.fleet import run
+
+        workers, scheduler, dask_local = self.workers, self.scheduler, self.dask_local
+        if workers == 0:
+            self.say("serial loop in this process (no worker processes)")
+        if self.bar is not None:
+            self.bar.attach()
         try:
-            # SIGTERM (a batch system, systemd, kill) or SIGHUP ends the run as Ctrl-C does:
-            # the table of what finished is written, the workers stopped, the command resumable
-            with terminate_as_exception(stopping="the fleet run", sigint_always=False):
-                result = run.fleet_extract(
-                    sources,
-                    config,
-                    connect=connect if scheduler is not None or dask_local else None,
-                    local=None if workers == 0 or scheduler or dask_local else on_local_workers,
-                    progress=bar,
+            try:
+                # SIGTERM (a batch system, systemd, kill) or SIGHUP ends the run as Ctrl-C does:
+                # the table of what finished is written, the workers stopped, the run resumable
+                with terminate_as_exception(stopping="the fleet run", sigint_always=False):
+                    return run.fleet_extract(
+                        sources,
+                        config,
+                        connect=self.connect if scheduler is not None or dask_local else None,
+                        local=None
+                        if workers == 0 or scheduler or dask_local
+                        else self.on_local_workers,
+                        progress=self.bar,
+                    )
+            except KeyboardInterrupt:
+                self.say(
+                    f"interrupted: the table of the logs finished so far is in "
+                    f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume"
                 )
-        except KeyboardInterrupt:
-            say(
-                f"interrupted: the table of the logs finished so far is in "
-                f"{config.out_dir / 'fleet.parquet'}; run the same command again to resume"
-            )
-            raise
-    finally:
-        if bar is not None:
-            bar.end()
-        # closing must not hide the real outcome (and stop_children() below is the backstop)
+                raise
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """The bar taken down, the workers stopped (closing never hides the real outcome, and
+        ``stop_children`` is the backstop)."""
+        from thrustmap.fleet import run
+
+        holder = self.holder
+        if self.bar is not None:
+            self.bar.end()
         if "pool" in holder:
             holder["pool"].close()
         if "start" in holder:
@@ -329,8 +370,11 @@ def extract_cmd(
             with contextlib.suppress(Exception):
                 holder["client"].close(timeout=10)
         if holder.get("local"):
-            run.stop_children(before)
-    elapsed = time.monotonic() - started
+            run.stop_children(self.before)
+
+
+def _print_outcome(result: Any, elapsed: float) -> None:
+    """The counts by status, the refused logs (the first SHOW_REFUSED by name), the table."""
     counts: dict[str, int] = {}
     for o in result.outcomes:
         counts[o.status] = counts.get(o.status, 0) + 1

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.df_options import EXTRACT_FIELDS, df_click_options
 from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError
 
@@ -148,36 +149,9 @@ def readers_cmd() -> None:
 
 @flightlog_group.command("extract")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--mass-kg", type=float, help="Vehicle take-off mass (kg); F_m = m·a_up.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), help="Stand map (per rotor).")
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Df CSV.")
-@click.option(
-    "--rotors",
-    type=int,
-    help="Rotor count: sums the first N motor outputs (default: the log's frame).",
-)
-@click.option(
-    "--thrust-source",
-    type=click.Choice(["auto", "log", "motors", "norm"]),
-    default="auto",
-    show_default=True,
-    help="T_c from the log's newtons, the motor outputs through the map, or the normalised "
-    "command through the map.",
-)
-@click.option("--rate-hz", type=float, default=10.0, show_default=True, help="Resampling rate.")
-@click.option("--accel-tol", type=float, default=1.0, show_default=True, help="|a_up−g| max.")
-@click.option("--tilt-max-deg", type=float, default=15.0, show_default=True)
-@click.option("--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing.")
-@click.option(
-    "--min-height-m",
-    type=float,
-    default=0.5,
-    show_default=True,
-    help="Airborne only from this height above the takeoff level (0: off).",
-)
-@click.option(
-    "--climb-max", type=float, default=1.0, show_default=True, help="|climb rate| max, m/s."
-)
+@df_click_options(EXTRACT_FIELDS)
 @click.option("--format", "fmt", help="Reader name instead of content detection.")
 @click.option(
     "--force",
@@ -188,20 +162,12 @@ def readers_cmd() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the filter report as JSON.")
 def extract_cmd(
     logs: tuple[Path, ...],
-    mass_kg: float | None,
     map_path: Path | None,
     output: Path,
-    rotors: int | None,
-    thrust_source: str,
-    rate_hz: float,
-    accel_tol: float,
-    tilt_max_deg: float,
-    settle_s: float,
-    min_height_m: float,
-    climb_max: float,
     fmt: str | None,
     force: bool,
     as_json: bool,
+    **df_values: Any,
 ) -> None:
     """Extract Df (steady near-hover samples) from LOG... into a CSV plus a JSON sidecar.
 
@@ -211,7 +177,7 @@ def extract_cmd(
     from thrustmap.core.identity import Identity, file_sha256, refuse_repeats
     from thrustmap.fitting.df.dffile import sidecar_path, write_df
     from thrustmap.fitting.df.extraction import extract
-    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.flightlogs.detect import read_log
 
     inputs = [*logs, *([map_path] if map_path else [])]
@@ -223,17 +189,7 @@ def extract_cmd(
             "use .csv",
             file=str(output),
         )
-    opts = DfOptions(
-        mass_kg=mass_kg,
-        rotors=rotors,
-        rate_hz=rate_hz,
-        accel_tol_mps2=accel_tol,
-        tilt_max_deg=tilt_max_deg,
-        settle_s=settle_s,
-        min_height_m=min_height_m,
-        climb_max_mps=climb_max,
-        thrust_source=thrust_source,
-    )
+    opts = DfOptions(**df_values)
     tmap = None
     if map_path:  # the map module (models, version metadata) only when a map is given
         from thrustmap.fitting.mapfile import ThrustMap
@@ -369,8 +325,8 @@ def gamma_fit_cmd(
     from thrustmap.core.files import atomic_write_text, check_output_path
     from thrustmap.fitting.df.dffile import sidecar_path
     from thrustmap.fitting.df.pool import pool_dfs
-    from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
-    from thrustmap.fitting.mapfile import ThrustMap, file_sha256, gamma_text
+    from thrustmap.fitting.gamma import GammaOptions, check_physical, corrected_map, fit_gamma
+    from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 
     if rotors is not None and not 1 <= rotors <= 64:
         raise ConfigError(f"--rotors {rotors}: expected 1..64 rotors")
@@ -382,8 +338,10 @@ def gamma_fit_cmd(
         table,
         side,
         tmap,
-        loss="l1" if loss == "l1" else "l2",
-        degree=None if degree == "auto" else int(degree),
+        GammaOptions(
+            loss="l1" if loss == "l1" else "l2",
+            degree=None if degree == "auto" else int(degree),
+        ),
         rotors=rotors,
         allow_mixed=pool_mixed,
     )
@@ -394,6 +352,16 @@ def gamma_fit_cmd(
     if as_json:
         click.echo(json.dumps(fit.to_dict(), indent=2, default=float))
         return
+    _print_fit(fit)
+    _print_by_voltage(fit)
+    _print_no_worse(fit)
+    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
+
+
+def _print_fit(fit: Any) -> None:
+    """γ(B), the flown voltage, the held-out error by degree and e_Th / e_T before and after."""
+    from thrustmap.fitting.mapfile import gamma_text
+
     c = fit.correction
     terms = gamma_text(c.coefficients)
     echo(f"γ(B) = {terms}   (degree {fit.degree}, {fit.loss}, {fit.samples} samples)")
@@ -420,6 +388,11 @@ def gamma_fit_cmd(
                 f"{key} %: before {b['mean']:.3f} ± {b['std']:.3f}, after "
                 f"{a['mean']:.3f} ± {a['std']:.3f}"
             )
+
+
+def _print_by_voltage(fit: Any) -> None:
+    """One row per voltage bin: n, γ, e_Th and e_T before/after, flagged when worse."""
+    m = fit.metrics
     echo("by voltage:  V range        n    γ      e_Th before/after %   e_T before/after %")
     g = fit.guard
     floor = int(g.get("min_bin_samples", 20))
@@ -444,7 +417,12 @@ def gamma_fit_cmd(
             f"      {row['e_T_before_pct']['mean']:6.3f} / {row['e_T_after_pct']['mean']:6.3f}"
             + flag
         )
-    # the no-worse check on stdout too (its warnings also went to stderr): which bin and why
+
+
+def _print_no_worse(fit: Any) -> None:
+    """The no-worse check on stdout too (its warnings also went to stderr): which bin and why."""
+    m, g = fit.metrics, fit.guard
+    floor = int(g.get("min_bin_samples", 20))
     metric = g.get("metric", "e_Th")
     for r in g.get("rejected", []):
         bins = "; ".join(
@@ -473,7 +451,6 @@ def gamma_fit_cmd(
             echo(head + f"the requested degree {fit.degree} is worse in the bins marked WORSE")
         else:
             echo(head + f"degree {fit.degree} kept, no populated bin worse than uncorrected")
-    echo(f"wrote {output}" + (" (replaced the previous file)" if plan.replaced else ""))
 
 
 def _register_live() -> None:  # `gamma live` lives in its own module (click only at import)

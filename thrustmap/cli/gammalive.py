@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.df_options import LIVE_FIELDS, df_click_options
 from thrustmap.cli.mavlink_options import signing_key_option
 from thrustmap.core.errors import ConfigError
 
@@ -215,9 +216,7 @@ def _deferred() -> Iterator[list[int]]:
     type=click.Path(path_type=Path),
     help="Stand map (per rotor).",
 )
-@click.option(
-    "--mass-kg", required=True, type=float, help="Vehicle take-off mass (kg); F_m = m·a_up."
-)
+@df_click_options(LIVE_FIELDS, required=("mass_kg",))
 @click.option(
     "-o",
     "--output",
@@ -233,12 +232,7 @@ def _deferred() -> Iterator[list[int]]:
 @click.option(
     "--record", type=click.Path(path_type=Path), help="Write the raw telemetry to this new .tlog."
 )
-@click.option("--rotors", type=int, help="Rotor count (default: the vehicle's frame).")
 @click.option("--loss", type=click.Choice(["l1", "l2"]), default="l1", show_default=True)
-@click.option("--rate-hz", type=float, default=10.0, show_default=True, help="Df resampling rate.")
-@click.option(
-    "--settle-s", type=float, default=2.0, show_default=True, help="Takeoff/landing margin."
-)
 @click.option(
     "--link-timeout-s",
     type=float,
@@ -259,19 +253,16 @@ def _deferred() -> Iterator[list[int]]:
 def gamma_live_cmd(
     url: str,
     map_path: Path,
-    mass_kg: float,
     output: Path | None,
     df_path: Path | None,
     record: Path | None,
-    rotors: int | None,
     loss: str,
-    rate_hz: float,
-    settle_s: float,
     link_timeout_s: float,
     start_timeout_s: float,
     no_panel: bool,
     as_json: bool,
     signing_key: Any,
+    **df_values: Any,
 ) -> None:
     """Fit γ(B) while the vehicle flies, from its MAVLink telemetry at URL.
 
@@ -290,31 +281,17 @@ def gamma_live_cmd(
     γ is determined (otherwise it says why not) and the recording. A stream without battery
     voltage, acceleration or a thrust command is named at the start (exit 2: no γ possible).
     """
-    import time
-
-    from thrustmap.core.files import check_output_path
-    from thrustmap.fitting.df.dffile import sidecar_path
-    from thrustmap.fitting.df.options import DfOptions
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.gamma_live import LiveGamma
     from thrustmap.fitting.mapfile import ThrustMap
     from thrustmap.flightlogs.telemetry import Telemetry
     from thrustmap.rig.fc.telemetry_stream import LinkLost, open_stream
 
-    if not mass_kg > 0:
-        raise ConfigError(f"--mass-kg must be positive, got {mass_kg}")
-    if df_path is None:
-        df_path = output.with_suffix(".df.csv") if output is not None else Path("gamma-live.csv")
-    inputs: list[Path] = [map_path]
-    if url.lower().startswith("replay://"):
-        inputs.append(Path(url[len("replay://") :]))
-    check_output_path(df_path, inputs=inputs, what="Df output")
-    check_output_path(sidecar_path(df_path), inputs=inputs, what="Df sidecar")
-    if output is not None:
-        check_output_path(output, inputs=inputs, what="map output")
-    if record is not None:
-        check_output_path(record, inputs=inputs, what="recording")
+    if not df_values["mass_kg"] > 0:
+        raise ConfigError(f"--mass-kg must be positive, got {df_values['mass_kg']}")
+    df_path = _check_outputs(url, map_path, output, df_path, record)
     tmap = ThrustMap.load(map_path)
-    opts = DfOptions(mass_kg=mass_kg, rotors=rotors, rate_hz=rate_hz, settle_s=settle_s)
+    opts = DfOptions(**df_values)
     stream = open_stream(
         url,
         record=record,
@@ -324,66 +301,12 @@ def gamma_live_cmd(
     )
     tel = Telemetry(url, "tlog")
     live = LiveGamma(tel, opts, tmap, loss=loss)
-    flight = _Flight()
     panel = _Panel(not no_panel)
     code, why = EXIT_OK, ""
-    first_hb_t: float | None = None
-    streams_checked = False
     try:
         with _signals_as_stop():
             try:
-                for t, msg in stream.messages():
-                    tel.add(msg, t)
-                    if first_hb_t is None and tel.vehicle is not None:
-                        first_hb_t = t
-                    if (
-                        not streams_checked
-                        and first_hb_t is not None
-                        and t - first_hb_t >= STREAMS_GRACE_S
-                    ):
-                        streams_checked = True
-                        fatal, other = _missing_streams(tel)
-                        refused = stream.requests.refused()
-                        if other:
-                            click.echo("warning: the stream lacks " + "; ".join(other), err=True)
-                        if fatal:
-                            raise _Stop(
-                                "the stream lacks "
-                                + "; ".join(fatal)
-                                + ": γ cannot be fitted"
-                                + (f" (refused: {', '.join(refused)})" if refused else ""),
-                                EXIT_BAD,
-                            )
-                    if flight.update(tel, t):
-                        why = "landed and disarmed"
-                        break
-                    if panel.enabled and live.due(t) and tel.vehicle is not None:
-                        live.refit(t)
-                    wall = time.monotonic()
-                    if panel.due(wall):
-                        panel.draw(
-                            panel_lines(
-                                url,
-                                tel,
-                                live.state,
-                                t - (first_hb_t or t),
-                                stream.requests.refused(),
-                            ),
-                            wall,
-                        )
-                else:
-                    why = (
-                        "end of the recording"
-                        if url.lower().startswith("replay://")
-                        else "stream ended"
-                    )
-                if not streams_checked and tel.vehicle is not None:
-                    fatal, _ = _missing_streams(tel)
-                    if fatal:
-                        raise _Stop(
-                            "the stream lacks " + "; ".join(fatal) + ": γ cannot be fitted",
-                            EXIT_BAD,
-                        )
+                why = _listen(url, stream, tel, live, panel)
             except LinkLost as exc:
                 code, why = EXIT_LOST, f"lost link: {exc}"
             except _Stop as exc:
@@ -405,6 +328,80 @@ def gamma_live_cmd(
         sys.exit(code)
 
 
+def _check_outputs(
+    url: str, map_path: Path, output: Path | None, df_path: Path | None, record: Path | None
+) -> Path:
+    """Every file the run will write, checked before it listens (none may be an input); the
+    Df's path (beside -o, or gamma-live.csv, when not given)."""
+    from thrustmap.core.files import check_output_path
+    from thrustmap.fitting.df.dffile import sidecar_path
+
+    if df_path is None:
+        df_path = output.with_suffix(".df.csv") if output is not None else Path("gamma-live.csv")
+    inputs: list[Path] = [map_path]
+    if url.lower().startswith("replay://"):
+        inputs.append(Path(url[len("replay://") :]))
+    check_output_path(df_path, inputs=inputs, what="Df output")
+    check_output_path(sidecar_path(df_path), inputs=inputs, what="Df sidecar")
+    if output is not None:
+        check_output_path(output, inputs=inputs, what="map output")
+    if record is not None:
+        check_output_path(record, inputs=inputs, what="recording")
+    return df_path
+
+
+def _listen(url: str, stream: Any, tel: Telemetry, live: Any, panel: _Panel) -> str:
+    """Read the stream until the flight is over or the stream ends; why it stopped. The streams
+    are judged STREAMS_GRACE_S after the first heartbeat, or at the end if that came sooner (a
+    γ fit impossible: ``_Stop``)."""
+    import time
+
+    flight = _Flight()
+    first_hb_t: float | None = None
+    streams_checked = False
+    for t, msg in stream.messages():
+        tel.add(msg, t)
+        if first_hb_t is None and tel.vehicle is not None:
+            first_hb_t = t
+        if not streams_checked and first_hb_t is not None and t - first_hb_t >= STREAMS_GRACE_S:
+            streams_checked = True
+            _check_streams(tel, stream.requests.refused())
+        if flight.update(tel, t):
+            why = "landed and disarmed"
+            break
+        if panel.enabled and live.due(t) and tel.vehicle is not None:
+            live.refit(t)
+        wall = time.monotonic()
+        if panel.due(wall):
+            lines = panel_lines(
+                url, tel, live.state, t - (first_hb_t or t), stream.requests.refused()
+            )
+            panel.draw(lines, wall)
+    else:
+        why = "end of the recording" if url.lower().startswith("replay://") else "stream ended"
+    if not streams_checked and tel.vehicle is not None:
+        fatal, _ = _missing_streams(tel)
+        if fatal:
+            raise _Stop("the stream lacks " + "; ".join(fatal) + ": γ cannot be fitted", EXIT_BAD)
+    return why
+
+
+def _check_streams(tel: Telemetry, refused: dict[str, str]) -> None:
+    """The streams a γ fit needs, once: those it is poorer without are a warning, those it
+    cannot do without stop the run (``_Stop``, exit 2)."""
+    fatal, other = _missing_streams(tel)
+    if other:
+        click.echo("warning: the stream lacks " + "; ".join(other), err=True)
+    if fatal:
+        raise _Stop(
+            "the stream lacks "
+            + "; ".join(fatal)
+            + ": γ cannot be fitted"
+            + (f" (refused: {', '.join(refused)})" if refused else ""),
+            EXIT_BAD,
+        )
+
+
 def _finish(
     url: str,
     tel: Telemetry,
@@ -419,7 +416,7 @@ def _finish(
     import json
 
     from thrustmap.fitting.df.dffile import read_df, write_df
-    from thrustmap.fitting.gamma import corrected_map, fit_gamma
+    from thrustmap.fitting.gamma import GammaOptions, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import file_sha256
     from thrustmap.fitting.mapfile import gamma_text as formula
 
@@ -440,7 +437,8 @@ def _finish(
         # the final fit reads the Df back as `gamma fit` does: the same numbers as running it
         table, side = read_df(df_path)
         try:
-            fit = fit_gamma(table, side, live.tmap, loss="l1" if live.loss == "l1" else "l2")
+            how = GammaOptions(loss="l1" if live.loss == "l1" else "l2")
+            fit = fit_gamma(table, side, live.tmap, how)
         except Exception as exc:  # a refusal of the fit is reported, never lost
             gamma_text = f"γ not determined ({exc}): no corrected map written"
     if fit is not None and fit.corrected:

@@ -216,32 +216,45 @@ class _Samples:
     table: pd.DataFrame
 
 
+@dataclass(frozen=True)
+class GammaOptions:
+    """How γ(B) is fitted: the loss, the degree (None: chosen by held-out error among
+    ``degrees``), the time blocks of a one-flight Df's held-out folds and the voltage bins of
+    its metrics."""
+
+    loss: Loss = "l1"
+    degree: int | None = None
+    degrees: tuple[int, ...] = DEGREES
+    blocks: int = DEFAULT_BLOCKS
+    voltage_bins: int = 6
+
+    def __post_init__(self) -> None:
+        if self.loss not in ("l1", "l2"):
+            raise ConfigError(f"unknown loss '{self.loss}'; expected l1 or l2")
+        if self.degree is not None and self.degree not in DEGREES:
+            raise ConfigError(f"γ degree must be one of {DEGREES}, got {self.degree}")
+
+
 def fit_gamma(
     table: pd.DataFrame,
     sidecar: dict[str, Any] | None = None,
     tmap: ThrustMap | None = None,
+    options: GammaOptions | None = None,
     *,
-    loss: Loss = "l1",
-    degree: int | None = None,
-    degrees: tuple[int, ...] = DEGREES,
-    blocks: int = DEFAULT_BLOCKS,
-    voltage_bins: int = 6,
     rotors: int | None = None,
     allow_mixed: bool = False,
 ) -> GammaFit:
-    """Fit γ(B) on a Df (one or more flights); ``degree=None`` chooses it by held-out error,
-    among the degrees whose corrected map is no worse than the uncorrected one."""
+    """Fit γ(B) on a Df (one or more flights); ``options.degree=None`` chooses it by held-out
+    error, among the degrees whose corrected map is no worse than the uncorrected one."""
     side = sidecar or {}
-    if loss not in ("l1", "l2"):
-        raise ConfigError(f"unknown loss '{loss}'; expected l1 or l2")
-    if degree is not None and degree not in DEGREES:
-        raise ConfigError(f"γ degree must be one of {DEGREES}, got {degree}")
+    opts = options or GammaOptions()
+    loss, degree = opts.loss, opts.degree
     warnings: list[str] = []
     _check_pooling(side, allow_mixed, warnings)
     smp = _samples(table, side, tmap, rotors, degree, warnings)
     table = smp.table  # the rows with a battery voltage (all when the Df has none)
-    candidates = _candidates(smp, degree, degrees, warnings)
-    masks, how = _folds(smp.groups, smp.time_s, blocks)
+    candidates = _candidates(smp, degree, opts.degrees, warnings)
+    masks, how = _folds(smp.groups, smp.time_s, opts.blocks)
     heldout, heldout_se = _heldout_errors(smp, candidates, masks, loss)
     vbox = Box(float(smp.b.min()), float(smp.b.max()))
     if smp.no_voltage:  # γ is constant: its voltage box only records where it may be applied
@@ -256,7 +269,7 @@ def fit_gamma(
             None if smp.no_voltage else tmap,
             corr,
             smp.t_cmd[smp.ok],
-            voltage_bins,
+            opts.voltage_bins,
             rotors,
         )
 

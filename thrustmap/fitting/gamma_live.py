@@ -29,8 +29,9 @@ import numpy as np
 
 from thrustmap.core.errors import ThrustmapError
 from thrustmap.fitting.df.extraction import extract
-from thrustmap.fitting.df.options import G0, MIN_DF_SAMPLES, DfOptions
+from thrustmap.fitting.df.options import G0, MIN_DF_SAMPLES
 from thrustmap.fitting.df.table import Df
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.telemetry import Telemetry
 
 if TYPE_CHECKING:
@@ -145,10 +146,11 @@ class LiveGamma:
             st.why_not = f"{report.samples} Df samples so far; a γ fit needs {MIN_DF_SAMPLES}"
             return st
         table = df.table
-        from thrustmap.fitting.gamma import fit_gamma
+        from thrustmap.fitting.gamma import GammaOptions, fit_gamma
 
         try:
-            fit = fit_gamma(table, df.sources, self.tmap, loss="l1" if self.loss == "l1" else "l2")
+            how = GammaOptions(loss="l1" if self.loss == "l1" else "l2")
+            fit = fit_gamma(table, df.sources, self.tmap, how)
         except ThrustmapError as exc:
             st.why_not = str(exc)
             return st

@@ -135,10 +135,10 @@ def fit_pooled(
     """γ(B) on these Df files with ``gamma fit``'s rule, and the 95 % band of per-sample γ."""
     import numpy as np
 
-    from thrustmap.fitting.gamma import fit_gamma, thrust_command_n
+    from thrustmap.fitting.gamma import GammaOptions, fit_gamma, thrust_command_n
 
     table, side = read_pooled(df_paths, tmap)
-    fit = fit_gamma(table, side, tmap, loss="l1" if loss == "l1" else "l2", degree=None)
+    fit = fit_gamma(table, side, tmap, GammaOptions(loss="l1" if loss == "l1" else "l2"))
     volt = table["voltage_v"].to_numpy(float)
     known = np.isfinite(volt) & (volt > 0)
     band = None

@@ -65,7 +65,11 @@ def rules_fingerprint() -> str:
 
     h = hashlib.sha256()
     files: list[Path] = []
-    for name in ("thrustmap.fitting.df", "thrustmap.flightlogs"):
+    for name in (
+        "thrustmap.fitting.df",
+        "thrustmap.fitting.df_options",
+        "thrustmap.flightlogs",
+    ):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
             raise ConfigError(f"cannot find {name}")
@@ -372,7 +376,7 @@ def fleet_extract(
             log.warning("the previous fleet table is unreadable, every log is redone: %s", exc)
     tasks, reused = plan(paths, config, previous)
     if tasks:  # the options are checked once here, not once per log on the workers
-        from thrustmap.fitting.df.options import DfOptions
+        from thrustmap.fitting.df_options import DfOptions
 
         for opts in {json.dumps(t.df_options, sort_keys=True) for t in tasks}:
             DfOptions(**json.loads(opts))

@@ -286,7 +286,8 @@ def _extract(task: LogTask, out: Outcome) -> None:
 
     from thrustmap.fitting.df.dffile import write_df
     from thrustmap.fitting.df.extraction import extract, refusal_lines
-    from thrustmap.fitting.df.options import MIN_DF_SAMPLES, DfOptions
+    from thrustmap.fitting.df.options import MIN_DF_SAMPLES
+    from thrustmap.fitting.df_options import DfOptions
     from thrustmap.fitting.mapfile import ThrustMap
     from thrustmap.flightlogs.detect import read_log
 

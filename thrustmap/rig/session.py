@@ -33,6 +33,7 @@ import thrustmap.rig.devices.opening as opening
 import thrustmap.rig.devices.urls as devices_urls
 from thrustmap.core.clock import Clock, MonotonicClock, SimClock
 from thrustmap.core.errors import ConfigError
+from thrustmap.rig.devices.opening import StandEscSpec
 from thrustmap.rig.interfaces import Stand, ThrottleOutput
 from thrustmap.rig.interlocks import SPIN_MAX_THROTTLE_PCT, Limits
 from thrustmap.rig.plans import Plan
@@ -221,10 +222,7 @@ class BenchSession:
             self.clock,
             kind=rig.kind,
             baudrate=rig.baudrate if rig.stand is None else None,
-            motor=rig.motor,
-            calibration=rig.calibration,
-            line_preset=rig.line_preset,
-            line_spec_file=rig.line_spec,
+            stand_esc=StandEscSpec(rig.motor, rig.calibration, rig.line_preset, rig.line_spec),
             watchdog_log=rig.watchdog_log,
             signing_key=rig.signing_key,
         )

@@ -13,9 +13,9 @@ from thrustmap.fitting.df.options import (
     GROUND_HEIGHT_SPREAD_M,
     RANGE_COVERAGE,
     BoolArray,
-    DfOptions,
 )
 from thrustmap.fitting.df.resample import long_runs, mask_runs
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.series import FlightLog, FloatArray, nanmedian
 
 if TYPE_CHECKING:

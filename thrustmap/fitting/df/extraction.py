@@ -19,7 +19,6 @@ from thrustmap.fitting.df.options import (
     MIN_ACCEL_RATE_HZ,
     MIN_DF_SAMPLES,
     SATURATED_NORM,
-    DfOptions,
     FlightReport,
 )
 from thrustmap.fitting.df.resample import (
@@ -37,6 +36,7 @@ from thrustmap.fitting.df.thrust import (
     select_motors,
     thrust_from_motors,
 )
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.series import (
     FlightLog,
     FloatArray,

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from thrustmap.fitting.df.options import BoolArray, DfOptions, FilterStep
+from thrustmap.fitting.df.options import BoolArray, FilterStep
 from thrustmap.fitting.df.resample import bin_mean
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.flightlogs.series import FlightLog, FloatArray, Signal
 
 if TYPE_CHECKING:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,22 +31,33 @@ def _sha256(path: str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+@dataclass(frozen=True)
+class StandColumns:
+    """A stand log's columns, one value per row kept: throttle in the log's own scale, the rest
+    in SI units; the optional ones None when the log has none."""
+
+    throttle: FloatArray
+    thrust_n: FloatArray
+    voltage_v: FloatArray
+    time_s: FloatArray | None = None
+    current_a: FloatArray | None = None
+    rpm: FloatArray | None = None
+    step: IntArray | None = None  # the recorded plateau of each row (None: found from throttle)
+    settled: BoolArray | None = None
+
+
 def finish_dataset(
     table: Table,
     fmt: str,
     scale: ThrottleScale,
-    throttle: FloatArray,
-    thrust_n: FloatArray,
-    voltage_v: FloatArray,
+    cols: StandColumns,
     *,
-    time_s: FloatArray | None = None,
-    current_a: FloatArray | None = None,
-    rpm: FloatArray | None = None,
     rotors_on_esc: int | None = None,
     meta: dict[str, Any] | None = None,
-    step: IntArray | None = None,
-    settled: BoolArray | None = None,
 ) -> Dataset:
+    """The columns checked (voltage, thrust sign and size, one cell) into a Dataset."""
+    throttle, thrust_n, voltage_v = cols.throttle, cols.thrust_n, cols.voltage_v
+    time_s, current_a, step = cols.time_s, cols.current_a, cols.step
     meta = dict(meta or {})
     voltage_v = check_voltage(table, voltage_v, meta)
     if table.notes:
@@ -73,10 +84,10 @@ def finish_dataset(
         line=np.asarray(table.lines, dtype=np.int64),
         time_s=time_s,
         current_a=current_a,
-        rpm=rpm,
+        rpm=cols.rpm,
         rotors_on_esc=rotors_on_esc,
         step=step,
-        settled=settled,
+        settled=cols.settled,
         sha256=_sha256(table.path),
         meta=meta,
     )
@@ -185,16 +196,12 @@ def assemble(
     def opt(k: str, factor: float = 1.0) -> FloatArray | None:
         return None if k not in raw else raw[k][keep] * factor
 
-    return finish_dataset(
-        table,
-        fmt,
-        scale,
+    cols_kept = StandColumns(
         raw["throttle"][keep],
         raw["thrust"][keep] * thrust_factor,
         raw["voltage"][keep],
         time_s=opt("time"),
         current_a=opt("current", current_factor),
         rpm=opt("rpm"),
-        rotors_on_esc=rotors_on_esc,
-        meta=meta,
     )
+    return finish_dataset(table, fmt, scale, cols_kept, rotors_on_esc=rotors_on_esc, meta=meta)

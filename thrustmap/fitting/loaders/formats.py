@@ -18,7 +18,7 @@ from thrustmap.core.physical import (  # the physical ranges live in one place
 )
 from thrustmap.core.units import SCALES
 from thrustmap.fitting.dataset import SAMPLE_AND_HOLD, Dataset
-from thrustmap.fitting.loaders.assemble import assemble, finish_dataset
+from thrustmap.fitting.loaders.assemble import StandColumns, assemble, finish_dataset
 from thrustmap.fitting.loaders.table import (
     Table,
     column_values,
@@ -204,24 +204,20 @@ def _thrustmap_ds(table: Table) -> Dataset | None:
         )
     if "partial" in info:
         log.warning("%s: %s", table.path, info["partial"])
-    return finish_dataset(
-        table,
-        "thrustmap",
-        scale,
+    stand = StandColumns(
         cols.throttle_native,
         cols.thrust_n,
         cols.voltage_v,
         time_s=cols.time_s,
         current_a=cols.current_a,
         rpm=cols.rpm,
-        rotors_on_esc=rotors,
-        meta=info,
         # steps as recorded; none recorded (a hand-made log): plateaus from the throttle
         step=None
         if cols.step is None or not (cols.step >= 0).any()
         else np.where(cols.stopping, -1, cols.step),
         settled=cols.settled,
     )
+    return finish_dataset(table, "thrustmap", scale, stand, rotors_on_esc=rotors, meta=info)
 
 
 #: name -> (description, reader). Tried in this order; a reader returns None when the header

@@ -8,6 +8,7 @@ Below ``probe`` (which opens what it reports on) and the bench session (``rig.se
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from thrustmap.core.clock import Clock
@@ -65,16 +66,25 @@ def stand_esc_output(stand: Stand, motor: int = 0) -> ThrottleOutput:
     raise ConfigError(f"a {type(stand).__name__} cannot drive an ESC")
 
 
+@dataclass(frozen=True)
+class StandEscSpec:
+    """How to open a stand whose own ESC is the throttle output (``tyto-1585``,
+    ``line-stand``): the motor it drives, a Tyto 1585's load-cell ``calibration``, a line
+    stand's ``line_preset`` or ``line_spec_file`` (as ``open_stand`` takes them)."""
+
+    motor: int = 0
+    calibration: str | None = None
+    line_preset: str | None = None
+    line_spec_file: str | None = None
+
+
 def open_throttle_output(
     url: str,
     clock: Clock,
     *,
     kind: str | None = None,
     baudrate: int | None = None,
-    motor: int = 0,
-    calibration: str | None = None,
-    line_preset: str | None = None,
-    line_spec_file: str | None = None,
+    stand_esc: StandEscSpec | None = None,
     watchdog_log: str | None = None,
     signing_key: Any = None,
     **opts: Any,
@@ -90,8 +100,9 @@ def open_throttle_output(
 
     ``kind`` (see module) is detected when None. ``opts`` go to the driver's constructor
     (``MspThrottleOutput(timeout_s=, retries=)``) or to ``open_mavlink_output``. For a stand's
-    own ESC output (``tyto-1585``, ``line-stand``) ``motor`` is the motor it drives and the
-    returned output owns the stand (``.stand``; closing the output closes it).
+    own ESC output (``tyto-1585``, ``line-stand``) ``stand_esc`` says how to open the stand and
+    which motor it drives (default: motor 0, the stand as detected), and the returned output
+    owns the stand (``.stand``; closing the output closes it).
     """
     found = resolve(url, clock, kind, baudrate)
     drv = driver(found.kind)
@@ -109,17 +120,18 @@ def open_throttle_output(
         return drv.open_output(
             OpenRequest(url, clock, baudrate, firmware=found.firmware, opts=dict(opts))
         )
+    esc = stand_esc or StandEscSpec()
     stand = open_stand(
         url,
         clock,
         kind=found.kind,
-        calibration=calibration,
-        line_preset=line_preset or found.line_preset,
-        line_spec_file=line_spec_file,
+        calibration=esc.calibration,
+        line_preset=esc.line_preset or found.line_preset,
+        line_spec_file=esc.line_spec_file,
         baudrate=baudrate,
     )
     try:
-        return StandEscOutput(stand_esc_output(stand, motor), stand)
+        return StandEscOutput(stand_esc_output(stand, esc.motor), stand)
     except BaseException:
         stand.close()
         raise
