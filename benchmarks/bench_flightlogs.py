@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 from support import simulate_flight as simulate  # noqa: E402
 
 from thrustmap.fitting.df.extraction import extract  # noqa: E402
-from thrustmap.fitting.df.options import DfOptions  # noqa: E402
+from thrustmap.fitting.df_options import DfOptions  # noqa: E402
 from thrustmap.flightlogs import blackbox, dataflash, ulog  # noqa: E402
 from thrustmap.flightlogs.blackbox_decode import decode_file, decode_log_reference  # noqa: E402
 from thrustmap.flightlogs.blackbox_format import split_logs  # noqa: E402

@@ -13,8 +13,8 @@ from support import simulate_flight as sim
 
 from thrustmap.cli.flight import flightlog_group, gamma_group
 from thrustmap.core.errors import ConfigError, FitError
-from thrustmap.fitting.df import DfOptions
 from thrustmap.fitting.df.extraction import extract
+from thrustmap.fitting.df_options import DfOptions
 from thrustmap.fitting.gamma import GammaOptions, corrected_map, fit_gamma
 from thrustmap.fitting.mapfile import ThrustMap
 from thrustmap.flightlogs.detect import read_log
