@@ -27,6 +27,8 @@ CLAIMS = {
     "spin_sigkill": "motor test stop: thrustmap killed (SIGKILL), the firmware ends the test",
     "spin_lostlink": "motor test stop: the link cut both ways, the firmware ends the test",
     "spin_intruder": "locked link: a second sender stops the spin (exit 1), never answered",
+    "spin_intruder_missed": "locked link: a live run in which the second sender was never "
+    "answered but did NOT stop the spin (exit 0; kept as evidence, see README)",
 }
 KINDS = {
     ".jsonl": "thrustmap's record:// transcript (host and firmware bytes)",
@@ -44,6 +46,16 @@ def _entry(path: Path, fw: str, flight_log: str, binary: str) -> dict[str, Any]:
         "bytes": len(data),
         "sha256": hashlib.sha256(data).hexdigest(),
     }
+    if name.startswith("flight.logdf"):
+        entry["claim"] = "γ live on a flown hover vs gamma fit on the firmware's own log"
+        entry["command"] = FLIGHT.format(fw=fw, binary=binary, out="/work/build/flight/" + fw) + (
+            "; then python -m thrustmap flightlog extract <its .ulg> --map map.json --mass-kg 1.0"
+            " -o flight.logdf.csv"
+        )
+        entry["kind"] = (
+            "the Df flightlog extract took from the firmware's whole log (not committed)"
+        )
+        return entry
     if name.startswith("flight"):
         trim = {
             "flight.tlog": "trim_logs tlog live.tlog flight.tlog",
@@ -74,6 +86,9 @@ def main() -> None:
     ap.add_argument("--recorded", required=True, help="UTC date of the recording")
     ap.add_argument("--binary", required=True, help="the SITL binary, as recorded")
     ap.add_argument("--flight-log", default="")
+    ap.add_argument("--flight-log-df", default="", help="instead of the log: its Df (CSV)")
+    ap.add_argument("--log-sha256", default="", help="sha256 of the log behind --flight-log-df")
+    ap.add_argument("--log-bytes", type=int, default=0)
     ap.add_argument("--mass-kg", type=float, default=0.0)
     ap.add_argument("--gamma-tolerance", type=float, default=0.01)
     ap.add_argument("--min-voltage-span-v", type=float, default=0.05)
@@ -90,9 +105,12 @@ def main() -> None:
         },
         "recording": [_entry(p, a.fw, a.flight_log, a.binary) for p in files],
     }
-    if a.flight_log:
+    if a.flight_log or a.flight_log_df:
         manifest["flight"] = {
             "log": a.flight_log,
+            "log_df": a.flight_log_df,
+            "log_sha256": a.log_sha256,
+            "log_bytes": a.log_bytes,
             "mass_kg": a.mass_kg,
             "gamma_tolerance": a.gamma_tolerance,
             "min_voltage_span_v": a.min_voltage_span_v,

@@ -55,6 +55,69 @@ def wait_listening(port: int, timeout_s: float = 30) -> None:
         time.sleep(0.05)
 
 
+#: frames due together go out in datagrams of at most this many bytes, as PX4 and ArduPilot
+#: fill theirs (one datagram per frame floods the listener on a 20 kB/s PX4 stream)
+DATAGRAM_BYTES = 1400
+
+
+def _datagrams(frames: list[bytes]) -> list[bytes]:
+    out: list[bytes] = []
+    for frame in frames:
+        if out and len(out[-1]) + len(frame) <= DATAGRAM_BYTES:
+            out[-1] += frame
+        else:
+            out.append(frame)
+    return out
+
+
+COMMAND_ACK = 77  # answers: the message-level replay times them (the stream is held here)
+
+
+def _msgid(frame: bytes) -> int:
+    if frame[:1] == b"\xfd":
+        return int.from_bytes(frame[7:10], "little")
+    return frame[5]
+
+
+def _frames_after_first_stop(transcript: Transcript) -> dict[bytes, float]:
+    """The firmware's frames recorded after the host's first stop after its last run command,
+    each with its delay after that stop (empty: no such stop)."""
+    split = MavlinkProtocol().split
+    codec = mav.MavlinkCodec()
+    first_stop = None  # the first stop after the last run command
+    for event in transcript.events:
+        if event.direction != "w":
+            continue
+        for msg in codec.feed(event.data):
+            if msg.get_type() != "COMMAND_LONG":
+                continue
+            cmd = mav.CommandLong.from_message(msg)
+            if cmd.command not in MOTOR_COMMANDS:
+                continue
+            if not is_stop(cmd):
+                first_stop = None
+            elif first_stop is None:
+                first_stop = event.time_s
+    if first_stop is None:
+        return {}
+    reads = [e for e in transcript.events if e.direction == "r"]
+    stream = b"".join(e.data for e in reads)  # frames may span read calls
+    ends, end = [], 0
+    for e in reads:
+        end += len(e.data)
+        ends.append((end, e.time_s))
+    delays: dict[bytes, float] = {}
+    pos, i = 0, 0
+    for frame in split(stream)[0]:
+        pos = stream.index(frame, pos)
+        while ends[i][0] <= pos:
+            i += 1
+        if ends[i][1] > first_stop:
+            delays.setdefault(frame, ends[i][1] - first_stop)
+        pos += len(frame)
+    return delays
+
+
 class ReplayPeer:
     def __init__(self, transcript: Transcript, port: int) -> None:
         """Starts serving once ``port`` is bound (the recording began with the vehicle's first
@@ -67,6 +130,8 @@ class ReplayPeer:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
+        self._after_stop = _frames_after_first_stop(transcript)
+        self._held: list[bytes] = []
         self.received = bytearray()  # everything the CLI sent
         self.commands: list[tuple[float, mav.CommandLong]] = []
         self.silent = False
@@ -91,10 +156,37 @@ class ReplayPeer:
             if self.silent:
                 continue
             waiting = self.serial.in_waiting
-            if waiting:
-                frames, _ = split(self.serial.read(waiting))
-                for frame in frames:
-                    self.sock.sendto(frame, ("127.0.0.1", self.port))
+            frames = split(self.serial.read(waiting))[0] if waiting else []
+            for datagram in _datagrams(self._causal(frames)):  # held ones come due too
+                self.sock.sendto(datagram, ("127.0.0.1", self.port))
+
+    def _causal(self, frames: list[bytes]) -> list[bytes]:
+        """What the firmware sent after the first stop it was sent is never served before the
+        CLI's own first stop, and then with its recorded delay after it (the replay's clock
+        alone would let a late CLI see the motor idle before it stopped it). Answers
+        (COMMAND_ACK) are left to the message-level replay."""
+        out: list[bytes] = []
+        for frame in frames:
+            held = frame in self._after_stop and _msgid(frame) != COMMAND_ACK
+            (self._held if held else out).append(frame)
+        stop_s = self._first_stop_after_run()
+        if stop_s is not None and self._held:
+            since_s = time.monotonic() - self._t0 - stop_s
+            due = [f for f in self._held if self._after_stop[f] <= since_s]
+            self._held = [f for f in self._held if self._after_stop[f] > since_s]
+            out += due
+        return out
+
+    def _first_stop_after_run(self) -> float | None:
+        first = None
+        for t, cmd in self.commands:
+            if cmd.command not in MOTOR_COMMANDS:
+                continue
+            if not is_stop(cmd):
+                first = None
+            elif first is None:
+                first = t
+        return first
 
     def _take(self, data: bytes) -> None:
         self.serial.write(data)

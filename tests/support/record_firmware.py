@@ -233,6 +233,7 @@ def run_spin(name: str, out: Path, monitor: Monitor, relay: Relay, way: str) -> 
             monitor.wait("the motor turning", lambda m: max(m.servo[:4]) > idle + 20, 60)
             time.sleep(1.0)
             result["motor_turning_us"] = max(monitor.servo[:4])
+            result["acted_unix_s"] = time.time()  # the monitor .tlog's clock
             if way in ("sigint", "sigterm", "sigkill"):
                 sig = {
                     "sigint": signal.SIGINT,
