@@ -373,5 +373,6 @@ def test_gamma_live_matches_gamma_fit_on_the_firmwares_own_log(fw: str, tmp_path
     live = np.polynomial.polynomial.polyval(b, g_live)
     fit = np.polynomial.polynomial.polyval(b, g_log)
     rel = float(np.max(np.abs(live / fit - 1)))
+    print(f"{fw}: gamma live {g_live} vs gamma fit on the firmware's log {g_log}: {rel:.3%}")
     assert math.isfinite(rel) and rel <= info["gamma_tolerance"], (rel, g_live, g_log)
     assert np.all(np.abs(live - 1) > 0.005), "γ corrects nothing: the check would be empty"
