@@ -1,5 +1,7 @@
 """`gamma live` on real SITL flights (skipped unless the SITL binaries are given).
 
+CI replays a recorded flight of each instead (fixtures/firmware/, tests/test_firmware_recordings.py).
+
 THRUSTMAP_ARDUPILOT_SITL = an ArduCopter SITL binary (<tree>/build/sitl/bin/arducopter; the
 defaults come from <tree>/Tools/autotest/default_params/copter.parm); THRUSTMAP_PX4_SITL = a
 PX4 SITL binary (<build>/bin/px4, flown as SIH quadx). tests/support/sitl_flight.py flies takeoff,

@@ -1,6 +1,7 @@
 """Issue 36 on REAL firmware: ArduCopter SITL (and PX4 SITL, SIH quadx).
 
 Skipped unless the binaries are given (CI has none):
+CI replays recordings of these runs instead (fixtures/firmware/, tests/test_firmware_recordings.py).
 - ``THRUSTMAP_ARDUPILOT_SITL``: the ``arducopter`` SITL binary (``build/sitl/bin/arducopter``);
   its defaults file is ``Tools/autotest/default_params/copter.parm`` of the same tree, or
   ``THRUSTMAP_ARDUPILOT_DEFAULTS``.
