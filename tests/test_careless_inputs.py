@@ -979,3 +979,89 @@ def test_44_a_fleet_names_a_log_copied_under_two_names(
     assert len(group.df_paths) == 1 and group.samples == 100
     assert "a/flight.ulg and b/flight-copy.ulg are the same content" in caplog.text
     assert "counted once" in caplog.text
+
+
+# --- wave 5 (branch unseen): careless inputs nobody had tried ------------------------------
+
+
+@pytest.fixture(scope="module")
+def work_unseen(work: dict[str, str]) -> dict[str, str]:
+    tmp = Path(work["tmp"]) / "unseen"
+    tmp.mkdir()
+    for name in ("msp_run.csv", "msp_run.meta.json"):  # a recording, as `sweep` leaves it
+        shutil.copy(FIXTURES / "sweeps" / name, tmp / name)
+    shutil.copy(FL / "sim_hover.ulg", tmp / "flight.ulg")
+    _step_summary(tmp / "other_tool.csv", 11.1)  # another tool's stand log (no sidecar)
+    return {**work, "u": str(tmp)}
+
+
+ROWS_UNSEEN = [
+    Row(
+        "an export written over a recorded stand log",
+        "export {map} --to px4 -o {u}/msp_run.csv",
+        2,
+        "recorded data is never replaced",
+    ),
+    Row(
+        "a Df written over a recorded stand log",
+        "flightlog extract {ulg} --mass-kg 1.5 -o {u}/msp_run.csv",
+        2,
+        "would overwrite a recorded stand log",
+    ),
+    Row(
+        "a map written over a flight log",
+        "fit {run} -o {u}/flight.ulg",
+        2,
+        "would overwrite a flight log",
+    ),
+    Row(
+        "a report written over another tool's stand log",
+        "report {map} {run} -o {u}/other_tool.csv",
+        2,
+        "a CSV that is not a Df thrustmap wrote",
+    ),
+    Row(
+        "export --range in percent for PWM µs",
+        "export {map} --to pwm --range 0:100",
+        2,
+        "outside what pwm can be on the wire",
+    ),
+    Row(
+        "export --range in milliseconds for PWM µs",
+        "export {map} --to pwm --range 1.1:1.94",
+        2,
+        "is it in another unit?",
+    ),
+    Row(
+        "export --range as a fraction for percent",
+        "export {map} --to percent --range 0:1",
+        2,
+        "under a quarter of percent's 0:100",
+    ),
+    Row(
+        "export --range in percent for DShot",
+        "export {map} --to dshot --range 0:100",
+        2,
+        "under a quarter of dshot's 48:2047",
+    ),
+    Row(
+        "export --range PWM µs for OneShot125",
+        "export {map} --to oneshot125 --range 1000:2000",
+        2,
+        "outside what oneshot125 can be on the wire",
+    ),
+]
+
+
+@pytest.mark.parametrize("row", ROWS_UNSEEN, ids=[r.name for r in ROWS_UNSEEN])
+def test_careless_input_unseen(row: Row, work_unseen: dict[str, str]) -> None:
+    test_careless_input(row, work_unseen)
+    if row.code == 2 and "{u}/" in row.argv:  # the file refused as an output is unchanged
+        target = Path(_argv(row, work_unseen)[-1])
+        if target.name in ("msp_run.csv", "flight.ulg"):
+            source = (
+                FIXTURES / "sweeps" / "msp_run.csv"
+                if target.suffix == ".csv"
+                else FL / "sim_hover.ulg"
+            )
+            assert target.read_bytes() == source.read_bytes()
