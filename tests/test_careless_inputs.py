@@ -1050,6 +1050,68 @@ ROWS_UNSEEN = [
         2,
         "outside what oneshot125 can be on the wire",
     ),
+    Row(
+        "a sweep of 0.001 % steps (50,001 levels, 42 h)",
+        "sweep stairs-up --stand sim://tyto-1585 --step 0.001 --dry-run -o {u}/s1.csv",
+        2,
+        "a sweep is at most 5,000 segments and 4 h",
+    ),
+    Row(
+        "a sweep repeated a million times (never built)",
+        "sweep steps --stand sim://tyto-1585 --repeats 1000000 --dry-run -o {u}/s2.csv",
+        2,
+        "20,000,001 segments",
+    ),
+    Row(
+        "a dwell of 1e9 s",
+        "sweep stairs-up --stand sim://tyto-1585 --dwell 1e9 --dry-run -o {u}/s3.csv",
+        2,
+        "check --step, --dwell",
+    ),
+    Row(
+        "a ramp of 1e12 s",
+        "sweep ramp --stand sim://tyto-1585 --duration 1e12 --dry-run -o {u}/s4.csv",
+        2,
+        "plan 'ramp' would be 4 segments",
+    ),
+    Row(
+        "explicit levels typed as fractions",
+        "sweep explicit --stand sim://tyto-1585 --levels 0.1,0.2,0.3 --dry-run -o {u}/s5.csv",
+        2,
+        "fractions? 0.3 is 30 %",
+    ),
+    Row(
+        "a thrust limit in grams",
+        "sweep stairs-up --stand sim://tyto-1585 --max-thrust 20000 --dry-run -o {u}/s6.csv",
+        2,
+        "grams typed as newtons?",
+    ),
+    Row(
+        "a current limit in milliamps",
+        "spin sim://betaflight --motor 1 --throttle 10 --max-current 60000 --yes",
+        2,
+        "milliamps typed as amperes?",
+        absent="spinning",
+    ),
+    Row(
+        "a temperature limit in °F, or none",
+        "sweep stairs-up --stand sim://tyto-1585 --max-temp 2000 --dry-run -o {u}/s7.csv",
+        2,
+        "at most 200 °C",
+    ),
+    Row(
+        "a stand watchdog in milliseconds",
+        "sweep stairs-up --stand sim://tyto-1585 --stale-s 500 --dry-run -o {u}/s8.csv",
+        2,
+        "--stale-s 500 s: at most 60 s",
+    ),
+    Row(
+        "a negative spin limit is refused before anything opens",
+        "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
+        2,
+        "--max-current -5: expected a number > 0",
+        absent="spinning",
+    ),
 ]
 
 
