@@ -992,6 +992,10 @@ def work_unseen(work: dict[str, str]) -> dict[str, str]:
         shutil.copy(FIXTURES / "sweeps" / name, tmp / name)
     shutil.copy(FL / "sim_hover.ulg", tmp / "flight.ulg")
     _step_summary(tmp / "other_tool.csv", 11.1)  # another tool's stand log (no sidecar)
+    lines = (FIXTURES / "sweeps" / "msp_run.csv").read_text().splitlines()
+    body = lines[1:]
+    np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
+    (tmp / "shuffled.csv").write_text("\n".join([lines[0], *body]) + "\n")
     return {**work, "u": str(tmp)}
 
 
@@ -1104,6 +1108,13 @@ ROWS_UNSEEN = [
         "sweep stairs-up --stand sim://tyto-1585 --stale-s 500 --dry-run -o {u}/s8.csv",
         2,
         "--stale-s 500 s: at most 60 s",
+    ),
+    Row(
+        "a stand log whose rows are out of time order",
+        "fit {u}/shuffled.csv -o {u}/m.json",
+        2,
+        "time goes backwards",
+        absent="never leaves the load cell's noise",
     ),
     Row(
         "a negative spin limit is refused before anything opens",
