@@ -1117,6 +1117,12 @@ ROWS_UNSEEN = [
         absent="never leaves the load cell's noise",
     ),
     Row(
+        "evaluate with the log and the map swapped",
+        "evaluate {run} {map}",
+        2,
+        "a CSV, e.g. a stand log or a Df, not a JSON file",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,
