@@ -992,6 +992,7 @@ def work_unseen(work: dict[str, str]) -> dict[str, str]:
         shutil.copy(FIXTURES / "sweeps" / name, tmp / name)
     shutil.copy(FL / "sim_hover.ulg", tmp / "flight.ulg")
     _step_summary(tmp / "other_tool.csv", 11.1)  # another tool's stand log (no sidecar)
+    assert _run(["export", work["map"], "--to", "px4", "-o", str(tmp / "px4.params")])[0] == 0
     lines = (FIXTURES / "sweeps" / "msp_run.csv").read_text().splitlines()
     body = lines[1:]
     np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
@@ -1121,6 +1122,26 @@ ROWS_UNSEEN = [
         "evaluate {run} {map}",
         2,
         "a CSV, e.g. a stand log or a Df, not a JSON file",
+    ),
+    Row(
+        "compare with an empty --models",
+        "compare {run} --models ~",
+        2,
+        "names no model",
+    ),
+    Row(
+        "gamma fit on an export's text",
+        "gamma fit {u}/px4.params --map {map} -o {u}/g.json",
+        2,
+        "do not form one table",
+        absent="tokeniz",
+    ),
+    Row(
+        "a record longer than the settling hold",
+        "sweep stairs-up --stand sim://tyto-1585 --settle --record 100 --dwell 2 --dry-run "
+        "-o {u}/s9.csv",
+        2,
+        "it could never be recorded",
     ),
     Row(
         "a negative spin limit is refused before anything opens",
