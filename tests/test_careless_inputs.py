@@ -1144,6 +1144,12 @@ ROWS_UNSEEN = [
         "it could never be recorded",
     ),
     Row(
+        "gamma fit with a rotor count the Df's log contradicts",
+        "gamma fit {tmp}/df.csv --map {map} --rotors 6 -o {u}/g6.json",
+        2,
+        "--rotors 6, but the Df's logs record 4 rotors",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,
