@@ -993,6 +993,10 @@ def work_unseen(work: dict[str, str]) -> dict[str, str]:
     shutil.copy(FL / "sim_hover.ulg", tmp / "flight.ulg")
     _step_summary(tmp / "other_tool.csv", 11.1)  # another tool's stand log (no sidecar)
     assert _run(["export", work["map"], "--to", "px4", "-o", str(tmp / "px4.params")])[0] == 0
+    doc = json.loads((FL / "sim_map.json").read_text())  # the same motor measured on 1S
+    doc["validity"]["voltage_v"] = [3.4, 4.2]
+    doc["coefficients"] = [c / 6.0 if i else c for i, c in enumerate(doc["coefficients"])]
+    (tmp / "one_cell_map.json").write_text(json.dumps(doc))
     lines = (FIXTURES / "sweeps" / "msp_run.csv").read_text().splitlines()
     body = lines[1:]
     np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
@@ -1148,6 +1152,12 @@ ROWS_UNSEEN = [
         "gamma fit {tmp}/df.csv --map {map} --rotors 6 -o {u}/g6.json",
         2,
         "--rotors 6, but the Df's logs record 4 rotors",
+    ),
+    Row(
+        "a flight on another pack than the map's (a 1S map for a 6S flight)",
+        "flightlog extract {ulg} --mass-kg 0.03 --map {u}/one_cell_map.json -o {u}/d1s.csv",
+        2,
+        "the flight's battery reads 6S",
     ),
     Row(
         "a negative spin limit is refused before anything opens",

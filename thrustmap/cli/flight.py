@@ -252,6 +252,7 @@ def extract_cmd(
         raise
     if tmap is not None:
         _check_hover(df.sources, tmap, force)
+        _check_pack(df.sources, df.table["voltage_v"].to_numpy(float), tmap, force)
     df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
     if isinstance(df.sources.get("map"), dict):
         df.sources["map"]["path"] = str(map_path)
@@ -287,6 +288,32 @@ def extract_cmd(
         f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
     )
+
+
+def _check_pack(side: dict[str, Any], voltage_v: Any, tmap: Any, force: bool) -> None:
+    """The flown battery's cell count against the map's (``physical.flight_against_map_pack``,
+    over the middle 90 % of the Df's voltages): refused unless ``force``, which is logged and
+    recorded in the sidecar (``forced``)."""
+    import logging
+
+    import numpy as np
+
+    from thrustmap.core.physical import flight_against_map_pack
+
+    v = voltage_v[np.isfinite(voltage_v)]
+    if not v.size:
+        return
+    lo, hi = (float(x) for x in np.percentile(v, [5, 95]))
+    box = tmap.validity.voltage_v
+    why = flight_against_map_pack(lo, hi, box.lo, box.hi)
+    if why is None:
+        return
+    if not force:
+        raise ConfigError(f"--map: {why}; nothing written (--force extracts anyway)")
+    logging.getLogger("thrustmap.cli").warning(
+        "forced (--force), recorded in the Df sidecar: %s", why
+    )
+    side["forced"] = [*side.get("forced", []), why]
 
 
 def _check_hover(side: dict[str, Any], tmap: Any, force: bool) -> None:

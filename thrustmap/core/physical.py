@@ -203,6 +203,24 @@ def target_cells_problem(lo_v: float, hi_v: float, target: str) -> str | None:
     )
 
 
+def flight_against_map_pack(
+    flown_lo_v: float, flown_hi_v: float, map_lo_v: float, map_hi_v: float
+) -> str | None:
+    """Why a flight whose battery read ``flown_lo_v..flown_hi_v`` cannot have flown the motor a
+    map measured at ``map_lo_v..map_hi_v`` (the two are packs of other cell counts: a 4S quad's
+    log through a 6S map has its thrust command read from another motor's map, and the γ fitted
+    to that, ~0.6, lies inside the γ band); None when they agree or a count cannot be read."""
+    flown = cells_from_voltage(flown_lo_v, flown_hi_v)
+    measured = cells_from_voltage(map_lo_v, map_hi_v)
+    if flown is None or measured is None or flown == measured:
+        return None
+    return (
+        f"the flight's battery reads {flown}S ({flown_lo_v:.2f}..{flown_hi_v:.2f} V) but the "
+        f"map was measured on a {measured}S pack ({map_lo_v:.2f}..{map_hi_v:.2f} V): its thrust "
+        "would be another motor's; the wrong map?"
+    )
+
+
 def voltage_against_pack(voltage_v: float, lo_v: float, hi_v: float) -> str | None:
     """Why ``voltage_v`` is not a voltage of the pack a map was measured on (``lo_v..hi_v``)
     but one cell of it, or the whole pack of a per-cell map; None when it is neither."""
