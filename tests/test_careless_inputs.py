@@ -1160,6 +1160,12 @@ ROWS_UNSEEN = [
         "the flight's battery reads 6S",
     ),
     Row(
+        "gamma fit of a 6S flight against a 1S map",
+        "gamma fit {tmp}/df.csv --map {u}/one_cell_map.json -o {u}/g1s.json",
+        2,
+        "but the map was measured on a 1S pack",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,

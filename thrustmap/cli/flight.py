@@ -252,7 +252,9 @@ def extract_cmd(
         raise
     if tmap is not None:
         _check_hover(df.sources, tmap, force)
-        _check_pack(df.sources, df.table["voltage_v"].to_numpy(float), tmap, force)
+        why = _check_pack(df.table["voltage_v"], tmap, force, nothing="nothing written")
+        if why is not None:
+            df.sources["forced"] = [*df.sources.get("forced", []), why]
     df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
     if isinstance(df.sources.get("map"), dict):
         df.sources["map"]["path"] = str(map_path)
@@ -290,30 +292,29 @@ def extract_cmd(
     )
 
 
-def _check_pack(side: dict[str, Any], voltage_v: Any, tmap: Any, force: bool) -> None:
+def _check_pack(voltage_v: Any, tmap: Any, force: bool, *, nothing: str) -> str | None:
     """The flown battery's cell count against the map's (``physical.flight_against_map_pack``,
-    over the middle 90 % of the Df's voltages): refused unless ``force``, which is logged and
-    recorded in the sidecar (``forced``)."""
+    over the middle 90 % of the Df's voltages): refused unless ``force``; a forced one is
+    logged and returned, for the caller to record (``forced``)."""
     import logging
 
     import numpy as np
 
     from thrustmap.core.physical import flight_against_map_pack
 
-    v = voltage_v[np.isfinite(voltage_v)]
+    v = np.asarray(voltage_v, float)
+    v = v[np.isfinite(v)]
     if not v.size:
-        return
+        return None
     lo, hi = (float(x) for x in np.percentile(v, [5, 95]))
     box = tmap.validity.voltage_v
     why = flight_against_map_pack(lo, hi, box.lo, box.hi)
     if why is None:
-        return
+        return None
     if not force:
-        raise ConfigError(f"--map: {why}; nothing written (--force extracts anyway)")
-    logging.getLogger("thrustmap.cli").warning(
-        "forced (--force), recorded in the Df sidecar: %s", why
-    )
-    side["forced"] = [*side.get("forced", []), why]
+        raise ConfigError(f"--map: {why}; {nothing} (--force goes on anyway)")
+    logging.getLogger("thrustmap.cli").warning("forced (--force), recorded: %s", why)
+    return why
 
 
 def _check_hover(side: dict[str, Any], tmap: Any, force: bool) -> None:
@@ -403,6 +404,7 @@ def gamma_fit_cmd(
     plan = check_output_path(output, inputs=inputs, what="map output")
     tmap = ThrustMap.load(map_path)
     table, side = pool_dfs(dfs, tmap, str(map_path))  # repeats and another map refused
+    pack = _check_pack(table["voltage_v"], tmap, force, nothing="nothing written")
     fit = fit_gamma(
         table,
         side,
@@ -414,6 +416,7 @@ def gamma_fit_cmd(
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
     forced = check_physical(fit, force=force)  # refused unless --force (logged, recorded)
+    forced = [*forced, *([pack] if pack else [])]
     out_map = corrected_map(tmap, fit, sources, forced=forced)
     atomic_write_text(output, out_map.dumps())
     if as_json:
