@@ -1001,7 +1001,7 @@ def work_unseen(work: dict[str, str]) -> dict[str, str]:
     body = lines[1:]
     np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
     (tmp / "shuffled.csv").write_text("\n".join([lines[0], *body]) + "\n")
-    return {**work, "u": str(tmp)}
+    return {**work, "u": str(tmp), "fl": str(FL)}
 
 
 ROWS_UNSEEN = [
@@ -1009,7 +1009,7 @@ ROWS_UNSEEN = [
         "an export written over a recorded stand log",
         "export {map} --to px4 -o {u}/msp_run.csv",
         2,
-        "recorded data is never replaced",
+        "recorded data is never overwritten",
     ),
     Row(
         "a Df written over a recorded stand log",
@@ -1166,6 +1166,13 @@ ROWS_UNSEEN = [
         "but the map was measured on a 1S pack",
     ),
     Row(
+        "gamma live with the mass in grams writes no map",
+        "gamma live replay://{fl}/live_hover.tlog --map {map} --mass-kg 1500 -o {u}/gl.json",
+        0,
+        "γ not determined (γ(B) reaches",
+        absent="), map ",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,
@@ -1178,6 +1185,8 @@ ROWS_UNSEEN = [
 @pytest.mark.parametrize("row", ROWS_UNSEEN, ids=[r.name for r in ROWS_UNSEEN])
 def test_careless_input_unseen(row: Row, work_unseen: dict[str, str]) -> None:
     test_careless_input(row, work_unseen)
+    if row.argv.startswith("gamma live"):  # a γ outside the band is never written as a map
+        assert not Path(work_unseen["u"], "gl.json").exists()
     if row.code == 2 and "{u}/" in row.argv:  # the file refused as an output is unchanged
         target = Path(_argv(row, work_unseen)[-1])
         if target.name in ("msp_run.csv", "flight.ulg"):

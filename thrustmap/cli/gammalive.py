@@ -418,7 +418,7 @@ def _finish(
     import json
 
     from thrustmap.fitting.df import read_df, write_df
-    from thrustmap.fitting.gamma import corrected_map, fit_gamma
+    from thrustmap.fitting.gamma import check_physical, corrected_map, fit_gamma
     from thrustmap.fitting.mapfile import file_sha256
     from thrustmap.fitting.mapfile import gamma_text as formula
 
@@ -439,7 +439,10 @@ def _finish(
         # the final fit reads the Df back as `gamma fit` does: the same numbers as running it
         table, side = read_df(df_path)
         try:
-            fit = fit_gamma(table, side, live.tmap, loss="l1" if live.loss == "l1" else "l2")
+            tried = fit_gamma(table, side, live.tmap, loss="l1" if live.loss == "l1" else "l2")
+            if tried.corrected:  # the γ band and the Df length, as `gamma fit` applies them
+                check_physical(tried)
+            fit = tried
         except Exception as exc:  # a refusal of the fit is reported, never lost
             gamma_text = f"γ not determined ({exc}): no corrected map written"
     if fit is not None and fit.corrected:

@@ -103,7 +103,7 @@ def check_output_path(
             )
     if not renamed and (kind := recorded_data(p)) is not None:
         raise ConfigError(
-            f"{what} would overwrite {kind}; recorded data is never replaced: choose another name",
+            f"{what} would overwrite {kind}; recorded data is never overwritten: choose another name",
             file=str(p),
         )
     return OutputPlan(path=p, replaced=p.exists())
