@@ -1173,6 +1173,24 @@ ROWS_UNSEEN = [
         absent="), map ",
     ),
     Row(
+        "compare with a voltage range in millivolts (was an internal error)",
+        "compare {run} --voltage-range 20000:26000",
+        2,
+        "no point is left after selection",
+    ),
+    Row(
+        "evaluate with a range that keeps nothing (was a table of n=0, exit 0)",
+        "evaluate {map} {run} --voltage-range 20000:26000",
+        2,
+        "--voltage-range in V, not mV",
+    ),
+    Row(
+        "fit with a throttle range in percent on a µs log",
+        "fit {run} --throttle-range 10:60 -o {u}/m.json",
+        2,
+        "not %",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,

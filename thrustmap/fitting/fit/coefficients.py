@@ -61,7 +61,18 @@ def pool(datasets: Sequence[Dataset], selection: Selection) -> Pool:
     )
 
 
+#: what is said when selection leaves no point (steady points were found, else that was
+#: refused earlier: the range options left none)
+NO_POINT_LEFT = (
+    "no point is left after selection: do the range options hold the data? "
+    "(--throttle-range is in the log's native units, e.g. 1100:1900 µs, not %; "
+    "--voltage-range in V, not mV; --thrust-range in N)"
+)
+
+
 def check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> None:
+    if len(t) == 0:
+        raise FitError(NO_POINT_LEFT, file=where)
     if len(t) < model.n_coefficients:
         raise FitError(
             f"{len(t)} points after selection cannot determine the {model.n_coefficients} "
