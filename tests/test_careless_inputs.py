@@ -1001,6 +1001,8 @@ def work_unseen(work: dict[str, str]) -> dict[str, str]:
     body = lines[1:]
     np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
     (tmp / "shuffled.csv").write_text("\n".join([lines[0], *body]) + "\n")
+    held = [",".join([r.split(",")[0], "1500", *r.split(",")[2:]]) for r in lines[1:]]
+    (tmp / "one_level.csv").write_text("\n".join([lines[0], *held]) + "\n")  # not the command
     return {**work, "u": str(tmp), "fl": str(FL)}
 
 
@@ -1189,6 +1191,12 @@ ROWS_UNSEEN = [
         "fit {run} --throttle-range 10:60 -o {u}/m.json",
         2,
         "not %",
+    ),
+    Row(
+        "a stand log whose throttle column holds one value (fitted 0.000 %, exit 0)",
+        "fit {u}/one_level.csv -o {u}/m1l.json",
+        2,
+        "every point is at one throttle (50.0 %)",
     ),
     Row(
         "a negative spin limit is refused before anything opens",

@@ -61,6 +61,9 @@ def pool(datasets: Sequence[Dataset], selection: Selection) -> Pool:
     )
 
 
+#: pooled points spanning less throttle than this (% of the scale) are one level: no map
+MIN_THROTTLE_SPAN_PCT = 1.0
+
 #: what is said when selection leaves no point (steady points were found, else that was
 #: refused earlier: the range options left none)
 NO_POINT_LEFT = (
@@ -70,9 +73,20 @@ NO_POINT_LEFT = (
 )
 
 
-def check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> None:
+def check_fit_data(
+    model: Model, t: FloatArray, b: FloatArray, where: str, th: FloatArray | None = None
+) -> None:
+    """Refuse data that cannot determine ``model``: no point, fewer points than coefficients,
+    one throttle level (``th``, % of the scale), one voltage for a surface in voltage."""
     if len(t) == 0:
         raise FitError(NO_POINT_LEFT, file=where)
+    if th is not None and float(np.ptp(th)) < MIN_THROTTLE_SPAN_PCT:
+        raise FitError(
+            f"every point is at one throttle ({float(np.mean(th)):.1f} %): a map needs several "
+            "levels (a sweep); is the throttle column the command? (a log held at one level "
+            "can be scored with `thrustmap evaluate`, not fitted)",
+            file=where,
+        )
     if len(t) < model.n_coefficients:
         raise FitError(
             f"{len(t)} points after selection cannot determine the {model.n_coefficients} "
@@ -112,7 +126,7 @@ def identify_coefficients(
 ) -> tuple[FloatArray, Identification | None]:
     """Coefficients and how they were identified (which were set by physics, and why);
     ``groups``: each point's file (a model that weighs its points weighs each file's own)."""
-    check_fit_data(model, t, b, where)
+    check_fit_data(model, t, b, where, th)
     coef, ident = model.identify(t, b, th, loss, groups)
     if not np.all(np.isfinite(coef)):
         raise FitError(

@@ -180,7 +180,7 @@ def validate(
         t, b, th = data.take(train)
         tt, bt, tht = data.take(test)
         if fast:
-            check_fit_data(m, t, b, f"{model} {validation} fold")
+            check_fit_data(m, t, b, f"{model} {validation} fold", th)
             dt = design[test]
             if weighted:
                 w = np.zeros(n)
