@@ -77,16 +77,10 @@ def check_fit_data(
     model: Model, t: FloatArray, b: FloatArray, where: str, th: FloatArray | None = None
 ) -> None:
     """Refuse data that cannot determine ``model``: no point, fewer points than coefficients,
-    one throttle level (``th``, % of the scale), one voltage for a surface in voltage."""
+    one voltage for a surface in voltage, one thrust level, one throttle level (``th``, % of
+    the scale: thrust that moves while the command does not)."""
     if len(t) == 0:
         raise FitError(NO_POINT_LEFT, file=where)
-    if th is not None and float(np.ptp(th)) < MIN_THROTTLE_SPAN_PCT:
-        raise FitError(
-            f"every point is at one throttle ({float(np.mean(th)):.1f} %): a map needs several "
-            "levels (a sweep); is the throttle column the command? (a log held at one level "
-            "can be scored with `thrustmap evaluate`, not fitted)",
-            file=where,
-        )
     if len(t) < model.n_coefficients:
         raise FitError(
             f"{len(t)} points after selection cannot determine the {model.n_coefficients} "
@@ -101,6 +95,13 @@ def check_fit_data(
         )
     if np.ptp(t) <= 0:
         raise FitError("all points at one thrust level; need several throttle levels", file=where)
+    if th is not None and float(np.ptp(th)) < MIN_THROTTLE_SPAN_PCT:
+        raise FitError(
+            f"every point is at one throttle ({float(np.mean(th)):.1f} %): a map needs several "
+            "levels (a sweep); is the throttle column the command? (a log held at one level "
+            "can be scored with `thrustmap evaluate`, not fitted)",
+            file=where,
+        )
 
 
 def fit_coefficients(
