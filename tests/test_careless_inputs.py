@@ -1199,6 +1199,13 @@ ROWS_UNSEEN = [
         "every point is at one throttle (50.0 %)",
     ),
     Row(
+        "a spin whose ramp outlasts it",
+        "spin sim://betaflight --motor 1 --throttle 10 --ramp 60 --seconds 2 --yes",
+        2,
+        "would reach only 0.333 % of the 10 % asked",
+        absent="spinning",
+    ),
+    Row(
         "a negative spin limit is refused before anything opens",
         "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
         2,
