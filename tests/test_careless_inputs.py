@@ -988,3 +988,253 @@ def test_44_a_fleet_names_a_log_copied_under_two_names(
     assert len(group.df_paths) == 1 and group.samples == 100
     assert "a/flight.ulg and b/flight-copy.ulg are the same content" in caplog.text
     assert "counted once" in caplog.text
+
+
+# --- wave 5 (branch unseen): careless inputs nobody had tried ------------------------------
+
+
+@pytest.fixture(scope="module")
+def work_unseen(work: dict[str, str]) -> dict[str, str]:
+    tmp = Path(work["tmp"]) / "unseen"
+    tmp.mkdir()
+    for name in ("msp_run.csv", "msp_run.meta.json"):  # a recording, as `sweep` leaves it
+        shutil.copy(FIXTURES / "sweeps" / name, tmp / name)
+    shutil.copy(FL / "sim_hover.ulg", tmp / "flight.ulg")
+    _step_summary(tmp / "other_tool.csv", 11.1)  # another tool's stand log (no sidecar)
+    assert _run(["export", work["map"], "--to", "px4", "-o", str(tmp / "px4.params")])[0] == 0
+    doc = json.loads((FL / "sim_map.json").read_text())  # the same motor measured on 1S
+    doc["validity"]["voltage_v"] = [3.4, 4.2]
+    doc["coefficients"] = [c / 6.0 if i else c for i, c in enumerate(doc["coefficients"])]
+    (tmp / "one_cell_map.json").write_text(json.dumps(doc))
+    lines = (FIXTURES / "sweeps" / "msp_run.csv").read_text().splitlines()
+    body = lines[1:]
+    np.random.default_rng(5).shuffle(body)  # sorted by another column in a spreadsheet
+    (tmp / "shuffled.csv").write_text("\n".join([lines[0], *body]) + "\n")
+    held = [",".join([r.split(",")[0], "1500", *r.split(",")[2:]]) for r in lines[1:]]
+    (tmp / "one_level.csv").write_text("\n".join([lines[0], *held]) + "\n")  # not the command
+    return {**work, "u": str(tmp), "fl": str(FL)}
+
+
+ROWS_UNSEEN = [
+    Row(
+        "an export written over a recorded stand log",
+        "export {map} --to px4 -o {u}/msp_run.csv",
+        2,
+        "recorded data is never overwritten",
+    ),
+    Row(
+        "a Df written over a recorded stand log",
+        "flightlog extract {ulg} --mass-kg 1.5 -o {u}/msp_run.csv",
+        2,
+        "would overwrite a recorded stand log",
+    ),
+    Row(
+        "a map written over a flight log",
+        "fit {run} -o {u}/flight.ulg",
+        2,
+        "would overwrite a flight log",
+    ),
+    Row(
+        "a report written over another tool's stand log",
+        "report {map} {run} -o {u}/other_tool.csv",
+        2,
+        "a CSV that is not a Df thrustmap wrote",
+    ),
+    Row(
+        "export --range in percent for PWM µs",
+        "export {map} --to pwm --range 0:100",
+        2,
+        "outside what pwm can be on the wire",
+    ),
+    Row(
+        "export --range in milliseconds for PWM µs",
+        "export {map} --to pwm --range 1.1:1.94",
+        2,
+        "is it in another unit?",
+    ),
+    Row(
+        "export --range as a fraction for percent",
+        "export {map} --to percent --range 0:1",
+        2,
+        "under a quarter of percent's 0:100",
+    ),
+    Row(
+        "export --range in percent for DShot",
+        "export {map} --to dshot --range 0:100",
+        2,
+        "under a quarter of dshot's 48:2047",
+    ),
+    Row(
+        "export --range PWM µs for OneShot125",
+        "export {map} --to oneshot125 --range 1000:2000",
+        2,
+        "outside what oneshot125 can be on the wire",
+    ),
+    Row(
+        "a sweep of 0.001 % steps (50,001 levels, 42 h)",
+        "sweep stairs-up --stand sim://tyto-1585 --step 0.001 --dry-run -o {u}/s1.csv",
+        2,
+        "a sweep is at most 5,000 segments and 4 h",
+    ),
+    Row(
+        "a sweep repeated a million times (never built)",
+        "sweep steps --stand sim://tyto-1585 --repeats 1000000 --dry-run -o {u}/s2.csv",
+        2,
+        "20,000,001 segments",
+    ),
+    Row(
+        "a dwell of 1e9 s",
+        "sweep stairs-up --stand sim://tyto-1585 --dwell 1e9 --dry-run -o {u}/s3.csv",
+        2,
+        "check --step, --dwell",
+    ),
+    Row(
+        "a ramp of 1e12 s",
+        "sweep ramp --stand sim://tyto-1585 --duration 1e12 --dry-run -o {u}/s4.csv",
+        2,
+        "plan 'ramp' would be 4 segments",
+    ),
+    Row(
+        "explicit levels typed as fractions",
+        "sweep explicit --stand sim://tyto-1585 --levels 0.1,0.2,0.3 --dry-run -o {u}/s5.csv",
+        2,
+        "fractions? 0.3 is 30 %",
+    ),
+    Row(
+        "a thrust limit in grams",
+        "sweep stairs-up --stand sim://tyto-1585 --max-thrust 20000 --dry-run -o {u}/s6.csv",
+        2,
+        "grams typed as newtons?",
+    ),
+    Row(
+        "a current limit in milliamps",
+        "spin sim://betaflight --motor 1 --throttle 10 --max-current 60000 --yes",
+        2,
+        "milliamps typed as amperes?",
+        absent="spinning",
+    ),
+    Row(
+        "a temperature limit in °F, or none",
+        "sweep stairs-up --stand sim://tyto-1585 --max-temp 2000 --dry-run -o {u}/s7.csv",
+        2,
+        "at most 200 °C",
+    ),
+    Row(
+        "a stand watchdog in milliseconds",
+        "sweep stairs-up --stand sim://tyto-1585 --stale-s 500 --dry-run -o {u}/s8.csv",
+        2,
+        "--stale-s 500 s: at most 60 s",
+    ),
+    Row(
+        "a stand log whose rows are out of time order",
+        "fit {u}/shuffled.csv -o {u}/m.json",
+        2,
+        "time goes backwards",
+        absent="never leaves the load cell's noise",
+    ),
+    Row(
+        "evaluate with the log and the map swapped",
+        "evaluate {run} {map}",
+        2,
+        "a CSV, e.g. a stand log or a Df, not a JSON file",
+    ),
+    Row(
+        "compare with an empty --models",
+        "compare {run} --models ~",
+        2,
+        "names no model",
+    ),
+    Row(
+        "gamma fit on an export's text",
+        "gamma fit {u}/px4.params --map {map} -o {u}/g.json",
+        2,
+        "do not form one table",
+        absent="tokeniz",
+    ),
+    Row(
+        "a record longer than the settling hold",
+        "sweep stairs-up --stand sim://tyto-1585 --settle --record 100 --dwell 2 --dry-run "
+        "-o {u}/s9.csv",
+        2,
+        "it could never be recorded",
+    ),
+    Row(
+        "gamma fit with a rotor count the Df's log contradicts",
+        "gamma fit {tmp}/df.csv --map {map} --rotors 6 -o {u}/g6.json",
+        2,
+        "--rotors 6, but the Df's logs record 4 rotors",
+    ),
+    Row(
+        "a flight on another pack than the map's (a 1S map for a 6S flight)",
+        "flightlog extract {ulg} --mass-kg 0.03 --map {u}/one_cell_map.json -o {u}/d1s.csv",
+        2,
+        "the flight's battery reads 6S",
+    ),
+    Row(
+        "gamma fit of a 6S flight against a 1S map",
+        "gamma fit {tmp}/df.csv --map {u}/one_cell_map.json -o {u}/g1s.json",
+        2,
+        "but the map was measured on a 1S pack",
+    ),
+    Row(
+        "gamma live with the mass in grams writes no map",
+        "gamma live replay://{fl}/live_hover.tlog --map {map} --mass-kg 1500 -o {u}/gl.json",
+        0,
+        "γ not determined (γ(B) reaches",
+        absent="), map ",
+    ),
+    Row(
+        "compare with a voltage range in millivolts (was an internal error)",
+        "compare {run} --voltage-range 20000:26000",
+        2,
+        "no point is left after selection",
+    ),
+    Row(
+        "evaluate with a range that keeps nothing (was a table of n=0, exit 0)",
+        "evaluate {map} {run} --voltage-range 20000:26000",
+        2,
+        "--voltage-range in V, not mV",
+    ),
+    Row(
+        "fit with a throttle range in percent on a µs log",
+        "fit {run} --throttle-range 10:60 -o {u}/m.json",
+        2,
+        "not %",
+    ),
+    Row(
+        "a stand log whose throttle column holds one value (fitted 0.000 %, exit 0)",
+        "fit {u}/one_level.csv -o {u}/m1l.json",
+        2,
+        "every point is at one throttle (50.0 %)",
+    ),
+    Row(
+        "a spin whose ramp outlasts it",
+        "spin sim://betaflight --motor 1 --throttle 10 --ramp 60 --seconds 2 --yes",
+        2,
+        "would reach only 0.333 % of the 10 % asked",
+        absent="spinning",
+    ),
+    Row(
+        "a negative spin limit is refused before anything opens",
+        "spin sim://betaflight --motor 1 --throttle 10 --max-current -5 --yes",
+        2,
+        "--max-current -5: expected a number > 0",
+        absent="spinning",
+    ),
+]
+
+
+@pytest.mark.parametrize("row", ROWS_UNSEEN, ids=[r.name for r in ROWS_UNSEEN])
+def test_careless_input_unseen(row: Row, work_unseen: dict[str, str]) -> None:
+    test_careless_input(row, work_unseen)
+    if row.argv.startswith("gamma live"):  # a γ outside the band is never written as a map
+        assert not Path(work_unseen["u"], "gl.json").exists()
+    if row.code == 2 and "{u}/" in row.argv:  # the file refused as an output is unchanged
+        target = Path(_argv(row, work_unseen)[-1])
+        if target.name in ("msp_run.csv", "flight.ulg"):
+            source = (
+                FIXTURES / "sweeps" / "msp_run.csv"
+                if target.suffix == ".csv"
+                else FL / "sim_hover.ulg"
+            )
+            assert target.read_bytes() == source.read_bytes()

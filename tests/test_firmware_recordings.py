@@ -299,7 +299,7 @@ def test_ardupilot_signed_probe_accepted() -> None:
 
 
 def _raw_frames(data: bytes) -> list[bytes]:
-    from thrustmap.protocols.urlhandlers.replay_protocols import MavlinkProtocol
+    from thrustmap.protocols.urlhandlers.transcript_messages import MavlinkProtocol
 
     frames, _ = MavlinkProtocol().split(data)
     return frames

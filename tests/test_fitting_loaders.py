@@ -164,7 +164,7 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
         "\n".join([RCB_HEADER, *_rcb_rows()[:5], "0.6,1100", *_rcb_rows()[5:]]),
         ":7: row has 2 fields",
     ),
-    ("json instead of csv", '{"format": "x"}\n', "single column"),
+    ("json instead of csv", '{"format": "x"}\n', "a JSON file"),  # named as one (issue 44 item 10)
 ]
 
 

@@ -22,7 +22,7 @@ from thrustmap.protocols.mavlink import codec as mav
 from thrustmap.protocols.mavlink import encode as enc
 from thrustmap.protocols.transcript import Transcript
 from thrustmap.protocols.urlhandlers.protocol_replay import ReplaySerial
-from thrustmap.protocols.urlhandlers.replay_protocols import MavlinkProtocol
+from thrustmap.protocols.urlhandlers.transcript_messages import MavlinkProtocol
 
 #: MAVLink commands that start a motor (ArduPilot DO_MOTOR_TEST, PX4 ACTUATOR_TEST)
 MOTOR_COMMANDS = (209, 310)

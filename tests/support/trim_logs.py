@@ -88,13 +88,13 @@ def trim_ulog(src: Path, dst: Path, topics: frozenset[str]) -> None:
 def main(argv: list[str]) -> None:
     kind, src, dst = argv[0], Path(argv[1]), Path(argv[2])
     if kind == "tlog":
-        from thrustmap.fitting.flightlogs.telemetry import TYPES
+        from thrustmap.flightlogs.telemetry import TYPES
 
         trim_tlog(src, dst, frozenset(TYPES))
     elif kind == "dataflash":
         trim_dataflash(src, dst, frozenset(argv[3].split(",")))
     elif kind == "ulog":
-        from thrustmap.fitting.flightlogs.ulog import TOPICS
+        from thrustmap.flightlogs.ulog import TOPICS
 
         trim_ulog(src, dst, frozenset(TOPICS))
     else:

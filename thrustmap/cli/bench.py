@@ -506,7 +506,7 @@ def sweep_cmd(
     from thrustmap.core.files import check_output_path, new_recording_path
 
     chosen = new_recording_path(
-        check_output_path(output, what="Ds log").path, siblings=(".meta.json",)
+        check_output_path(output, what="Ds log", renamed=True).path, siblings=(".meta.json",)
     )
     if str(chosen) != output:  # a sweep never overwrites a recording
         echo(f"{output} already holds a recording: recording to {chosen} instead", err=True)

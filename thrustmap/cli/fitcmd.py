@@ -369,6 +369,11 @@ def compare_cmd(
     from thrustmap.fitting.loaders.load import load_datasets
 
     names = [m.strip() for m in models.split(",") if m.strip()]
+    if not names:
+        raise ConfigError(
+            f"--models {models!r} names no model; expected comma-separated names, e.g. "
+            "motor,poly2 (`thrustmap models` lists them)"
+        )
     datasets = load_datasets(files, _column_map(kw))
     rows = compare(datasets, names, validation, loss=loss, selection=_selection(kw), folds=folds)  # type: ignore[arg-type]
     if as_json:

@@ -210,6 +210,9 @@ def extract_cmd(
         raise
     if tmap is not None:
         _check_hover(df.sources, tmap, force)
+        why = _check_pack(df.table["voltage_v"], tmap, force, nothing="nothing written")
+        if why is not None:
+            df.sources["forced"] = [*df.sources.get("forced", []), why]
     df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
     if isinstance(df.sources.get("map"), dict):
         df.sources["map"]["path"] = str(map_path)
@@ -245,6 +248,31 @@ def extract_cmd(
         f"wrote {len(df)} samples to {output} (sources in {side})"
         + (f"; replaced the previous {' and '.join(replaced)}" if replaced else "")
     )
+
+
+def _check_pack(voltage_v: Any, tmap: Any, force: bool, *, nothing: str) -> str | None:
+    """The flown battery's cell count against the map's (``physical.flight_against_map_pack``,
+    over the middle 90 % of the Df's voltages): refused unless ``force``; a forced one is
+    logged and returned, for the caller to record (``forced``)."""
+    import logging
+
+    import numpy as np
+
+    from thrustmap.core.physical import flight_against_map_pack
+
+    v = np.asarray(voltage_v, float)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    lo, hi = (float(x) for x in np.percentile(v, [5, 95]))
+    box = tmap.validity.voltage_v
+    why = flight_against_map_pack(lo, hi, box.lo, box.hi)
+    if why is None:
+        return None
+    if not force:
+        raise ConfigError(f"--map: {why}; {nothing} (--force goes on anyway)")
+    logging.getLogger("thrustmap.cli").warning("forced (--force), recorded: %s", why)
+    return why
 
 
 def _check_hover(side: dict[str, Any], tmap: Any, force: bool) -> None:
@@ -334,6 +362,7 @@ def gamma_fit_cmd(
     plan = check_output_path(output, inputs=inputs, what="map output")
     tmap = ThrustMap.load(map_path)
     table, side = pool_dfs(dfs, tmap, str(map_path))  # repeats and another map refused
+    pack = _check_pack(table["voltage_v"], tmap, force, nothing="nothing written")
     fit = fit_gamma(
         table,
         side,
@@ -347,6 +376,7 @@ def gamma_fit_cmd(
     )
     sources = [{"path": str(p), "sha256": file_sha256(p)} for p in dfs]
     forced = check_physical(fit, force=force)  # refused unless --force (logged, recorded)
+    forced = [*forced, *([pack] if pack else [])]
     out_map = corrected_map(tmap, fit, sources, forced=forced)
     atomic_write_text(output, out_map.dumps())
     if as_json:

@@ -415,8 +415,9 @@ def _finish(
     """Write what there is: the Df, the corrected map when γ is determined. One line back."""
     import json
 
+    from thrustmap.core.errors import FitError
     from thrustmap.fitting.df.dffile import read_df, write_df
-    from thrustmap.fitting.gamma import GammaOptions, corrected_map, fit_gamma
+    from thrustmap.fitting.gamma import GammaOptions, corrected_map, fit_gamma, physical_refusals
     from thrustmap.fitting.mapfile import file_sha256
     from thrustmap.fitting.mapfile import gamma_text as formula
 
@@ -438,7 +439,11 @@ def _finish(
         table, side = read_df(df_path)
         try:
             how = GammaOptions(loss="l1" if live.loss == "l1" else "l2")
-            fit = fit_gamma(table, side, live.tmap, how)
+            tried = fit_gamma(table, side, live.tmap, how)
+            refused = physical_refusals(tried) if tried.corrected else []
+            if refused:  # the γ band and the Df length, as `gamma fit` applies them
+                raise FitError("; ".join(refused) + f"; `gamma fit {df_path} --force` writes it")
+            fit = tried
         except Exception as exc:  # a refusal of the fit is reported, never lost
             gamma_text = f"γ not determined ({exc}): no corrected map written"
     if fit is not None and fit.corrected:

@@ -312,6 +312,7 @@ def spin_cmd(
     motor_number, _ = parse_motor(motor)  # refuse a bad --motor before anything is opened
     request = SpinRequest((motor_number or 1) - 1, throttle, seconds, ramp_s=ramp)
     check_spin(request, max_throttle)  # refuse before anything is opened
+    limits = Limits.from_options(limit_values)  # every threshold, also before anything opens
     from thrustmap.rig.sim.pairing import pair_sim_urls
 
     rig = Rig(
@@ -345,7 +346,7 @@ def spin_cmd(
                 result = session.spin(
                     request,
                     max_throttle_pct=max_throttle,
-                    limits=Limits.from_options(limit_values),
+                    limits=limits,
                     on_report=(lambda r: view.spin_report(r, number, unit, seconds))
                     if view.live
                     else (lambda r: echo(_report_line(r, number, unit))),

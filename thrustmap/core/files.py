@@ -7,8 +7,9 @@ Every file thrustmap writes goes through here:
   ``O_EXCL``, so a planted symlink is never followed), flush and fsync it, then ``os.replace`` it onto the target.
   A reader sees the old file or the new one, never a torn one; a full disk leaves the old file.
 - :func:`check_output_path` is the CLI habit for outputs: the folder must exist and be writable,
-  an output never replaces one of the command's inputs (compared by resolved path and inode),
-  and replacing an existing file is reported (``replaced`` in the result) so the command can say so.
+  an output never replaces one of the command's inputs (compared by resolved path and inode)
+  nor recorded data (:func:`recorded_data`: a stand log, a flight log), and replacing an
+  existing file is reported (``replaced`` in the result) so the command can say so.
 - :func:`new_recording_path` never overwrites a recording: it refuses, or picks ``name-2.csv``...
 
 Errors are :class:`~thrustmap.core.errors.ConfigError` naming the path and what was expected.
@@ -33,6 +34,37 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+#: suffixes of flight logs (PX4 ULog, ArduPilot DataFlash and telemetry, Betaflight blackbox,
+#: ROS 2 bags): recorded data, never an output
+FLIGHT_LOG_SUFFIXES = (".ulg", ".bin", ".log", ".tlog", ".bbl", ".bfl", ".mcap", ".db3")
+
+
+def recorded_data(path: Path) -> str | None:
+    """What recorded data an existing file is (None: not recorded data, or not there).
+
+    A stand log recorded by thrustmap (a ``.csv`` with its ``.meta.json`` sidecar, or that
+    sidecar), a flight log (by suffix), or any other CSV that is not a Df thrustmap wrote
+    (its ``.json`` sidecar says ``thrustmap.df``): a stand or flight log from another tool.
+    An output that would replace one is refused; only thrustmap's own products are replaced."""
+    if not path.is_file():
+        return None
+    name = path.name.lower()
+    if name.endswith(".meta.json") or path.with_name(path.stem + ".meta.json").exists():
+        return "a recorded stand log (it has a .meta.json sidecar)"
+    if path.suffix.lower() in FLIGHT_LOG_SUFFIXES:
+        return "a flight log"
+    if path.suffix.lower() == ".csv" and not _is_df(path.with_suffix(".json")):
+        return "a CSV that is not a Df thrustmap wrote (a stand or flight log?)"
+    return None
+
+
+def _is_df(sidecar: Path) -> bool:
+    try:
+        return '"thrustmap.df"' in sidecar.read_text(encoding="utf-8", errors="replace")[:200]
+    except OSError:
+        return False
+
+
 @dataclass(frozen=True)
 class OutputPlan:
     """Where an output goes, and whether it replaces an existing file."""
@@ -46,11 +78,13 @@ def check_output_path(
     *,
     inputs: Iterable[str | os.PathLike[str]] = (),
     what: str = "output",
+    renamed: bool = False,
 ) -> OutputPlan:
     """Check that ``path`` can be written without harm, before any work is done.
 
     Raises ConfigError when the folder is missing or not writable, when the path is a folder,
-    or when it is one of ``inputs`` (the same file under any name).
+    when it is one of ``inputs`` (the same file under any name) or recorded data (unless
+    ``renamed``: a recording that takes a new name when its own is taken, never replacing it).
     """
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
@@ -67,6 +101,11 @@ def check_output_path(
             raise ConfigError(
                 f"{what} would overwrite an input file; choose another name", file=str(p)
             )
+    if not renamed and (kind := recorded_data(p)) is not None:
+        raise ConfigError(
+            f"{what} would overwrite {kind}; recorded data is never overwritten: choose another name",
+            file=str(p),
+        )
     return OutputPlan(path=p, replaced=p.exists())
 
 

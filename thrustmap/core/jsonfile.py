@@ -63,6 +63,17 @@ def _parse_int(text: str) -> int:
     return int(text)
 
 
+def _not_json_but(text: str) -> str | None:
+    """What a text given as JSON probably is instead: a CSV (a stand log or a Df given where
+    a map is expected, `evaluate LOG MAP` for `evaluate MAP LOG`) or an export's text."""
+    first = text.lstrip("\ufeff").split("\n", 1)[0].strip()
+    if first.startswith("# thrustmap"):
+        return "an export thrustmap wrote"
+    if first.count(",") >= 2 and not first.startswith(("{", "[")):
+        return "a CSV, e.g. a stand log or a Df"
+    return None
+
+
 def loads_json(text: str, *, source: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
     """Parse JSON text; ``source`` names it in errors."""
     if not _depth_ok(text, max_depth):
@@ -75,7 +86,12 @@ def loads_json(text: str, *, source: str, max_depth: int = MAX_JSON_DEPTH) -> An
             parse_int=_parse_int,
         )
     except json.JSONDecodeError as exc:
-        raise DataFormatError(f"not valid JSON: {exc.msg}", file=source, line=exc.lineno) from None
+        what = _not_json_but(text)
+        raise DataFormatError(
+            f"not valid JSON: {exc.msg}" + (f" ({what}, not a JSON file)" if what else ""),
+            file=source,
+            line=exc.lineno,
+        ) from None
     except ValueError as exc:
         raise DataFormatError(f"not valid JSON: {exc}", file=source) from None
 

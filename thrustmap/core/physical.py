@@ -39,6 +39,21 @@ MAX_THRUST_PER_VOLT_N = 20.0
 #: of two (propwash, a different battery, a bent prop); outside it something else is wrong
 #: (the mass in the wrong unit, the wrong map or rotor count).
 GAMMA_BAND = (0.5, 2.0)
+#: Interlock thresholds above what a bench can read are no limit at all, a unit mistyped:
+#: (the largest value a threshold may take, what the number probably was). Thrust as
+#: ``MAX_ROTOR_THRUST_N`` (a stand measures one rotor, or four on one ESC under 4 × 500 N);
+#: a stand current of 1000 A is no multirotor ESC's; 200 °C is past every motor's magnets and
+#: windings; 200,000 rpm past every propeller's tip speed; 100 g of vibration past every load
+#: cell's rating; a watchdog that waits a minute for a silent stand or FC guards nothing.
+LIMIT_TOPS: dict[str, tuple[float, str]] = {
+    "max_thrust_n": (MAX_ROTOR_THRUST_N, "grams typed as newtons?"),
+    "max_current_a": (1000.0, "milliamps typed as amperes?"),
+    "max_rpm": (200_000.0, "no propeller turns that fast"),
+    "max_temperature_c": (200.0, "°F or kelvin? the limit is in °C"),
+    "max_vibration_g": (100.0, "no load cell reads that"),
+    "stale_data_s": (60.0, "milliseconds typed as seconds?"),
+    "link_timeout_s": (60.0, "milliseconds typed as seconds?"),
+}
 #: Thrust units a column header may name, as the loaders spell them (lower case).
 HEADER_THRUST_UNITS = ("n", "kgf", "gf", "g", "kg", "lbf", "ozf")
 
@@ -185,6 +200,24 @@ def target_cells_problem(lo_v: float, hi_v: float, target: str) -> str | None:
         f"the map was measured on a {cells}S pack ({lo_v:.2f}..{hi_v:.2f} V) but {target} flies "
         f"on {want}: its thrust and throttle would be another motor's; measure this vehicle's "
         "motor on its own pack"
+    )
+
+
+def flight_against_map_pack(
+    flown_lo_v: float, flown_hi_v: float, map_lo_v: float, map_hi_v: float
+) -> str | None:
+    """Why a flight whose battery read ``flown_lo_v..flown_hi_v`` cannot have flown the motor a
+    map measured at ``map_lo_v..map_hi_v`` (the two are packs of other cell counts: a 4S quad's
+    log through a 6S map has its thrust command read from another motor's map, and the γ fitted
+    to that, ~0.6, lies inside the γ band); None when they agree or a count cannot be read."""
+    flown = cells_from_voltage(flown_lo_v, flown_hi_v)
+    measured = cells_from_voltage(map_lo_v, map_hi_v)
+    if flown is None or measured is None or flown == measured:
+        return None
+    return (
+        f"the flight's battery reads {flown}S ({flown_lo_v:.2f}..{flown_hi_v:.2f} V) but the "
+        f"map was measured on a {measured}S pack ({map_lo_v:.2f}..{map_hi_v:.2f} V): its thrust "
+        "would be another motor's; the wrong map?"
     )
 
 

@@ -100,6 +100,48 @@ SCALES: dict[str, ThrottleScale] = {
 }
 
 
+#: Where each encoding's endpoints can lie on the wire (its own units), wider than its standard
+#: span for the ESCs and firmware that calibrate their own: a ``--range`` outside them is
+#: another encoding's or another unit's (percent typed for µs, milliseconds for µs).
+WIRE_BOUNDS: dict[str, tuple[float, float]] = {
+    "pwm": (500.0, 2500.0),
+    "oneshot125": (60.0, 500.0),
+    "oneshot42": (20.0, 170.0),
+    "multishot": (2.0, 50.0),
+    "dshot": (0.0, 2047.0),
+    "crazyflie": (0.0, 65535.0),
+    "crazyflie-cmd": (0.0, 65535.0),
+    "percent": (0.0, 100.0),
+    "duty8": (0.0, 255.0),
+    "norm": (0.0, 1.0),
+    "norm-sym": (-1.0, 1.0),
+}
+#: a range narrower than this share of the encoding's standard span is another unit's
+#: (a fraction typed for percent, percent for DShot values)
+MIN_RANGE_SHARE = 0.25
+
+
+def range_problem(name: str, lo: float, hi: float) -> str | None:
+    """Why endpoints ``lo..hi`` cannot be encoding ``name``'s (None: they can)."""
+    base = SCALES.get(name)
+    bounds = WIRE_BOUNDS.get(name)
+    if base is None or bounds is None:
+        return None
+    unit = f" {base.unit_label}" if base.unit_label not in ("1", "") else ""
+    if lo < bounds[0] or hi > bounds[1]:
+        return (
+            f"{lo:g}:{hi:g} lies outside what {name} can be on the wire "
+            f"({bounds[0]:g}..{bounds[1]:g}{unit}; standard {base.lo:g}:{base.hi:g}): "
+            "is it in another unit?"
+        )
+    if hi - lo < MIN_RANGE_SHARE * base.span:
+        return (
+            f"{lo:g}:{hi:g} spans {hi - lo:g}{unit}, under a quarter of {name}'s "
+            f"{base.lo:g}:{base.hi:g}{unit}: is it in another unit?"
+        )
+    return None
+
+
 def scale(name: str) -> ThrottleScale:
     """Look up a named throttle scale, with an error listing the known ones."""
     try:

@@ -127,10 +127,19 @@ def thrust_command_n(
 
 
 def _rotors(table: pd.DataFrame, sidecar: dict[str, Any], given: int | None = None) -> int:
-    if given is not None:
-        return given
+    """The rotor count: the one the Df's logs recorded (``--rotors`` is for a Df without it,
+    and one that contradicts it is refused: 6 given for a log of 4 motor outputs once kept
+    γ = 1 with a warning, the map's thrust 50 % off)."""
     flights = sidecar.get("flights", {})
     counts = {int(v["rotors"]) for v in flights.values() if v.get("rotors")}
+    if given is not None:
+        if counts and given not in counts:
+            raise ConfigError(
+                f"--rotors {given}, but the Df's logs record "
+                f"{' and '.join(str(c) for c in sorted(counts))} rotors (their motor outputs); "
+                "--rotors is for a Df that does not record it"
+            )
+        return given
     if len(counts) == 1:
         return counts.pop()
     n = sum(1 for c in table.columns if c.startswith("motor") and c.endswith("_pct"))

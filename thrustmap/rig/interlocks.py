@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
 
 from thrustmap.core.errors import ConfigError, SafetyError
-from thrustmap.core.physical import CELL_V
+from thrustmap.core.physical import CELL_V, LIMIT_TOPS
 from thrustmap.rig.plans import Plan
 
 #: ``spin``: one short, capped motor test (the CLI's defaults; a sweep uses the table below)
@@ -182,6 +182,11 @@ class Limits:
                 )
                 raise ConfigError(
                     f"{row.option} {value:g}: expected a number {expected} {row.unit}".rstrip()
+                )
+            if row.field in LIMIT_TOPS and value > (bound := LIMIT_TOPS[row.field])[0]:
+                raise ConfigError(
+                    f"{row.option} {value:g} {row.unit}: at most {bound[0]:g} {row.unit}, above "
+                    f"that it is no limit ({bound[1]})"
                 )
         lo, hi = CELL_V
         if not lo <= self.min_cell_voltage_v <= hi:

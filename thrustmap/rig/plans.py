@@ -203,6 +203,28 @@ def _within_ceiling(seg: RunSegment, ceiling_pct: float, plan_name: str) -> None
         )
 
 
+#: the most a planned sweep may be: a bench run on a battery lasts minutes, one on a supply
+#: hours at most; a plan beyond either is a mistyped --step, --dwell, --duration or --repeats
+#: (``--step 0.001``: 50,001 levels, 42 h), and it is refused before it is even built
+MAX_PLAN_S = 4 * 3600.0
+MAX_PLAN_SEGMENTS = 5000
+
+
+def _check_size(name: str, segments: int, duration_s: float) -> None:
+    """Refuse a plan of more than ``MAX_PLAN_SEGMENTS`` segments or ``MAX_PLAN_S``."""
+    if segments <= MAX_PLAN_SEGMENTS and duration_s <= MAX_PLAN_S:  # (NaN is refused earlier)
+        return
+    raise ConfigError(
+        f"plan '{name}' would be {segments:,} segments over {duration_s / 3600:,.1f} h; a sweep "
+        f"is at most {MAX_PLAN_SEGMENTS:,} segments and {MAX_PLAN_S / 3600:g} h: check --step, "
+        "--dwell, --duration and --repeats"
+    )
+
+
+#: explicit levels all at or below this are fractions typed for percent (0.3 for 30 %)
+FRACTION_TOP = 1.0
+
+
 def _finite_pct(value: float, option: str) -> float:
     """A level option in 0..100 % (also refusing NaN and infinity), named when it is not."""
     if not 0.0 <= value <= 100.0:
@@ -271,6 +293,8 @@ def steps(
             f"--from/--to: every level in {start_pct:g}..{stop_pct:g} % equals --low "
             f"({low_pct:g} %): nothing to step to"
         )
+    rounds = max(repeats, 1) * len(levels)
+    _check_size("steps", 1 + 2 * rounds, low_dwell_s + rounds * (dwell_s + low_dwell_s))
     segs: list[Segment] = [hold_segment(low_pct, low_dwell_s, settle, record_s, "low")]
     for _ in range(max(repeats, 1)):
         for level in levels:
@@ -307,6 +331,8 @@ def stairs(
     levels = levels_between(start_pct, stop_pct, step_pct)
     if down:
         levels = levels[::-1]
+    count = max(repeats, 1) * len(levels)
+    _check_size("stairs-down" if down else "stairs-up", count, count * dwell_s)
     segs = tuple(
         hold_segment(v, dwell_s, settle, record_s, "stair")
         for _ in range(max(repeats, 1))
@@ -332,6 +358,7 @@ def ramp(
     if duration_s <= 0:
         raise ConfigError(f"ramp duration must be positive, got {duration_s:g} s")
     levels_between(start_pct, stop_pct, max(stop_pct - start_pct, 1e-6))
+    _check_size("ramp", 4 * max(repeats, 1), max(repeats, 1) * 2 * (duration_s + hold_s))
     segs: list[Segment] = []
     for _ in range(max(repeats, 1)):
         segs.append(hold_segment(start_pct, hold_s, False, 0.0, "base"))
@@ -358,6 +385,13 @@ def explicit(
     for v in levels_pct:
         if not 0 <= v <= 100:
             raise ConfigError(f"level {v:g} % is outside 0..100 %")
+    top = max(levels_pct)
+    if 0 < top <= FRACTION_TOP:
+        raise ConfigError(
+            f"--levels: every level is {FRACTION_TOP:g} % or less (highest {top:g} %), below any "
+            f"ESC's spin-up: fractions? {top:g} is {top * 100:g} %; levels are in percent"
+        )
+    _check_size("explicit", len(levels_pct), len(levels_pct) * dwell_s)
     return Plan(
         "explicit",
         tuple(hold_segment(v, dwell_s, settle, record_s, "level") for v in levels_pct),

@@ -72,4 +72,9 @@ def hold_segment(level: float, dwell_s: float, settle: bool, record_s: float, la
         raise ConfigError(f"--dwell {dwell_s:g}: expected a positive number of seconds")
     if not 0 <= record_s < math.inf:
         raise ConfigError(f"--record {record_s:g}: expected a positive number of seconds")
+    if settle and record_s > dwell_s:
+        raise ConfigError(
+            f"--record {record_s:g} s is longer than --dwell {dwell_s:g} s, the most a settling "
+            "level is held: it could never be recorded; raise --dwell or lower --record"
+        )
     return Hold(level, dwell_s, settle, record_s, label)

@@ -114,6 +114,12 @@ def check_spin(request: SpinRequest, max_throttle_pct: float = DEFAULT_MAX_THROT
         or request.resend_s <= 0
     ):
         raise ConfigError("ramp must be >= 0 s; tick, report and resend periods must be > 0 s")
+    if request.ramp_s > request.seconds:
+        reach = request.throttle_pct * request.seconds / request.ramp_s
+        raise ConfigError(
+            f"--ramp {request.ramp_s:g} s is longer than --seconds {request.seconds:g}: the motor "
+            f"would reach only {reach:.3g} % of the {request.throttle_pct:g} % asked; lower --ramp"
+        )
 
 
 def check_motor_exists(motor: int, identity: Any) -> None:

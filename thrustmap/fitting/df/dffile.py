@@ -116,7 +116,13 @@ def read_df(path: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
         raise DataFormatError("Df file not found", file=str(p)) from None
     except OSError as exc:
         raise DataFormatError(f"cannot read Df file: {exc.strerror}", file=str(p)) from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+    except pd.errors.ParserError:  # (pandas' tokenizer words name no cause a user knows)
+        raise DataFormatError(
+            "not a Df CSV: its rows do not form one table under its first line (an export's "
+            "text, another tool's file?); expected the .csv that flightlog extract wrote",
+            file=str(p),
+        ) from None
+    except (pd.errors.EmptyDataError, ValueError) as exc:
         reason = " ".join(str(exc).split())[:200]
         raise DataFormatError(f"not a Df CSV: {reason}", file=str(p)) from None
     for need in ("voltage_v", "force_n"):

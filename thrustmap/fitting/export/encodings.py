@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from thrustmap.core.errors import ConfigError
-from thrustmap.core.units import SCALES, ThrottleScale
+from thrustmap.core.units import SCALES, ThrottleScale, range_problem
 from thrustmap.core.version import package_version
 from thrustmap.fitting.mapfile import GammaCorrection, ThrustMap
 from thrustmap.fitting.mapvalues import MapValue, MapValues, map_values, pct_to_native
@@ -52,6 +52,8 @@ def target_scale(encoding: str, range_: tuple[float, float] | None = None) -> Th
     lo, hi = range_
     if not lo < hi:
         raise ConfigError(f"--range: expected LO < HI, got {lo:g}:{hi:g}")
+    if (why := range_problem(encoding, lo, hi)) is not None:
+        raise ConfigError(f"--range {why}")
     return base.with_range(lo, hi)
 
 

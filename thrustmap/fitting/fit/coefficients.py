@@ -62,7 +62,26 @@ def pool(datasets: Sequence[Dataset], selection: Selection) -> Pool:
     )
 
 
-def check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> None:
+#: pooled points spanning less throttle than this (% of the scale) are one level: no map
+MIN_THROTTLE_SPAN_PCT = 1.0
+
+#: what is said when selection leaves no point (steady points were found, else that was
+#: refused earlier: the range options left none)
+NO_POINT_LEFT = (
+    "no point is left after selection: do the range options hold the data? "
+    "(--throttle-range is in the log's native units, e.g. 1100:1900 µs, not %; "
+    "--voltage-range in V, not mV; --thrust-range in N)"
+)
+
+
+def check_fit_data(
+    model: Model, t: FloatArray, b: FloatArray, where: str, th: FloatArray | None = None
+) -> None:
+    """Refuse data that cannot determine ``model``: no point, fewer points than coefficients,
+    one voltage for a surface in voltage, one thrust level, one throttle level (``th``, % of
+    the scale: thrust that moves while the command does not)."""
+    if len(t) == 0:
+        raise FitError(NO_POINT_LEFT, file=where)
     if len(t) < model.n_coefficients:
         raise FitError(
             f"{len(t)} points after selection cannot determine the {model.n_coefficients} "
@@ -77,6 +96,13 @@ def check_fit_data(model: Model, t: FloatArray, b: FloatArray, where: str) -> No
         )
     if np.ptp(t) <= 0:
         raise FitError("all points at one thrust level; need several throttle levels", file=where)
+    if th is not None and float(np.ptp(th)) < MIN_THROTTLE_SPAN_PCT:
+        raise FitError(
+            f"every point is at one throttle ({float(np.mean(th)):.1f} %): a map needs several "
+            "levels (a sweep); is the throttle column the command? (a log held at one level "
+            "can be scored with `thrustmap evaluate`, not fitted)",
+            file=where,
+        )
 
 
 def fit_coefficients(
@@ -102,7 +128,7 @@ def identify_coefficients(
 ) -> tuple[FloatArray, Identification | None]:
     """Coefficients and how they were identified (which were set by physics, and why);
     ``groups``: each point's file (a model that weighs its points weighs each file's own)."""
-    check_fit_data(model, t, b, where)
+    check_fit_data(model, t, b, where, th)
     coef, ident = model.identify(t, b, th, loss, groups)
     if not np.all(np.isfinite(coef)):
         raise FitError(

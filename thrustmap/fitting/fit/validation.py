@@ -12,7 +12,13 @@ import numpy as np
 
 from thrustmap.core.errors import ConfigError, FitError, ThrustmapError
 from thrustmap.fitting.dataset import Dataset, FloatArray
-from thrustmap.fitting.fit.coefficients import Pool, check_fit_data, fit_coefficients, pool
+from thrustmap.fitting.fit.coefficients import (
+    NO_POINT_LEFT,
+    Pool,
+    check_fit_data,
+    fit_coefficients,
+    pool,
+)
 from thrustmap.fitting.fit.fitmap import FittedPoints, model_interval, systematic_terms
 from thrustmap.fitting.interval import Region
 from thrustmap.fitting.mapfile import ThrustMap
@@ -175,7 +181,7 @@ def validate(
         t, b, th = data.take(train)
         tt, bt, tht = data.take(test)
         if fast:
-            check_fit_data(m, t, b, f"{model} {validation} fold")
+            check_fit_data(m, t, b, f"{model} {validation} fold", th)
             dt = design[test]
             if weighted:
                 w = np.zeros(n)
@@ -265,6 +271,8 @@ def compare(
     data = pool(datasets, selection or Selection())
     for name in models:
         get_model(name)  # an unknown name is refused before anything is fitted
+    if not len(data.thrust_n):  # (no design to condition: every model would fail alike)
+        raise FitError(NO_POINT_LEFT, file=", ".join(str(d.path) for d in datasets))
     rows = []
     for name in models:
         try:
@@ -295,4 +303,6 @@ def evaluate(
         inside = tmap.in_box(p.thrust_n, p.voltage_v)
         half = tmap.interval_pct(p.thrust_n, p.voltage_v, corrected=False)
         rows.append(_row(tmap.model, f"evaluate:{ds.name}", 1, pred, p.throttle_pct, inside, half))
+    if datasets and not any(r.all.n for r in rows):  # a score of nothing is no score
+        raise FitError(NO_POINT_LEFT, file=", ".join(str(d.path) for d in datasets))
     return rows

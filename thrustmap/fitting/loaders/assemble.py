@@ -59,6 +59,7 @@ def finish_dataset(
     throttle, thrust_n, voltage_v = cols.throttle, cols.thrust_n, cols.voltage_v
     time_s, current_a, step = cols.time_s, cols.current_a, cols.step
     meta = dict(meta or {})
+    _check_time_order(table, time_s)
     voltage_v = check_voltage(table, voltage_v, meta)
     if table.notes:
         meta["read_notes"] = list(table.notes)
@@ -90,6 +91,32 @@ def finish_dataset(
         settled=cols.settled,
         sha256=_sha256(table.path),
         meta=meta,
+    )
+
+
+#: rows whose time steps back that a dense log may have (clock jitter) before it is refused
+TIME_BACK_MAX_SHARE = 0.01
+
+
+def _check_time_order(table: Table, time_s: FloatArray | None) -> None:
+    """Rows in time order: a log sorted by another column (a spreadsheet's "sort by thrust")
+    or two logs pasted out of order has no plateaus or ramps left to find, and was once
+    refused as a thrust that "never leaves the load cell's noise" (its noise measured across
+    shuffled rows). A stand's clock may jitter back by a millisecond now and then (the xNova
+    logs do once, on their third row): up to ``TIME_BACK_MAX_SHARE`` of the rows pass."""
+    if time_s is None or time_s.size < 2:
+        return
+    dt = np.diff(time_s)
+    back = np.flatnonzero(dt < 0)
+    if back.size <= max(2, TIME_BACK_MAX_SHARE * time_s.size):
+        return
+    k = int(back[0]) + 1
+    raise DataFormatError(
+        f"time goes backwards ({time_s[k]:g} s after {time_s[k - 1]:g} s; {back.size} such "
+        "rows); expected rows in time order (sorted by another column, or logs pasted out of "
+        "order?)",
+        file=table.path,
+        line=table.lines[k],
     )
 
 
