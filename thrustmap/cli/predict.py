@@ -99,6 +99,19 @@ def _evidence_fields(st: Standing) -> dict[str, Any]:
     }
 
 
+def _below_spin_up(tmap: ThrustMap, pct: float) -> str | None:
+    """The note for a throttle below the measured spin-up: the rotor does not turn there (and a
+    fraction typed as a percentage is named)."""
+    spin = SpinUp.from_dict(tmap.spin_up)
+    if spin is None or spin.throttle_pct is None or not 0.0 < pct < spin.throttle_pct:
+        return None
+    meant = f"; did you mean {pct * 100:g} %?" if pct < 1.0 else ""
+    return (
+        f"note: {pct:g} % is below the spin-up the stand measured ({spin.throttle_pct:.3g} %): the "
+        f"rotor does not turn there, so its thrust is zero whatever the map's curve says{meant}"
+    )
+
+
 def _zero_thrust(tmap: ThrustMap, q: Query, as_json: bool) -> int:
     """Zero thrust is the motor below its spin-up: the answer is that command (measured on
     the stand when the map has it, else where the map's thrust reaches zero, else 0 %)."""
@@ -182,11 +195,12 @@ def _where_note(tmap: ThrustMap, common: dict[str, Any], st: Standing, base: flo
     else:
         where = f"the data span B {region.voltage_lo_v:.2f}..{region.voltage_hi_v:.2f} V"
     half = st.half_width_pct
-    widened = (
-        ""
-        if half is None or base is None
-        else f"; interval widened ×{half / base:.2f}, from ±{base:.2f} % to ±{half:.2f} %"
-    )
+    if half is None or base is None:
+        widened = ""
+    elif half > 1.005 * base:
+        widened = f"; interval widened ×{half / base:.2f}, from ±{base:.2f} % to ±{half:.2f} %"
+    else:  # the distance is in voltage only: its share (κ) is already in the interval
+        widened = f"; its interval there is ±{half:.2f} % (the voltage distance included)"
     if st.beyond_evidence:
         how_far = f"beyond the evidence (--extrapolate): {st.beyond_evidence}"
     else:
@@ -209,6 +223,8 @@ def run_predict(map_file: str, q: Query, *, extrapolate: bool, as_json: bool) ->
     if q.thrust_n is None:
         pct = _forward_pct(tmap, q)
         t = float(tmap.thrust_n(pct, q.voltage_v, corrected=q.corrected))
+        if note := _below_spin_up(tmap, pct):
+            echo(note, err=True)
     elif q.thrust_n == 0.0:
         return _zero_thrust(tmap, q, as_json)
     else:

@@ -234,6 +234,14 @@ def voltage_against_pack(voltage_v: float, lo_v: float, hi_v: float) -> str | No
             f"({lo_v:.2f}..{hi_v:.2f} V); give the pack voltage: {voltage_v * cells:.4g} V is "
             f"--voltage-v {voltage_v * cells:.4g}"
         )
+    other = _another_pack(voltage_v, cells)
+    if other is not None:
+        return (
+            f"--voltage-v {voltage_v:g} V is {voltage_v / cells:.2f} V per cell of the map's "
+            f"{cells}S pack ({lo_v:.2f}..{hi_v:.2f} V), outside what a lithium cell reads "
+            f"({lo_c:g}..{hi_c:g} V): a {other}S pack? This map is another motor's on that pack; "
+            "give a voltage of the map's own pack"
+        )
     n = round(voltage_v / ((lo_v + hi_v) / 2))
     if cells == 1 and n >= 2 and lo_c <= voltage_v / n <= hi_c:
         return (
@@ -241,6 +249,18 @@ def voltage_against_pack(voltage_v: float, lo_v: float, hi_v: float) -> str | No
             f"({lo_v:.2f}..{hi_v:.2f} V) are one cell (a 1S map, or per-cell voltages of a "
             f"larger pack); give the voltage per cell: --voltage-v {voltage_v / n:.4g}"
         )
+    return None
+
+
+def _another_pack(voltage_v: float, cells: int) -> int | None:
+    """The cell count (> 1) whose pack ``voltage_v`` is, when it is no voltage of a ``cells``-cell
+    pack (its per-cell voltage outside ``CELL_V_RANGE``); None when it is one, or none fits."""
+    lo_c, hi_c = CELL_V_RANGE
+    if cells < 2 or lo_c <= voltage_v / cells <= hi_c:
+        return None
+    for n in range(2, 15):
+        if n != cells and lo_c <= voltage_v / n <= hi_c:
+            return n
     return None
 
 
