@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.generic_stand import GENERIC_3COL as STM32_HX711
 
 from thrustmap.core.errors import ConfigError, DataFormatError
 from thrustmap.protocols.stands.line import (
@@ -26,21 +27,6 @@ REF_STREAM = (
     b"#COLS t_us,throttle_us,thrust_mN,torque_mNm,voltage_mV,current_mA,rpm\r\n"
     b"1000000,1500,4021,-52,16012,8340,21050\r\n"
     b"1004000,1500,4030,-53,16010,8342,21070\r\n"
-)
-
-#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
-#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
-STM32_HX711 = LineStandSpec(
-    name="generic-3col",
-    columns={
-        "time_s": Column(index=0, scale=1e-3),
-        "throttle": Column(index=1),
-        "thrust_n": Column(index=2),
-    },
-    header_prefix=None,
-    throttle_scale="pwm",
-    throttle_command="{us:d}\n",
-    baudrate=921600,
 )
 
 

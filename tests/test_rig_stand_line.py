@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 import pytest
+from support.generic_stand import GENERIC_3COL as STM32_HX711
 
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError, SafetyError
@@ -19,21 +20,6 @@ from thrustmap.rig.stand.line import LineStand, LineStandError, LineStandEscOutp
 from thrustmap.rig.stand.line_spec import line_spec_from_dict, line_spec_to_dict, load_line_spec
 
 HEADER = b"#COLS t_us,throttle_us,thrust_mN,torque_mNm,voltage_mV,current_mA,rpm\n"
-
-#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
-#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
-STM32_HX711 = LineStandSpec(
-    name="generic-3col",
-    columns={
-        "time_s": Column(index=0, scale=1e-3),
-        "throttle": Column(index=1),
-        "thrust_n": Column(index=2),
-    },
-    header_prefix=None,
-    throttle_scale="pwm",
-    throttle_command="{us:d}\n",
-    baudrate=921600,
-)
 
 
 class ScriptPeer:

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.generic_stand import GENERIC_3COL as STM32_HX711
 
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
@@ -14,11 +15,9 @@ from thrustmap.protocols.peer import BytePeer
 from thrustmap.protocols.stands.line import (
     REFERENCE,
     RP2040_WHOOP,
-    Column,
     LineComment,
     LineSample,
     LineStandDecoder,
-    LineStandSpec,
 )
 from thrustmap.protocols.stands.tyto import (
     TytoDecoder,
@@ -40,21 +39,6 @@ from thrustmap.rig.sim.stand_peers import (
 from thrustmap.rig.stand.tyto import save_calibration
 
 # --------------------------------------------------------------------------- Tyto
-
-#: a generic three-column stand that drives its ESC (the former ``stm32-hx711`` notes; that name
-#: is now an alias of the victorhook-thruststand preset, which drives no ESC)
-STM32_HX711 = LineStandSpec(
-    name="generic-3col",
-    columns={
-        "time_s": Column(index=0, scale=1e-3),
-        "throttle": Column(index=1),
-        "thrust_n": Column(index=2),
-    },
-    header_prefix=None,
-    throttle_scale="pwm",
-    throttle_command="{us:d}\n",
-    baudrate=921600,
-)
 
 
 def test_tyto_is_a_byte_peer() -> None:
