@@ -68,8 +68,29 @@ API = {
     "ScriptBench": "thrustmap.rig.script",
     "script_exit_code": "thrustmap.rig.script",
 }
-#: what ``from thrustmap import *`` and ``help(thrustmap)`` list: the API and the version
-__all__ = sorted([*API, "__version__"])
+__all__ = [
+    "Limits",
+    "MapChooser",
+    "Prediction",
+    "RunResult",
+    "ScriptBench",
+    "__version__",
+    "compare",
+    "corrected_map",
+    "export",
+    "extract_df",
+    "fit",
+    "fit_gamma",
+    "load_map",
+    "load_stand_logs",
+    "open_bench",
+    "plans",
+    "predict",
+    "read_flight_log",
+    "run_script",
+    "save_map",
+    "script_exit_code",
+]
 
 
 def __getattr__(name: str) -> Any:
