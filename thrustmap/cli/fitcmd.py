@@ -268,19 +268,18 @@ def fit_cmd(
     files: tuple[str, ...], output: str, model: str, loss: str, strategy: str | None, **kw: Any
 ) -> None:
     """Fit a thrust map Th = f(T, B) to stand logs and write it as JSON."""
+    from thrustmap import api
     from thrustmap.core.files import atomic_write_text, check_output_path
-    from thrustmap.fitting.fit.fitmap import fit_map
     from thrustmap.fitting.loaders.checks import check_thrust_leaves_noise
-    from thrustmap.fitting.loaders.load import load_datasets
     from thrustmap.fitting.selection.describe import describe as describe_selection
 
     # a Ds log's sidecar (run.meta.json) is an input too; run.json is a free name for the map
     sidecars = [s for f in files if (s := Path(f).with_suffix(".meta.json")).exists()]
     plan = check_output_path(output, inputs=[*files, *sidecars], what="map output")
-    datasets = load_datasets(files, _column_map(kw))
+    datasets = api.load_stand_logs(files, _column_map(kw))
     for ds in datasets:
         check_thrust_leaves_noise(ds)  # a map of pure noise is refused, not written
-    out = fit_map(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
+    out = api.fit(datasets, model=model, loss=loss, selection=_selection(kw), strategy=strategy)  # type: ignore[arg-type]
     atomic_write_text(output, out.map.dumps())
     s = out.map.metrics["in_sample"]
     for p in out.pool.points:
@@ -365,8 +364,7 @@ def compare_cmd(
     **kw: Any,
 ) -> None:
     """Compare models on stand logs under one validation mode."""
-    from thrustmap.fitting.fit.validation import compare
-    from thrustmap.fitting.loaders.load import load_datasets
+    from thrustmap import api
 
     names = [m.strip() for m in models.split(",") if m.strip()]
     if not names:
@@ -374,8 +372,15 @@ def compare_cmd(
             f"--models {models!r} names no model; expected comma-separated names, e.g. "
             "motor,poly2 (`thrustmap models` lists them)"
         )
-    datasets = load_datasets(files, _column_map(kw))
-    rows = compare(datasets, names, validation, loss=loss, selection=_selection(kw), folds=folds)  # type: ignore[arg-type]
+    datasets = api.load_stand_logs(files, _column_map(kw))
+    rows = api.compare(
+        datasets,
+        names,
+        validation,  # type: ignore[arg-type]  # click.Choice: one of the modes
+        loss=loss,  # type: ignore[arg-type]  # click.Choice: l1 or l2
+        selection=_selection(kw),
+        folds=folds,
+    )
     if as_json:
         click.echo(_json({"rows": [r.to_dict() for r in rows]}))
     else:
