@@ -1238,3 +1238,49 @@ def test_careless_input_unseen(row: Row, work_unseen: dict[str, str]) -> None:
                 else FL / "sim_hover.ulg"
             )
             assert target.read_bytes() == source.read_bytes()
+
+
+# -- routed: the defects a colleague found on fc15565 -----------------------------------------
+
+
+@pytest.fixture(scope="module")
+def work_routed(work_unseen: dict[str, str]) -> dict[str, str]:
+    tmp = Path(work_unseen["u"]) / "routed"
+    tmp.mkdir()
+    (tmp / "logs").mkdir()
+    shutil.copy(FL / "sim_hover.ulg", tmp / "logs" / "flight.ulg")
+    return {**work_unseen, "r": str(tmp)}
+
+
+ROWS_ROUTED = [
+    Row(
+        "fleet extract of 6S flights with a 1S map (extracted, exit 0)",
+        "fleet extract {r}/logs --map {u}/one_cell_map.json --mass-kg 1.5 --workers 0 --quiet "
+        "-o {r}/f1s",
+        0,
+        "refused: {r}/logs/flight.ulg: --map: the flight's battery reads 6S",
+        absent="1 extracted",
+    ),
+]
+
+
+@pytest.mark.parametrize("row", ROWS_ROUTED, ids=[r.name for r in ROWS_ROUTED])
+def test_careless_input_routed(row: Row, work_routed: dict[str, str]) -> None:
+    test_careless_input(dataclasses.replace(row, phrase=row.phrase.format(**work_routed)),
+                        work_routed)  # fmt: skip
+
+
+def test_fleet_force_records_the_other_pack(work_routed: dict[str, str]) -> None:
+    """fleet extract --force extracts a flight on another pack, as flightlog extract --force
+    does, and records why in the log's Df sidecar."""
+    out = Path(work_routed["r"]) / "f1s_forced"
+    code, _, _ = _run(
+        ["fleet", "extract", f"{work_routed['r']}/logs", "--map",
+         f"{work_routed['u']}/one_cell_map.json", "--mass-kg", "1.5", "--workers", "0",
+         "--quiet", "--force", "-o", str(out)]
+    )  # fmt: skip
+    assert code == 0
+    sides = [p for p in (out / "df").glob("*.json") if not p.name.endswith(".outcome.json")]
+    assert len(sides) == 1
+    forced = json.loads(sides[0].read_text())["forced"]
+    assert any("the flight's battery reads 6S" in f for f in forced), forced

@@ -46,6 +46,7 @@ class FleetConfig:
     map_path: Path | None = None
     fmt: str | None = None
     max_log_bytes: int = 512 << 20
+    force: bool = False  # extract a flight on another pack than the map's (recorded)
 
 
 @dataclass
@@ -123,11 +124,16 @@ def mass_for(path: Path, config: FleetConfig) -> float | None:
 
 
 def options_key(
-    df_options: dict[str, Any], map_sha: str | None, fmt: str | None, rules: str
+    df_options: dict[str, Any],
+    map_sha: str | None,
+    fmt: str | None,
+    rules: str,
+    force: bool = False,
 ) -> str:
-    text = json.dumps(
-        {"df": df_options, "map": map_sha, "format": fmt, "rules": rules}, sort_keys=True
-    )
+    given: dict[str, Any] = {"df": df_options, "map": map_sha, "format": fmt, "rules": rules}
+    if force:  # only when given: the keys of earlier runs stay valid
+        given["force"] = True
+    text = json.dumps(given, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -147,7 +153,7 @@ def plan(
         mass = mass_for(p, config)
         if mass not in keys:
             opts = {**config.df_options, "mass_kg": mass}
-            keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules))
+            keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules, config.force))
         opts, key = keys[mass]
         prev = previous.get(str(p))
         if prev is not None and prev.options_key == key:
@@ -172,6 +178,7 @@ def plan(
                 map_path=None if config.map_path is None else str(config.map_path.absolute()),
                 fmt=config.fmt,
                 max_log_bytes=config.max_log_bytes,
+                force=config.force,
             )
         )
     return tasks, reused

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from thrustmap.core.errors import DataFormatError, ThrustmapError
+from thrustmap.core.errors import ConfigError, DataFormatError, ThrustmapError
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,7 @@ class LogTask:
     map_path: str | None = None
     fmt: str | None = None
     max_log_bytes: int = 1 << 30
+    force: bool = False  # a flight on another pack than the map's: extracted, recorded
 
 
 @dataclass
@@ -297,6 +298,8 @@ def _extract(task: LogTask, out: Outcome) -> None:
     out.format = flights[0].format
     out.flights = len(flights)
     df = extract(flights, opts, tmap)  # a flash dump's unusable logs: skipped, listed below
+    if tmap is not None:  # the check of `flightlog extract` (ThrustMap.pack_refusal)
+        _check_pack(df, tmap, task.force, out)
     df.sources["logs"] = [{"path": task.path, "sha256": out.sha256}]
     out.warnings.extend(refusal_lines(df.sources.get("refused", [])))
     rel = Path("df") / f"{stem_for(out.sha256, task.options_key)}.csv"
@@ -337,3 +340,16 @@ def _extract(task: LogTask, out: Outcome) -> None:
         out.reason = "no steady flight (0 Df samples): " + (
             ", ".join(f"{k} −{v:.1f} s" for k, v in worst) or "no flight time"
         )
+
+
+def _check_pack(df: Any, tmap: Any, force: bool, out: Outcome) -> None:
+    """A flight on another cell count than the map's pack is refused (the log's outcome), as
+    ``flightlog extract`` refuses it; with ``force`` it is extracted, the reason recorded in the
+    Df sidecar (``forced``) and among the log's warnings."""
+    why = tmap.pack_refusal(df.column("voltage_v")) if len(df) else None
+    if why is None:
+        return
+    if not force:
+        raise ConfigError(f"--map: {why}; not extracted (--force goes on anyway)")
+    df.sources["forced"] = [*df.sources.get("forced", []), why]
+    out.warnings.append(f"forced (--force), recorded: {why}")
