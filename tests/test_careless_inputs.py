@@ -325,7 +325,7 @@ ROWS = [
         "extract at 0 Hz",
         "flightlog extract {ulg} --mass-kg 1 --rate-hz 0 -o {tmp}/x6.csv",
         2,
-        "positive",
+        "--rate-hz 0: expected 0.5..1000 Hz",
     ),
     Row(
         "gamma on a Df that is not there",
@@ -1260,6 +1260,25 @@ ROWS_ROUTED = [
         0,
         "refused: {r}/logs/flight.ulg: --map: the flight's battery reads 6S",
         absent="1 extracted",
+    ),
+    Row(
+        "a Df resampled at 1 GHz (blamed the log's timestamps)",
+        "flightlog extract {ulg} --mass-kg 1.5 --rate-hz 1e9 -o {r}/d1g.csv",
+        2,
+        "--rate-hz 1e+09: expected 0.5..1000 Hz",
+        absent="timestamp",
+    ),
+    Row(
+        "a Df resampled at 0.001 Hz (wrote an empty Df, exit 0)",
+        "flightlog extract {ulg} --mass-kg 1.5 --rate-hz 0.001 -o {r}/d1m.csv",
+        2,
+        "--rate-hz 0.001: expected 0.5..1000 Hz",
+    ),
+    Row(
+        "a rotor count no vehicle has",
+        "flightlog extract {ulg} --mass-kg 1.5 --rotors 4000 -o {r}/d4k.csv",
+        2,
+        "--rotors 4000: expected 1..64 rotors",
     ),
 ]
 
