@@ -1280,6 +1280,12 @@ ROWS_ROUTED = [
         2,
         "--rotors 4000: expected 1..64 rotors",
     ),
+    Row(
+        "a mass a thousand times too light for the map (extracted, exit 0)",
+        "flightlog extract {ulg} --mass-kg 0.001 --map {map} -o {r}/dlight.csv",
+        2,
+        "thrust-to-weight above 30 is no multirotor's",
+    ),
 ]
 
 

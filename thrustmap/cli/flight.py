@@ -209,8 +209,9 @@ def extract_cmd(
             echo(f"refused: {line}", err=True)
         raise
     if tmap is not None:
-        _check_hover(df.sources, tmap, force)
+        # the pack first: on another motor's map, the mass's hover thrust means nothing
         why = _check_pack(df.table["voltage_v"], tmap, force, nothing="nothing written")
+        _check_hover(df.sources, tmap, force)
         if why is not None:
             df.sources["forced"] = [*df.sources.get("forced", []), why]
     df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
