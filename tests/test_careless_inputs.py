@@ -1286,6 +1286,13 @@ ROWS_ROUTED = [
         2,
         "thrust-to-weight above 30 is no multirotor's",
     ),
+    Row(
+        "fleet extract on 100,000 workers (said 'memory limit 0.00 GiB per worker')",
+        "fleet extract {r}/logs --mass-kg 1.5 --workers 100000 --quiet -o {r}/fw",
+        2,
+        "--workers 100000: at most",
+        absent="GiB per worker",
+    ),
 ]
 
 

@@ -433,15 +433,37 @@ class LocalClusterSpec:
 LOOPBACK = "127.0.0.1"
 
 
+#: Local workers per CPU core: a worker mostly decodes (CPU-bound), a few more than the cores
+#: hide its file reads; beyond this they only contend for the cores and the memory.
+WORKERS_PER_CORE = 4
+#: Local workers on any machine: each is a forked process with its own memory limit.
+MAX_WORKERS = 256
+#: The least memory a local worker is given (as ``--memory-per-worker`` accepts).
+MIN_WORKER_MEMORY_BYTES = 256 << 20
+
+
 def local_cluster_spec(
     workers: int | None, memory_per_worker: int | None, dashboard_address: str | None = None
 ) -> LocalClusterSpec:
     """How many local workers and how much memory each may use (stated to the user)."""
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    cpus = os.cpu_count() or 1
+    n = workers if workers is not None else cpus
     if n < 1:
         raise ConfigError(f"--workers must be at least 1 (0 runs the plain serial loop), got {n}")
+    top = min(WORKERS_PER_CORE * cpus, MAX_WORKERS)
+    if n > top:
+        raise ConfigError(
+            f"--workers {n}: at most {top} ({WORKERS_PER_CORE} per CPU core, {cpus} here, and "
+            f"never over {MAX_WORKERS}): each worker is a process holding a log in memory"
+        )
     total = _total_memory_bytes()
     mem = memory_per_worker if memory_per_worker is not None else min(4 << 30, total // n)
+    if memory_per_worker is None and mem < MIN_WORKER_MEMORY_BYTES:
+        raise ConfigError(
+            f"--workers {n}: {mem / 2**20:.0f} MiB of this machine's "
+            f"{total / 2**30:.1f} GiB each, under the {MIN_WORKER_MEMORY_BYTES >> 20} MiB a "
+            "worker needs; give fewer workers"
+        )
     return LocalClusterSpec(n, int(mem), dashboard_address)
 
 
