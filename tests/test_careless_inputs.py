@@ -1249,6 +1249,11 @@ def work_routed(work_unseen: dict[str, str]) -> dict[str, str]:
     tmp.mkdir()
     (tmp / "logs").mkdir()
     shutil.copy(FL / "sim_hover.ulg", tmp / "logs" / "flight.ulg")
+    (tmp / "src").mkdir()  # a map fitted on a stand log that was then overwritten
+    for name in ("msp_run.csv", "msp_run.meta.json"):
+        shutil.copy(FIXTURES / "sweeps" / name, tmp / "src" / name)
+    assert _run(["fit", str(tmp / "src" / "msp_run.csv"), "-o", str(tmp / "src_map.json")])[0] == 0
+    (tmp / "src" / "msp_run.csv").write_text("time,signal\n0,1\n", encoding="utf-8")
     return {**work_unseen, "r": str(tmp)}
 
 
@@ -1292,6 +1297,20 @@ ROWS_ROUTED = [
         2,
         "--workers 100000: at most",
         absent="GiB per worker",
+    ),
+    Row(
+        "report on a map whose source changed since the fit (blamed the header)",
+        "report {r}/src_map.json -o {r}/changed.html",
+        2,
+        "msp_run.csv' changed since the fit: its content differs from what the map was fitted on",
+        absent="header",
+    ),
+    Row(
+        "plot sweep on a map whose source changed since the fit (blamed the header)",
+        "plot sweep {r}/src_map.json -o {r}/changed.png",
+        2,
+        "msp_run.csv' changed since the fit",
+        absent="header",
     ),
 ]
 
