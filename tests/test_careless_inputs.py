@@ -1267,6 +1267,13 @@ ROWS_ROUTED = [
         absent="1 extracted",
     ),
     Row(
+        "fleet extract with the mass in grams against a map (extracted, exit 0)",
+        "fleet extract {r}/logs --map {map} --mass-kg 1500 --workers 0 --quiet -o {r}/fheavy",
+        0,
+        "refused: {r}/logs/flight.ulg: --map: mass 1500 kg on 4 rotors needs 3677 N",
+        absent="1 extracted",
+    ),
+    Row(
         "a Df resampled at 1 GHz (blamed the log's timestamps)",
         "flightlog extract {ulg} --mass-kg 1.5 --rate-hz 1e9 -o {r}/d1g.csv",
         2,

@@ -164,8 +164,9 @@ def fleet_group() -> None:
 @click.option("--max-log-mb", type=float, default=512.0, show_default=True,
               help="Logs larger than this are refused unread (bounds a worker's memory).")  # fmt: skip
 @click.option("--force", is_flag=True,
-              help="Extract a flight whose battery is another cell count than the map's pack "
-              "anyway (as `flightlog extract --force`: recorded in its Df sidecar).")  # fmt: skip
+              help="Extract a flight whose battery is another cell count than the map's pack, "
+              "or whose mass the map cannot hover, anyway (as `flightlog extract --force`: "
+              "recorded in its Df sidecar).")  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def extract_cmd(
     sources: tuple[str, ...],

@@ -298,8 +298,8 @@ def _extract(task: LogTask, out: Outcome) -> None:
     out.format = flights[0].format
     out.flights = len(flights)
     df = extract(flights, opts, tmap)  # a flash dump's unusable logs: skipped, listed below
-    if tmap is not None:  # the check of `flightlog extract` (ThrustMap.pack_refusal)
-        _check_pack(df, tmap, task.force, out)
+    if tmap is not None:  # the checks of `flightlog extract` against the map
+        _check_vehicle(df, tmap, task.force, out)
     df.sources["logs"] = [{"path": task.path, "sha256": out.sha256}]
     out.warnings.extend(refusal_lines(df.sources.get("refused", [])))
     rel = Path("df") / f"{stem_for(out.sha256, task.options_key)}.csv"
@@ -342,14 +342,22 @@ def _extract(task: LogTask, out: Outcome) -> None:
         )
 
 
-def _check_pack(df: Any, tmap: Any, force: bool, out: Outcome) -> None:
-    """A flight on another cell count than the map's pack is refused (the log's outcome), as
-    ``flightlog extract`` refuses it; with ``force`` it is extracted, the reason recorded in the
-    Df sidecar (``forced``) and among the log's warnings."""
-    why = tmap.pack_refusal(df.column("voltage_v")) if len(df) else None
-    if why is None:
-        return
-    if not force:
-        raise ConfigError(f"--map: {why}; not extracted (--force goes on anyway)")
-    df.sources["forced"] = [*df.sources.get("forced", []), why]
-    out.warnings.append(f"forced (--force), recorded: {why}")
+def _check_vehicle(df: Any, tmap: Any, force: bool, out: Outcome) -> None:
+    """The checks ``flightlog extract`` makes against the map, in its order: the flight's pack
+    (``ThrustMap.pack_refusal``), then each flight's mass (``ThrustMap.hover_refusal``). A
+    refusal is the log's outcome; with ``force`` the log is extracted, the reasons recorded in
+    the Df sidecar (``forced``) and among the log's warnings."""
+    pack = tmap.pack_refusal(df.column("voltage_v")) if len(df) else None
+    whys = [pack] if pack is not None else []
+    flights = df.sources.get("flights", {}).values() if pack is None else []
+    for meta in flights:  # on another motor's map, the mass's hover thrust means nothing
+        mass, rotors = meta.get("mass_kg"), meta.get("rotors")
+        if isinstance(mass, (int, float)) and isinstance(rotors, int) and rotors >= 1:
+            why = tmap.hover_refusal(float(mass), rotors)
+            if why is not None and why not in whys:
+                whys.append(why)
+    if whys and not force:
+        raise ConfigError(f"--map: {whys[0]}; not extracted (--force goes on anyway)")
+    for why in whys:
+        df.sources["forced"] = [*df.sources.get("forced", []), why]
+        out.warnings.append(f"forced (--force), recorded: {why}")
