@@ -362,7 +362,7 @@ ROWS = [
         "a tilt beyond 90 degrees",
         "flightlog extract {ulg} --mass-kg 1 --tilt-max-deg 500 -o {tmp}/x8.csv",
         2,
-        "--tilt-max-deg 500: expected 0..90",
+        "--tilt-max-deg 500: expected 1..90 deg",
     ),
     Row(
         "a negative hover tolerance",
@@ -1291,6 +1291,12 @@ ROWS_ROUTED = [
         "flightlog extract {ulg} --mass-kg 1.5 --rotors 4000 -o {r}/d4k.csv",
         2,
         "--rotors 4000: expected 1..64 rotors",
+    ),
+    Row(
+        "a tilt filter no hovering multirotor passes (wrote an empty Df, exit 0)",
+        "flightlog extract {ulg} --mass-kg 1.5 --tilt-max-deg 0.5 -o {r}/dtilt.csv",
+        2,
+        "--tilt-max-deg 0.5: expected 1..90 deg",
     ),
     Row(
         "a mass a thousand times too light for the map (extracted, exit 0)",

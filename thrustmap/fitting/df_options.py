@@ -22,6 +22,19 @@ THRUST_SOURCES = ("auto", "log", "motors", "norm")
 #: log them at 10-400 Hz): bins would be empty between samples, and the timeline's bin count
 #: (span × rate) grows without bound (1e9 Hz: 10^11 bins for a 2-minute flight).
 RATE_HZ = (0.5, 1000.0)
+#: Each Df filter's band, inclusive (issue 31: a value outside cannot be meant). The lower
+#: ends are what a hovering multirotor always exceeds, so a tighter filter keeps nothing and
+#: writes an empty Df: its bin-averaged upward acceleration scatters by ~0.05-0.2 m/s² (IMU
+#: noise, vibration), its attitude by a degree or more holding position, its climb rate (from
+#: a barometer or GNSS) by ~0.05 m/s; the upper ends are g, a quarter turn, no multirotor's
+#: climb. 0 s of settling and 0 m of height are "off".
+FILTER_BANDS: dict[str, tuple[float, float]] = {
+    "accel_tol_mps2": (0.05, 9.80665),
+    "tilt_max_deg": (1.0, 90.0),
+    "climb_max_mps": (0.05, 100.0),
+    "settle_s": (0.0, 3600.0),
+    "min_height_m": (0.0, 1000.0),
+}
 #: Rotors on one vehicle (as ``gamma fit --rotors``).
 MAX_ROTORS = 64
 
@@ -95,16 +108,13 @@ class DfOptions:
                 f"--rate-hz {self.rate_hz:g}: expected {lo_hz:g}..{hi_hz:g} Hz (the Df's "
                 "resampling rate, one bin mean per 1/rate seconds)"
             )
-        for name, lo, hi in (  # issue 31: each filter a band it can be (lo < value <= hi)
-            ("accel_tol_mps2", 0.0, 9.80665),
-            ("tilt_max_deg", 0.0, 90.0),
-            ("climb_max_mps", 0.0, 100.0),
-            ("settle_s", -1e-12, 3600.0),
-            ("min_height_m", -1e-12, 1000.0),
-        ):
+        for name, (lo, hi) in FILTER_BANDS.items():  # each filter a band it can be
             value = getattr(self, name)
-            if not lo < value <= hi:  # also NaN
-                raise ConfigError(f"{option_flag(name)} {value:g}: expected {max(lo, 0):g}..{hi:g}")
+            if not lo <= value <= hi:  # also NaN
+                unit = OPTION_FIELDS[name].metadata["unit"]
+                raise ConfigError(
+                    f"{option_flag(name)} {value:g}: expected {lo:g}..{hi:g} {unit}".rstrip()
+                )
         if self.thrust_source not in THRUST_SOURCES:
             raise ConfigError(
                 f"thrust source '{self.thrust_source}': expected auto, log, motors or norm"
