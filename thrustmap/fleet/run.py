@@ -59,9 +59,11 @@ class FleetResult:
 
 
 def rules_fingerprint() -> str:
-    """A hash of the extraction rules' source (Df filters and their defaults, every reader): a
-    change to them changes every log's options key, so a re-run re-extracts instead of reusing.
-    Found without importing them (a re-run with nothing new stays fast)."""
+    """A hash of the extraction rules' source (Df filters and their defaults, every reader, the
+    per-log task and its physical checks against the map): a change to them changes every
+    log's options key, so a re-run re-extracts instead of reusing (a log extracted before the
+    pack check came in is checked on the next run). Found without importing them (a re-run
+    with nothing new stays fast)."""
     import importlib.util
 
     h = hashlib.sha256()
@@ -70,6 +72,8 @@ def rules_fingerprint() -> str:
         "thrustmap.fitting.df",
         "thrustmap.fitting.df_options",
         "thrustmap.flightlogs",
+        "thrustmap.fleet.task",
+        "thrustmap.core.physical",
     ):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
