@@ -326,7 +326,7 @@ ROWS = [
         "extract at 0 Hz",
         "flightlog extract {ulg} --mass-kg 1 --rate-hz 0 -o {tmp}/x6.csv",
         2,
-        "positive",
+        "--rate-hz 0: expected 0.5..1000 Hz",
     ),
     Row(
         "gamma on a Df that is not there",
@@ -363,7 +363,7 @@ ROWS = [
         "a tilt beyond 90 degrees",
         "flightlog extract {ulg} --mass-kg 1 --tilt-max-deg 500 -o {tmp}/x8.csv",
         2,
-        "--tilt-max-deg 500: expected 0..90",
+        "--tilt-max-deg 500: expected 1..90 deg",
     ),
     Row(
         "a negative hover tolerance",
@@ -1264,3 +1264,113 @@ def test_predict_careless_input_on_the_demo_map(
     assert "Traceback" not in err
     if absent is not None:
         assert absent not in out + err
+
+
+# -- routed: the defects a colleague found on fc15565 -----------------------------------------
+
+
+@pytest.fixture(scope="module")
+def work_routed(work_unseen: dict[str, str]) -> dict[str, str]:
+    tmp = Path(work_unseen["u"]) / "routed"
+    tmp.mkdir()
+    (tmp / "logs").mkdir()
+    shutil.copy(FL / "sim_hover.ulg", tmp / "logs" / "flight.ulg")
+    (tmp / "src").mkdir()  # a map fitted on a stand log that was then overwritten
+    for name in ("msp_run.csv", "msp_run.meta.json"):
+        shutil.copy(FIXTURES / "sweeps" / name, tmp / "src" / name)
+    assert _run(["fit", str(tmp / "src" / "msp_run.csv"), "-o", str(tmp / "src_map.json")])[0] == 0
+    (tmp / "src" / "msp_run.csv").write_text("time,signal\n0,1\n", encoding="utf-8")
+    return {**work_unseen, "r": str(tmp)}
+
+
+ROWS_ROUTED = [
+    Row(
+        "fleet extract of 6S flights with a 1S map (extracted, exit 0)",
+        "fleet extract {r}/logs --map {u}/one_cell_map.json --mass-kg 1.5 --workers 0 --quiet "
+        "-o {r}/f1s",
+        0,
+        "refused: {r}/logs/flight.ulg: --map: the flight's battery reads 6S",
+        absent="1 extracted",
+    ),
+    Row(
+        "fleet extract with the mass in grams against a map (extracted, exit 0)",
+        "fleet extract {r}/logs --map {map} --mass-kg 1500 --workers 0 --quiet -o {r}/fheavy",
+        0,
+        "refused: {r}/logs/flight.ulg: --map: mass 1500 kg on 4 rotors needs 3677 N",
+        absent="1 extracted",
+    ),
+    Row(
+        "a Df resampled at 1 GHz (blamed the log's timestamps)",
+        "flightlog extract {ulg} --mass-kg 1.5 --rate-hz 1e9 -o {r}/d1g.csv",
+        2,
+        "--rate-hz 1e+09: expected 0.5..1000 Hz",
+        absent="timestamp",
+    ),
+    Row(
+        "a Df resampled at 0.001 Hz (wrote an empty Df, exit 0)",
+        "flightlog extract {ulg} --mass-kg 1.5 --rate-hz 0.001 -o {r}/d1m.csv",
+        2,
+        "--rate-hz 0.001: expected 0.5..1000 Hz",
+    ),
+    Row(
+        "a rotor count no vehicle has",
+        "flightlog extract {ulg} --mass-kg 1.5 --rotors 4000 -o {r}/d4k.csv",
+        2,
+        "--rotors 4000: expected 1..64 rotors",
+    ),
+    Row(
+        "a tilt filter no hovering multirotor passes (wrote an empty Df, exit 0)",
+        "flightlog extract {ulg} --mass-kg 1.5 --tilt-max-deg 0.5 -o {r}/dtilt.csv",
+        2,
+        "--tilt-max-deg 0.5: expected 1..90 deg",
+    ),
+    Row(
+        "a mass a thousand times too light for the map (extracted, exit 0)",
+        "flightlog extract {ulg} --mass-kg 0.001 --map {map} -o {r}/dlight.csv",
+        2,
+        "thrust-to-weight above 30 is no multirotor's",
+    ),
+    Row(
+        "fleet extract on 100,000 workers (said 'memory limit 0.00 GiB per worker')",
+        "fleet extract {r}/logs --mass-kg 1.5 --workers 100000 --quiet -o {r}/fw",
+        2,
+        "--workers 100000: at most",
+        absent="GiB per worker",
+    ),
+    Row(
+        "report on a map whose source changed since the fit (blamed the header)",
+        "report {r}/src_map.json -o {r}/changed.html",
+        2,
+        "msp_run.csv' changed since the fit: its content differs from what the map was fitted on",
+        absent="header",
+    ),
+    Row(
+        "plot sweep on a map whose source changed since the fit (blamed the header)",
+        "plot sweep {r}/src_map.json -o {r}/changed.png",
+        2,
+        "msp_run.csv' changed since the fit",
+        absent="header",
+    ),
+]
+
+
+@pytest.mark.parametrize("row", ROWS_ROUTED, ids=[r.name for r in ROWS_ROUTED])
+def test_careless_input_routed(row: Row, work_routed: dict[str, str]) -> None:
+    test_careless_input(dataclasses.replace(row, phrase=row.phrase.format(**work_routed)),
+                        work_routed)  # fmt: skip
+
+
+def test_fleet_force_records_the_other_pack(work_routed: dict[str, str]) -> None:
+    """fleet extract --force extracts a flight on another pack, as flightlog extract --force
+    does, and records why in the log's Df sidecar."""
+    out = Path(work_routed["r"]) / "f1s_forced"
+    code, _, _ = _run(
+        ["fleet", "extract", f"{work_routed['r']}/logs", "--map",
+         f"{work_routed['u']}/one_cell_map.json", "--mass-kg", "1.5", "--workers", "0",
+         "--quiet", "--force", "-o", str(out)]
+    )  # fmt: skip
+    assert code == 0
+    sides = [p for p in (out / "df").glob("*.json") if not p.name.endswith(".outcome.json")]
+    assert len(sides) == 1
+    forced = json.loads(sides[0].read_text())["forced"]
+    assert any("the flight's battery reads 6S" in f for f in forced), forced

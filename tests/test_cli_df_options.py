@@ -73,7 +73,7 @@ def test_a_required_option_is_still_required() -> None:
 def test_the_validation_names_the_generated_flag() -> None:
     from thrustmap.core.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^--accel-tol 0: expected 0\.\.9\.80665$"):
+    with pytest.raises(ConfigError, match=r"^--accel-tol 0: expected 0\.05\.\.9\.80665 m/s²$"):
         DfOptions(accel_tol_mps2=0.0)
     with pytest.raises(ValueError, match="max_gap_s"):
         gen.df_click_options(("max_gap_s",))

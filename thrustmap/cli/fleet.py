@@ -163,6 +163,10 @@ def fleet_group() -> None:
               help="Memory limit of each local worker (e.g. 2GiB); auto: min(4 GiB, RAM/workers).")  # fmt: skip
 @click.option("--max-log-mb", type=float, default=512.0, show_default=True,
               help="Logs larger than this are refused unread (bounds a worker's memory).")  # fmt: skip
+@click.option("--force", is_flag=True,
+              help="Extract a flight whose battery is another cell count than the map's pack, "
+              "or whose mass the map cannot hover, anyway (as `flightlog extract --force`: "
+              "recorded in its Df sidecar).")  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def extract_cmd(
     sources: tuple[str, ...],
@@ -175,6 +179,7 @@ def extract_cmd(
     dashboard: str | None,
     memory_per_worker: str,
     max_log_mb: float,
+    force: bool,
     quiet: bool,
     **df_values: Any,
 ) -> None:
@@ -189,6 +194,7 @@ def extract_cmd(
     dask_local, dash = _check_modes(workers, scheduler, dashboard, max_log_mb)
     mem = _parse_size(memory_per_worker)
     config = _fleet_config(out_dir, masses_path, map_path, fmt, max_log_mb, df_values)
+    config.force = force
     # the number of local workers and their memory, checked before anything is read
     spec = None if workers == 0 or scheduler is not None else run.local_cluster_spec(
         workers, mem, dash)  # fmt: skip

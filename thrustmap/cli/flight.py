@@ -209,8 +209,9 @@ def extract_cmd(
             echo(f"refused: {line}", err=True)
         raise
     if tmap is not None:
-        _check_hover(df.sources, tmap, force)
+        # the pack first: on another motor's map, the mass's hover thrust means nothing
         why = _check_pack(df.table["voltage_v"], tmap, force, nothing="nothing written")
+        _check_hover(df.sources, tmap, force)
         if why is not None:
             df.sources["forced"] = [*df.sources.get("forced", []), why]
     df.sources["logs"] = [{"path": str(p), "sha256": h} for p, h in hashes]
@@ -251,22 +252,12 @@ def extract_cmd(
 
 
 def _check_pack(voltage_v: Any, tmap: Any, force: bool, *, nothing: str) -> str | None:
-    """The flown battery's cell count against the map's (``physical.flight_against_map_pack``,
-    over the middle 90 % of the Df's voltages): refused unless ``force``; a forced one is
-    logged and returned, for the caller to record (``forced``)."""
+    """The flown battery's cell count against the map's (``ThrustMap.pack_refusal``):
+    refused unless ``force``; a forced one is logged and returned, for the caller to record
+    (``forced``)."""
     import logging
 
-    import numpy as np
-
-    from thrustmap.core.physical import flight_against_map_pack
-
-    v = np.asarray(voltage_v, float)
-    v = v[np.isfinite(v)]
-    if not v.size:
-        return None
-    lo, hi = (float(x) for x in np.percentile(v, [5, 95]))
-    box = tmap.validity.voltage_v
-    why = flight_against_map_pack(lo, hi, box.lo, box.hi)
+    why: str | None = tmap.pack_refusal(voltage_v)
     if why is None:
         return None
     if not force:

@@ -39,6 +39,11 @@ MAX_THRUST_PER_VOLT_N = 20.0
 #: of two (propwash, a different battery, a bent prop); outside it something else is wrong
 #: (the mass in the wrong unit, the wrong map or rotor count).
 GAMMA_BAND = (0.5, 2.0)
+#: A multirotor's full thrust over its weight: camera and heavy-lift craft ~1.5-3, 5-inch
+#: racers ~8-12, the lightest racers up to ~20. A vehicle the map would lift 30 times over hovers
+#: at a few % of full thrust, below where its motors spin up: its mass is in another unit (1.5 g
+#: typed for 1.5 kg) or the map is another motor's.
+MAX_THRUST_TO_WEIGHT = 30.0
 #: Interlock thresholds above what a bench can read are no limit at all, a unit mistyped:
 #: (the largest value a threshold may take, what the number probably was). Thrust as
 #: ``MAX_ROTOR_THRUST_N`` (a stand measures one rotor, or four on one ESC under 4 × 500 N);
@@ -136,6 +141,13 @@ def hover_outside_map(
         return (
             f"mass {mass_kg:g} kg on {rotors} rotors needs only {hover_n:.4g} N per rotor to "
             f"hover, below the map's {lo:.4g} N at 0 % throttle: kilograms typed as grams?"
+        )
+    if hover_n * MAX_THRUST_TO_WEIGHT < hi:
+        return (
+            f"mass {mass_kg:g} kg on {rotors} rotors needs only {hover_n:.4g} N per rotor to "
+            f"hover, 1/{hi / hover_n:.0f} of the {hi:.4g} N the map reaches at {voltage_v:.2f} V "
+            f"(thrust-to-weight above {MAX_THRUST_TO_WEIGHT:g} is no multirotor's, which hover "
+            "above their motors' spin-up): the mass in another unit (--mass-kg is kg), or the wrong map?"
         )
     return None
 

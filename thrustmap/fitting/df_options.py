@@ -15,6 +15,28 @@ from typing import Any
 from thrustmap.core.errors import ConfigError
 
 THRUST_SOURCES = ("auto", "log", "motors", "norm")
+#: The Df's resampling rate, Hz. Below 0.5 Hz a bin outlasts the 2 s settle margin and the
+#: 5 s steady window holds fewer than three bins: a flight of minutes gives a handful of samples
+#: or none (0.001 Hz wrote an empty Df). Above 1 kHz no log's accelerometer, attitude and motor
+#: outputs together are sampled (Betaflight's fastest motor logging aside, ULog and DataFlash
+#: log them at 10-400 Hz): bins would be empty between samples, and the timeline's bin count
+#: (span × rate) grows without bound (1e9 Hz: 10^11 bins for a 2-minute flight).
+RATE_HZ = (0.5, 1000.0)
+#: Each Df filter's band, inclusive (issue 31: a value outside cannot be meant). The lower
+#: ends are what a hovering multirotor always exceeds, so a tighter filter keeps nothing and
+#: writes an empty Df: its bin-averaged upward acceleration scatters by ~0.05-0.2 m/s² (IMU
+#: noise, vibration), its attitude by a degree or more holding position, its climb rate (from
+#: a barometer or GNSS) by ~0.05 m/s; the upper ends are g, a quarter turn, no multirotor's
+#: climb. 0 s of settling and 0 m of height are "off".
+FILTER_BANDS: dict[str, tuple[float, float]] = {
+    "accel_tol_mps2": (0.05, 9.80665),
+    "tilt_max_deg": (1.0, 90.0),
+    "climb_max_mps": (0.05, 100.0),
+    "settle_s": (0.0, 3600.0),
+    "min_height_m": (0.0, 1000.0),
+}
+#: Rotors on one vehicle (as ``gamma fit --rotors``).
+MAX_ROTORS = 64
 
 
 def _option(
@@ -76,22 +98,23 @@ class DfOptions:
     rotor_lag_s: float = 0.1  # drop this near a command change larger than steady_tol
 
     def __post_init__(self) -> None:
-        if self.mass_kg is not None and not self.mass_kg > 0:
+        if self.mass_kg is not None and not self.mass_kg > 0:  # also NaN
             raise ConfigError(f"mass must be positive, got {self.mass_kg} kg")
-        if self.rotors is not None and self.rotors < 1:
-            raise ConfigError(f"rotor count must be at least 1, got {self.rotors}")
-        if not self.rate_hz > 0:
-            raise ConfigError(f"resampling rate must be positive, got {self.rate_hz} Hz")
-        for name, lo, hi in (  # issue 31: each filter a band it can be (lo < value <= hi)
-            ("accel_tol_mps2", 0.0, 9.80665),
-            ("tilt_max_deg", 0.0, 90.0),
-            ("climb_max_mps", 0.0, 100.0),
-            ("settle_s", -1e-12, 3600.0),
-            ("min_height_m", -1e-12, 1000.0),
-        ):
+        if self.rotors is not None and not 1 <= self.rotors <= MAX_ROTORS:
+            raise ConfigError(f"--rotors {self.rotors}: expected 1..{MAX_ROTORS} rotors")
+        lo_hz, hi_hz = RATE_HZ
+        if not lo_hz <= self.rate_hz <= hi_hz:  # also NaN
+            raise ConfigError(
+                f"--rate-hz {self.rate_hz:g}: expected {lo_hz:g}..{hi_hz:g} Hz (the Df's "
+                "resampling rate, one bin mean per 1/rate seconds)"
+            )
+        for name, (lo, hi) in FILTER_BANDS.items():  # each filter a band it can be
             value = getattr(self, name)
-            if not lo < value <= hi:  # also NaN
-                raise ConfigError(f"{option_flag(name)} {value:g}: expected {max(lo, 0):g}..{hi:g}")
+            if not lo <= value <= hi:  # also NaN
+                unit = OPTION_FIELDS[name].metadata["unit"]
+                raise ConfigError(
+                    f"{option_flag(name)} {value:g}: expected {lo:g}..{hi:g} {unit}".rstrip()
+                )
         if self.thrust_source not in THRUST_SOURCES:
             raise ConfigError(
                 f"thrust source '{self.thrust_source}': expected auto, log, motors or norm"

@@ -25,7 +25,11 @@ import numpy.typing as npt
 from thrustmap.core.errors import ConfigError, DataFormatError, FitError
 from thrustmap.core.files import atomic_write_text
 from thrustmap.core.jsonfile import Fields, load_json
-from thrustmap.core.physical import gamma_outside_band, hover_outside_map
+from thrustmap.core.physical import (
+    flight_against_map_pack,
+    gamma_outside_band,
+    hover_outside_map,
+)
 from thrustmap.core.units import ThrottleScale
 from thrustmap.core.version import package_version
 from thrustmap.fitting.interval import Interval, Region, Standing, interval_range
@@ -289,6 +293,19 @@ class ThrustMap:
         lo = float(self.thrust_n(0.0, v.lo, corrected=False))
         hi = float(self.thrust_n(100.0, v.hi, corrected=False))
         return hover_outside_map(mass_kg, rotors, (lo, hi), v.hi)
+
+    def pack_refusal(self, voltage_v: npt.ArrayLike) -> str | None:
+        """Why a flight whose battery read ``voltage_v`` cannot have flown this map's motor
+        (its cell count, over the middle 90 % of the readings, is not the map's pack:
+        ``physical.flight_against_map_pack``), or None. The one check of ``flightlog
+        extract``, ``gamma fit`` and ``fleet extract``."""
+        v = np.asarray(voltage_v, float)
+        v = v[np.isfinite(v)]
+        if not v.size:
+            return None
+        lo, hi = (float(x) for x in np.percentile(v, [5, 95]))
+        box = self.validity.voltage_v
+        return flight_against_map_pack(lo, hi, box.lo, box.hi)
 
     def with_correction(self, correction: GammaCorrection | None) -> ThrustMap:
         return replace(self, correction=correction)

@@ -46,6 +46,7 @@ class FleetConfig:
     map_path: Path | None = None
     fmt: str | None = None
     max_log_bytes: int = 512 << 20
+    force: bool = False  # extract a flight on another pack than the map's (recorded)
 
 
 @dataclass
@@ -58,9 +59,11 @@ class FleetResult:
 
 
 def rules_fingerprint() -> str:
-    """A hash of the extraction rules' source (Df filters and their defaults, every reader): a
-    change to them changes every log's options key, so a re-run re-extracts instead of reusing.
-    Found without importing them (a re-run with nothing new stays fast)."""
+    """A hash of the extraction rules' source (Df filters and their defaults, every reader, the
+    per-log task and its physical checks against the map): a change to them changes every
+    log's options key, so a re-run re-extracts instead of reusing (a log extracted before the
+    pack check came in is checked on the next run). Found without importing them (a re-run
+    with nothing new stays fast)."""
     import importlib.util
 
     h = hashlib.sha256()
@@ -69,6 +72,8 @@ def rules_fingerprint() -> str:
         "thrustmap.fitting.df",
         "thrustmap.fitting.df_options",
         "thrustmap.flightlogs",
+        "thrustmap.fleet.task",
+        "thrustmap.core.physical",
     ):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:  # pragma: no cover - a broken installation
@@ -123,11 +128,16 @@ def mass_for(path: Path, config: FleetConfig) -> float | None:
 
 
 def options_key(
-    df_options: dict[str, Any], map_sha: str | None, fmt: str | None, rules: str
+    df_options: dict[str, Any],
+    map_sha: str | None,
+    fmt: str | None,
+    rules: str,
+    force: bool = False,
 ) -> str:
-    text = json.dumps(
-        {"df": df_options, "map": map_sha, "format": fmt, "rules": rules}, sort_keys=True
-    )
+    given: dict[str, Any] = {"df": df_options, "map": map_sha, "format": fmt, "rules": rules}
+    if force:  # only when given: the keys of earlier runs stay valid
+        given["force"] = True
+    text = json.dumps(given, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -147,7 +157,7 @@ def plan(
         mass = mass_for(p, config)
         if mass not in keys:
             opts = {**config.df_options, "mass_kg": mass}
-            keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules))
+            keys[mass] = (opts, options_key(opts, map_sha, config.fmt, rules, config.force))
         opts, key = keys[mass]
         prev = previous.get(str(p))
         if prev is not None and prev.options_key == key:
@@ -172,6 +182,7 @@ def plan(
                 map_path=None if config.map_path is None else str(config.map_path.absolute()),
                 fmt=config.fmt,
                 max_log_bytes=config.max_log_bytes,
+                force=config.force,
             )
         )
     return tasks, reused
@@ -426,15 +437,37 @@ class LocalClusterSpec:
 LOOPBACK = "127.0.0.1"
 
 
+#: Local workers per CPU core: a worker mostly decodes (CPU-bound), a few more than the cores
+#: hide its file reads; beyond this they only contend for the cores and the memory.
+WORKERS_PER_CORE = 4
+#: Local workers on any machine: each is a forked process with its own memory limit.
+MAX_WORKERS = 256
+#: The least memory a local worker is given (as ``--memory-per-worker`` accepts).
+MIN_WORKER_MEMORY_BYTES = 256 << 20
+
+
 def local_cluster_spec(
     workers: int | None, memory_per_worker: int | None, dashboard_address: str | None = None
 ) -> LocalClusterSpec:
     """How many local workers and how much memory each may use (stated to the user)."""
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    cpus = os.cpu_count() or 1
+    n = workers if workers is not None else cpus
     if n < 1:
         raise ConfigError(f"--workers must be at least 1 (0 runs the plain serial loop), got {n}")
+    top = min(WORKERS_PER_CORE * cpus, MAX_WORKERS)
+    if n > top:
+        raise ConfigError(
+            f"--workers {n}: at most {top} ({WORKERS_PER_CORE} per CPU core, {cpus} here, and "
+            f"never over {MAX_WORKERS}): each worker is a process holding a log in memory"
+        )
     total = _total_memory_bytes()
     mem = memory_per_worker if memory_per_worker is not None else min(4 << 30, total // n)
+    if memory_per_worker is None and mem < MIN_WORKER_MEMORY_BYTES:
+        raise ConfigError(
+            f"--workers {n}: {mem / 2**20:.0f} MiB of this machine's "
+            f"{total / 2**30:.1f} GiB each, under the {MIN_WORKER_MEMORY_BYTES >> 20} MiB a "
+            "worker needs; give fewer workers"
+        )
     return LocalClusterSpec(n, int(mem), dashboard_address)
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from thrustmap.core.errors import DataFormatError, ThrustmapError
+from thrustmap.core.errors import ConfigError, DataFormatError, ThrustmapError
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,7 @@ class LogTask:
     map_path: str | None = None
     fmt: str | None = None
     max_log_bytes: int = 1 << 30
+    force: bool = False  # a flight on another pack than the map's: extracted, recorded
 
 
 @dataclass
@@ -297,6 +298,8 @@ def _extract(task: LogTask, out: Outcome) -> None:
     out.format = flights[0].format
     out.flights = len(flights)
     df = extract(flights, opts, tmap)  # a flash dump's unusable logs: skipped, listed below
+    if tmap is not None:  # the checks of `flightlog extract` against the map
+        _check_vehicle(df, tmap, task.force, out)
     df.sources["logs"] = [{"path": task.path, "sha256": out.sha256}]
     out.warnings.extend(refusal_lines(df.sources.get("refused", [])))
     rel = Path("df") / f"{stem_for(out.sha256, task.options_key)}.csv"
@@ -337,3 +340,24 @@ def _extract(task: LogTask, out: Outcome) -> None:
         out.reason = "no steady flight (0 Df samples): " + (
             ", ".join(f"{k} −{v:.1f} s" for k, v in worst) or "no flight time"
         )
+
+
+def _check_vehicle(df: Any, tmap: Any, force: bool, out: Outcome) -> None:
+    """The checks ``flightlog extract`` makes against the map, in its order: the flight's pack
+    (``ThrustMap.pack_refusal``), then each flight's mass (``ThrustMap.hover_refusal``). A
+    refusal is the log's outcome; with ``force`` the log is extracted, the reasons recorded in
+    the Df sidecar (``forced``) and among the log's warnings."""
+    pack = tmap.pack_refusal(df.column("voltage_v")) if len(df) else None
+    whys = [pack] if pack is not None else []
+    flights = df.sources.get("flights", {}).values() if pack is None else []
+    for meta in flights:  # on another motor's map, the mass's hover thrust means nothing
+        mass, rotors = meta.get("mass_kg"), meta.get("rotors")
+        if isinstance(mass, (int, float)) and isinstance(rotors, int) and rotors >= 1:
+            why = tmap.hover_refusal(float(mass), rotors)
+            if why is not None and why not in whys:
+                whys.append(why)
+    if whys and not force:
+        raise ConfigError(f"--map: {whys[0]}; not extracted (--force goes on anyway)")
+    for why in whys:
+        df.sources["forced"] = [*df.sources.get("forced", []), why]
+        out.warnings.append(f"forced (--force), recorded: {why}")

@@ -128,8 +128,23 @@ def resolve_sources(tmap: ThrustMap, map_path: str | Path) -> list[str]:
                 f"{map_path}: source '{raw}' is not where the map recorded it (moved?); "
                 "give the stand logs after the map: thrustmap report MAP FILE..."
             )
+        _same_as_fitted(hit, src.get("sha256"), map_path)
         found.append(str(hit))
     return found
+
+
+def _same_as_fitted(path: Path, recorded: Any, map_path: str | Path) -> None:
+    """Refuse a recorded source whose content is no longer what the map was fitted on (its
+    sha256 differs from the one the map records): read as the map's data, it would be another
+    recording shown as the fit's, or a file no longer a stand log at all."""
+    if not isinstance(recorded, str) or not recorded:
+        return  # an older map without hashes: not checkable (said by not_its_sources)
+    if file_sha256(path) != recorded:
+        raise ConfigError(
+            f"{map_path}: source '{path}' changed since the fit: its content differs from "
+            f"what the map was fitted on (sha256 {recorded[:12]}... recorded); restore it, "
+            "refit, or give the stand logs after the map to show them as new data"
+        )
 
 
 def _sidecar(path: str) -> dict[str, Any]:
