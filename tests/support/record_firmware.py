@@ -14,10 +14,12 @@ it through ``record://``, one recording per way out of a motor test:
 - ``probe``, and on ArduPilot ``probe_signed`` / ``probe_unsigned`` after SETUP_SIGNING.
 
 thrustmap's link goes through a relay of this script (vehicle -> relay -> ``udpin`` port), the
-only way to cut it. Beside each ``<name>.jsonl`` (thrustmap's own transcript) a
-``<name>.monitor.tlog`` records what the vehicle reported on ANOTHER of its ports meanwhile
-(heartbeat, outputs, status text): the stop as the firmware did it, whatever thrustmap said.
-``<name>.json`` holds the exit code, the output and, for the intruder, what it sent and got.
+only way to cut it; it passes on the vehicle's datagrams only (see ``Relay``), and an intruder
+run fails when thrustmap does not name the second sender. Beside each ``<name>.jsonl``
+(thrustmap's own transcript) a ``<name>.monitor.tlog`` records what the vehicle reported on
+ANOTHER of its ports meanwhile (heartbeat, outputs, status text): the stop as the firmware did
+it, whatever thrustmap said. ``<name>.json`` holds the exit code, the output and, for the
+intruder, what it sent and got, the relay's addresses and strangers, and the UDP sockets.
 Every process it starts is ended on every way out.
 """
 
