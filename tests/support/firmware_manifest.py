@@ -27,8 +27,6 @@ CLAIMS = {
     "spin_sigkill": "motor test stop: thrustmap killed (SIGKILL), the firmware ends the test",
     "spin_lostlink": "motor test stop: the link cut both ways, the firmware ends the test",
     "spin_intruder": "locked link: a second sender stops the spin (exit 1), never answered",
-    "spin_intruder_missed": "locked link: a live run in which the second sender was never "
-    "answered but did NOT stop the spin (exit 0; kept as evidence, see README)",
 }
 KINDS = {
     ".jsonl": "thrustmap's record:// transcript (host and firmware bytes)",

@@ -14,10 +14,12 @@ it through ``record://``, one recording per way out of a motor test:
 - ``probe``, and on ArduPilot ``probe_signed`` / ``probe_unsigned`` after SETUP_SIGNING.
 
 thrustmap's link goes through a relay of this script (vehicle -> relay -> ``udpin`` port), the
-only way to cut it. Beside each ``<name>.jsonl`` (thrustmap's own transcript) a
-``<name>.monitor.tlog`` records what the vehicle reported on ANOTHER of its ports meanwhile
-(heartbeat, outputs, status text): the stop as the firmware did it, whatever thrustmap said.
-``<name>.json`` holds the exit code, the output and, for the intruder, what it sent and got.
+only way to cut it; it passes on the vehicle's datagrams only (see ``Relay``), and an intruder
+run fails when thrustmap does not name the second sender. Beside each ``<name>.jsonl``
+(thrustmap's own transcript) a ``<name>.monitor.tlog`` records what the vehicle reported on
+ANOTHER of its ports meanwhile (heartbeat, outputs, status text): the stop as the firmware did
+it, whatever thrustmap said. ``<name>.json`` holds the exit code, the output and, for the
+intruder, what it sent and got, the relay's addresses and strangers, and the UDP sockets.
 Every process it starts is ended on every way out.
 """
 
@@ -55,14 +57,23 @@ def _env() -> dict[str, str]:
 
 
 class Relay:
-    """vehicle -> RELAY_PORT -> thrustmap's udpin port and back; ``cut()`` drops both ways."""
+    """vehicle -> RELAY_PORT -> thrustmap's udpin port and back; ``cut()`` drops both ways.
+
+    Up it forwards only what the vehicle sends (the first address that speaks to its port),
+    down only what thrustmap's udpin port sends. Anything else is dropped and counted by address
+    (``strangers``): forwarded, a second sender would reach thrustmap with the relay's address,
+    the locked peer's, and pass for the vehicle's own traffic (the 2026-11-28 PX4 run that
+    missed it: the second sender's heartbeats arrived that way, never from its own address).
+    """
 
     def __init__(self) -> None:
         self.vehicle_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.vehicle_side.bind(("127.0.0.1", RELAY_PORT))
         self.host_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.host_side.bind(("127.0.0.1", 0))
+        self.thrustmap = ("127.0.0.1", UDPIN_PORT)
         self.vehicle: Any = None
+        self.strangers: dict[str, int] = {}
         self.cut_at: float | None = None
         self._stop = threading.Event()
         self._threads = [
@@ -82,13 +93,25 @@ class Relay:
                 continue
             except OSError:
                 return
+            if up and self.vehicle is None:
+                self.vehicle = addr
+            if addr != (self.vehicle if up else self.thrustmap):
+                key = "{}:{}".format(*addr)
+                self.strangers[key] = self.strangers.get(key, 0) + 1
+                continue
             if self.cut_at is not None:
                 continue
             if up:
-                self.vehicle = addr
-                self.host_side.sendto(data, ("127.0.0.1", UDPIN_PORT))
+                self.host_side.sendto(data, self.thrustmap)
             elif self.vehicle is not None:
                 self.vehicle_side.sendto(data, self.vehicle)
+
+    def addresses(self) -> dict[str, str]:
+        """Its two sockets as ``host:port`` (thrustmap locks to ``host_side``)."""
+        return {
+            "vehicle_side": "{}:{}".format(*self.vehicle_side.getsockname()),
+            "host_side": "{}:{}".format(*self.host_side.getsockname()),
+        }
 
     def cut(self) -> None:
         self.cut_at = time.time()
@@ -222,12 +245,16 @@ def run_spin(name: str, out: Path, monitor: Monitor, relay: Relay, way: str) -> 
     lostlink or intruder."""
     idle = max(monitor.servo[:4])
     monitor.start_log(out / f"{name}.monitor.tlog")
+    result: dict[str, Any] = {"way": way, "idle_us": idle}
     intruder = Intruder() if way == "intruder" else None
+    if intruder is not None:
+        result["relay"] = relay.addresses()
+        if intruder.address in result["relay"].values():  # it would pass for the locked peer
+            raise RuntimeError(f"the second sender shares the relay's address {intruder.address}")
     proc = subprocess.Popen(
         thrustmap_cmd("spin", udpin_record(out, name), *SPIN, "--seconds", "6"),
         env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    result: dict[str, Any] = {"way": way, "idle_us": idle}
     try:
         if way != "end":
             monitor.wait("the motor turning", lambda m: max(m.servo[:4]) > idle + 20, 60)
@@ -244,21 +271,46 @@ def run_spin(name: str, out: Path, monitor: Monitor, relay: Relay, way: str) -> 
             elif way == "lostlink":
                 relay.cut()
             elif intruder is not None:
+                relay.strangers.clear()
                 intruder.start()
+                result["udp_sockets"] = udp_sockets((UDPIN_PORT, RELAY_PORT))
         stdout, stderr = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
         if intruder is not None:
-            result.update(intruder.close())
+            result.update(intruder.close(), relay_strangers=dict(relay.strangers))
     monitor.wait("outputs at idle", lambda m: max(m.servo[:4]) <= idle and not m.armed, 30)
     time.sleep(2.0)  # what follows the stop
     monitor.stop_log()
     relay.restore()
     result.update(exit=proc.returncode, stdout=stdout, stderr=stderr)
     (out / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n")
+    if intruder is not None and f"{intruder.address} sent to the vehicle link" not in stderr:
+        raise RuntimeError(
+            f"{name}: the second sender ({intruder.address}) sent {intruder.sent} datagram(s) "
+            f"but thrustmap never named it (exit {proc.returncode}); see {name}.json"
+        )
     return result
+
+
+def udp_sockets(ports: tuple[int, ...]) -> list[dict[str, Any]]:
+    """The UDP sockets of this namespace bound to ``ports`` (/proc/net/udp): address, the
+    datagrams queued and those the kernel dropped (a full receive buffer), to tell afterwards
+    whether a second sender's datagrams could have reached thrustmap's socket."""
+    found = []
+    for line in Path("/proc/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        host_hex, port_hex = fields[1].split(":")
+        if int(port_hex, 16) in ports:
+            host = socket.inet_ntoa(bytes.fromhex(host_hex)[::-1])
+            queued = int(fields[4].split(":")[1], 16)
+            found.append(
+                {"local": f"{host}:{int(port_hex, 16)}", "rx_queue_bytes": queued,
+                 "drops": int(fields[-1]), "inode": int(fields[9])}
+            )  # fmt: skip
+    return found
 
 
 class Intruder:
