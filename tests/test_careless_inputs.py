@@ -1244,7 +1244,7 @@ def test_careless_input_unseen(row: Row, work_unseen: dict[str, str]) -> None:
 # -- predict: a voltage of another pack, a throttle below spin-up, a voltage distance ----------
 # (the coordinator's rows for what the wave's careless-input search routed to predict)
 PREDICT_ROWS = [
-    ("--thrust-n 4 --voltage-v 16.8", 2, "a 4S pack?", None),
+    ("--thrust-n 4 --voltage-v 16.8", 0, "a 4S pack? The answer is this motor on that pack", None),
     ("--throttle-pct 0.5 --voltage-v 24", 0, "did you mean 50 %?", None),
     ("--thrust-n 4 --voltage-v 21", 0, "the voltage distance included", "widened ×1.00"),
 ]
@@ -1254,8 +1254,9 @@ PREDICT_ROWS = [
 def test_predict_careless_input_on_the_demo_map(
     demo_run: DemoRun, args: str, code: int, phrase: str, absent: str | None
 ) -> None:
-    """On the demo's 6S single-rotor map: 16.8 V (a full 4S pack) was answered as an
-    extrapolation "widened ×1.00"; 0.5 % throttle (below the measured spin-up) gave a thrust
+    """On the demo's 6S single-rotor map: 16.8 V (a full 4S pack: the motor on another pack, a
+    legitimate cross-voltage question) was answered as an extrapolation "widened ×1.00" with no
+    word of the pack; 0.5 % throttle (below the measured spin-up) gave a thrust
     with no word; a voltage a little below the data said "widened ×1.00, from ±x to ±x"."""
     sr_map = demo_run.folder / "thrustmap-demo" / "sr-map.json"
     got, out, err = _run(["predict", str(sr_map), *args.split()], None)

@@ -292,6 +292,9 @@ def _check_pack(tmap: ThrustMap, voltage_v: float) -> None:
     assumed = physical.pack_assumed(box.lo, box.hi)
     if assumed is not None:
         echo(f"note: {assumed}", err=True)
+    other = physical.other_pack_note(voltage_v, box.lo, box.hi)
+    if other is not None:
+        echo(other, err=True)
 
 
 def _forward_thrust(tmap: ThrustMap, pct: float, voltage_v: float, result: dict[str, Any]) -> str:

@@ -246,14 +246,6 @@ def voltage_against_pack(voltage_v: float, lo_v: float, hi_v: float) -> str | No
             f"({lo_v:.2f}..{hi_v:.2f} V); give the pack voltage: {voltage_v * cells:.4g} V is "
             f"--voltage-v {voltage_v * cells:.4g}"
         )
-    other = _another_pack(voltage_v, cells)
-    if other is not None:
-        return (
-            f"--voltage-v {voltage_v:g} V is {voltage_v / cells:.2f} V per cell of the map's "
-            f"{cells}S pack ({lo_v:.2f}..{hi_v:.2f} V), outside what a lithium cell reads "
-            f"({lo_c:g}..{hi_c:g} V): a {other}S pack? This map is another motor's on that pack; "
-            "give a voltage of the map's own pack"
-        )
     n = round(voltage_v / ((lo_v + hi_v) / 2))
     if cells == 1 and n >= 2 and lo_c <= voltage_v / n <= hi_c:
         return (
@@ -274,6 +266,21 @@ def _another_pack(voltage_v: float, cells: int) -> int | None:
         if n != cells and lo_c <= voltage_v / n <= hi_c:
             return n
     return None
+
+
+def other_pack_note(voltage_v: float, lo_v: float, hi_v: float) -> str | None:
+    """The note for a voltage that is no voltage of the map's pack but another cell count's
+    (16.8 V on a 6S map: 2.80 V per cell, a 4S pack): a prediction there is the motor on that
+    pack, from the map's voltage scaling (the cross-voltage use); None otherwise."""
+    cells = cells_from_voltage(lo_v, hi_v)
+    other = None if cells is None else _another_pack(voltage_v, cells)
+    if cells is None or other is None:
+        return None
+    return (
+        f"note: {voltage_v:g} V is {voltage_v / cells:.2f} V per cell of the map's {cells}S pack "
+        f"({lo_v:.2f}..{hi_v:.2f} V): a {other}S pack? The answer is this motor on that pack, "
+        "from the map's voltage scaling"
+    )
 
 
 def pack_assumed(lo_v: float, hi_v: float) -> str | None:
