@@ -294,8 +294,10 @@ def test_mqtb_own_program_on_the_simulator_fits_within_1pct_of_the_truth(tmp_pat
     out = tmp_path / "run.csv"
     result = CliRunner().invoke(
         cli,
+        # its program runs the simulated motor to 40,003 rpm: above the 40,000 rpm default
+        # limit (a tripped limit stops it), so the rig's own ceiling is given
         ["stand", "run", "sim://line-stand?preset=mqtb-teststand", "--line-preset",
-         "mqtb-teststand", "--yes", "-o", str(out)],
+         "mqtb-teststand", "--yes", "--max-rpm", "60000", "-o", str(out)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     meta = json.loads(out.with_suffix(".meta.json").read_text())
@@ -445,8 +447,9 @@ def test_einsz_own_sweep_on_the_simulator_fits_within_1pct_of_the_truth(tmp_path
     out = tmp_path / "run.csv"
     result = CliRunner().invoke(
         cli,
+        # a whoop motor spins past the 40,000 rpm default limit (which stops it): its ceiling
         ["stand", "run", "sim://line-stand?preset=einsz-whoop", "--line-preset", "einsz-whoop",
-         "--yes", "-o", str(out)],
+         "--yes", "--max-rpm", "60000", "-o", str(out)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "stop verified (its end line)" in result.output

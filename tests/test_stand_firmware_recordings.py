@@ -5,6 +5,7 @@ how), their byte-level simulators against those recordings, and their sweeps on 
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -461,3 +462,61 @@ def test_sigterm_during_a_victorhook_sweep_stops_the_motor_through_the_fc(tmp_pa
     assert "stop verified" in stdout
     meta = (tmp_path / "v.meta.json").read_text()
     assert '"stop_verified": true' in meta and '"status": "aborted"' in meta
+
+
+def test_a_limit_tripped_in_tinys_own_sweep_resets_the_board(tmp_path: Path) -> None:
+    """The firmware sets the levels of its own sweep; thrustmap still holds every row against
+    the reading interlocks: a thrust past --max-thrust ends the run (exit 1) with the board
+    reset and the stop verified, and the log keeps the rows up to it."""
+    out = tmp_path / "tiny.csv"
+    url = "sim://line-stand?preset=tiny-thrust-stand&plant=crazyflie-2.1"
+    r = thrustmap_cli(
+        "stand", "run", url, "--line-preset", "tiny-thrust-stand", "-o", str(out), "--yes",
+        "--max-thrust", "0.05",
+    )  # fmt: skip
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "limit tripped in its own sequence: thrust" in r.stdout + r.stderr
+    assert "stop verified (a DTR reset, then silence)" in r.stdout
+    meta = json.loads((tmp_path / "tiny.meta.json").read_text())
+    assert meta["outcome"]["status"] == "aborted" and meta["stop_verified"]
+    rows = out.read_text().splitlines()
+    assert 2 < len(rows) < 200  # recorded up to the trip, not the whole sweep
+
+
+def test_a_stand_silent_in_its_own_sweep_is_a_lost_link(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows came, then none for SEQUENCE_SILENT_S: the run ends (the caller's way out stops
+    the motor) instead of waiting out the whole --timeout with the motor as the firmware left it."""
+    from thrustmap.core.clock import SimClock
+    from thrustmap.rig.stand import line_runs
+    from thrustmap.rig.stand.line import LineStandTimeout
+
+    clock = SimClock()
+    rows = iter([[object()], [], [], []])
+
+    class Sample:
+        thrust_n, current_a, voltage_v, rpm = 0.1, None, None, None
+        temperature_c = vibration_g = None
+        throttle_native = 50.0
+
+    class Silent:
+        spec = type(
+            "Spec", (), {"columns": {"throttle": 1}, "name": "fake", "sequence_end": "Done"}
+        )
+        sequence_ended = False
+        drives_esc = False
+        sequence_started = False
+
+        def __init__(self) -> None:
+            self.clock = clock
+
+        def start_sequence(self) -> None:
+            self.sequence_started = True
+
+        def read_samples(self) -> list[Sample]:
+            got = next(rows, [])
+            return [Sample() for _ in got]
+
+    monkeypatch.setattr(line_runs, "SEQUENCE_SILENT_S", 1.0)
+    with pytest.raises(LineStandTimeout, match="silent for .* the link is taken as lost"):
+        line_runs.run_sequence(Silent(), timeout_s=60.0)  # type: ignore[arg-type]
+    assert clock.now_s() < 5.0  # ended after ~1 s of silence, not the 60 s timeout

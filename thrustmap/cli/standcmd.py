@@ -4,13 +4,25 @@
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
+from thrustmap.cli.bench import limit_options_except
 from thrustmap.cli.hardware import CLOCK_CHOICE
 from thrustmap.cli.textwidth import echo
 from thrustmap.core.errors import ConfigError, ThrustmapError
+from thrustmap.rig.interlocks import Limits
+
+#: the interlock rows that do not apply to a sweep the firmware runs itself: thrustmap sets no
+#: level (ceiling, slew) and the FC's link and the thrust response belong to its own runs
+NOT_FOR_A_FIRMWARE_SWEEP = (
+    "max_throttle_pct",
+    "max_slew_pct_s",
+    "stale_data_s",
+    "link_timeout_s",
+    "min_thrust_by_pct",
+)
 
 if TYPE_CHECKING:
     from thrustmap.core.clock import Clock
@@ -148,6 +160,7 @@ def _counts(
 @click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True)
 @click.option("-y", "--yes", is_flag=True, help="Do not ask whether the area is clear.")
 @click.option("--clock", "clock_choice", type=CLOCK_CHOICE, default="auto", show_default=True)
+@limit_options_except(*NOT_FOR_A_FIRMWARE_SWEEP)
 def run_cmd(
     url: str,
     preset_name: str,
@@ -157,9 +170,11 @@ def run_cmd(
     timeout_s: float,
     yes: bool,
     clock_choice: str,
+    **limit_values: Any,
 ) -> None:
     """Start the firmware's own sweep and record it as a Ds log (the throttle from its rows).
-    Ctrl-C, SIGTERM or any error resets the board (the firmware has no stop command).
+    Ctrl-C, SIGTERM, a tripped limit (thrust, current, rpm, cell voltage), a stand silent for
+    5 s or any error stops it (its stop command, or a board reset where it has none).
 
     \b
     Exit codes: 0 done, 1 failed (board reset), 2 refused or bad input,
@@ -178,15 +193,18 @@ def run_cmd(
     ):
         stand.close()
         raise click.Abort()
-    code = _record_sequence(stand, url, output, calibration, timeout_s)
+    limits = Limits.from_options(limit_values)
+    code = _record_sequence(stand, (url, output, calibration), timeout_s, limits)
     if code:
         sys.exit(code)
 
 
 def _record_sequence(
-    stand: LineStand, url: str, output: str, calibration: str | None, timeout_s: float
+    stand: LineStand, where: tuple[str, str, str | None], timeout_s: float, limits: Limits
 ) -> int:
-    """Run the sequence into a Ds log; the exit code (``sweep``'s meanings)."""
+    """Run the sequence into a Ds log (``where``: the stand's URL, the log, the calibration);
+    the exit code (``sweep``'s meanings)."""
+    url, output, calibration = where
     from thrustmap.core.stand_recording import DsWriter
     from thrustmap.core.units import scale
     from thrustmap.rig.interfaces import StandSample
@@ -211,7 +229,7 @@ def _record_sequence(
     outcome, reason = "aborted", ""
     try:
         with terminate_as_exception(), stand:
-            run_sequence(stand, timeout_s, write)
+            run_sequence(stand, timeout_s, write, limits)
             outcome, reason = "completed", f"'{spec.sequence_end}' from the firmware"
     except KeyboardInterrupt as exc:
         outcome, reason = "interrupted", f"{type(exc).__name__} {exc}".strip()
