@@ -43,6 +43,12 @@ def selection_options(f: F) -> F:
             help="Fit every sample (the paper's method) instead of steady-state points.",
         ),
         click.option(
+            "--keep-past-top",
+            is_flag=True,
+            help="Keep points past the top of a file's thrust curve (an ESC saturating or "
+            "cutting back: thrust no longer rising with the command).",
+        ),
+        click.option(
             "--col-throttle",
             metavar="NAME",
             help="Column map: throttle column (for CSVs no format matches).",
@@ -80,6 +86,7 @@ def _selection(kw: dict[str, Any]) -> Selection:
         voltage_range=rng("voltage_range", "--voltage-range"),
         thrust_range=rng("thrust_range", "--thrust-range"),
         all_samples=bool(kw.get("all_samples")),
+        keep_past_top=bool(kw.get("keep_past_top")),
     )
 
 

@@ -16,10 +16,16 @@ from dataclasses import dataclass
 #: the interval beyond the thrust reached widens by (1 + growth·√(T / reach at B - 1)): at
 #: twice the reach it is (1 + growth) times its width at the reach. The square root: on every
 #: rig the error jumps just past the reach and then grows about linearly
-EXTRAPOLATION_GROWTH = 8.5  # --calibrate: 8.25 (the simulated Crazyflie's first bins set it)
+#: --calibrate: 6.25 with the second-recording factor below, 8.25 without raising it; kept at
+#: 8.5, because a map fitted on several recordings carries no second-recording term and its
+#: growth must hold without one
+EXTRAPOLATION_GROWTH = 8.5
 #: a map fitted on one recording: a second recording of the same rotor scatters this many times
-#: more than the recording's own held-out points (added in quadrature to the interval)
-RECORDING_FACTOR = 1.45
+#: more than the recording's own held-out points (added in quadrature to the interval). 2.25:
+#: the smallest holding 90 % of the tuning rigs' second-recording points (--calibrate); 1.45
+#: before the public RCbenchmark runs of one RS1108 on other days and packs joined the tuning
+#: rigs (their second recordings held 87.8 % at 1.45)
+RECORDING_FACTOR = 2.25
 RECORDING_WHAT = "a second recording of the same rotor (one recording's scatter understates it)"
 #: T / reach at B beyond which the benchmark has no evidence (predict refuses past it): maps
 #: fitted on half a recording's thrust reach twice the reach; past it only Strawson a-c and the
@@ -55,25 +61,27 @@ class Bin:
 
 
 #: the benchmark's table within the limit (``--table``), the tuning rigs (xNova SR, Strawson
-#: motors a-c, simulator seeds 1-3) and the set-aside rigs (xNova MR, Strawson d-f, simulator
-#: seeds 4-6, diegosdantonio/thruststand_test's public RCbenchmark tests), each pooled; the
-#: per-rig rows are printed by the benchmark
+#: motors a-c, simulator seeds 1-3, diegosdantonio/thruststand_test's RCbenchmark tests) and
+#: the set-aside rigs (xNova MR, Strawson d-f, simulator seeds 4-6, the public rigs of
+#: jvanderploeg/motor-testing, bhabas/sar_simulation (two) and AVDC-Sebastien/GDP-return), each
+#: pooled; the per-rig rows are printed by the benchmark (the ducted fan misses: 89.2 % inside
+#: the region, 87.6 % of its second recordings)
 EVIDENCE: tuple[Bin, ...] = (
-    Bin("tuning rigs", "thrust", 1.00, 1.25, 328, 1.42, 99.7, 77.1),
-    Bin("tuning rigs", "thrust", 1.25, 1.50, 321, 2.59, 100.0, 55.8),
-    Bin("tuning rigs", "thrust", 1.50, 1.75, 282, 4.11, 99.6, 42.6),
-    Bin("tuning rigs", "thrust", 1.75, 2.00, 144, 7.80, 99.3, 32.6),
-    Bin("tuning rigs", "voltage", 0.00, 0.10, 407, 0.48, 91.2, 82.3),
+    Bin("tuning rigs", "thrust", 1.00, 1.25, 1101, 1.05, 99.9, 85.2),
+    Bin("tuning rigs", "thrust", 1.25, 1.50, 1153, 1.87, 100.0, 73.3),
+    Bin("tuning rigs", "thrust", 1.50, 1.75, 716, 2.15, 99.9, 70.8),
+    Bin("tuning rigs", "thrust", 1.75, 2.00, 228, 5.26, 99.6, 48.7),
+    Bin("tuning rigs", "voltage", 0.00, 0.10, 791, 0.50, 95.1, 83.6),
     Bin("tuning rigs", "voltage", 0.10, 0.20, 133, 0.78, 100.0, 97.7),
     Bin("tuning rigs", "voltage", 0.20, 0.30, 31, 3.16, 96.8, 87.1),
-    Bin("tuning rigs", "voltage", 0.30, 0.40, 153, 2.27, 98.0, 96.7),
-    Bin("tuning rigs", "voltage", 0.40, 0.50, 455, 2.07, 99.6, 97.6),
-    Bin("set-aside rigs", "thrust", 1.00, 1.25, 691, 1.60, 95.4, 65.6),
-    Bin("set-aside rigs", "thrust", 1.25, 1.50, 796, 3.08, 81.3, 45.0),
-    Bin("set-aside rigs", "thrust", 1.50, 1.75, 820, 3.25, 96.0, 58.4),
-    Bin("set-aside rigs", "thrust", 1.75, 2.00, 379, 3.13, 99.7, 62.8),
-    Bin("set-aside rigs", "voltage", 0.00, 0.10, 659, 0.68, 81.8, 75.1),
-    Bin("set-aside rigs", "voltage", 0.10, 0.20, 128, 0.97, 99.2, 89.1),
+    Bin("tuning rigs", "voltage", 0.30, 0.40, 153, 2.27, 99.3, 96.7),
+    Bin("tuning rigs", "voltage", 0.40, 0.50, 639, 2.35, 98.7, 92.0),
+    Bin("set-aside rigs", "thrust", 1.00, 1.25, 940, 1.76, 99.9, 56.9),
+    Bin("set-aside rigs", "thrust", 1.25, 1.50, 843, 2.95, 100.0, 46.3),
+    Bin("set-aside rigs", "thrust", 1.50, 1.75, 604, 4.52, 99.8, 44.0),
+    Bin("set-aside rigs", "thrust", 1.75, 2.00, 301, 4.21, 99.7, 57.8),
+    Bin("set-aside rigs", "voltage", 0.00, 0.10, 2987, 1.04, 94.7, 75.6),
+    Bin("set-aside rigs", "voltage", 0.10, 0.20, 134, 0.99, 100.0, 89.6),
     Bin("set-aside rigs", "voltage", 0.30, 0.40, 183, 2.35, 99.5, 98.4),
-    Bin("set-aside rigs", "voltage", 0.40, 0.50, 679, 2.22, 91.3, 88.5),
+    Bin("set-aside rigs", "voltage", 0.40, 0.50, 451, 1.98, 99.1, 96.5),
 )

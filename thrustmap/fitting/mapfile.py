@@ -140,6 +140,9 @@ class ThrustMap:
     interval: dict[str, Any] = field(default_factory=dict)
     #: lowest reliably spinning command measured on the stand (see fitting.spinup)
     spin_up: dict[str, Any] = field(default_factory=dict)
+    #: the command above which the ESC's output saturated on the stand (selection.top; empty:
+    #: thrust rose to the top command); the full-throttle thrust is the map's thrust there
+    saturation: dict[str, Any] = field(default_factory=dict)
     #: where the selected points are in (T, B) (None: a map written before; its box is used)
     supported: Region | None = None
     # read when a map is made, not when this module is imported (importlib.metadata: ~20-60 ms
@@ -355,6 +358,7 @@ class ThrustMap:
             **({"identification": self.identification} if self.identification else {}),
             **({"interval": self.interval} if self.interval else {}),
             **({"spin_up": self.spin_up} if self.spin_up else {}),
+            **({"saturation": self.saturation} if self.saturation else {}),
             "tool_version": self.tool_version,
             "created_utc": self.created_utc,
         }
@@ -469,6 +473,7 @@ class ThrustMap:
             identification=_dict(f, "identification"),
             interval=_interval(f),
             spin_up=_dict(f, "spin_up"),
+            saturation=_dict(f, "saturation"),
             supported=supported,
             tool_version=f.string("tool_version", ""),
             created_utc=f.string("created_utc", ""),

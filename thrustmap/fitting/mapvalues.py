@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -60,6 +60,9 @@ class MapValue:
     #: why the value lies beyond what the extrapolation benchmark has evidence for (None:
     #: within it); its interval there rests on the growth's extrapolation (docs/intervals.md)
     beyond_evidence: str | None = None
+    #: what the value rests on when that is not the map at the value's own throttle (the ESC's
+    #: saturation: the full-throttle thrust is the map's thrust where the output saturated)
+    basis: str = ""
 
     def interval_text(self, convert: Callable[[float], float] | None = None, unit: str = "") -> str:
         """'95 % interval 17.9..22.3 N' (in ``convert``'s units when given)."""
@@ -90,9 +93,10 @@ class MapValue:
                     f"; BEYOND THE EVIDENCE ({self.beyond_evidence}): the interval there is the "
                     "growth extrapolated, not measured"
                 )
+        basis = f"; {self.basis}" if self.basis else ""
         return (
             f"{self.name} at {self.voltage_v:.4g} V: {c(self.value):.4g} {u}, "
-            f"{self.interval_text(convert, unit)}; {where}"
+            f"{self.interval_text(convert, unit)}; {where}{basis}"
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -247,6 +251,27 @@ def spin_up_value(tmap: ThrustMap, voltage_v: float) -> MapValue | None:
     )  # fmt: skip
 
 
+def full_throttle_value(tmap: ThrustMap, full_pct: float, voltage_v: float) -> MapValue:
+    """The thrust at ``full_pct``; when the stand saw the ESC's output saturate below it (the
+    map's ``saturation``), the map's thrust at the saturation: every command above it makes
+    that thrust, measured, not extrapolated."""
+    sat = tmap.saturation.get("throttle_pct") if tmap.saturation else None
+    if sat is None or float(sat) >= full_pct:
+        return thrust_value(
+            tmap, full_pct, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
+        )
+    at = thrust_value(
+        tmap, float(sat), voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
+    )
+    native = pct_to_native(tmap)
+    unit = tmap.throttle_scale.unit_label
+    basis = (
+        f"the ESC's output saturated at {float(sat):.4g} % ({native(float(sat)):.5g} {unit}) "
+        f"on the stand: every command above gives the thrust there"
+    )
+    return replace(at, note=basis, basis=basis)
+
+
 def map_values(
     tmap: ThrustMap,
     voltage_v: float | None = None,
@@ -262,9 +287,7 @@ def map_values(
     unknown: list[str] = []
     full = None
     try:
-        full = thrust_value(
-            tmap, full_pct, b, key="full_throttle_thrust_n", name="full-throttle thrust"
-        )
+        full = full_throttle_value(tmap, full_pct, b)
     except FitError as exc:
         unknown.append(f"full-throttle thrust: {exc}")
     hover = None

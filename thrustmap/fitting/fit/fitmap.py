@@ -242,10 +242,11 @@ def fit_map(
         else {**interval.to_dict(), "over_region_pct": list(over_region)},
         supported=region,
         spin_up=spin_up_block(datasets),
+        saturation=saturation_block(data.points),
     )
     if ident is not None:
         log.info("%s: %s", m.name, ident.reason)
-    warnings = check_map(tmap, data)
+    warnings = [*top_warnings(data.points, tmap.saturation), *check_map(tmap, data)]
     for w in warnings:
         log.info("%s", w)  # returned to the caller, who shows them
     return FitOutcome(tmap, data, warnings, trust, more_data, weighting_line(m, data))
@@ -312,6 +313,58 @@ def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
     from thrustmap.fitting.spinup import spin_up
 
     return spin_up(datasets).to_dict()
+
+
+#: a file whose kept points reach this far (% throttle) above another file's saturation shows
+#: the saturation is not the ESC's (the files disagree): no full-throttle thrust is read from it
+SATURATION_AGREE_PCT = 1.0
+
+
+def saturation_block(points: Sequence[Points]) -> dict[str, Any]:
+    """The map's ``saturation`` block: the lowest command at which a file's thrust stopped
+    rising because the ESC's output saturated (``selection.top``), when no other file's points
+    reach above it; empty otherwise."""
+    sats = [
+        (p.source, float(p.report["past_top"]["knee_throttle_pct"]))
+        for p in points
+        if isinstance(p.report.get("past_top"), dict)
+        and p.report["past_top"].get("kind") == "saturation"
+    ]
+    if not sats:
+        return {}
+    knee = min(k for _, k in sats)
+    if any(len(p) and float(p.throttle_pct.max()) > knee + SATURATION_AGREE_PCT for p in points):
+        return {}
+    return {
+        "throttle_pct": round(knee, 4),
+        "files": [name for name, _ in sats],
+        "reason": "thrust stopped rising with the command (selection.top)",
+    }
+
+
+def top_warnings(points: Sequence[Points], saturation: dict[str, Any]) -> list[str]:
+    """One warning per file whose points past the top of its thrust curve were left out."""
+    from thrustmap.fitting.selection.top import TopCut
+
+    out = []
+    for p in points:
+        cut = p.report.get("past_top")
+        if isinstance(cut, dict):
+            out.append(f"{p.source}: " + TopCut.describe(cut))
+    if (
+        any(
+            isinstance(p.report.get("past_top"), dict)
+            and p.report["past_top"].get("kind") == "saturation"
+            for p in points
+        )
+        and not saturation
+    ):
+        out.append(
+            "a file saturated where another file's thrust still rose: the full-throttle thrust "
+            "is not read from the saturation (were the ESC's end points recalibrated between "
+            "the recordings?)"
+        )
+    return out
 
 
 def check_map(tmap: ThrustMap, data: Pool | None = None) -> list[str]:

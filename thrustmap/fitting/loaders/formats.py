@@ -35,6 +35,12 @@ MU = "\u00b5"
 
 def _rcbenchmark(table: Table) -> Dataset | None:
     th = find_column(table, rf"esc(?: signal)? \({MU}s\)")
+    scale, meta = SCALES["pwm"], {}
+    if th is None and (th := find_column(table, r"esc signal")) is not None:
+        # the app in DShot mode writes the command without a unit: DShot 0..2047 (48 the first
+        # throttle value; bhabas/sar_simulation's dshot600 step tests)
+        scale = SCALES["dshot"]
+        meta["assumed"] = "'ESC signal' without a unit: read as the DShot command (48..2047)"
     thrust = find_column(table, r"thrust \(([^)]*)\)")
     if th is None or thrust is None:
         return None
@@ -48,7 +54,7 @@ def _rcbenchmark(table: Table) -> Dataset | None:
     return assemble(
         table,
         "rcbenchmark" if t is not None else "rcbenchmark-resaved",
-        SCALES["pwm"],
+        scale,
         {
             "throttle": th[0],
             "thrust": thrust[0],
@@ -58,6 +64,7 @@ def _rcbenchmark(table: Table) -> Dataset | None:
             "rpm": None if rpm is None else rpm[0],
         },
         factor,
+        meta=meta,
     )
 
 
@@ -228,7 +235,7 @@ FORMATS: dict[str, tuple[str, Callable[[Table], Dataset | None]]] = {
         _thrustmap_ds,
     ),
     "rcbenchmark": (
-        "RCbenchmark/Tyto app log: 'ESC signal (µs)' or 'ESC (µs)', 'Thrust (N|kgf|gf)', 'Voltage (V)'",
+        "RCbenchmark/Tyto app log: 'ESC signal (µs)' or 'ESC (µs)' ('ESC signal': DShot), 'Thrust (N|kgf|gf)', 'Voltage (V)'",
         _rcbenchmark,
     ),
     "flight-stand": (

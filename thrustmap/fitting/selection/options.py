@@ -38,6 +38,10 @@ class Selection:
     # is not subtracted as the load cell's zero (a step summary's one rest row): there the point
     # stays. Where the zero is subtracted the rest points are always dropped (they are the zero).
     drop_tare_points: bool = False
+    # Points past the top of a file's thrust curve (thrust no longer rising with the command:
+    # an ESC saturated below the command's top, or cutting back) are left out (selection.top);
+    # True keeps them
+    keep_past_top: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -55,6 +59,7 @@ class Selection:
             "pair_voltage_rel": self.pair_voltage_rel,
             "leg_plateau_updates": self.leg_plateau_updates,
             "drop_tare_points": self.drop_tare_points,
+            "keep_past_top": self.keep_past_top,
         }
 
 

@@ -13,6 +13,7 @@ from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset, FloatArray
 from thrustmap.fitting.selection.options import Selection
 from thrustmap.fitting.selection.rest import rest_zero, rotor_stopped, th_pct_le
 from thrustmap.fitting.selection.steady import steady_state
+from thrustmap.fitting.selection.top import past_the_top
 
 
 @dataclass(frozen=True)
@@ -101,8 +102,14 @@ def select(ds: Dataset, sel: Selection) -> Points:
         & _in_range(b, sel.voltage_range)
         & _in_range(t, thrust_rng)
     )
-    report["kept_points"] = int(keep.sum())
     report["dropped_by_range"] = int((~keep).sum())
+    if not sel.keep_past_top:
+        cut = past_the_top(ds.throttle_scale.to_pct(th[keep]), t[keep], b[keep])
+        if cut is not None:
+            # past the top, throttle is no function of thrust: not map points (selection.top)
+            keep[np.flatnonzero(keep)[cut.past]] = False
+            report["past_top"] = cut.to_dict()
+    report["kept_points"] = int(keep.sum())
     stair = report.get("quasi_static_staircase")
     if isinstance(stair, dict) and keep.any() and len(ds):
         # how much of the thrust the file reached the kept points span (from its rest reading)
