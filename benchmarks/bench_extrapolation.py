@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-import thrustmap.fitting.interval as interval
+import thrustmap.fitting.extrapolation as extrapolation
 from thrustmap.core.errors import FitError, ThrustmapError
 from thrustmap.core.units import ThrottleScale
 from thrustmap.fitting.dataset import STEP_SUMMARY, Dataset
@@ -154,14 +154,14 @@ def points_of(ds: Dataset) -> Points:
 
 def fit(ds: Dataset) -> tuple[ThrustMap, float]:
     """The map ``thrustmap fit`` writes, and the growth per reach its own folds showed."""
-    saved = interval.EXTRAPOLATION_GROWTH
-    # read the map's own growth, unfloored (interval.py holds its own binding of the floor: set
-    # there, where it is read; setting it in fitting.extrapolation alone changed nothing)
-    interval.EXTRAPOLATION_GROWTH = 1e-9
+    saved = extrapolation.EXTRAPOLATION_GROWTH
+    # read the map's own growth, unfloored (interval.py reads the floor from its module at each
+    # call; it once held its own binding, and lowering it here changed nothing)
+    extrapolation.EXTRAPOLATION_GROWTH = 1e-9
     try:
         own = fit_map([ds], selection=selection_for(ds)).map
     finally:
-        interval.EXTRAPOLATION_GROWTH = saved
+        extrapolation.EXTRAPOLATION_GROWTH = saved
     iv = own.prediction_interval()
     g_own = iv.growth_per_reach if iv is not None and iv.growth_per_reach > 1e-6 else 0.0
     tmap = fit_map([ds], selection=selection_for(ds)).map
