@@ -96,9 +96,21 @@ def test_fit_leaves_the_plateau_out_and_exports_the_thrust_where_the_esc_saturat
     header = (tmp_path / "p.params").read_text()
     line = next(x for x in header.splitlines() if "full-throttle thrust at" in x)
     assert "saturated at 84 % (1840 µs)" in line
-    # the thrust written is the map's thrust at 84 %, not its curve carried on to 100 %
-    tmap_pct = json.loads((tmp_path / "m.json").read_text())
-    assert tmap_pct["saturation"]["files"] == ["StepsTest_sat.csv"]
+    assert doc["saturation"]["files"] == ["StepsTest_sat.csv"]
+    # predict answers the same: above 84 % the thrust at 84 %; more thrust is unreachable
+    def ask(*args: str) -> dict:
+        res = runner.invoke(cli, ["predict", str(tmp_path / "m.json"), *args, "--json"])
+        assert res.exit_code in (0, 1), res.output
+        return json.loads(res.stdout)
+
+    at_knee = ask("--throttle-pct", "84", "--voltage-v", "7.3")["thrust_n"]
+    above = ask("--throttle-pct", "97", "--voltage-v", "7.3")
+    assert above["thrust_n"] == pytest.approx(at_knee)
+    assert above["saturated_above_pct"] == pytest.approx(84.0)
+    more = ask("--thrust-n", f"{at_knee * 1.03:.4f}", "--voltage-v", "7.3")
+    assert more["reachable"] is False
+    assert more["nearest_reachable_throttle_pct"] == pytest.approx(84.0)
+    assert more["nearest_reachable_thrust_n"] == pytest.approx(at_knee)
     kept = runner.invoke(cli, ["fit", str(log), "--keep-past-top", "-o", str(tmp_path / "k.json")])
     assert kept.exit_code == 0, kept.output
     assert "saturation" not in json.loads((tmp_path / "k.json").read_text())

@@ -16,6 +16,7 @@ from thrustmap.core.errors import ConfigError
 from thrustmap.fitting.extrapolation import COMMAND
 from thrustmap.fitting.interval import Standing
 from thrustmap.fitting.mapfile import ThrustMap, json_ready
+from thrustmap.fitting.mapvalues import saturation_note, saturation_pct
 from thrustmap.fitting.spinup import SpinUp
 
 #: exit code of an answer the map cannot give (unreachable, beyond the evidence)
@@ -143,9 +144,12 @@ def _zero_thrust(tmap: ThrustMap, q: Query, as_json: bool) -> int:
     return 0
 
 
-def _unreachable(tmap: ThrustMap, q: Query, t: float, pct: float, as_json: bool) -> int:
-    """The motor cannot make this thrust at this voltage (per the map): no answer."""
-    edge = 100.0 if pct > 100.0 else 0.0
+def _unreachable(
+    tmap: ThrustMap, q: Query, t: float, pct: float, top_pct: float, as_json: bool
+) -> int:
+    """The motor cannot make this thrust at this voltage (per the map): no answer. ``top_pct``:
+    the highest command that still adds thrust (100, or where the ESC saturated)."""
+    edge = top_pct if pct > top_pct else 0.0
     nearest = float(tmap.thrust_n(edge, q.voltage_v, corrected=q.corrected))
     common = _common(tmap, t, q)
     result = {
@@ -157,14 +161,17 @@ def _unreachable(tmap: ThrustMap, q: Query, t: float, pct: float, as_json: bool)
         "nearest_reachable_thrust_n": nearest,
         "nearest_reachable_throttle_pct": edge,
     }
+    if edge and edge < 100.0:
+        result["saturated_above_pct"] = edge
     if as_json:
         click.echo(_json(result))
         return NO_ANSWER
+    why = f"; {saturation_note(tmap, pct)}" if edge and edge < 100.0 else ""
     echo(
         f"unreachable: T={t:.4f} N at {q.voltage_v:.2f} V would need "
-        f"{'more than 100' if edge else 'less than 0'} % of the throttle scale "
-        f"({pct:.1f} % by the map); the nearest reachable thrust at {q.voltage_v:.2f} V is "
-        f"{nearest:.4f} N (throttle {edge:.0f} %)"
+        f"{f'more than {edge:.4g}' if edge else 'less than 0'} % of the throttle scale "
+        f"({pct:.1f} % by the map){why}; the nearest reachable thrust at {q.voltage_v:.2f} V is "
+        f"{nearest:.4f} N (throttle {edge:.4g} %)"
     )
     if line := _gamma_line(tmap, common):
         click.echo(line)
@@ -220,11 +227,14 @@ def run_predict(map_file: str, q: Query, *, extrapolate: bool, as_json: bool) ->
     tmap = ThrustMap.load(map_file)
     _check_pack(tmap, q.voltage_v)
     sc = tmap.throttle_scale
+    top_pct = saturation_pct(tmap) or 100.0
     if q.thrust_n is None:
         pct = _forward_pct(tmap, q)
-        t = float(tmap.thrust_n(pct, q.voltage_v, corrected=q.corrected))
+        t = float(tmap.thrust_n(min(pct, top_pct), q.voltage_v, corrected=q.corrected))
         if note := _below_spin_up(tmap, pct):
             echo(note, err=True)
+        if pct > top_pct:
+            echo(f"note: {saturation_note(tmap, pct)}", err=True)
     elif q.thrust_n == 0.0:
         return _zero_thrust(tmap, q, as_json)
     else:
@@ -232,8 +242,8 @@ def run_predict(map_file: str, q: Query, *, extrapolate: bool, as_json: bool) ->
         pct = float(tmap.throttle_pct(t, q.voltage_v, corrected=q.corrected))
     if not (math.isfinite(pct) and math.isfinite(t)):
         raise ConfigError(f"the map gives no finite answer at T={t:g} N, B={q.voltage_v:g} V")
-    if q.thrust_n is not None and not 0.0 <= pct <= 100.0:
-        return _unreachable(tmap, q, t, pct, as_json)
+    if q.thrust_n is not None and not 0.0 <= pct <= top_pct:
+        return _unreachable(tmap, q, t, pct, top_pct, as_json)
     common = _common(tmap, t, q)
     st = tmap.standing(t, q.voltage_v, corrected=q.corrected)
     if st.beyond_evidence and not extrapolate:
@@ -259,7 +269,9 @@ def run_predict(map_file: str, q: Query, *, extrapolate: bool, as_json: bool) ->
     thrust_line = None
     if q.thrust_n is None:
         forward = tmap if q.corrected else tmap.with_correction(None)
-        thrust_line = _forward_thrust(forward, pct, q.voltage_v, result)
+        thrust_line = _forward_thrust(forward, min(pct, top_pct), q.voltage_v, result)
+        if pct > top_pct:
+            result["saturated_above_pct"] = top_pct
     if not st.inside:
         echo(_where_note(tmap, common, st, base), err=True)
     if as_json:

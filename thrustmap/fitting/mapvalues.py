@@ -251,24 +251,39 @@ def spin_up_value(tmap: ThrustMap, voltage_v: float) -> MapValue | None:
     )  # fmt: skip
 
 
+def saturation_pct(tmap: ThrustMap) -> float | None:
+    """The command (% of the map's scale) above which the stand saw the ESC's output saturate
+    (None: thrust rose to the top command): every command above it makes the thrust there."""
+    sat = tmap.saturation.get("throttle_pct") if tmap.saturation else None
+    return None if sat is None else float(sat)
+
+
+def saturation_note(tmap: ThrustMap, pct: float) -> str:
+    """The sentence for a command at or above the saturation."""
+    sat = saturation_pct(tmap)
+    if sat is None:
+        return ""
+    native = pct_to_native(tmap)
+    return (
+        f"the ESC's output saturated at {sat:.4g} % ({native(sat):.5g} "
+        f"{tmap.throttle_scale.unit_label}) on the stand: every command above gives the thrust "
+        "there"
+    )
+
+
 def full_throttle_value(tmap: ThrustMap, full_pct: float, voltage_v: float) -> MapValue:
     """The thrust at ``full_pct``; when the stand saw the ESC's output saturate below it (the
     map's ``saturation``), the map's thrust at the saturation: every command above it makes
     that thrust, measured, not extrapolated."""
-    sat = tmap.saturation.get("throttle_pct") if tmap.saturation else None
-    if sat is None or float(sat) >= full_pct:
+    sat = saturation_pct(tmap)
+    if sat is None or sat >= full_pct:
         return thrust_value(
             tmap, full_pct, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
         )
     at = thrust_value(
-        tmap, float(sat), voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
+        tmap, sat, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
     )
-    native = pct_to_native(tmap)
-    unit = tmap.throttle_scale.unit_label
-    basis = (
-        f"the ESC's output saturated at {float(sat):.4g} % ({native(float(sat)):.5g} {unit}) "
-        f"on the stand: every command above gives the thrust there"
-    )
+    basis = saturation_note(tmap, full_pct)
     return replace(at, note=basis, basis=basis)
 
 
