@@ -97,6 +97,13 @@ def test_fit_leaves_the_plateau_out_and_exports_the_thrust_where_the_esc_saturat
     line = next(x for x in header.splitlines() if "full-throttle thrust at" in x)
     assert "saturated at 84 % (1840 µs)" in line
     assert doc["saturation"]["files"] == ["StepsTest_sat.csv"]
+    ap = runner.invoke(cli, ["export", str(tmp_path / "m.json"), "--to", "ardupilot", "-o",
+                             str(tmp_path / "a.parm")])  # fmt: skip
+    assert ap.exit_code == 0, ap.output
+    ap_lines = (tmp_path / "a.parm").read_text().splitlines()
+    for what in ("full-throttle thrust at", "thrust at MOT_SPIN_MAX (u = 1) at"):
+        assert "saturated at 84 % (1840 µs)" in next(x for x in ap_lines if what in x)
+
     # predict answers the same: above 84 % the thrust at 84 %; more thrust is unreachable
     def ask(*args: str) -> dict:
         res = runner.invoke(cli, ["predict", str(tmp_path / "m.json"), *args, "--json"])

@@ -269,7 +269,7 @@ def run_predict(map_file: str, q: Query, *, extrapolate: bool, as_json: bool) ->
     thrust_line = None
     if q.thrust_n is None:
         forward = tmap if q.corrected else tmap.with_correction(None)
-        thrust_line = _forward_thrust(forward, min(pct, top_pct), q.voltage_v, result)
+        thrust_line = _forward_thrust(forward, pct, q.voltage_v, result)
         if pct > top_pct:
             result["saturated_above_pct"] = top_pct
     if not st.inside:
@@ -313,10 +313,10 @@ def _forward_thrust(tmap: ThrustMap, pct: float, voltage_v: float, result: dict[
     """The thrust at a throttle as every export writes it (``fitting.mapvalues``): its 95 %
     interval in N and whether it is extrapolated, added to ``result``; the line to print."""
     from thrustmap.core.errors import FitError
-    from thrustmap.fitting.mapvalues import thrust_value
+    from thrustmap.fitting.mapvalues import thrust_at_command
 
     try:
-        v = thrust_value(tmap, pct, voltage_v, key="thrust_n", name="thrust")
+        v = thrust_at_command(tmap, pct, voltage_v, key="thrust_n", name="thrust")
     except FitError as exc:
         result["thrust_interval_n"] = None
         return f"  thrust interval: {exc}"

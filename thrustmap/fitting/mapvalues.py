@@ -271,20 +271,25 @@ def saturation_note(tmap: ThrustMap, pct: float) -> str:
     )
 
 
-def full_throttle_value(tmap: ThrustMap, full_pct: float, voltage_v: float) -> MapValue:
-    """The thrust at ``full_pct``; when the stand saw the ESC's output saturate below it (the
-    map's ``saturation``), the map's thrust at the saturation: every command above it makes
-    that thrust, measured, not extrapolated."""
+def thrust_at_command(
+    tmap: ThrustMap, throttle_pct: float, voltage_v: float, *, key: str, name: str
+) -> MapValue:
+    """The thrust a command makes: the map's thrust there, or, above the command where the
+    stand saw the ESC's output saturate (the map's ``saturation``), the map's thrust at the
+    saturation (every command above it makes that thrust: measured, not the curve carried on)."""
     sat = saturation_pct(tmap)
-    if sat is None or sat >= full_pct:
-        return thrust_value(
-            tmap, full_pct, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
-        )
-    at = thrust_value(
-        tmap, sat, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
-    )
-    basis = saturation_note(tmap, full_pct)
+    if sat is None or sat >= throttle_pct:
+        return thrust_value(tmap, throttle_pct, voltage_v, key=key, name=name)
+    basis = saturation_note(tmap, throttle_pct)
+    at = thrust_value(tmap, sat, voltage_v, key=key, name=name)
     return replace(at, note=basis, basis=basis)
+
+
+def full_throttle_value(tmap: ThrustMap, full_pct: float, voltage_v: float) -> MapValue:
+    """The thrust at ``full_pct`` (the top of an export's output range)."""
+    return thrust_at_command(
+        tmap, full_pct, voltage_v, key="full_throttle_thrust_n", name="full-throttle thrust"
+    )
 
 
 def map_values(

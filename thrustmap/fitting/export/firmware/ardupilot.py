@@ -42,7 +42,7 @@ from thrustmap.fitting.export.rules import (
     ardupilot_rules,
 )
 from thrustmap.fitting.mapfile import ThrustMap
-from thrustmap.fitting.mapvalues import MapValue, MapValues, thrust_at, thrust_value
+from thrustmap.fitting.mapvalues import MapValue, MapValues, thrust_at, thrust_at_command
 
 
 @dataclass(frozen=True)
@@ -266,7 +266,7 @@ def _k_value(
     None when the map cannot say (then the fit finds it)."""
     pct = float(SCALES[scale.name].to_pct(scale.lo + spin_max * scale.span))
     try:
-        return thrust_value(
+        return thrust_at_command(
             tmap, pct, v_max, key="thrust_at_spin_max_n", name="thrust at MOT_SPIN_MAX (u = 1)"
         )
     except FitError:
