@@ -87,6 +87,8 @@ def test_fit_leaves_the_plateau_out_and_exports_the_thrust_where_the_esc_saturat
     assert out.exit_code == 0, out.output
     assert "thrust stops rising at 84.0 % throttle" in out.output
     assert "the ESC's output saturates" in out.output
+    seen = runner.invoke(cli, ["inspect", str(log)])
+    assert "top of the curve: thrust stops rising at 84.0 % throttle" in seen.output
     doc = json.loads((tmp_path / "m.json").read_text())
     assert doc["saturation"]["throttle_pct"] == pytest.approx(84.0)
     assert doc["validity"]["throttle_pct"][1] == pytest.approx(84.0)

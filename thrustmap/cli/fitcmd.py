@@ -497,3 +497,7 @@ def inspect_cmd(files: tuple[str, ...], **kw: Any) -> None:
         echo(f"  selection (what each rule did): {rules}")
         if stair := describe_selection(p.report):
             echo(f"  {stair}")
+        if isinstance(top := p.report.get("past_top"), dict):
+            from thrustmap.fitting.selection.top import TopCut
+
+            echo(f"  top of the curve: {TopCut.describe(top)}")
