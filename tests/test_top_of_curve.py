@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 from support.public_data import PublicFiles
 
-from thrustmap.cli import cli
+from thrustmap.cli import cli, main
 from thrustmap.fitting.loaders.load import load_datasets
 from thrustmap.fitting.selection.options import Selection
 from thrustmap.fitting.selection.points import select
@@ -155,3 +155,23 @@ def test_the_public_rcbenchmark_tops(public_data: PublicFiles) -> None:
     assert found["174003"]["kind"] == "cut-back"
     assert 75.0 < found["174003"]["knee_throttle_pct"] < 82.5
     assert found["213055"] is None  # it stopped at 1832 µs, below the saturation
+
+
+def test_a_hand_edited_saturation_is_refused_naming_the_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    esc = np.arange(1200.0, 2001.0, 40.0)
+    u = (esc - 1000.0) / 10.0
+    v = np.linspace(7.59, 7.19, len(esc))
+    log = _write_steps(tmp_path / "StepsTest_sat.csv", esc, _curve(u, v, knee_pct=84.0), v)
+    assert CliRunner().invoke(cli, ["fit", str(log), "-o", str(tmp_path / "m.json")]).exit_code == 0
+    doc = json.loads((tmp_path / "m.json").read_text())
+    for bad in ("abc", 140.0, None):
+        doc["saturation"]["throttle_pct"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(doc))
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exc:
+            main(["predict", str(tmp_path / "bad.json"), "--thrust-n", "0.5", "--voltage-v", "7.3"])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "field 'saturation'" in err and "expected a number in 0..100" in err

@@ -473,7 +473,7 @@ class ThrustMap:
             identification=_dict(f, "identification"),
             interval=_interval(f),
             spin_up=_dict(f, "spin_up"),
-            saturation=_dict(f, "saturation"),
+            saturation=_saturation(f),
             supported=supported,
             tool_version=f.string("tool_version", ""),
             created_utc=f.string("created_utc", ""),
@@ -560,6 +560,18 @@ def _dict(f: Fields, key: str) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise f.error("expected an object", key)
     return dict(value)
+
+
+def _saturation(f: Fields) -> dict[str, Any]:
+    """The ``saturation`` block: its command a number in 0..100 % of the scale."""
+    block = _dict(f, "saturation")
+    pct = block.get("throttle_pct")
+    if block and not (
+        isinstance(pct, (int, float)) and not isinstance(pct, bool) and 0.0 < pct <= 100.0
+    ):
+        raise f.error(f"throttle_pct {pct!r}: expected a number in 0..100 (% of the scale)",
+                      "saturation")  # fmt: skip
+    return block
 
 
 def _list(f: Fields, key: str) -> list[Any]:
