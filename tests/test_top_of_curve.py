@@ -57,6 +57,15 @@ def test_a_healthy_curve_with_noise_never_fires() -> None:
         assert past_the_top(u, t, v) is None
 
 
+def test_one_high_reading_followed_by_a_rising_curve_is_no_top() -> None:
+    # a load-cell glitch at 50 %: one step reads above full throttle, then the curve rises on
+    u = np.arange(10.0, 100.1, 10.0)
+    v = np.full(len(u), 11.1)
+    t = _curve(u, v)
+    t[u == 50.0] = 1.3 * t[-1]
+    assert past_the_top(u, t, v) is None
+
+
 def test_a_supply_that_sags_at_the_top_is_no_top() -> None:
     # Strawson's 3S runs: 10.8 V at 81 %, 9.4 V at 90 %, 8.3 V at 100 %, thrust 4.08 -> 3.70 N
     u = np.array([5, 14, 24, 34, 43, 52, 62, 72, 81, 90, 100.0])

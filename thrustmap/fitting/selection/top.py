@@ -20,7 +20,9 @@ its median thrust, scaled to one voltage): the top is the highest binned thrust;
 ``TOP_TOLERANCE`` of it. Points at commands above the knee's bin are past the top when they span
 at least ``MIN_SPAN_PCT`` of throttle over at least ``MIN_BINS`` bins (or one bin whose thrust
 collapsed below ``COLLAPSE_SHARE`` of the top) AND their thrust rose less
-than ``FLAT_SHARE`` of what the curve's slope just below the knee would give over that span. A
+than ``FLAT_SHARE`` of what the curve's slope just below the knee would give over that span, and
+their own trend stays under ``FLAT_SHARE`` of the curve's mean slope (one high reading followed
+by a curve that keeps rising is a glitch, not a top). A
 healthy curve is steepest at its top (thrust grows about as the command squared), so its knee
 sits within about 1.5 % of its last command and nothing fires.
 """
@@ -139,6 +141,14 @@ def past_the_top(
     rise = float(thrust[after].max() - thrust[knee])
     if not slope > 0 or rise >= FLAT_SHARE * slope * span:
         return None
+    if len(after) >= MIN_BINS and knee >= 1:
+        # past a true top thrust holds or falls; a curve that keeps rising after one high
+        # reading (a load-cell glitch made the "top") is no top: its trend past the knee is
+        # judged against the curve's mean slope up to the knee
+        mean_slope = (thrust[knee - 1] - thrust[0]) / max(centre[knee - 1] - centre[0], 1e-9)
+        trend = float(np.polyfit(centre[after], thrust[after], 1)[0])
+        if trend >= FLAT_SHARE * mean_slope:
+            return None
     falls = float(thrust[after].min()) < (1.0 - CUT_BACK_SHARE) * top
     kind = "cut-back" if falls else "saturation"
     past = ok & (which > levels[knee])
