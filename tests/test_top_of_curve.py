@@ -57,6 +57,18 @@ def test_a_healthy_curve_with_noise_never_fires() -> None:
         assert past_the_top(u, t, v) is None
 
 
+def test_a_dense_noisy_ramp_with_a_dead_band_never_fires() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        u = np.sort(rng.uniform(0.0, 100.0, int(rng.integers(200, 2000))))
+        v = np.full(len(u), rng.uniform(3.5, 25.0))
+        t = np.where(u < 8.0, 0.0, _curve(u - 8.0, v)) + rng.normal(0, 0.03, len(u)) * _curve(
+            np.full(len(u), 92.0), v
+        )
+        keep = t > 0
+        assert past_the_top(u[keep], t[keep], v[keep]) is None
+
+
 def test_one_high_reading_followed_by_a_rising_curve_is_no_top() -> None:
     # a load-cell glitch at 50 %: one step reads above full throttle, then the curve rises on
     u = np.arange(10.0, 100.1, 10.0)
