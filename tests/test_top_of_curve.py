@@ -120,6 +120,11 @@ def test_fit_leaves_the_plateau_out_and_exports_the_thrust_where_the_esc_saturat
     line = next(x for x in header.splitlines() if "full-throttle thrust at" in x)
     assert "saturated at 84 % (1840 µs)" in line
     assert doc["saturation"]["files"] == ["StepsTest_sat.csv"]
+    rep = runner.invoke(cli, ["report", str(tmp_path / "m.json"), "-o", str(tmp_path / "r.html")])
+    assert rep.exit_code == 0, rep.output
+    html = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "thrust stops rising at 84.0 % throttle" in html
+    assert "saturated at 84 % (1840 µs) on the stand" in html
     ap = runner.invoke(cli, ["export", str(tmp_path / "m.json"), "--to", "ardupilot", "-o",
                              str(tmp_path / "a.parm")])  # fmt: skip
     assert ap.exit_code == 0, ap.output

@@ -19,6 +19,7 @@ from thrustmap.core.errors import ConfigError, ThrustmapError
 from thrustmap.core.version import package_version
 from thrustmap.fitting.dataset import Dataset
 from thrustmap.fitting.fit.coefficients import Pool, pool
+from thrustmap.fitting.fit.fitmap import top_warnings
 from thrustmap.fitting.fit.validation import Row, validate
 from thrustmap.fitting.mapfile import ThrustMap, file_sha256
 from thrustmap.fitting.mapvalues import MapValues, map_values
@@ -189,8 +190,9 @@ def selection_of(tmap: ThrustMap) -> Selection:
     ):
         if isinstance(s.get(key), int | float) and not isinstance(s.get(key), bool):
             kw[key] = float(s[key])
-    if isinstance(s.get("drop_tare_points"), bool):
-        kw["drop_tare_points"] = s["drop_tare_points"]
+    for flag in ("drop_tare_points", "keep_past_top"):
+        if isinstance(s.get(flag), bool):
+            kw[flag] = s[flag]
     return Selection(**kw)
 
 
@@ -362,6 +364,7 @@ def build(
     foreign = not_its_sources(tmap, datasets, notes)
     sidecars = [_sidecar(p) for p in paths]
     data = pool(datasets, sel)
+    notes.extend(top_warnings(data.points, tmap.saturation))
     pred = tmap.throttle_pct(data.thrust_n, data.voltage_v, corrected=False)
     residual = np.asarray(pred - data.throttle_pct, dtype=float)
     v = tmap.validity

@@ -563,7 +563,10 @@ def _map_values(rd: ReportData) -> str:
             _td(f"{v.value:.4g} {v.unit}"),
             _td(v.interval_text()),
             _td(f"{v.voltage_v:.4g} V"),
-            _td("EXTRAPOLATED (outside the supported region)" if v.extrapolated else "inside"),
+            _td(
+                ("EXTRAPOLATED (outside the supported region)" if v.extrapolated else "inside")
+                + (f"; {v.basis}" if v.basis else "")
+            ),
         ]
         for v in rd.map_values.all()
     ]
