@@ -113,22 +113,33 @@ def test_fit_leaves_the_plateau_out_and_exports_the_thrust_where_the_esc_saturat
     doc = json.loads((tmp_path / "m.json").read_text())
     assert doc["saturation"]["throttle_pct"] == pytest.approx(84.0)
     assert doc["validity"]["throttle_pct"][1] == pytest.approx(84.0)
-    exp = runner.invoke(cli, ["export", str(tmp_path / "m.json"), "--to", "px4", "-o",
-                              str(tmp_path / "p.params")])  # fmt: skip
-    assert exp.exit_code == 0, exp.output
-    header = (tmp_path / "p.params").read_text()
-    line = next(x for x in header.splitlines() if "full-throttle thrust at" in x)
-    assert "saturated at 84 % (1840 µs)" in line
     assert doc["saturation"]["files"] == ["StepsTest_sat.csv"]
     rep = runner.invoke(cli, ["report", str(tmp_path / "m.json"), "-o", str(tmp_path / "r.html")])
     assert rep.exit_code == 0, rep.output
     html = (tmp_path / "r.html").read_text(encoding="utf-8")
     assert "thrust stops rising at 84.0 % throttle" in html
     assert "saturated at 84 % (1840 µs) on the stand" in html
-    ap = runner.invoke(cli, ["export", str(tmp_path / "m.json"), "--to", "ardupilot", "-o",
-                             str(tmp_path / "a.parm")])  # fmt: skip
-    assert ap.exit_code == 0, ap.output
-    ap_lines = (tmp_path / "a.parm").read_text().splitlines()
+
+    def export(to: str, name: str, *extra: str) -> str:
+        args = ["export", str(tmp_path / "m.json"), "--to", to, "-o", str(tmp_path / name)]
+        res = runner.invoke(cli, [*args, *extra])
+        assert res.exit_code == 0, res.output
+        return (tmp_path / name).read_text(encoding="utf-8")
+
+    # the output range ends where the ESC saturated (as its low end rises to the spin-up)
+    px4 = export("px4", "p.params")
+    assert "\tPWM_MAIN_MAX1\t1840\t" in px4
+    assert "PWM maximum lowered from 2000 to 1840 us" in px4
+    ap = export("ardupilot", "a.parm")
+    assert "MOT_PWM_MAX,1840\n" in ap
+    assert "MOT_PWM_MAX lowered from 2000 to 1840 us" in ap
+    # a range given is kept; the values above the saturation are the thrust there, said so
+    px4_kept = export("px4", "pk.params", "--range", "1240:2000")
+    assert "\tPWM_MAIN_MAX1\t2000\t" in px4_kept
+    assert "PWM maximum 2000 us as given, above 1840 us" in px4_kept
+    line = next(x for x in px4_kept.splitlines() if "full-throttle thrust at" in x)
+    assert "saturated at 84 % (1840 µs)" in line
+    ap_lines = export("ardupilot", "ak.parm", "--range", "1000:2000").splitlines()
     for what in ("full-throttle thrust at", "thrust at MOT_SPIN_MAX (u = 1) at"):
         assert "saturated at 84 % (1840 µs)" in next(x for x in ap_lines if what in x)
 

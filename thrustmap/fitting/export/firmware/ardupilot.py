@@ -30,6 +30,7 @@ from thrustmap.fitting.export.firmware.common import (
     change_lines,
     pack_line,
     pwm_scale,
+    saturation_high_end,
     spin_up_fraction,
     supported_samples,
     throttle_fraction,
@@ -276,7 +277,9 @@ def _k_value(
 def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     rules = ardupilot_rules(opts.firmware)
     require_voltage(tmap, "ardupilot")
-    scale = pwm_scale(opts)
+    scale, top_note = saturation_high_end(
+        tmap, pwm_scale(opts), opts.range_ is not None, "MOT_PWM_MAX"
+    )
     v_max, v_min, bat_why = ardupilot_battery_range(tmap, opts.voltage_v)
     spin_frac, spin_why = spin_up_fraction(tmap, scale)
     spin_min = ardupilot_spin_min(spin_frac, rules)
@@ -313,6 +316,7 @@ def export_ardupilot(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         ("MOT_BAT_VOLT_MIN", shown.bat_volt_min, ".2f"),
     ]
     notes = _ardupilot_notes(tmap, shown, (spin_frac, spin_why, arm), scale, bat_why)
+    notes += [top_note] if top_note else []
     outside = [
         line
         for name, v in (("MOT_BAT_VOLT_MAX", shown.bat_volt_max),

@@ -14,6 +14,7 @@ from thrustmap.core.units import SCALES, ThrottleScale
 from thrustmap.fitting.export.encodings import ExportOptions, Samples, map_samples, target_scale
 from thrustmap.fitting.export.rules import Firmware
 from thrustmap.fitting.mapfile import ThrustMap
+from thrustmap.fitting.mapvalues import saturation_pct
 from thrustmap.fitting.spinup import SpinUp
 
 FloatArray = npt.NDArray[np.float64]
@@ -78,6 +79,37 @@ def idle_low_end(
     return scale.with_range(lo, scale.hi), (
         f"{what} raised from {scale.lo:g} to {lo:g} {scale.unit}: the stand saw reliable "
         "spin and thrust only from there (the curve is fitted above it)"
+    )
+
+
+def saturation_high_end(
+    tmap: ThrustMap, scale: ThrottleScale, given: bool, what: str
+) -> tuple[ThrottleScale, str]:
+    """The output range's top at the command where the stand saw the ESC's output saturate
+    (the map's ``saturation``): lowered to it when the user gave no --range (every command
+    above it adds no thrust, so the mixer's full output belongs there), kept and named when
+    the given range reaches above it. ("", unchanged) when the map saw no saturation."""
+    sat = saturation_pct(tmap)
+    if sat is None:
+        return scale, ""
+    top = float(math.floor(float(SCALES[scale.name].from_pct(sat)) + 1e-9))
+    if top >= scale.hi:
+        return scale, ""
+    if given:
+        return scale, (
+            f"{what} {scale.hi:g} {scale.unit} as given, above {top:g} {scale.unit} where the "
+            "stand saw the ESC's output saturate: commands above it add no thrust"
+        )
+    if not top > scale.lo:
+        raise ConfigError(
+            f"the ESC's output saturated at {top:g} {scale.unit}, at or below the range's low "
+            f"end {scale.lo:g}: recalibrate the ESC's end points and measure again"
+        )
+    return scale.with_range(scale.lo, top), (
+        f"{what} lowered from {scale.hi:g} to {top:g} {scale.unit}: the stand saw the ESC's "
+        "output saturate there (thrust stopped rising), so the mixer's full output is put "
+        "where thrust ends; recalibrating the ESC's end points would give the range back "
+        "(--range keeps yours)"
     )
 
 

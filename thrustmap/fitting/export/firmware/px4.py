@@ -28,6 +28,7 @@ from thrustmap.fitting.export.firmware.common import (
     change_lines,
     idle_low_end,
     pwm_scale,
+    saturation_high_end,
     supported_samples,
     throttle_fraction,
     voltage_outside_line,
@@ -160,9 +161,10 @@ def _bat_v_charged_note(tmap: ThrustMap, b_ref: float) -> str:
 def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
     rules = px4_rules(opts.firmware)
     scale = pwm_scale(opts)
-    idle_note = ""
+    idle_note = top_note = ""
     if scale.name == "pwm":
         scale, idle_note = idle_low_end(tmap, scale, opts.range_ is not None, "PWM minimum")
+        scale, top_note = saturation_high_end(tmap, scale, opts.range_ is not None, "PWM maximum")
     rotors_out = opts.rotors or 4
     pwm_params: list[tuple[str, float, int]] = []
     if scale.name == "pwm":
@@ -245,8 +247,7 @@ def export_px4(tmap: ThrustMap, opts: ExportOptions) -> ExportResult:
         notes.append(hover_line)
         params.append(("MPC_THR_HOVER", hover, 9))
         values["MPC_THR_HOVER"] = hover
-    if idle_note:
-        notes.append(idle_note)
+    notes += [n for n in (idle_note, top_note) if n]
     if pwm_params and len(pwm_params) > 2:
         notes.append(
             f"PWM_MAIN_MINn/MAXn written for outputs 1..{rotors_out} (--rotors); if your motors "
