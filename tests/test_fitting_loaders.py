@@ -396,3 +396,27 @@ def test_flight_stand_with_two_powertrains_loads_the_first_and_says_so(tmp_path:
     ds = load_dataset(write(tmp_path / "coax.csv", "\n".join([header, *rows])))
     assert ds.meta["powertrain"] == "top" and ds.thrust_n[2] == pytest.approx(3.2)
     assert "ignored 'Bottom - ESC throttle (μs)'" in ds.meta["powertrain_note"]
+
+
+def _sparse_rcb_at(path: Path, times: list[float]) -> Path:
+    """A continuous Tyto log: the command and voltage on every row, thrust on every third."""
+    rows = [RCB_HEADER]
+    for k, t in enumerate(times):
+        us = 1100 + 100 * (k // 30)
+        thrust = f"{-(0.5 + 1.5 * (k // 30))}" if k % 3 == 0 else ""
+        rows.append(f"{t:.3f},{us},,,,0,0,-1,,{thrust},{24.0 - 0.001 * k:.3f},1,,,,,")
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_sparse_log_with_a_row_a_few_ms_out_of_order_loads(tmp_path: Path) -> None:
+    """alspitz/esc_test's Tyto log: 4 of 15 875 rows logged up to 10 ms out of order (was
+    refused: "time goes backwards"); a sparse log out of order everywhere still is."""
+    times = [0.01 * k for k in range(120)]
+    times[61], times[62] = times[62], times[61] - 0.008  # one row 18 ms behind its neighbour
+    ds = load_dataset(_sparse_rcb_at(tmp_path / "jitter.csv", times))
+    assert len(ds) == 40  # the thrust rows
+    assert ds.thrust_n[-1] == pytest.approx(0.5 + 1.5 * 3)
+    shuffled = list(np.random.default_rng(3).permutation(times))
+    with pytest.raises(DataFormatError, match="time goes backwards"):
+        load_dataset(_sparse_rcb_at(tmp_path / "shuffled.csv", shuffled))
