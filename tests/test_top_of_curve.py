@@ -212,3 +212,20 @@ def test_a_hand_edited_saturation_is_refused_naming_the_field(
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert "field 'saturation'" in err and "expected a number in 0..100" in err
+
+
+def test_files_that_disagree_on_a_saturation_give_no_saturated_full_throttle(
+    tmp_path: Path,
+) -> None:
+    """One run saturating at 84 %, another of the same motor rising to 100 % (its ESC end
+    points recalibrated between them): the saturation is no property of the map."""
+    esc = np.arange(1200.0, 2001.0, 40.0)
+    u = (esc - 1000.0) / 10.0
+    v = np.linspace(7.59, 7.19, len(esc))
+    sat = _write_steps(tmp_path / "StepsTest_a.csv", esc, _curve(u, v, knee_pct=84.0), v)
+    rising = _write_steps(tmp_path / "StepsTest_b.csv", esc, _curve(u, v), v)
+    out = CliRunner().invoke(cli, ["fit", str(sat), str(rising), "-o", str(tmp_path / "m.json")])
+    assert out.exit_code == 0, out.output
+    assert "StepsTest_a.csv: thrust stops rising at 84.0 %" in out.output
+    assert "a file saturated where another file's thrust still rose" in out.output
+    assert "saturation" not in json.loads((tmp_path / "m.json").read_text())

@@ -320,16 +320,21 @@ def spin_up_block(datasets: Sequence[Dataset]) -> dict[str, Any]:
 SATURATION_AGREE_PCT = 1.0
 
 
+def _tops(points: Sequence[Points]) -> list[tuple[str, dict[str, Any]]]:
+    """(file, what ``selection.top`` found) for each file where it found a top."""
+    return [
+        (p.source, p.report["past_top"])
+        for p in points
+        if isinstance(p.report.get("past_top"), dict)
+    ]
+
+
 def saturation_block(points: Sequence[Points]) -> dict[str, Any]:
     """The map's ``saturation`` block: the lowest command at which a file's thrust stopped
     rising because the ESC's output saturated (``selection.top``), when no other file's points
     reach above it; empty otherwise."""
-    sats = [
-        (p.source, float(p.report["past_top"]["knee_throttle_pct"]))
-        for p in points
-        if isinstance(p.report.get("past_top"), dict)
-        and p.report["past_top"].get("kind") == "saturation"
-    ]
+    sats = [(name, float(c["knee_throttle_pct"])) for name, c in _tops(points)
+            if c.get("kind") == "saturation"]  # fmt: skip
     if not sats:
         return {}
     knee = min(k for _, k in sats)
@@ -343,22 +348,13 @@ def saturation_block(points: Sequence[Points]) -> dict[str, Any]:
 
 
 def top_warnings(points: Sequence[Points], saturation: dict[str, Any]) -> list[str]:
-    """One warning per file whose points past the top of its thrust curve were left out."""
+    """One warning per file whose points past the top of its thrust curve were left out, and
+    one when the files disagree on a saturation."""
     from thrustmap.fitting.selection.top import TopCut
 
-    out = []
-    for p in points:
-        cut = p.report.get("past_top")
-        if isinstance(cut, dict):
-            out.append(f"{p.source}: " + TopCut.describe(cut))
-    if (
-        any(
-            isinstance(p.report.get("past_top"), dict)
-            and p.report["past_top"].get("kind") == "saturation"
-            for p in points
-        )
-        and not saturation
-    ):
+    tops = _tops(points)
+    out = [f"{name}: {TopCut.describe(c)}" for name, c in tops]
+    if any(c.get("kind") == "saturation" for _, c in tops) and not saturation:
         out.append(
             "a file saturated where another file's thrust still rose: the full-throttle thrust "
             "is not read from the saturation (were the ESC's end points recalibrated between "
