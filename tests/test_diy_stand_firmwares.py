@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from support.diy_stand_recordings import mqtb_us, truth
+from support.plant_truth import ToPct, einsz_label, fit_error_vs_truth, percent_of_scale
 
 from thrustmap.cli import cli
 from thrustmap.core.clock import SimClock
@@ -244,38 +245,15 @@ def test_each_simulator_prints_what_its_recording_holds(
     assert any(row_pattern.fullmatch(ln) for ln in printed)
 
 
-def _truth_error(csv: Path, label: str) -> tuple[float, float, int]:
-    from thrustmap.fitting.fit.fitmap import fit_map
-    from thrustmap.fitting.loaders.load import load_dataset
-    from thrustmap.fitting.selection.options import Selection
-    from thrustmap.fitting.selection.points import select
-    from thrustmap.rig.sim.physics import true_throttle_fraction
-    from thrustmap.rig.sim.presets import preset as plant
-
-    ds = load_dataset(csv)
-    tmap = fit_map([ds]).map
-    pts = select(ds, Selection())
-    keep = pts.thrust_n > 0.05 * pts.thrust_n.max()
-    t, b = pts.thrust_n[keep], pts.voltage_v[keep]
-    fraction = true_throttle_fraction(plant("xnova-2207-6s"), 1, t, b)
-    if label == "einsz":  # the firmware's percent is a label of DShot map(pct, 1, 100, 1, 2000)
-        truth_pct = 1.0 + (fraction * 2000.0 - 1.0) * 99.0 / 1999.0
-    else:  # percent of the scale: 1000..2000 µs for the MQTB stand
-        truth_pct = fraction * 100.0
-    err = np.abs(tmap.throttle_pct(t, b, corrected=False) - truth_pct)
-    assert np.all(np.isfinite(err)), err
-    return float(err.mean()), float(err.max()), int(keep.sum())
-
-
 @pytest.mark.parametrize(
     ("name", "args", "label"),
     [
-        ("einsz-whoop", ["--dwell", "2"], "einsz"),
-        ("avenhaus-thrust-stand", ["--dwell", "3"], "pct"),
+        ("einsz-whoop", ["--dwell", "2"], einsz_label),
+        ("avenhaus-thrust-stand", ["--dwell", "3"], percent_of_scale),
     ],
 )
 def test_sweep_on_the_simulated_stand_fits_within_1pct_of_the_truth(
-    tmp_path: Path, name: str, args: list[str], label: str
+    tmp_path: Path, name: str, args: list[str], label: ToPct
 ) -> None:
     out = tmp_path / "run.csv"
     result = CliRunner().invoke(
@@ -285,7 +263,7 @@ def test_sweep_on_the_simulated_stand_fits_within_1pct_of_the_truth(
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "stop verified" in result.output
-    mean, worst, n = _truth_error(out, label)
+    mean, worst, n = fit_error_vs_truth(out, "xnova-2207-6s", label)
     assert n >= 5
     assert mean < 1.0 and worst < 1.5, (mean, worst)
 
@@ -302,7 +280,7 @@ def test_mqtb_own_program_on_the_simulator_fits_within_1pct_of_the_truth(tmp_pat
     assert result.exit_code == 0, result.output
     meta = json.loads(out.with_suffix(".meta.json").read_text())
     assert meta["outcome"]["status"] == "completed" and meta["stop_verified"]
-    mean, worst, n = _truth_error(out, "pct")
+    mean, worst, n = fit_error_vs_truth(out, "xnova-2207-6s")
     assert n >= 100
     assert mean < 1.0 and worst < 1.5, (mean, worst)
 
@@ -453,7 +431,7 @@ def test_einsz_own_sweep_on_the_simulator_fits_within_1pct_of_the_truth(tmp_path
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "stop verified (its end line)" in result.output
-    mean, worst, n = _truth_error(out, "einsz")
+    mean, worst, n = fit_error_vs_truth(out, "xnova-2207-6s", einsz_label)
     assert n >= 100
     assert mean < 1.0 and worst < 1.5, (mean, worst)
 

@@ -20,8 +20,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
+from support.plant_truth import fit_error_vs_truth
 
 fs = pytest.importorskip("FlightStand.flight_stand_api_v1_pb2")
 fs_grpc = pytest.importorskip("FlightStand.flight_stand_api_v1_pb2_grpc")
@@ -118,26 +118,6 @@ def wait_spinning(stub: Any, proc: subprocess.Popen[str], above_us: float = 1200
     raise AssertionError(f"the sweep never drove the ESC above {above_us} µs")
 
 
-def truth_error_pct(csv: Path) -> tuple[float, float, int]:
-    """Mean and max |map - truth| (% throttle) at the run's steady points, and their count."""
-    from thrustmap.fitting.fit.fitmap import fit_map
-    from thrustmap.fitting.loaders.load import load_dataset
-    from thrustmap.fitting.selection.options import Selection
-    from thrustmap.fitting.selection.points import select
-    from thrustmap.rig.sim.physics import true_throttle_fraction
-    from thrustmap.rig.sim.presets import preset
-
-    ds = load_dataset(csv)
-    tmap = fit_map([ds]).map
-    pts = select(ds, Selection())
-    keep = pts.thrust_n > 0.05 * pts.thrust_n.max()  # every point but the motor at rest
-    t, b = pts.thrust_n[keep], pts.voltage_v[keep]
-    truth = true_throttle_fraction(preset(PLANT), 1, t, b) * 100.0
-    err = np.abs(tmap.throttle_pct(t, b, corrected=False) - truth)
-    assert np.all(np.isfinite(err)), err
-    return float(err.mean()), float(err.max()), int(keep.sum())
-
-
 # --------------------------------------------------------------------------- probe, sweep, fit
 
 
@@ -169,7 +149,7 @@ def test_sweep_without_throttle_fits_within_1pct_of_the_truth(
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode == 0, stderr + stdout
     assert "completed" in stdout and "stop verified" in stdout
-    mean, worst, n = truth_error_pct(out)
+    mean, worst, n = fit_error_vs_truth(out, PLANT)
     assert n >= 5
     assert mean < 1.0 and worst < 2.0, (mean, worst)
     # the CLI's own fit reads the file too

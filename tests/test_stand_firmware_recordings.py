@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.plant_truth import fit_error_vs_truth
 
 from thrustmap.core.clock import SimClock
 from thrustmap.core.errors import ConfigError
@@ -314,25 +315,6 @@ def test_victorhook_cannot_be_the_esc_output_the_fc_drives_and_stops_it(tmp_path
 # --------------------------------------------------------------------------- sweeps on the simulator
 
 
-def truth_error_pct(csv: Path, plant: str) -> tuple[float, float, int]:
-    """Mean and max |map - truth| (% throttle) at the run's steady points, and their count."""
-    from thrustmap.fitting.fit.fitmap import fit_map
-    from thrustmap.fitting.loaders.load import load_dataset
-    from thrustmap.fitting.selection.options import Selection
-    from thrustmap.fitting.selection.points import select
-    from thrustmap.rig.sim.physics import true_throttle_fraction
-
-    ds = load_dataset(csv)
-    tmap = fit_map([ds]).map
-    pts = select(ds, Selection())
-    keep = pts.thrust_n > 0.05 * pts.thrust_n.max()  # every point but the motor at rest
-    t, b = pts.thrust_n[keep], pts.voltage_v[keep]
-    truth = true_throttle_fraction(plant_preset(plant), 1, t, b) * 100.0
-    err = np.abs(tmap.throttle_pct(t, b, corrected=False) - truth)
-    assert np.all(np.isfinite(err)), err
-    return float(err.mean()), float(err.max()), int(keep.sum())
-
-
 def thrustmap_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "thrustmap", *args], capture_output=True, text=True, cwd=ROOT
@@ -347,7 +329,7 @@ def test_tinys_own_sweep_on_its_simulator_fits_within_1pct_of_the_truth(tmp_path
     )
     assert r.returncode == 0, r.stderr
     assert "completed: 200 rows, 20 levels; stop verified (its end line)" in r.stdout
-    mean, worst, n = truth_error_pct(out, "crazyflie-2.1")
+    mean, worst, n = fit_error_vs_truth(out, "crazyflie-2.1")
     assert n >= 15 and mean < 1.0 and worst < 2.0, (mean, worst, n)
     meta = (tmp_path / "tiny.meta.json").read_text()
     assert '"status": "completed"' in meta and '"stop_verified": true' in meta
@@ -362,7 +344,7 @@ def test_victorhook_sweep_by_the_fc_on_its_simulator_fits_within_1pct(tmp_path: 
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "completed" in r.stdout and "stop verified" in r.stdout  # stopped by the FC
-    mean, worst, n = truth_error_pct(out, "xnova-2207-6s")
+    mean, worst, n = fit_error_vs_truth(out, "xnova-2207-6s")
     assert n >= 5 and mean < 1.0 and worst < 2.0, (mean, worst, n)
 
 
