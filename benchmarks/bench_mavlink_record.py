@@ -25,8 +25,8 @@ from thrustmap.protocols.mavlink.link import MavlinkSerialLink, open_mavlink
 from thrustmap.protocols.transcript import Transcript, TranscriptWriter, read_transcript
 from thrustmap.protocols.urlhandlers.protocol_record import RecordingSerial
 from thrustmap.protocols.urlhandlers.protocol_sim import SimSerial
+from thrustmap.rig.devices.urls import load_sim_peers
 from thrustmap.rig.fc.mavlink import open_mavlink_output
-from thrustmap.rig.sim import mavlink_peers  # noqa: F401 - registers sim://px4
 
 DEFAULT_DIR = (
     Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "firmware-transcripts"
@@ -89,6 +89,7 @@ def probe_size(directory: Path, out_dir: Path) -> None:
 
 
 def flood_keepalives(out_dir: Path) -> None:
+    load_sim_peers()  # sim://px4 (registering is the rig's job, not an import's side effect)
     clock = SimClock()
     path = out_dir / "flood.jsonl"
     out = open_mavlink_output(
