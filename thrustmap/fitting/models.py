@@ -285,10 +285,19 @@ def command_weights(throttle_pct: FloatArray, groups: IntArray | None = None) ->
     sample's worth each (issue 44: "44 plateaus carry 0 %"; held out by file the map is as
     good or better, see benchmarks/bench_weighting.py)."""
     th = np.asarray(throttle_pct, float)
-    if groups is None or len(groups) != len(th) or len(np.unique(groups)) < 2:
+    if groups is None or len(groups) != len(th):
+        return range_weights(th)
+    # file indices are small and non-negative: counted, not hashed (np.unique over a million
+    # samples cost ~5 ms a call, and every fold weighs its points again)
+    present = (
+        np.flatnonzero(np.bincount(groups))
+        if len(groups) and int(np.min(groups)) >= 0
+        else np.unique(groups)
+    )
+    if len(present) < 2:
         return range_weights(th)
     w = np.zeros(len(th))
-    for g in np.unique(groups):
+    for g in present:
         sel = groups == g
         span = max(float(np.ptp(th[sel])), MIN_FILE_SPAN_PCT)
         w[sel] = range_weights(th[sel]) * span / int(sel.sum())
