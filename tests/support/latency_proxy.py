@@ -31,6 +31,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from support.sockets import tcp_listener
 from thrustmap.protocols.peer import BytePeer
 
 log = logging.getLogger(__name__)
@@ -90,10 +91,7 @@ class LatencyProxy:
         return f"socket://{self.host}:{self.port}"
 
     def start(self) -> LatencyProxy:
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind((self.host, self.port))
-        listener.listen(4)
+        listener = tcp_listener(self.host, self.port, 4)
         self.port = listener.getsockname()[1]
         self._listener = listener
         self._stop.clear()

@@ -10,6 +10,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from support.sockets import tcp_listener
 from thrustmap.protocols.msp.framing import MspCommand, MspDecoder, MspDirection
 from thrustmap.protocols.msp.motor import SetMotor
 from thrustmap.rig.sim.msp_peer import MspPeer
@@ -32,10 +33,7 @@ class MspTcpServer:
         return f"socket://{self.host}:{self.port}"
 
     def start(self) -> MspTcpServer:
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind((self.host, self.port))
-        listener.listen(1)
+        listener = tcp_listener(self.host, self.port, 1)
         self.port = listener.getsockname()[1]
         self._listener = listener
         self._thread = threading.Thread(target=self._serve, name="msp-tcp", daemon=True)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import socket
 import time
 from pathlib import Path
 
@@ -59,3 +60,12 @@ def wait_until_bound(pid: int, port: int, timeout_s: float = 60.0) -> bool:
             return False
         time.sleep(0.02)
     return False
+
+
+def tcp_listener(host: str, port: int, backlog: int) -> socket.socket:
+    """A TCP socket listening on (host, port), port 0 for any free one (``getsockname``)."""
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listener.bind((host, port))
+    listener.listen(backlog)
+    return listener
