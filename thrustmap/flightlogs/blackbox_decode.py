@@ -49,6 +49,7 @@ from thrustmap.flightlogs.blackbox_format import (
     FrameParser,
     ResumeState,
     corruption_summary,
+    frame_stats,
     header_int,
     in_32bit_range,
     kept_fields,
@@ -279,11 +280,9 @@ class _RefState:
 
     @classmethod
     def after(cls, resume: ResumeState | None) -> _RefState:
-        stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
-        stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+        stats = frame_stats(resume)
         if resume is None:
             return cls(stats=stats)
-        stats.update(resume.stats)
         return cls(
             list(resume.slow_rows), list(resume.slow_index), list(resume.gps_rows),
             list(resume.events), stats, list(resume.warnings), list(resume.home),

@@ -298,11 +298,9 @@ class _Aux:
 
     @classmethod
     def after(cls, start: fmt.ResumeState | None) -> _Aux:
-        stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
-        stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+        stats = fmt.frame_stats(start)
         if start is None:
             return cls(stats=stats)
-        stats.update(start.stats)
         return cls(
             list(start.slow_rows), list(start.slow_index), list(start.gps_rows),
             list(start.events), stats, list(start.home), start.last_iter, start.last_time,

@@ -132,6 +132,16 @@ class ResumeState:
     warnings: list[str]
 
 
+def frame_stats(resume: ResumeState | None) -> dict[str, int]:
+    """A decoder's frame counts (frames by type, corrupt, dropped, invalid, skipped bytes),
+    carried on from ``resume`` where a decoder stopped."""
+    stats = {k: 0 for k in ("I", "P", "S", "G", "H", "E")}
+    stats.update(corrupt=0, dropped_p=0, invalid_main=0, skipped_bytes=0)
+    if resume is not None:
+        stats.update(resume.stats)
+    return stats
+
+
 # --- header --------------------------------------------------------------------------------
 
 
